@@ -1,0 +1,172 @@
+"""Eye and head tracking for fovjax: samples, sources, recording and replay, filtering, and the
+fallback when tracking fails.
+
+Conventions (details in each class):
+
+* Gaze: per eye, normalised display coordinates of that eye's own display, origin top-left,
+  x right, y down (`GazeSample`). Head: yaw/pitch/roll in degrees, InertiaCube convention
+  (`HeadPose`).
+* Clock: every source has a ``clock`` (``time.monotonic`` seconds unless stated) and stamps
+  samples on it; ``clock() - sample.timestamp`` is a sample's age.
+* Sources: iterate for every sample in order, ``latest()`` for the newest without blocking,
+  ``open``/``close`` or a ``with`` block.
+* Per frame: `GazeTracker.step(now, samples, display_time)` -> `TrackingFrame` (gaze per eye,
+  state ok/holding/degraded/lost, fovea widening).
+"""
+
+from ._filters import (
+    ExponentialMovingAverage as ExponentialMovingAverage,
+)
+from ._filters import (
+    GazePredictor as GazePredictor,
+)
+from ._filters import (
+    OneEuroFilter as OneEuroFilter,
+)
+from ._filters import (
+    QualityFilter as QualityFilter,
+)
+from ._filters import (
+    VelocityThresholdDetector as VelocityThresholdDetector,
+)
+from ._filters import (
+    angular_speed as angular_speed,
+)
+from ._filters import (
+    ivt_classify as ivt_classify,
+)
+from ._intersense import InterSenseSource as InterSenseSource
+from ._paced import PacedSource as PacedSource
+from ._protocol import (
+    LineParser as LineParser,
+)
+from ._protocol import (
+    ProtocolError as ProtocolError,
+)
+from ._protocol import (
+    checksum as checksum,
+)
+from ._protocol import (
+    format_gaze as format_gaze,
+)
+from ._protocol import (
+    format_head as format_head,
+)
+from ._protocol import (
+    parse_line as parse_line,
+)
+from ._pupil import PupilSource as PupilSource
+from ._pupil import gaze_from_pupil_datum as gaze_from_pupil_datum
+from ._recording import (
+    Recorder as Recorder,
+)
+from ._recording import (
+    Recording as Recording,
+)
+from ._recording import (
+    RecordingSummary as RecordingSummary,
+)
+from ._recording import (
+    ReplaySource as ReplaySource,
+)
+from ._recording import (
+    load_recording as load_recording,
+)
+from ._recording import (
+    record as record,
+)
+from ._samples import (
+    DISPLAY_CENTRE as DISPLAY_CENTRE,
+)
+from ._samples import (
+    MISSING_EYE as MISSING_EYE,
+)
+from ._samples import (
+    EyeGaze as EyeGaze,
+)
+from ._samples import (
+    GazeSample as GazeSample,
+)
+from ._samples import (
+    HeadPose as HeadPose,
+)
+from ._serial import SerialSource as SerialSource
+from ._source import (
+    DeviceError as DeviceError,
+)
+from ._source import (
+    LibraryNotFoundError as LibraryNotFoundError,
+)
+from ._source import (
+    Source as Source,
+)
+from ._source import (
+    SourceStatus as SourceStatus,
+)
+from ._source import (
+    ThreadedSource as ThreadedSource,
+)
+from ._specs import source_from_spec as source_from_spec
+from ._synthetic import (
+    FixedPoints as FixedPoints,
+)
+from ._synthetic import (
+    GazeModel as GazeModel,
+)
+from ._synthetic import (
+    Scanpath as Scanpath,
+)
+from ._synthetic import (
+    SmoothPursuit as SmoothPursuit,
+)
+from ._synthetic import (
+    SyntheticGazeSource as SyntheticGazeSource,
+)
+from ._synthetic import (
+    SyntheticHeadSource as SyntheticHeadSource,
+)
+from ._synthetic import (
+    min_jerk as min_jerk,
+)
+from ._synthetic import (
+    saccade_duration as saccade_duration,
+)
+from ._synthetic import (
+    saccade_peak_velocity as saccade_peak_velocity,
+)
+from ._tracking import (
+    FallbackPolicy as FallbackPolicy,
+)
+from ._tracking import (
+    GazeTracker as GazeTracker,
+)
+from ._tracking import (
+    HeadFrame as HeadFrame,
+)
+from ._tracking import (
+    HeadTracker as HeadTracker,
+)
+from ._tracking import (
+    TrackingFrame as TrackingFrame,
+)
+from ._tracking import (
+    TrackingState as TrackingState,
+)
+from ._tracking import (
+    widen_thresholds as widen_thresholds,
+)
+from ._viewpoint import (
+    EYE_A as EYE_A,
+)
+from ._viewpoint import (
+    EYE_B as EYE_B,
+)
+from ._viewpoint import (
+    QUALITY_CODES as QUALITY_CODES,
+)
+from ._viewpoint import (
+    ViewPointSource as ViewPointSource,
+)
+from ._viewpoint import (
+    viewpoint_to_side_by_side as viewpoint_to_side_by_side,
+)

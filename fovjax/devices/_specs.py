@@ -1,0 +1,122 @@
+"""Open a source from a short text spec, as the command line writes it.
+
+Gaze specs::
+
+    synthetic:scanpath[:SEED]      fixations and main-sequence saccades (seed 0 by default)
+    synthetic:fixed[:X,Y]          one fixed point (default the display centre)
+    synthetic:pursuit              smooth pursuit around the display centre
+    replay:FILE[@SPEED]            a .jsonl/.csv recording, real time or SPEED x ("fast": unpaced)
+    serial:PORT[@BAUD]             the fovjax line protocol on a serial port / pyserial URL
+    pupil:HOST:PORT                Pupil Remote (the 'pupil' extra)
+    viewpoint[:LIBRARY]            ViewPoint SDK library
+Head specs: ``synthetic:sway``, ``replay:FILE``, ``serial:PORT[@BAUD]``, ``intersense[:LIBRARY]``.
+"""
+
+from __future__ import annotations
+
+import time
+
+from ._source import Clock, Source
+
+
+def source_from_spec(
+    spec: str,
+    kind: str = "gaze",
+    *,
+    duration: float | None = None,
+    clock: Clock = time.monotonic,
+    rate: float | None = None,
+) -> Source:
+    """Build (not open) the source a spec names; ValueError says which part of the spec is wrong."""
+    if kind not in ("gaze", "head"):
+        raise ValueError(f"source_from_spec: kind must be 'gaze' or 'head', got {kind!r}")
+    scheme, _, rest = spec.partition(":")
+    if scheme == "synthetic":
+        from ._synthetic import FixedPoints, Scanpath, SmoothPursuit, SyntheticGazeSource, SyntheticHeadSource
+
+        model_name, _, arg = rest.partition(":")
+        if kind == "head":
+            if model_name not in ("sway", ""):
+                raise ValueError(f"source spec {spec!r}: synthetic head model must be 'sway'")
+            return SyntheticHeadSource(duration=duration, clock=clock, rate=rate or 180.0)
+        if model_name == "scanpath":
+            try:
+                seed = int(arg) if arg else 0
+            except ValueError:
+                raise ValueError(f"source spec {spec!r}: scanpath seed {arg!r} is not an integer") from None
+            model = Scanpath(seed)
+        elif model_name == "fixed":
+            try:
+                point = tuple(float(v) for v in arg.split(",")) if arg else (0.5, 0.5)
+            except ValueError:
+                raise ValueError(f"source spec {spec!r}: fixed point {arg!r} is not X,Y") from None
+            if len(point) != 2:
+                raise ValueError(f"source spec {spec!r}: fixed point needs two numbers X,Y")
+            model = FixedPoints([point])
+        elif model_name == "pursuit":
+            model = SmoothPursuit()
+        else:
+            raise ValueError(
+                f"source spec {spec!r}: unknown synthetic gaze model {model_name!r} "
+                "(scanpath, fixed, pursuit)"
+            )
+        return SyntheticGazeSource(model, duration=duration, clock=clock, rate=rate or 120.0)
+    if scheme == "replay":
+        from ._recording import ReplaySource
+
+        path, _, speed_text = rest.partition("@")
+        if not path:
+            raise ValueError(f"source spec {spec!r}: replay needs a file, replay:FILE")
+        if speed_text in ("", "1"):
+            speed = 1.0
+        elif speed_text == "fast":
+            speed = None
+        else:
+            try:
+                speed = float(speed_text)
+            except ValueError:
+                raise ValueError(
+                    f"source spec {spec!r}: replay speed {speed_text!r} is not a number or 'fast'"
+                ) from None
+        source = ReplaySource(path, speed=speed, clock=clock)
+        if source.kind != kind:
+            raise ValueError(f"source spec {spec!r}: {path} is a {source.kind} recording, not {kind}")
+        return source
+    if scheme == "serial":
+        from ._serial import SerialSource
+
+        port, _, baud = rest.partition("@")
+        if not port:
+            raise ValueError(f"source spec {spec!r}: serial needs a port, serial:PORT[@BAUD]")
+        try:
+            baudrate = int(baud) if baud else 115200
+        except ValueError:
+            raise ValueError(f"source spec {spec!r}: baud rate {baud!r} is not an integer") from None
+        return SerialSource(port, kind=kind, baudrate=baudrate, clock=clock)
+    if scheme == "pupil":
+        if kind != "gaze":
+            raise ValueError(f"source spec {spec!r}: Pupil gives gaze, not {kind}")
+        from ._pupil import PupilSource
+
+        host, _, port = rest.rpartition(":") if ":" in rest else (rest, "", "")
+        try:
+            port_number = int(port) if port else 50020
+        except ValueError:
+            raise ValueError(f"source spec {spec!r}: Pupil port {port!r} is not an integer") from None
+        return PupilSource(host or "127.0.0.1", port_number, clock=clock)
+    if scheme == "viewpoint":
+        if kind != "gaze":
+            raise ValueError(f"source spec {spec!r}: ViewPoint gives gaze, not {kind}")
+        from ._viewpoint import ViewPointSource
+
+        return ViewPointSource(rest or None, clock=clock)
+    if scheme == "intersense":
+        if kind != "head":
+            raise ValueError(f"source spec {spec!r}: InterSense gives head pose, not {kind}")
+        from ._intersense import InterSenseSource
+
+        return InterSenseSource(rest or None, clock=clock)
+    raise ValueError(
+        f"source spec {spec!r}: unknown scheme {scheme!r} "
+        "(synthetic, replay, serial, pupil, viewpoint, intersense)"
+    )
