@@ -141,6 +141,8 @@ class TrackingFrame:
 
 
 _DEFAULT_PREDICTOR = GazePredictor()
+# Times are sums of floats; a boundary hit "exactly" should land on the side the docs promise.
+_EPS = 1e-9
 
 
 def _make_filter(smoothing):
@@ -251,12 +253,19 @@ class GazeTracker:
             samples = ()
         elif isinstance(samples, GazeSample):
             samples = (samples,)
-        fresh = sorted(
-            (s for s in samples if s is not None and s.timestamp > self._last_seen), key=lambda s: s.timestamp
-        )
         policy = self.policy
+        fresh = []
+        for s in samples:
+            if s is None:
+                continue
+            if not math.isfinite(s.timestamp):
+                self.rejected["clock"] += 1
+                self._pending.clear()
+            elif s.timestamp > self._last_seen:
+                fresh.append(s)
+        fresh.sort(key=lambda s: s.timestamp)
         for sample in fresh:
-            if math.isfinite(sample.timestamp) and sample.timestamp <= now + policy.max_future:
+            if sample.timestamp <= now + policy.max_future:
                 self._last_seen = sample.timestamp
             clean = self._clean(sample, now)
             if clean is None:
@@ -287,11 +296,11 @@ class GazeTracker:
                 rejected=dict(self.rejected),
             )
         age = now - confirmed.timestamp
-        if age <= policy.hold_for:
+        if age <= policy.hold_for + _EPS:
             step = 0
-            state = TrackingState.OK if age <= policy.stale_after else TrackingState.HOLDING
+            state = TrackingState.OK if age <= policy.stale_after + _EPS else TrackingState.HOLDING
         else:
-            step = min(policy.widen_steps, math.ceil((age - policy.hold_for) / policy.widen_every - 1e-12))
+            step = min(policy.widen_steps, math.ceil((age - policy.hold_for) / policy.widen_every - 1e-6))
             step = max(step, 1)
             state = TrackingState.LOST if step >= policy.widen_steps else TrackingState.DEGRADED
         self._step = step

@@ -1,0 +1,1 @@
+"""Test helpers for the devices layer: a controllable clock and fake peers."""
