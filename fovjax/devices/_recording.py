@@ -22,6 +22,8 @@ import io
 import json
 import math
 import os
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -154,35 +156,55 @@ def record(
     """Write every sample of `source` to `path` until `seconds` of sample time have passed,
     `max_samples` were written, the source ends, or the user interrupts.
 
-    On KeyboardInterrupt (Ctrl-C, SIGINT) the samples the source already received but not yet
-    handed out are drained and written too, the file is flushed and fsynced, and the summary says
-    ``interrupted=True`` (the interrupt is re-raised afterwards when `reraise`).
+    Interrupts lose nothing. Called from the main thread, SIGINT (Ctrl-C) is turned into a stop
+    request for the duration of the call, so the sample being written is finished and no sample is
+    taken from the source without being written; a KeyboardInterrupt raised some other way (e.g.
+    by `on_sample`) is caught as well. Either way the samples the source already received but not
+    yet handed out are drained and written, the file is flushed and fsynced, and the summary says
+    ``interrupted=True`` (with `reraise`, KeyboardInterrupt is raised again afterwards).
     """
     source.open()
+    stop = threading.Event()
+    previous_handler = None
+    if threading.current_thread() is threading.main_thread():
+        previous_handler = signal.signal(signal.SIGINT, lambda signum, frame: stop.set())
     interrupted = False
     first = last = math.nan
-    with Recorder(path, source.kind, metadata=metadata) as recorder:
-        try:
-            for sample in source:
-                recorder.write(sample)
-                if math.isnan(first):
-                    first = sample.timestamp
-                last = sample.timestamp
-                if on_sample is not None:
-                    on_sample(sample)
-                if max_samples is not None and recorder.count >= max_samples:
-                    break
-                if seconds is not None and sample.timestamp - first >= seconds:
-                    break
-        except KeyboardInterrupt:
-            interrupted = True
-            for sample in source.drain():
-                recorder.write(sample)
-                last = sample.timestamp
-            if reraise:
-                recorder.close()
-                raise
-        count = recorder.count
+    try:
+        with Recorder(path, source.kind, metadata=metadata) as recorder:
+            try:
+                while not stop.is_set():
+                    sample = source.read(timeout=0.1)
+                    if sample is None:
+                        if source.exhausted:
+                            break
+                        continue
+                    recorder.write(sample)
+                    if math.isnan(first):
+                        first = sample.timestamp
+                    last = sample.timestamp
+                    if on_sample is not None:
+                        on_sample(sample)
+                    if max_samples is not None and recorder.count >= max_samples:
+                        break
+                    if seconds is not None and sample.timestamp - first >= seconds:
+                        break
+            except KeyboardInterrupt:
+                interrupted = True
+            if stop.is_set():
+                interrupted = True
+            if interrupted:
+                for sample in source.drain():
+                    recorder.write(sample)
+                    if math.isnan(first):
+                        first = sample.timestamp
+                    last = sample.timestamp
+            count = recorder.count
+    finally:
+        if previous_handler is not None:
+            signal.signal(signal.SIGINT, previous_handler)
+    if interrupted and reraise:
+        raise KeyboardInterrupt
     return RecordingSummary(Path(path), count, interrupted, first, last, dict(vars(source.status)))
 
 

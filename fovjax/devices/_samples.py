@@ -81,15 +81,15 @@ class GazeSample:
     def as_row(self) -> dict[str, float | bool]:
         """Flat record (the recording format's field names)."""
         return {
-            "t": self.timestamp,
-            "device_time": self.device_time,
-            "lx": self.left.x,
-            "ly": self.left.y,
-            "lq": self.left.confidence,
+            "t": float(self.timestamp),
+            "device_time": float(self.device_time),
+            "lx": float(self.left.x),
+            "ly": float(self.left.y),
+            "lq": float(self.left.confidence),
             "lv": bool(self.left.valid),
-            "rx": self.right.x,
-            "ry": self.right.y,
-            "rq": self.right.confidence,
+            "rx": float(self.right.x),
+            "ry": float(self.right.y),
+            "rq": float(self.right.confidence),
             "rv": bool(self.right.valid),
         }
 
@@ -121,11 +121,11 @@ class HeadPose:
 
     def as_row(self) -> dict[str, float | bool]:
         return {
-            "t": self.timestamp,
-            "device_time": self.device_time,
-            "yaw": self.yaw,
-            "pitch": self.pitch,
-            "roll": self.roll,
+            "t": float(self.timestamp),
+            "device_time": float(self.device_time),
+            "yaw": float(self.yaw),
+            "pitch": float(self.pitch),
+            "roll": float(self.roll),
             "valid": bool(self.valid),
         }
 

@@ -259,7 +259,7 @@ class SyntheticGazeSource(PacedSource):
         if self.noise_sd > 0:
             # Per-sample generator keyed by (seed, i): the same sample whenever it is asked for.
             n = np.random.default_rng([self.seed, i]).normal(0.0, self.noise_sd, 4)
-            lx, ly, rx, ry = lx + n[0], ly + n[1], rx + n[2], ry + n[3]
+            lx, ly, rx, ry = lx + float(n[0]), ly + float(n[1]), rx + float(n[2]), ry + float(n[3])
         return GazeSample(timestamp, EyeGaze(lx, ly, 1.0, True), EyeGaze(rx, ry, 1.0, True), device_time=t)
 
 
