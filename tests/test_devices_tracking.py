@@ -59,7 +59,7 @@ def test_stale_gaze_holds_then_widens_step_by_step_then_recovers():
     assert states[0.46] == (TrackingState.LOST, 4)
     steps = [step for _, _, step in seen]
     assert steps == sorted(steps)  # widening never goes back while silent
-    assert POLICY.time_to_lost() == pytest.approx(0.55)
+    assert POLICY.time_to_lost() == pytest.approx(0.45)
 
     # Good samples return: the first two do not yet narrow the fovea (recover_after=3).
     now = last + 1.0

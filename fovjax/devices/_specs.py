@@ -26,8 +26,16 @@ def source_from_spec(
     duration: float | None = None,
     clock: Clock = time.monotonic,
     rate: float | None = None,
+    paced: bool = True,
+    dropouts: tuple[tuple[float, float], ...] = (),
 ) -> Source:
-    """Build (not open) the source a spec names; ValueError says which part of the spec is wrong."""
+    """Build (not open) the source a spec names; ValueError says which part of the spec is wrong.
+
+    `duration` and `rate` apply to synthetic sources; ``paced=False`` makes synthetic and replay
+    sources unpaced (as fast as read, timestamps on their own timeline); `dropouts` are silent
+    intervals of a synthetic gaze source."""
+    if dropouts and not spec.startswith("synthetic:"):
+        raise ValueError(f"source spec {spec!r}: dropouts apply to synthetic gaze sources only")
     if kind not in ("gaze", "head"):
         raise ValueError(f"source_from_spec: kind must be 'gaze' or 'head', got {kind!r}")
     scheme, _, rest = spec.partition(":")
@@ -38,7 +46,11 @@ def source_from_spec(
         if kind == "head":
             if model_name not in ("sway", ""):
                 raise ValueError(f"source spec {spec!r}: synthetic head model must be 'sway'")
-            return SyntheticHeadSource(duration=duration, clock=clock, rate=rate or 180.0)
+            if dropouts:
+                raise ValueError(f"source spec {spec!r}: dropouts apply to synthetic gaze sources only")
+            return SyntheticHeadSource(
+                duration=duration, clock=clock, rate=rate or 180.0, speed=1.0 if paced else None
+            )
         if model_name == "scanpath":
             try:
                 seed = int(arg) if arg else 0
@@ -60,7 +72,14 @@ def source_from_spec(
                 f"source spec {spec!r}: unknown synthetic gaze model {model_name!r} "
                 "(scanpath, fixed, pursuit)"
             )
-        return SyntheticGazeSource(model, duration=duration, clock=clock, rate=rate or 120.0)
+        return SyntheticGazeSource(
+            model,
+            duration=duration,
+            clock=clock,
+            rate=rate or 120.0,
+            speed=1.0 if paced else None,
+            dropouts=dropouts,
+        )
     if scheme == "replay":
         from ._recording import ReplaySource
 
@@ -78,7 +97,7 @@ def source_from_spec(
                 raise ValueError(
                     f"source spec {spec!r}: replay speed {speed_text!r} is not a number or 'fast'"
                 ) from None
-        source = ReplaySource(path, speed=speed, clock=clock)
+        source = ReplaySource(path, speed=speed if paced else None, clock=clock)
         if source.kind != kind:
             raise ValueError(f"source spec {spec!r}: {path} is a {source.kind} recording, not {kind}")
         return source

@@ -89,8 +89,9 @@ class FallbackPolicy:
         return QualityFilter(self.min_confidence, self.max_offscreen)
 
     def time_to_lost(self) -> float:
-        """Seconds from the last good sample until widening reaches 1."""
-        return self.hold_for + self.widen_steps * self.widen_every
+        """Seconds from the last good sample after which widening is 1 (step 1 starts right after
+        ``hold_for``, each further step ``widen_every`` later)."""
+        return self.hold_for + (self.widen_steps - 1) * self.widen_every
 
 
 def widen_thresholds(omega0: float, omega1: float, widening: float, omega_full: float) -> tuple[float, float]:

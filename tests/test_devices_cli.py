@@ -1,0 +1,100 @@
+"""The `fovjax record` command, the shipped synthetic recordings, and the fallback seen end to end
+on the recording with a silent second."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fakes.clock import FakeClock
+
+from fovjax.cli import main
+from fovjax.devices import FallbackPolicy, GazeTracker, ReplaySource, TrackingState, load_recording
+
+RECORDINGS = Path(__file__).resolve().parents[1] / "data" / "recordings"
+
+SHIPPED = {
+    "synthetic_scanpath_seed0.jsonl": [
+        "--gaze", "synthetic:scanpath:0", "--seconds", "5", "--fast",
+        "--description", "5 s synthetic scanpath, seed 0, 120 Hz, both eyes at the same point",
+    ],
+    "synthetic_scanpath_seed1_dropout.csv": [
+        "--gaze", "synthetic:scanpath:1", "--seconds", "5", "--fast", "--dropout", "2.0:3.0",
+        "--description", "5 s synthetic scanpath, seed 1, 120 Hz, tracker silent from 2.0 s to 3.0 s",
+    ],
+    "synthetic_pursuit.csv": [
+        "--gaze", "synthetic:pursuit", "--seconds", "5", "--fast",
+        "--description", "5 s synthetic smooth pursuit, circle radius 0.25 at 0.1 Hz, 120 Hz",
+    ],
+    "synthetic_head_sway.csv": [
+        "--head", "synthetic:sway", "--seconds", "5", "--fast",
+        "--description",
+        "5 s synthetic head sway: yaw 20 deg sin(2 pi t / 8 s), " "pitch 5 deg at twice that, 180 Hz",
+    ],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED))
+def test_shipped_recordings_are_labelled_and_regenerate_byte_for_byte(name, tmp_path, capsys):
+    shipped = RECORDINGS / name
+    if not shipped.exists():
+        pytest.skip(f"{shipped} not present")
+    recording = load_recording(shipped)
+    assert recording.metadata["synthetic"] is True and "SYNTHETIC" in recording.metadata["note"]
+    out = tmp_path / name
+    assert main(["record", *SHIPPED[name], "-o", str(out)]) == 0
+    assert f"wrote {len(recording)} " in capsys.readouterr().out
+    assert out.read_bytes() == shipped.read_bytes()
+
+
+def test_record_cli_stops_at_sample_count_and_rejects_bad_options(tmp_path):
+    out = tmp_path / "n.jsonl"
+    assert (
+        main(["record", "--gaze", "synthetic:fixed:0.2,0.3", "--fast", "--samples", "7", "-o", str(out)]) == 0
+    )
+    rec = load_recording(out)
+    assert len(rec) == 7 and rec.samples[0].left.xy == (0.2, 0.3)
+    header = json.loads(out.read_text().splitlines()[0])
+    assert header["kind"] == "gaze" and header["source"] == "synthetic:fixed:0.2,0.3"
+    with pytest.raises(SystemExit):
+        main(["record", "--gaze", "synthetic:scanpath", "--dropout", "soon", "-o", str(out)])
+    with pytest.raises(SystemExit):
+        main(["record", "-o", str(out)])  # neither --gaze nor --head
+
+
+def test_fallback_on_the_dropout_recording_widens_then_recovers():
+    path = RECORDINGS / "synthetic_scanpath_seed1_dropout.csv"
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    clock = FakeClock(0.0)
+    policy = FallbackPolicy()
+    tracker = GazeTracker(policy, predictor=None)
+    frames = []
+    with ReplaySource(path, clock=clock, sleep=clock.sleep) as source:
+        for k in range(int(5.0 * 90)):  # a 90 Hz display
+            clock.t = k / 90.0
+            frames.append(tracker.step(clock.t, [source.latest()], display_time=clock.t))
+    t = np.array([f.time for f in frames])
+    widening = np.array([f.widening for f in frames])
+    states = [f.state for f in frames]
+    before = (t > 0.2) & (t < 2.0)
+    assert all(states[i] is TrackingState.OK for i in np.flatnonzero(before))
+    assert np.all(widening[before] == 0)
+    # The tracker went silent at 2.0 s (last sample at 119/120 s): hold, then widen step by step.
+    last_good = 239 / 120
+    gap = (t >= 2.0) & (t < 3.0)
+    assert np.all(np.diff(widening[gap]) >= 0)
+    assert set(np.round(widening[gap], 3)) == {0.0, 0.25, 0.5, 0.75, 1.0}
+    later = t > 1.0  # (before its first samples the tracker starts out lost)
+    first_widen = t[np.argmax(later & (widening > 0))]
+    assert first_widen == pytest.approx(last_good + policy.hold_for, abs=1.5 / 90)
+    first_full = t[np.argmax(later & (widening == 1.0))]
+    assert first_full == pytest.approx(last_good + policy.time_to_lost(), abs=1.5 / 90)
+    # Samples come back at 3.0 s; after recover_after of them the fovea is back to normal.
+    back = t[np.argmax((t > 3.0) & (widening == 0))]
+    assert 3.0 < back <= 3.0 + (policy.recover_after + 1) / 90 + 1e-9
+    assert all(states[i] is TrackingState.OK for i in np.flatnonzero(t > 3.1))
+    # The gaze never came from nowhere: while widened it stays at the last good sample.
+    held = [f.left for f in frames if f.widening > 0 and f.time > 1.0]
+    assert len(set(held)) == 1 and not any(math.isnan(v) for v in held[0])
