@@ -36,7 +36,7 @@ SHIPPED = {
 
 
 @pytest.mark.parametrize("name", sorted(SHIPPED))
-def test_shipped_recordings_are_labelled_and_regenerate_byte_for_byte(name, tmp_path, capsys):
+def test_shipped_recordings_are_labelled_and_regenerate(name, tmp_path, capsys):
     shipped = RECORDINGS / name
     if not shipped.exists():
         pytest.skip(f"{shipped} not present")
@@ -45,7 +45,12 @@ def test_shipped_recordings_are_labelled_and_regenerate_byte_for_byte(name, tmp_
     out = tmp_path / name
     assert main(["record", *SHIPPED[name], "-o", str(out)]) == 0
     assert f"wrote {len(recording)} " in capsys.readouterr().out
-    assert out.read_bytes() == shipped.read_bytes()
+    # Same header, same samples (to 1e-12: the last digit of a libm sine may differ by platform).
+    regenerated = load_recording(out)
+    assert regenerated.metadata == recording.metadata and len(regenerated) == len(recording)
+    a = np.array([list(r.as_row().values()) for r in recording.samples], dtype=float)
+    b = np.array([list(r.as_row().values()) for r in regenerated.samples], dtype=float)
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-12, equal_nan=True)
 
 
 def test_record_cli_stops_at_sample_count_and_rejects_bad_options(tmp_path):
