@@ -2,6 +2,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fovjax.devices import (
     MISSING_EYE,
@@ -183,3 +185,48 @@ def test_head_tracker_holds_last_pose_then_reports_lost():
     assert frame.state is TrackingState.HOLDING and frame.yaw == 10.0 and head.rejected == 1
     lost = head.step(2.0)
     assert lost.state is TrackingState.LOST and lost.yaw == 10.0
+
+
+def _sample_of(kind, t, x, y):
+    if kind == "good":
+        return GazeSample(t, EyeGaze(x, y, 0.9), EyeGaze(x, y, 0.9))
+    if kind == "nan":
+        return GazeSample(t, EyeGaze(math.nan, y, 0.9), EyeGaze(x, math.inf, 0.9))
+    if kind == "lowq":
+        return GazeSample(t, EyeGaze(x, y, 0.1), EyeGaze(x, y, 0.2))
+    if kind == "invalid":
+        return GazeSample(t, MISSING_EYE, MISSING_EYE)
+    if kind == "off":
+        return GazeSample(t, EyeGaze(x + 2, y, 0.9), EyeGaze(x, y - 2, 0.9))
+    return GazeSample(t + 10.0, EyeGaze(x, y, 0.9), EyeGaze(x, y, 0.9))  # "future": a broken clock
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(0.001, 0.3),
+            st.sampled_from(["good", "nan", "lowq", "invalid", "off", "future", "silence"]),
+            st.floats(0, 1),
+            st.floats(0, 1),
+        ),
+        min_size=1,
+        max_size=60,
+    )
+)
+def test_property_gaze_only_ever_comes_from_good_samples(events):
+    tracker = GazeTracker(FallbackPolicy(recover_after=2), predictor=None)
+    t, good_points, previous_state = 0.0, set(), None
+    for dt, kind, x, y in events:
+        t += dt
+        samples = [] if kind == "silence" else [_sample_of(kind, t, x, y)]
+        if kind == "good":
+            good_points.add((x, y))
+        frame = tracker.step(t + 0.001, samples)
+        assert frame.left == frame.right
+        assert frame.left in good_points or (frame.left == (0.5, 0.5) and frame.state is TrackingState.LOST)
+        assert 0.0 <= frame.widening <= 1.0
+        assert (frame.widening == 0.0) == (frame.state in (TrackingState.OK, TrackingState.HOLDING))
+        assert (frame.widening == 1.0) == (frame.state is TrackingState.LOST)
+        previous_state = frame.state
+    assert previous_state is not None
