@@ -32,7 +32,6 @@ class SerialSource(ThreadedSource):
         baudrate: int = 115200,
         read_timeout: float = 0.05,
         write_timeout: float = 0.5,
-        open_timeout: float = 2.0,
         clock: Clock = time.monotonic,
         backoff_initial: float = 0.05,
         backoff_max: float = 2.0,
@@ -50,7 +49,6 @@ class SerialSource(ThreadedSource):
         self.baudrate = baudrate
         self.read_timeout = read_timeout
         self.write_timeout = write_timeout
-        self.open_timeout = open_timeout
         self.serial_options = dict(serial_options or {})
         self.parser = LineParser(clock)
         self._serial = None

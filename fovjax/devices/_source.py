@@ -15,7 +15,6 @@ Two families share this interface:
 from __future__ import annotations
 
 import collections
-import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -260,7 +259,3 @@ class ThreadedSource(Source[S]):
     @property
     def exhausted(self) -> bool:
         return self._stop.is_set()
-
-
-def finite_or_nan(value: float) -> float:
-    return value if math.isfinite(value) else math.nan

@@ -28,6 +28,7 @@ the left half; `eye_a` changes that.
 
 from __future__ import annotations
 
+import collections
 import ctypes
 import ctypes.util
 import math
@@ -144,8 +145,6 @@ class ViewPointSource(Source[GazeSample]):
         self.flip_y = flip_y
         self._lib = None
         self._callback = None
-        import collections
-
         self._buffer: collections.deque[GazeSample] = collections.deque(maxlen=buffer_size)
         self._cond = threading.Condition()
         self._latest: GazeSample | None = None
