@@ -127,3 +127,19 @@ def test_synthetic_head_and_specs():
     with pytest.raises(ValueError, match="not an integer"):
         source_from_spec("synthetic:scanpath:x")
     assert math.isfinite(Scanpath(0).amplitude_deg((0, 0), (1, 1)))
+
+
+def test_drain_hands_out_each_due_sample_once():
+    clock = FakeClock(0.0)
+    src = SyntheticGazeSource(
+        FixedPoints(), rate=100, duration=1.0, dropouts=[(0.1, 0.2)], clock=clock, sleep=clock.sleep
+    )
+    with src:
+        got = []
+        for _ in range(120):
+            got += src.drain()
+            clock.advance(0.01)
+        assert src.drain() == []
+    times = [round(s.timestamp, 6) for s in got]
+    assert times == sorted(set(times)) and len(times) == 101 - 10
+    assert SyntheticGazeSource(FixedPoints(), speed=None).open().drain() == []

@@ -108,6 +108,25 @@ class PacedSource(Source):
         self.status.samples += 1
         return sample
 
+    def drain(self) -> list:
+        """With pacing: every sample already due but not yet read, in order (so a per-frame caller
+        sees each sample once). Without pacing nothing is 'received' until read: returns []."""
+        if not self.is_open or self.speed is None:
+            return []
+        out = []
+        count = self._count()
+        now_index = self._index_at((self.clock() - self._t0) * self.speed)
+        while self._next <= now_index and (count is None or self._next < count):
+            i = self._next
+            self._next += 1
+            if self._skip(i):
+                continue
+            sample = self._sample(i, self._stamp(i))
+            self._last = sample
+            self.status.samples += 1
+            out.append(sample)
+        return out
+
     def latest(self):
         if not self.is_open:
             return None

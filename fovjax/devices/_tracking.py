@@ -1,8 +1,9 @@
 """What to render from when tracking is good, late, bad or gone: the gaze fallback state machine.
 
 `GazeTracker.step(now, samples, display_time)` is called once per frame with whatever samples
-arrived (or just ``source.latest()``) and returns a `TrackingFrame`: the per-eye gaze to render
-from, a state label, and how far to widen the fovea.
+arrived -- ``source.drain()`` gives every sample received since the previous call, for threaded
+and paced sources alike, or pass ``[source.latest()]`` -- and returns a `TrackingFrame`: the
+per-eye gaze to render from, a state label, and how far to widen the fovea.
 
 States (`FallbackPolicy` holds the times):
 
