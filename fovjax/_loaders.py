@@ -164,31 +164,24 @@ def load_scene(
 # OBJ
 
 
-_RE_V = re.compile(r"^[ \t]*v[ \t]+([^\n]*)", re.M)
-_RE_VT = re.compile(r"^[ \t]*vt[ \t]+([^\n]*)", re.M)
-_RE_VN = re.compile(r"^[ \t]*vn[ \t]+([^\n]*)", re.M)
-_RE_F = re.compile(r"^[ \t]*f[ \t]+([^\n]*)", re.M)
-_RE_F_OR_V = re.compile(r"^[ \t]*(v|vt|vn|f)[ \t]+([^\n]*)", re.M)
-_RE_USEMTL = re.compile(r"^[ \t]*usemtl[ \t]+([^\n]*)", re.M)
-_RE_MTLLIB = re.compile(r"^[ \t]*mtllib[ \t]+([^\n]*)", re.M)
-# First number of every face token (the `v` index), the number after the first slash (`vt`)
-# and the number after the second slash (`vn`); tokens are separated by whitespace.
-_RE_TOKEN_V = re.compile(r"(?:^|(?<=\s))(-?\d+)(?=[/\s]|$)")
-_RE_TOKEN_VT = re.compile(r"(?:^|(?<=\s))-?\d+/(-?\d+)")
-_RE_TOKEN_VN = re.compile(r"/[^/\s]*/(-?\d+)")
-_RE_NEEDS_CLEANUP = re.compile(r"^[ \t]+(?:v|vt|vn|f|usemtl|mtllib)[ \t]|^(?:v|vt|vn|f|usemtl)\t", re.M)
+# Patterns start with a literal newline (the text is given a leading one), which the regex
+# engine finds fast; `^` with re.M would be tried at every character of a large file.
+_RE_USEMTL = re.compile(r"\nusemtl[ \t]+([^\n]*)")
+_RE_MTLLIB = re.compile(r"\nmtllib[ \t]+([^\n]*)")
+_RE_NEEDS_CLEANUP = re.compile(r"\n[ \t]+(?:v|vt|vn|f|usemtl|mtllib)\s|\n(?:v|vt|vn|f|usemtl|mtllib)\t")
 _SYNTHETIC_MTL = "__fovjax_materials__.mtl"
-
-
-def _line_of(text: str, pos: int) -> int:
-    return text.count("\n", 0, pos) + 1
+_WIDTH = {"v": 3, "vt": 1, "vn": 3}
 
 
 def _load_obj(path: Path, data: bytes, textures: _TextureTable):
     import trimesh
 
     text = data.decode("utf-8", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
-    text = _prescan_obj(text, path)
+    text = "\n" + text  # so that every line, the first too, starts after a newline
+    if _RE_NEEDS_CLEANUP.search(text):
+        # trimesh expects keywords at the start of a line followed by one space
+        text = re.sub(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+", r"\1 ", text, flags=re.M)
+    text, counts = _prescan_obj(text, path)
 
     material_names = []
     for raw in _RE_USEMTL.findall(text):
@@ -211,16 +204,25 @@ def _load_obj(path: Path, data: bytes, textures: _TextureTable):
     # Hand trimesh a material library with just the names, so that it groups faces by
     # material and tags each group with its name, without loading any image itself.
     synthetic = "".join(f"newmtl {n}\n" for n in material_names)
-    text = _RE_MTLLIB.sub("", text)
+    text = _RE_MTLLIB.sub("\n", text)  # keep the line breaks, so line numbers stay right
     if material_names:
-        text = f"mtllib {_SYNTHETIC_MTL}\n" + text
+        text = f"mtllib {_SYNTHETIC_MTL}" + text  # on the empty line 0 we added
     try:
         loaded = trimesh.exchange.obj.load_obj(
             io.StringIO(text), resolver=_OneFileResolver(_SYNTHETIC_MTL, synthetic), group_material=True
         )
-    except Exception as e:  # trimesh raises assorted errors on malformed files
+    except Exception as e:  # trimesh raises assorted errors on malformed files: find the line
+        _walk_lines(text, path)
         raise ValueError(f"{path}: could not parse OBJ ({type(e).__name__}: {e})") from e
     geometries = loaded.get("geometry", {})
+    for geometry in geometries.values():
+        arrays = [
+            geometry.get("vertices"),
+            geometry.get("vertex_normals"),
+            getattr(geometry.get("visual"), "uv", None),
+        ]
+        if any(a is not None and not np.isfinite(np.asarray(a, np.float64)).all() for a in arrays):
+            _walk_lines(text, path)  # raises, naming the line with the NaN or inf
 
     # One material per usemtl name, in order of first use in the file; faces without a known
     # material share one default material, listed last.
@@ -317,132 +319,120 @@ class _OneFileResolver:
         return [self.name]
 
 
-def _prescan_obj(text: str, path: Path) -> str:
-    """Validate numbers and indices of an OBJ text; return it ready for trimesh.
+def _prescan_obj(text: str, path: Path) -> tuple[str, dict]:
+    """Check the faces of an OBJ text cheaply; return the text ready for trimesh and the
+    number of v/vt/vn lines.
 
-    The fast path touches each line only through regular expressions and NumPy. Only when it
-    finds a problem (or relative indices, which need the position of each face) do we walk the
-    lines one by one, to name the line or to rewrite the indices.
+    The fast path looks at face lines as one string (NumPy parses the indices); only when it
+    finds something unusual (relative indices, mixed face formats, an index 0 or out of range,
+    fewer than 3 vertices) does `_walk_lines` go through the file line by line, to name the
+    bad line or to rewrite relative indices. Vertex numbers are parsed by trimesh and only
+    rechecked line by line if trimesh fails or returns NaN/inf.
     """
-    if _RE_NEEDS_CLEANUP.search(text):
-        # trimesh expects "f " at the very start of a line, with one space
-        text = re.sub(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+", r"\1 ", text, flags=re.M)
-    counts = {}
-    for key, regex, width in (("v", _RE_V, 3), ("vt", _RE_VT, 1), ("vn", _RE_VN, 3)):
-        lines = regex.findall(text)
-        counts[key] = len(lines)
-        if not lines:
-            continue
-        joined = " ".join(line.split("#", 1)[0] for line in lines) if "#" in text else " ".join(lines)
-        tokens = joined.split()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # fromstring warns when it stops early on a bad token
-            values = np.fromstring(joined, sep=" ") if tokens else np.zeros(0)
-        if values.size != len(tokens) or not np.isfinite(values).all():
-            _report_bad_numbers(text, path, key, regex, width)
+    counts = {key: text.count(f"\n{key} ") for key in ("v", "vt", "vn")}
     if counts["v"] == 0:
         raise ValueError(f"{path}: no vertices ('v' lines) found")
-    face_lines = _RE_F.findall(text)
+    face_lines = [chunk.partition("\n")[0] for chunk in text.split("\nf ")[1:]]
     if not face_lines:
         raise ValueError(f"{path}: no faces ('f' lines) found, so no triangles")
-    joined = " ".join(line.split("#", 1)[0] for line in face_lines)
-    n_tokens = len(joined.split())
-    v_idx = np.array(_RE_TOKEN_V.findall(joined), dtype=np.int64)
-    vt_idx = np.array(_RE_TOKEN_VT.findall(joined), dtype=np.int64)
-    vn_idx = np.array(_RE_TOKEN_VN.findall(joined), dtype=np.int64)
-    problem = v_idx.size != n_tokens or min(len(line.split()) for line in face_lines) < 3
-    relative = False
-    for idx, key in ((v_idx, "v"), (vt_idx, "vt"), (vn_idx, "vn")):
-        if idx.size == 0:
-            continue
-        lo, hi = int(idx.min()), int(idx.max())
-        if hi > counts[key] or lo < -counts[key] or (idx == 0).any():
-            problem = True
-        relative |= lo < 0
-    if problem or relative:
-        text = _walk_faces(text, path)
-    return text
+    if not _faces_look_valid(face_lines, counts):
+        text = _walk_lines(text, path, check_numbers=False)
+    return text, counts
 
 
-def _report_bad_numbers(text, path, key, regex, width):
-    for m in regex.finditer(text):
-        tokens = m.group(1).split("#", 1)[0].split()
-        try:
-            values = [float(t) for t in tokens]
-        except ValueError:
-            raise ValueError(
-                f"{path}:{_line_of(text, m.start())}: {key!r} line has a value that is not a number: "
-                f"{m.group(0).strip()!r}"
-            ) from None
-        if len(values) < width:
-            raise ValueError(
-                f"{path}:{_line_of(text, m.start())}: {key!r} line needs at least {width} numbers: "
-                f"{m.group(0).strip()!r}"
-            )
-        if not np.isfinite(values).all():
-            raise ValueError(
-                f"{path}:{_line_of(text, m.start())}: {key!r} line has a NaN or infinite value: "
-                f"{m.group(0).strip()!r}"
-            )
-    raise ValueError(f"{path}: {key!r} lines could not be parsed")  # not reached in practice
+def _faces_look_valid(face_lines: list[str], counts: dict) -> bool:
+    """True if every face has >= 3 vertices of one uniform format (v, v/vt, v/vt/vn or v//vn)
+    with absolute indices in range. False means "look closer", not necessarily an error."""
+    joined = " ".join(face_lines)
+    if "#" in joined or "-" in joined:
+        return False  # comments or relative indices: the careful path handles them
+    tokens = joined.split()
+    if min(len(line.split()) for line in face_lines) < 3:
+        return False
+    n, first = len(tokens), tokens[0]
+    slashes, double = first.count("/"), "//" in first
+    if slashes > 2 or joined.count("/") != n * slashes or joined.count("//") != (n if double else 0):
+        return False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # fromstring warns when it stops early on a bad token
+        values = np.fromstring(joined.replace("//", " ").replace("/", " "), sep=" ", dtype=np.int64)
+    kinds = ["v", "vn"] if double else ["v", "vt", "vn"][: slashes + 1]
+    if values.size != n * len(kinds):
+        return False
+    values = values.reshape(n, len(kinds))
+    return all(values[:, k].min() >= 1 and values[:, k].max() <= counts[kind] for k, kind in enumerate(kinds))
 
 
-def _walk_faces(text: str, path: Path) -> str:
-    """Check every face line against the vertices defined before it; rewrite relative indices
-    to absolute ones. Raises naming the first bad line."""
+def _walk_lines(text: str, path: Path, check_numbers: bool = True) -> str:
+    """Check the file line by line: numbers of v/vt/vn lines (if `check_numbers`), and every
+    face against the vertices defined before it; rewrite relative face indices to absolute ones
+    (trimesh would resolve them against the end of the file). Raises naming the first bad line."""
+    lines = text.split("\n")
+    totals = {key: text.count(f"\n{key} ") for key in ("v", "vt", "vn")}
     counts = {"v": 0, "vt": 0, "vn": 0}
-    totals = {"v": len(_RE_V.findall(text)), "vt": len(_RE_VT.findall(text)), "vn": len(_RE_VN.findall(text))}
-    pieces, last = [], 0
-    for m in _RE_F_OR_V.finditer(text):
-        key = m.group(1)
-        if key != "f":
+    # the text starts with a newline we added, so list index i is line i of the file
+    for lineno, line in enumerate(lines):
+        key, _, body = line.partition(" ")
+        if key in counts:
+            if check_numbers:
+                _check_numbers(body.split("#", 1)[0].split(), key, line, f"{path}:{lineno}")
             counts[key] += 1
-            continue
-        body = m.group(2).split("#", 1)[0]
-        tokens = body.split()
-        if len(tokens) < 3:
-            raise ValueError(
-                f"{path}:{_line_of(text, m.start())}: face needs at least 3 vertices: {m.group(0).strip()!r}"
-            )
-        new_tokens, changed = [], False
-        for token in tokens:
-            fields = token.split("/")
-            if len(fields) > 3 or not fields[0]:
-                raise ValueError(f"{path}:{_line_of(text, m.start())}: malformed face vertex {token!r}")
-            out = []
-            for field_value, kind in zip(fields, ("v", "vt", "vn"), strict=False):
-                if field_value == "":
-                    out.append("")
-                    continue
-                try:
-                    i = int(field_value)
-                except ValueError:
+        elif key == "f":
+            new = _check_face(body.split("#", 1)[0].split(), counts, totals, line, f"{path}:{lineno}")
+            if new is not None:
+                lines[lineno] = "f " + new
+    return "\n".join(lines)
+
+
+def _check_numbers(tokens, key, line, where):
+    try:
+        values = [float(t) for t in tokens]
+    except ValueError:
+        raise ValueError(
+            f"{where}: {key!r} line has a value that is not a number: {line.strip()!r}"
+        ) from None
+    if len(values) < _WIDTH[key]:
+        raise ValueError(f"{where}: {key!r} line needs at least {_WIDTH[key]} numbers: {line.strip()!r}")
+    if not np.isfinite(values).all():
+        raise ValueError(f"{where}: {key!r} line has a NaN or infinite value: {line.strip()!r}")
+
+
+def _check_face(tokens, counts, totals, line, where) -> str | None:
+    """Validate one face; return it with absolute indices if it had relative ones."""
+    if len(tokens) < 3:
+        raise ValueError(f"{where}: a face needs at least 3 vertices: {line.strip()!r}")
+    changed, out = False, []
+    for token in tokens:
+        fields = token.split("/")
+        if len(fields) > 3 or not fields[0]:
+            raise ValueError(f"{where}: malformed face vertex {token!r} in {line.strip()!r}")
+        new = []
+        for value, kind in zip(fields, ("v", "vt", "vn"), strict=False):
+            if value == "":
+                new.append("")
+                continue
+            try:
+                i = int(value)
+            except ValueError:
+                raise ValueError(
+                    f"{where}: face index {value!r} is not an integer in {line.strip()!r}"
+                ) from None
+            if i < 0:
+                if -i > counts[kind]:
                     raise ValueError(
-                        f"{path}:{_line_of(text, m.start())}: face index {field_value!r} is not an integer"
-                    ) from None
-                n = counts[kind]
-                total = totals[kind]
-                if i < 0:
-                    if -i > n:
-                        raise ValueError(
-                            f"{path}:{_line_of(text, m.start())}: relative {kind} index {i} reaches before "
-                            f"the first {kind} (only {n} defined above this line)"
-                        )
-                    i = n + i + 1
-                    changed = True
-                elif i == 0 or i > total:
-                    raise ValueError(
-                        f"{path}:{_line_of(text, m.start())}: {kind} index {i} out of range "
-                        f"(the file has {total} {kind!r} lines; indices start at 1)"
+                        f"{where}: relative {kind} index {i} reaches before the first {kind!r} line "
+                        f"(only {counts[kind]} defined above this line)"
                     )
-                out.append(str(i))
-            new_tokens.append("/".join(out))
-        if changed:
-            pieces.append(text[last : m.start(2)])
-            pieces.append(" ".join(new_tokens))
-            last = m.end(2)
-    pieces.append(text[last:])
-    return "".join(pieces)
+                i = counts[kind] + i + 1
+                changed = True
+            elif i == 0 or i > totals[kind]:
+                raise ValueError(
+                    f"{where}: {kind} index {i} out of range (the file has {totals[kind]} {kind!r} lines; "
+                    "indices start at 1)"
+                )
+            new.append(str(i))
+        out.append("/".join(new))
+    return " ".join(out) if changed else None
 
 
 # ----------------------------------------------------------------------------------------------

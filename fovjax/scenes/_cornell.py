@@ -85,7 +85,8 @@ def cornell_box(
         mirror_block: make the tall block a mirror (Kd 0.01, Ks 0.95, Ns 1000, Kr 0.95) to
             exercise reflections.
         subdivisions: split every quad into `subdivisions**2` cells (2 triangles each); the
-            default gives the published 32 triangles plus 2 for the light patch.
+            default gives 32 triangles, two for each of the 16 published quads (5 walls, the
+            light patch, 5 faces of each block; the blocks have no bottom face, as published).
         units: "m" or "mm".
     """
     if units not in ("m", "mm"):

@@ -36,7 +36,7 @@ def spheres(*, subdivisions: int = 3, ground_cells: int = 8, light_color=(1.0, 1
     """Four icospheres (red, mirror with Kr 0.85, glossy blue, green) resting on a grey ground
     square (12 m a side, `ground_cells`^2 cells), lit by one point light at (3, 6, 4).
 
-    Each sphere has `20 * 4**subdivisions` triangles: 5,248 in all by default, 368 with
+    Each sphere has `20 * 4**subdivisions` triangles: 5,248 in all by default, 448 with
     `subdivisions=1`. Units are metres, y up. Spheres are closed; the ground is a plane.
     """
     if not 0 <= int(subdivisions) <= 7:
