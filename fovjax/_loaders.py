@@ -353,9 +353,12 @@ def _faces_look_valid(face_lines: list[str], counts: dict) -> bool:
     slashes, double = first.count("/"), "//" in first
     if slashes > 2 or joined.count("/") != n * slashes or joined.count("//") != (n if double else 0):
         return False
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # fromstring warns when it stops early on a bad token
-        values = np.fromstring(joined.replace("//", " ").replace("/", " "), sep=" ", dtype=np.int64)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # fromstring warns (or raises) when it stops early
+            values = np.fromstring(joined.replace("//", " ").replace("/", " "), sep=" ", dtype=np.int64)
+    except (ValueError, DeprecationWarning):
+        return False
     kinds = ["v", "vn"] if double else ["v", "vt", "vn"][: slashes + 1]
     if values.size != n * len(kinds):
         return False
