@@ -22,7 +22,9 @@ class Materials(eqx.Module):
     """Per-material Blinn–Phong parameters, one row per material.
 
     `kr` is the mirror reflectivity (the thesis's Kr), `ns` the specular exponent, `ke` emission.
-    `texture` indexes `Scene.textures` for a diffuse map, or is -1 for none.
+    `texture` indexes `Scene.textures` for a diffuse map, or is -1 for none; with a map the
+    diffuse colour is `kd * texture(uv)` (as MTL multiplies map_Kd by Kd and glTF multiplies
+    baseColorTexture by baseColorFactor).
     """
 
     ka: Float[Array, "M 3"]
@@ -102,6 +104,8 @@ class Scene(eqx.Module):
     - `normals` (V, 3) float32 vertex normals for smooth shading, or None (flat shading);
     - `uvs` (V, 2) float32 texture coordinates, or None;
     - `textures` tuple of (H, W, 3) float32 linear-RGB images referenced by `materials.texture`;
+      row 0 is v = 0 (the image's bottom, OBJ convention), texel [row, col] is centred on
+      u = (col + 0.5) / W, v = (row + 0.5) / H;
     - `ambient` (3,) ambient light colour (multiplied by Ka);
     - `content_hash` sha256 of the geometry (vertices and faces), the BVH cache key.
     """
