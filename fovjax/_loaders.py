@@ -181,7 +181,7 @@ def _load_obj(path: Path, data: bytes, textures: _TextureTable):
     if _RE_NEEDS_CLEANUP.search(text):
         # trimesh expects keywords at the start of a line followed by one space
         text = re.sub(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+", r"\1 ", text, flags=re.M)
-    text, counts = _prescan_obj(text, path)
+    text, _ = _prescan_obj(text, path)
 
     material_names = []
     for raw in _RE_USEMTL.findall(text):
