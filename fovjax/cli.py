@@ -11,6 +11,7 @@ import sys
 # when `fovjax` is run with no arguments.
 _SUBCOMMAND_MODULES = [
     "fovjax.devices._cli",
+    "fovjax.acuity._cli",
 ]
 
 

@@ -1,0 +1,179 @@
+"""`fovjax fit` and `fovjax fit-stability`."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+
+def _fixed(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"--fix expects NAME=VALUE, got {text!r}")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fix {text!r}: {value!r} is not a number") from None
+
+
+def register(subparsers) -> None:
+    from ._fit import SOLVERS
+    from ._models import MODEL_FAMILIES
+
+    p = subparsers.add_parser(
+        "fit",
+        help="fit an acuity model to a CSV and write fits/NAME.json and fits/NAME.png",
+        description="Fit an acuity model V(ω) to a CSV in the acuity schema "
+        "(eccentricity_deg, acuity|mar_arcmin, sd, n, condition, source).",
+    )
+    p.add_argument("data", help="CSV file")
+    p.add_argument("--model", default="exponential", choices=sorted(MODEL_FAMILIES))
+    p.add_argument("--solver", default="levenberg_marquardt", choices=sorted(SOLVERS))
+    p.add_argument(
+        "--fix",
+        type=_fixed,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="hold a parameter fixed (repeatable), e.g. --fix a=1 for relative acuity",
+    )
+    p.add_argument("--condition", default=None, help="the condition to fit when the file has several")
+    p.add_argument(
+        "--mar-reference",
+        default="1",
+        help="for mar_arcmin files: reference MAR in arcmin (1 = decimal acuity) or 'fovea'",
+    )
+    p.add_argument(
+        "--posterior",
+        nargs="?",
+        const="emcee",
+        default=None,
+        choices=("emcee", "bootstrap"),
+        help="add posterior intervals and band (emcee by default, or bootstrap)",
+    )
+    p.add_argument("--nsteps", type=int, default=5000, help="emcee steps per walker")
+    p.add_argument("--nwalkers", type=int, default=32)
+    p.add_argument("--n-boot", type=int, default=1000, help="bootstrap resamples")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--compare", action="store_true", help="also rank exponential, linear_mar, power_mar")
+    p.add_argument("--plot-max", type=float, default=None, help="draw the curves out to this eccentricity")
+    p.add_argument(
+        "-o", "--output", default=None, help="output stem, e.g. fits/NAME (default fits/<csv stem>)"
+    )
+    p.set_defaults(func=run_fit)
+
+    s = subparsers.add_parser(
+        "fit-stability",
+        help="sweep solvers × starts × noise × sizes × ranges; write a table and chart",
+    )
+    s.add_argument("-o", "--output", default="fits/stability", help="output folder")
+    s.add_argument("--runs", action="store_true", help="also write runs.csv, one row per run")
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=run_stability)
+
+
+def _command(args) -> str:
+    parts = ["fovjax", "fit", args.data, "--model", args.model, "--solver", args.solver]
+    for name, value in args.fix:
+        parts += ["--fix", f"{name}={value:g}"]
+    if args.condition is not None:
+        parts += ["--condition", args.condition]
+    if args.mar_reference != "1":
+        parts += ["--mar-reference", args.mar_reference]
+    if args.posterior == "emcee":
+        parts += ["--posterior", "emcee", "--nsteps", str(args.nsteps), "--nwalkers", str(args.nwalkers)]
+    elif args.posterior == "bootstrap":
+        parts += ["--posterior", "bootstrap", "--n-boot", str(args.n_boot)]
+    if args.compare:
+        parts.append("--compare")
+    if args.plot_max is not None:
+        parts += ["--plot-max", f"{args.plot_max:g}"]
+    parts += ["--seed", str(args.seed), "-o", args.output]
+    return shlex.join(parts)
+
+
+def run_fit(args) -> int:
+    from ._compare import compare
+    from ._data import AcuityDataError, load_csv
+    from ._fit import FitError, fit
+    from ._io import fit_record, save_fit
+    from ._plot import plot_corner, plot_fit
+    from ._posterior import PosteriorConvergenceError, bootstrap, sample_posterior
+
+    if args.output is None:
+        args.output = str(Path("fits") / Path(args.data).stem)
+    fixed = dict(args.fix)
+    ref = args.mar_reference if args.mar_reference == "fovea" else float(args.mar_reference)
+    try:
+        data = load_csv(args.data, mar_reference_arcmin=ref)
+        result = fit(data, args.model, solver=args.solver, fixed=fixed, condition=args.condition)
+    except (AcuityDataError, FitError) as err:
+        print(f"fovjax fit: {err}", file=sys.stderr)
+        return 1
+    print(result.summary())
+    samples = None
+    try:
+        if args.posterior == "emcee":
+            samples = sample_posterior(
+                result.data,
+                result.family,
+                start=result,
+                nwalkers=args.nwalkers,
+                nsteps=args.nsteps,
+                seed=args.seed,
+            )
+        elif args.posterior == "bootstrap":
+            samples = bootstrap(result.data, result.family, start=result, n_boot=args.n_boot, seed=args.seed)
+    except PosteriorConvergenceError as err:
+        print(f"fovjax fit: {err}", file=sys.stderr)
+        return 1
+    if samples is not None:
+        lo_hi = samples.intervals()
+        print(
+            f"  {samples.method} ({samples.draws.shape[0]} draws): "
+            + ", ".join(
+                f"{k} = {samples.median[k]:.6g} [{lo_hi[k][0]:.6g}, {lo_hi[k][1]:.6g}]" for k in samples.names
+            )
+        )
+    comparison = None
+    if args.compare:
+        cmp = compare(result.data, fixed={args.model: fixed} if fixed else None, solver=args.solver)
+        print(cmp.table())
+        comparison = cmp.to_dict()
+    stem = Path(args.output)
+    record = fit_record(result, samples, comparison, command=_command(args))
+    json_path = save_fit(stem.with_name(stem.name + ".json"), record)
+    png = plot_fit(result, stem.with_name(stem.name + ".png"), samples=samples, omega_max=args.plot_max)
+    written = [json_path, png]
+    if samples is not None and len(samples.names) > 1:
+        written.append(plot_corner(samples, stem.with_name(stem.name + "_corner.png"), laplace=result))
+    print("wrote " + ", ".join(map(str, written)))
+    return 0
+
+
+def run_stability(args) -> int:
+    from ._stability import SweepConfig, write_sweep
+
+    out = write_sweep(args.output, SweepConfig(seed=args.seed), write_runs=args.runs)
+    print(
+        f"{out['runs']} fits in {out['seconds']:.1f} s; wrote {args.output}/summary.csv, "
+        "by_solver_range.csv, "
+        f"by_start.csv, stability.png"
+    )
+    print(
+        f"{'solver':<20} {'ω_max':>6} {'ok':>6} "
+        + " ".join(
+            f"{k:>14}" for k in ("step_limit", "stalled", "diverged", "singular_step", "unidentifiable")
+        )
+    )
+    for row in out["by_solver_range"]:
+        print(
+            f"{row['solver']:<20} {row['wmax']:>6g} {row['success_rate']:>6.1%} "
+            + " ".join(
+                f"{row[k]:>14}"
+                for k in ("step_limit", "stalled", "diverged", "singular_step", "unidentifiable")
+            )
+        )
+    return 0
