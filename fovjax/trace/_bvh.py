@@ -1,0 +1,182 @@
+"""The flattened BVH pytree, its packing for traversal, and the on-disk cache.
+
+Layout: one int32 table of 16-word rows, indexed by a single "item" id.
+- rows [0, num_nodes) are inner nodes, depth-first:
+  words 0-5 left child box (lo xyz, hi xyz, float32 bits), 6-11 right child box,
+  12 left child item, 13 right child item.
+- rows [num_nodes, num_nodes + F) are triangles in leaf order:
+  words 0-8 the three corners (float32 bits), 9 the original face index, 10 = 1 if it is
+  the last triangle of its leaf.
+A child item >= num_nodes is a leaf: traversal walks its triangles row by row until the
+"last" flag. One row is 64 bytes, one cache line: a traversal step gathers exactly one row,
+whether the ray is at a node or at a triangle (perf-notes: gathers dominate on XLA CPU).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import warnings
+from dataclasses import asdict
+from pathlib import Path
+
+import equinox as eqx
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._build import BuildParams, build_tree
+from ._wide import ROW_WORDS, pack
+
+FORMAT_VERSION = 2
+
+# Host copies of each BVH's geometry, keyed by `BVH.key`, for host callbacks (Embree backend).
+_HOST_GEOMETRY: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+class BVH(eqx.Module):
+    """A BVH ready for `closest_hit` / `occluded`.
+
+    `table` drives the (non-differentiated) traversal; `vertices`/`faces` are the scene's own
+    arrays, used to recompute hit distances and barycentrics differentiably.
+    """
+
+    table: Int[Array, "R 16"]
+    vertices: Float[Array, "V 3"]
+    faces: Int[Array, "F 3"]
+    num_nodes: int = eqx.field(static=True)
+    stack_size: int = eqx.field(static=True)
+    key: str = eqx.field(static=True)
+
+    @property
+    def num_triangles(self) -> int:
+        return int(np.shape(self.faces)[0])
+
+    @property
+    def nbytes(self) -> int:
+        return int(np.asarray(self.table).nbytes)
+
+
+def _cache_dir(cache_dir) -> Path:
+    if cache_dir is not None:
+        return Path(cache_dir)
+    env = os.environ.get("FOVJAX_CACHE_DIR")
+    if env:
+        return Path(env)
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "fovjax" / "bvh"
+
+
+def _key(geometry_hash: str, params: BuildParams) -> str:
+    p = json.dumps(asdict(params), sort_keys=True)
+    return hashlib.sha256(f"{geometry_hash}|{p}|v{FORMAT_VERSION}".encode()).hexdigest()[:32]
+
+
+def _load_cached(path: Path, key: str, n_faces: int):
+    """Return (table, num_nodes, stack_size) or None if the file is absent, unreadable or stale."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            table = np.array(z["table"])
+        ok = (
+            meta.get("key") == key
+            and meta.get("format") == FORMAT_VERSION
+            and table.dtype == np.int32
+            and table.ndim == 2
+            and table.shape[1] == ROW_WORDS
+            and table.shape[0] == meta["num_nodes"] + n_faces
+            and meta.get("sha256") == hashlib.sha256(table.tobytes()).hexdigest()
+        )
+        if not ok:
+            warnings.warn(f"BVH cache {path} is stale or corrupt; rebuilding", stacklevel=3)
+            return None
+        return table, int(meta["num_nodes"]), int(meta["stack_size"])
+    except Exception as exc:  # unreadable: rebuild, never trust
+        warnings.warn(f"BVH cache {path} is unreadable ({exc}); rebuilding", stacklevel=3)
+        return None
+
+
+def _save_cached(path: Path, key: str, table: np.ndarray, num_nodes: int, stack_size: int) -> None:
+    meta = {
+        "key": key,
+        "format": FORMAT_VERSION,
+        "num_nodes": num_nodes,
+        "stack_size": stack_size,
+        "sha256": hashlib.sha256(table.tobytes()).hexdigest(),
+    }
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
+        np.savez(tmp, table=table, meta=np.array(json.dumps(meta)))
+        os.replace(tmp, path)  # atomic: a concurrent reader never sees half a file
+    except OSError as exc:
+        warnings.warn(f"could not write BVH cache {path}: {exc}", stacklevel=3)
+
+
+LAST_BUILD: dict = {}
+
+
+def build_bvh(
+    scene=None,
+    *,
+    vertices=None,
+    faces=None,
+    params: BuildParams | None = None,
+    cache: bool = True,
+    cache_dir: str | os.PathLike | None = None,
+) -> BVH:
+    """Build (or load from the disk cache) the BVH of a `Scene`, or of `vertices`/`faces`.
+
+    The cache key is the geometry hash plus the build parameters; a cached file whose contents
+    do not match its recorded checksum or key is rebuilt. `fovjax.trace.last_build_info()`
+    reports the time taken and whether the cache was used.
+    """
+    from .._scene import geometry_hash, validate_geometry
+
+    params = params or BuildParams()
+    if scene is not None:
+        if vertices is not None or faces is not None:
+            raise ValueError("build_bvh: pass either a scene or vertices/faces, not both")
+        vertices, faces = scene.vertices, scene.faces
+    if vertices is None or faces is None:
+        raise ValueError("build_bvh: need a scene, or both vertices and faces")
+    v, f = validate_geometry(np.asarray(vertices), np.asarray(faces), "build_bvh")
+    ghash = scene.content_hash if scene is not None and scene.content_hash else geometry_hash(v, f)
+    key = _key(ghash, params)
+    t0 = time.perf_counter()
+    path = _cache_dir(cache_dir) / f"{key}.npz"
+    cached = _load_cached(path, key, f.shape[0]) if cache else None
+    if cached is not None:
+        table, num_nodes, stack_size = cached
+        depth = None
+    else:
+        tri = v[f]
+        tree = build_tree(tri.min(axis=1), tri.max(axis=1), params)
+        table, num_nodes, stack_size = pack(tree, tri)
+        depth = tree.depth
+        if cache:
+            _save_cached(path, key, table, num_nodes, stack_size)
+    seconds = time.perf_counter() - t0
+    LAST_BUILD.clear()
+    LAST_BUILD.update(
+        seconds=seconds, from_cache=cached is not None, num_nodes=num_nodes, depth=depth, nbytes=table.nbytes
+    )
+    _HOST_GEOMETRY[key] = (v, f)
+    return BVH(table=table, vertices=v, faces=f, num_nodes=num_nodes, stack_size=stack_size, key=key)
+
+
+def last_build_info() -> dict:
+    """Timing and shape of the most recent `build_bvh` call (seconds, from_cache, num_nodes, ...)."""
+    return dict(LAST_BUILD)
+
+
+def host_geometry(bvh: BVH) -> tuple[np.ndarray, np.ndarray]:
+    """The build-time (vertices, faces) of `bvh` on the host (for callbacks under jit)."""
+    try:
+        return _HOST_GEOMETRY[bvh.key]
+    except KeyError:
+        raise ValueError(
+            "this BVH's host geometry is unknown in this process; build it with build_bvh()"
+        ) from None
