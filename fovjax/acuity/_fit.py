@@ -13,6 +13,10 @@ Jacobian of the (weighted) residuals at the optimum.
 Every fit is checked before numbers are returned. The checks, in order, and the error each raises:
 
 - optimistix stopped at `max_steps`                                -> `StepLimitError`
+  (unless the Gauss–Newton step still to take from the last iterate is below the tolerance:
+  optimistix tests convergence only on accepted steps, and once the remaining step is below
+  floating-point resolution no step can be accepted, so a converged solve can run on to the
+  limit. Such a fit is returned, with `extras["termination"]` saying so.)
 - optimistix reported divergence, a non-finite iterate, or a
   singular linear solve (Gauss–Newton's normal equations)           -> `DivergenceError`
 - the solution has non-finite parameters or residuals              -> `DivergenceError`
@@ -184,6 +188,7 @@ class BatchFit:
     gradient_cosine: np.ndarray  # [B]
     code: np.ndarray  # [B] optimistix result code
     culprit: np.ndarray  # [B] index (into all parameters) of the unconstrained one, or -1
+    converged_at_limit: np.ndarray  # [B] hit max_steps, but the remaining step was below tolerance
 
 
 def batch_fit(
@@ -196,8 +201,8 @@ def batch_fit(
     free: tuple[int, ...] | None = None,
     solver: str = "levenberg_marquardt",
     max_steps: int = 500,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
 ) -> BatchFit:
     """Fit B problems at once (arrays [B, N]; weight 0 drops a point; start [B, P] natural).
 
@@ -244,18 +249,41 @@ def batch_fit(
         [out["p"][:, i] if math.isfinite(family.bounds[i][0]) else data_scale[:, 0] for i in free], axis=1
     )
     signal = np.linalg.norm(acuity[:, :n] * weight[:, :n], axis=1)
-    kind, cond, gcos, culprit = _classify(out["code"], out["p"], jac, r, np.abs(scale), signal)
+    kind, cond, gcos, culprit, at_limit = _classify(
+        out["code"], out["p"], jac, r, np.abs(scale), signal, free, rtol, atol
+    )
     culprit = np.array([free[c] if c >= 0 else -1 for c in culprit])
     return BatchFit(
-        out["p"], kind, out["steps"].astype(int), jac, r, cond, gcos, out["code"].astype(int), culprit
+        out["p"],
+        kind,
+        out["steps"].astype(int),
+        jac,
+        r,
+        cond,
+        gcos,
+        out["code"].astype(int),
+        culprit,
+        at_limit,
     )
 
 
-def _classify(code, p, jac, r, scale, signal):
-    """Outcome of each fit, the equilibrated condition number, the gradient cosine, and the free
-    parameter (index) most to blame for an unidentifiable fit (-1 otherwise)."""
+def _classify(code, p, jac, r, scale, signal, free, rtol, atol):
+    """Outcome of each fit, the equilibrated condition number, the gradient cosine, the free
+    parameter (index) most to blame for an unidentifiable fit (-1 otherwise), and whether a fit
+    that hit the step limit had in fact converged (see `batch_fit`)."""
     nb = code.shape[0]
     kind = np.array([_CODE_KIND.get(int(c), "diverged") for c in code], dtype=object)
+    at_limit = np.zeros(nb, bool)
+    for i in np.flatnonzero(kind == "step_limit"):
+        if not (np.all(np.isfinite(p[i])) and np.all(np.isfinite(r[i])) and np.all(np.isfinite(jac[i]))):
+            continue
+        # The Gauss–Newton step still to take from the final iterate. If it is below the
+        # tolerance, the solve had converged: its termination test only runs on accepted steps,
+        # and a step below floating-point resolution cannot be accepted (f does not change).
+        step = np.linalg.lstsq(jac[i], -r[i], rcond=None)[0]
+        if np.all(np.isfinite(step)) and np.all(np.abs(step) <= rtol * np.abs(p[i, list(free)]) + atol):
+            kind[i] = "ok"
+            at_limit[i] = True
     cond = np.full(nb, np.inf)
     gcos = np.full(nb, np.nan)
     culprit = np.full(nb, -1)
@@ -281,7 +309,7 @@ def _classify(code, p, jac, r, scale, signal):
         elif cond[i] > CONDITION_LIMIT:
             kind[i] = "unidentifiable"
             culprit[i] = int(np.argmax(np.abs(vt[-1])))
-    return kind, cond, gcos, culprit
+    return kind, cond, gcos, culprit, at_limit
 
 
 # -- the public fit -------------------------------------------------------------------------------
@@ -442,10 +470,15 @@ class FitResult:
                 lines.append(f"  {k:>3} = {self.params[k]:.6g} (fixed)")
             else:
                 lo, hi = lo_hi[k]
-                lines.append(
+                line = (
                     f"  {k:>3} = {self.params[k]:.6g} ± {self.stderr[k]:.3g}   "
                     f"{100 * self.level:.0f}% [{lo:.6g}, {hi:.6g}]"
                 )
+                bound = self.family.bounds[self.family.param_names.index(k)][0]
+                if lo <= bound:  # the symmetric interval crosses the bound: show the log-space one
+                    llo, lhi = self.intervals(space="log")[k]
+                    line += f" (log-space [{llo:.6g}, {lhi:.6g}])"
+                lines.append(line)
         m = self.metrics
         lines.append(
             f"  n={m['n']} k={m['k']} R²={m['r2']:.6f} RMSE={m['rmse']:.4g} "
@@ -498,8 +531,8 @@ def fit(
     fixed: dict[str, float] | None = None,
     condition: str | None = None,
     max_steps: int = 500,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
     level: float = 0.95,
 ) -> FitResult:
     """Fit an acuity model by (weighted) least squares with optimistix.
@@ -602,5 +635,10 @@ def fit(
         start=dict(zip(family.param_names, map(float, start), strict=True)),
         level=level,
         jacobian_condition=float(out.condition[0]),
-        extras={"gradient_cosine": float(out.gradient_cosine[0])},
+        extras={
+            "gradient_cosine": float(out.gradient_cosine[0]),
+            "termination": "remaining Gauss–Newton step below tolerance at the step limit"
+            if out.converged_at_limit[0]
+            else "solver",
+        },
     )

@@ -44,6 +44,7 @@ def plot_fit(
         centre, lo, hi = result.band(omega)
         band_label = f"{100 * result.level:.0f}% band (Laplace, delta method)"
     fitted = result.predict(omega)
+    ref = None if reference is None else np.asarray(reference(omega))
     err = data.se
 
     fig = Figure(figsize=(11, 7.2), layout="constrained")
@@ -54,9 +55,7 @@ def plot_fit(
         ax.fill_between(omega, lo, hi, color="tab:blue", alpha=0.25, lw=0, label=band_label)
         ax.plot(omega, fitted, color="tab:blue", lw=1.8, label=f"fit: {result.family.formula}")
         if reference is not None:
-            ax.plot(
-                omega, np.asarray(reference.__call__(omega)), "--", color="0.4", lw=1.2, label=reference_label
-            )
+            ax.plot(omega, ref, "--", color="0.4", lw=1.2, label=reference_label)
         ax.errorbar(
             data.eccentricity_deg,
             data.acuity,
@@ -71,7 +70,8 @@ def plot_fit(
         ax.set_ylabel("acuity")
         if log:
             ax.set_yscale("log")
-            positive = np.concatenate([data.acuity, fitted[fitted > 0]])
+            curves = [data.acuity, fitted, lo] + ([] if ref is None else [ref])
+            positive = np.concatenate([c[c > 0] for c in curves])
             ax.set_ylim(positive.min() / 2, positive.max() * 1.5)
             ax.set_title("log acuity")
         else:
@@ -89,7 +89,8 @@ def plot_fit(
             a, b = intervals[k]
             lines.append(f"{k} = {result.params[k]:.5g}  [{a:.4g}, {b:.4g}]")
     m = result.metrics
-    lines.append(f"R² = {m['r2']:.5f}, RMSE = {m['rmse']:.3g}, n = {m['n']}")
+    r2 = "undefined (constant data)" if not np.isfinite(m["r2"]) else f"{m['r2']:.5f}"
+    lines.append(f"R² = {r2}, RMSE = {m['rmse']:.3g}, n = {m['n']}")
     axes[1].text(
         0.98,
         0.97,
