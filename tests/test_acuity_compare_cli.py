@@ -88,13 +88,20 @@ def test_fit_command_writes_a_record_that_loads_into_a_jittable_model(tmp_path, 
 def test_fit_command_with_bootstrap_and_a_fixed_parameter(tmp_path):
     stem = tmp_path / "pub"
     argv = ["fit", str(PUBLISHED), "--model", "linear_mar", "--fix", "a=1", "--posterior", "bootstrap"]
-    assert main([*argv, "--n-boot", "200", "--plot-max", "20", "-o", str(stem)]) == 0
+    assert main([*argv, "--n-boot", "16", "--plot-max", "20", "-o", str(stem)]) == 0
     record = fa.read_fit(stem.with_suffix(".json"))
     assert record["fixed"] == {"a": 1.0} and record["posterior"]["method"] == "bootstrap"
     assert "--fix a=1" in record["command"] and "--plot-max 20" in record["command"]
     model = fa.load_fit(stem.with_suffix(".json"), estimate="posterior_median")
     assert model.params()["a"] == 1.0
     assert not (tmp_path / "pub_corner.png").exists()  # one free parameter: no corner plot
+
+
+def test_cli_choices_match_the_package():
+    from fovjax.acuity import _cli
+
+    assert set(_cli.MODEL_NAMES) == set(fa.MODEL_FAMILIES)
+    assert set(_cli.SOLVER_NAMES) == set(fa.SOLVERS)
 
 
 def test_fit_command_reports_bad_data(tmp_path, capsys):

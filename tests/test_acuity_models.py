@@ -42,6 +42,7 @@ def test_float32_under_jit_and_finite_gradients(model):
     omega = jnp.linspace(0.0, 40.0, 9, dtype=jnp.float32)
     out = jax.jit(lambda m, w: m(w))(model, omega)
     assert out.dtype == jnp.float32
+    assert jax.jit(lambda w: model(w))(omega).dtype == jnp.float32  # model closed over
     with jax.enable_x64(True):
         ref = np.asarray(model(jnp.asarray(np.linspace(0.0, 40.0, 9))))
     np.testing.assert_allclose(np.asarray(out), ref, rtol=2e-6, atol=1e-7)

@@ -18,10 +18,13 @@ def _fixed(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--fix {text!r}: {value!r} is not a number") from None
 
 
-def register(subparsers) -> None:
-    from ._fit import SOLVERS
-    from ._models import MODEL_FAMILIES
+# Spelled out so that building the `fovjax` parser does not import jax/optimistix; a test checks
+# them against `fovjax.acuity.MODEL_FAMILIES` and `SOLVERS`.
+MODEL_NAMES = ("exponential", "linear_mar", "power_mar")
+SOLVER_NAMES = ("levenberg_marquardt", "gauss_newton", "dogleg", "bfgs")
 
+
+def register(subparsers) -> None:
     p = subparsers.add_parser(
         "fit",
         help="fit an acuity model to a CSV and write fits/NAME.json and fits/NAME.png",
@@ -29,8 +32,8 @@ def register(subparsers) -> None:
         "(eccentricity_deg, acuity|mar_arcmin, sd, n, condition, source).",
     )
     p.add_argument("data", help="CSV file")
-    p.add_argument("--model", default="exponential", choices=sorted(MODEL_FAMILIES))
-    p.add_argument("--solver", default="levenberg_marquardt", choices=sorted(SOLVERS))
+    p.add_argument("--model", default="exponential", choices=MODEL_NAMES)
+    p.add_argument("--solver", default="levenberg_marquardt", choices=SOLVER_NAMES)
     p.add_argument(
         "--fix",
         type=_fixed,

@@ -1,10 +1,11 @@
 """Least-squares fitting of acuity models with optimistix.
 
 Precision: fits run in float64 inside `jax.enable_x64(True)`, a thread-local context that is
-restored on exit, so the rest of the package (the renderer) stays float32. Why float64: the
-residuals of a fit to its own curve are ~1e-9, and the Jacobian of a·exp(−ω/b) + c is badly
-scaled (c's column is all ones, b's is ~ a·ω/b²·exp(−ω/b)); float32 leaves ~1e-4 relative noise in
-the parameters and covariances that are only good to a couple of digits.
+restored on exit, so the rest of the package (the renderer) stays float32. Why float64: on the
+thesis's curve samples float32 still finds the parameters to ~1e-7–1e-6 relative, but its rounding
+(~1e-8 in the residuals) swamps the data's own 1e-11, so covariances and posteriors of
+near-exact data come out ~1000× too wide, and Gauss–Newton in float32 did not meet rtol 1e-6
+within 500 steps.
 
 The solver works on an unconstrained vector u: each parameter is mapped through the transform its
 bounds imply (b = exp(u_b) > 0). The covariance is reported for the natural parameters, from the
@@ -38,7 +39,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from scipy import stats
 
 from ._data import AcuityData, AcuityDataError, from_arrays
 from ._models import AcuityModel, model_family
@@ -424,6 +424,8 @@ class FitResult:
 
     def quantile(self, level: float | None = None) -> float:
         """Two-sided critical value: Student-t on the residual dof when σ was estimated, else normal."""
+        from scipy import stats  # imported here: scipy.stats costs ~1 s at `fovjax` start-up
+
         level = self.level if level is None else level
         tail = 0.5 + 0.5 * level
         if self.data.weighted:

@@ -5,16 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Ellipse
 
 from ._fit import FitResult
 from ._models import THESIS_MODEL, AcuityModel
 from ._posterior import Samples
 
 
-def _save(fig: Figure, path: str | Path) -> Path:
+def _save(fig, path: str | Path) -> Path:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
@@ -34,6 +33,8 @@ def plot_fit(
     """Data, fitted curve, band (posterior if `samples` is given, else delta-method Laplace),
     an optional reference curve, on linear and log acuity axes, and the residuals. The curves
     run from 0 to `omega_max` (default: just past the last data point)."""
+    from matplotlib.figure import Figure  # imported on use: matplotlib is slow to import
+
     data = result.data
     top = omega_max if omega_max is not None else float(data.eccentricity_deg.max()) * 1.05 or 1.0
     omega = np.linspace(0.0, top, 400)
@@ -115,6 +116,9 @@ def plot_fit(
 def plot_corner(samples: Samples, path: str | Path, laplace: FitResult | None = None) -> Path:
     """Corner-style chart: marginal histograms on the diagonal, pairwise 2-D histograms below,
     with the Laplace (least-squares covariance) 1σ and 2σ ellipses and optimum when given."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Ellipse
+
     names = samples.names
     k = len(names)
     fig = Figure(figsize=(2.6 * k + 0.6, 2.6 * k + 0.4), layout="constrained")

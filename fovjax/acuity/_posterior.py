@@ -20,7 +20,6 @@ import math
 import warnings
 from dataclasses import dataclass, field
 
-import emcee
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -144,6 +143,8 @@ def sample_posterior(
     """
     if on_fail not in ("raise", "warn"):
         raise ValueError(f"on_fail must be 'raise' or 'warn', not {on_fail!r}")
+    import emcee  # imported on use: it pulls in scipy.stats (~1.5 s)
+
     family = model_family(model)
     data = _single_condition(_as_data(data), condition)
     best = start if start is not None else fit(data, family, solver=solver, fixed=fixed, level=level)
