@@ -11,14 +11,18 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._bvh import BVH
+from ._packet import traverse_packets
 from ._traverse import traverse
 
 BACKENDS = ("jax", "embree")
 
-# Traversal tuning (see benchmarks/trace_throughput.py): rays in flight at once, and how many
-# traversal steps run between refills of finished lanes.
+# Traversal tuning, measured with benchmarks/trace_throughput.py on a 2-core CPU: rays (or
+# packets) in flight, and traversal steps between refills of finished lanes.
 DEFAULT_LANES = 1 << 14
+DEFAULT_PACKETS = 256
 DEFAULT_STEPS_PER_REFILL = 4
+
+Packet = int | tuple[int, int] | None
 
 
 class Hit(NamedTuple):
@@ -31,12 +35,33 @@ class Hit(NamedTuple):
     v: Float[Array, "*batch"]
 
 
-def _check_backend(backend: str) -> None:
+def _check(backend: str, packet: Packet) -> None:
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if packet is None:
+        return
+    sizes = (packet,) if isinstance(packet, int) else tuple(packet)
+    if len(sizes) not in (1, 2) or any(not isinstance(s, int) or s < 1 for s in sizes):
+        raise ValueError(f"packet must be None, a positive int or a (height, width) tile, got {packet!r}")
 
 
-def _flatten_rays(origins, directions, tmin, tmax):
+def _tile_order(batch: tuple[int, ...], tile: tuple[int, int]) -> np.ndarray:
+    """Flat indices of the rays of an (..., H, W) batch regrouped into tile-sized packets,
+    tile by tile; -1 marks padding where H or W is not a multiple of the tile."""
+    if len(batch) < 2:
+        raise ValueError(f"a (height, width) packet needs rays with at least 2 batch dimensions, got {batch}")
+    *lead, h, w = batch
+    th, tw = tile
+    hp, wp = -(-h // th) * th, -(-w // tw) * tw
+    idx = np.full((*lead, hp, wp), -1, np.int64)
+    idx[..., :h, :w] = np.arange(int(np.prod(batch))).reshape(batch)
+    nl = len(lead)
+    idx = idx.reshape(*lead, hp // th, th, wp // tw, tw)
+    axes = (*range(nl), nl, nl + 2, nl + 1, nl + 3)
+    return idx.transpose(axes).reshape(-1)
+
+
+def _prepare(origins, directions, tmin, tmax, packet: Packet):
     origins = jnp.asarray(origins, jnp.float32)
     directions = jnp.asarray(directions, jnp.float32)
     if origins.shape[-1:] != (3,) or directions.shape[-1:] != (3,):
@@ -48,7 +73,23 @@ def _flatten_rays(origins, directions, tmin, tmax):
     d = jnp.broadcast_to(directions, batch + (3,)).reshape(-1, 3)
     tmin = jnp.broadcast_to(jnp.asarray(tmin, jnp.float32), batch).reshape(-1)
     tmax = jnp.broadcast_to(jnp.asarray(tmax, jnp.float32), batch).reshape(-1)
-    return batch, o, d, tmin, tmax
+    order = None
+    if isinstance(packet, tuple | list):
+        order = _tile_order(batch, tuple(packet))
+        src = np.maximum(order, 0)
+        pad = order < 0
+        o, d, tmin, tmax = o[src], jnp.where(pad[:, None], 0.0, d[src]), tmin[src], tmax[src]
+    return batch, o, d, tmin, tmax, order
+
+
+def _restore(x, order, n):
+    """Undo `_tile_order` on a traced per-ray result."""
+    if order is None:
+        return x
+    inverse = np.empty(n, np.int64)
+    keep = order >= 0
+    inverse[order[keep]] = np.flatnonzero(keep)
+    return x[inverse]
 
 
 def hit_geometry(vertices, faces, prim, origins, directions):
@@ -74,10 +115,16 @@ def hit_geometry(vertices, faces, prim, origins, directions):
     return jnp.where(ok, t, jnp.inf), jnp.where(ok, u, 0.0), jnp.where(ok, v, 0.0)
 
 
-@functools.partial(jax.jit, static_argnames=("backend", "any_hit", "lanes", "steps_per_refill"))
-def _raw_query(bvh, o, d, tmin, tmax, *, backend, any_hit, lanes, steps_per_refill):
+@functools.partial(
+    jax.jit, static_argnames=("backend", "any_hit", "packet_size", "lanes", "packets", "steps_per_refill")
+)
+def _raw_query(bvh, o, d, tmin, tmax, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill):
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
-    if backend == "jax":
+    if backend == "embree":
+        from ._embree import embree_query
+
+        return embree_query(bvh, o, d, tmin, tmax, any_hit=any_hit)
+    if packet_size is None:
         return traverse(
             bvh.table,
             bvh.num_nodes,
@@ -90,9 +137,41 @@ def _raw_query(bvh, o, d, tmin, tmax, *, backend, any_hit, lanes, steps_per_refi
             lanes=lanes,
             steps_per_refill=steps_per_refill,
         )
-    from ._embree import embree_query
+    return traverse_packets(
+        bvh.table,
+        bvh.num_nodes,
+        bvh.stack_size,
+        o,
+        d,
+        tmin,
+        tmax,
+        any_hit=any_hit,
+        packet_size=packet_size,
+        packets=packets,
+        steps_per_refill=steps_per_refill,
+    )
 
-    return embree_query(bvh, o, d, tmin, tmax, any_hit=any_hit)
+
+def _query(
+    bvh, origins, directions, tmin, tmax, *, any_hit, backend, packet, lanes, packets, steps_per_refill
+):
+    _check(backend, packet)
+    batch, o, d, tmin_f, tmax_f, order = _prepare(origins, directions, tmin, tmax, packet)
+    packet_size = None if packet is None else int(np.prod(packet))
+    _, prim = _raw_query(
+        bvh,
+        o,
+        d,
+        tmin_f,
+        tmax_f,
+        backend=backend,
+        any_hit=any_hit,
+        packet_size=packet_size,
+        lanes=lanes,
+        packets=packets,
+        steps_per_refill=steps_per_refill,
+    )
+    return batch, o, d, prim, order
 
 
 def closest_hit(
@@ -103,35 +182,45 @@ def closest_hit(
     tmax: float | Float[Array, "*batch"] = jnp.inf,
     *,
     backend: str = "jax",
+    packet: Packet = None,
     vertices: Float[Array, "V 3"] | None = None,
     lanes: int = DEFAULT_LANES,
+    packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
 ) -> Hit:
     """The nearest triangle hit by each ray with tmin < t < tmax.
 
-    Any batch shape; float32; jit-compatible (compiled once per batch shape and BVH). Directions
-    need not be normalised (t is in units of the direction's length). Rays with a NaN/inf
-    component or a zero direction miss. `t, u, v` are recomputed from the hit triangle's
-    corners, so `jax.grad` flows to `origins`, `directions` and `vertices` (pass `vertices` to
-    differentiate w.r.t. positions other than the build-time ones; traversal still uses the
-    build-time geometry). Visibility changes are not differentiated.
+    Any batch shape; float32; jit-compatible (compiled once per batch shape, BVH and options).
+    Directions need not be normalised (t is in units of the direction's length). Rays with a
+    NaN/inf component or a zero direction miss.
+
+    `packet` chooses the traversal: None traces every ray on its own (any rays); an int P groups
+    consecutive rays into packets of P that share one traversal; a tile (h, w) does the same for
+    h x w tiles of the last two batch dimensions (camera rays of an image). Packets pay off for
+    coherent rays only; results are identical either way.
+
+    `t, u, v` are recomputed from the hit triangle's corners, so `jax.grad` flows to `origins`,
+    `directions` and `vertices` (pass `vertices` to differentiate w.r.t. positions other than
+    the build-time ones; traversal still uses the build-time geometry). Which triangle is hit
+    (visibility) is not differentiated.
     """
-    _check_backend(backend)
-    batch, o, d, tmin_f, tmax_f = _flatten_rays(origins, directions, tmin, tmax)
-    _, prim = _raw_query(
+    batch, o, d, prim, order = _query(
         bvh,
-        o,
-        d,
-        tmin_f,
-        tmax_f,
-        backend=backend,
+        origins,
+        directions,
+        tmin,
+        tmax,
         any_hit=False,
+        backend=backend,
+        packet=packet,
         lanes=lanes,
+        packets=packets,
         steps_per_refill=steps_per_refill,
     )
     verts = bvh.vertices if vertices is None else vertices
     t, u, v = hit_geometry(verts, bvh.faces, prim, o, d)
-    return Hit(t=t.reshape(batch), prim=prim.reshape(batch), u=u.reshape(batch), v=v.reshape(batch))
+    n = int(np.prod(batch))
+    return Hit(*(_restore(x, order, n).reshape(batch) for x in (t, prim, u, v)))
 
 
 def occluded(
@@ -142,30 +231,33 @@ def occluded(
     *,
     tmin: float | Float[Array, "*batch"] = 0.0,
     backend: str = "jax",
+    packet: Packet = None,
     lanes: int = DEFAULT_LANES,
+    packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
 ) -> Bool[Array, "*batch"]:
     """Whether anything lies on each ray with tmin < t < tmax (a shadow ray; stops at the
-    first hit found, not the nearest)."""
-    _check_backend(backend)
-    batch, o, d, tmin_f, tmax_f = _flatten_rays(origins, directions, tmin, tmax)
-    _, prim = _raw_query(
+    first hit found, not the nearest). Options as for `closest_hit`."""
+    batch, _, _, prim, order = _query(
         bvh,
-        o,
-        d,
-        tmin_f,
-        tmax_f,
-        backend=backend,
+        origins,
+        directions,
+        tmin,
+        tmax,
         any_hit=True,
+        backend=backend,
+        packet=packet,
         lanes=lanes,
+        packets=packets,
         steps_per_refill=steps_per_refill,
     )
-    return (prim >= 0).reshape(batch)
+    return _restore(prim >= 0, order, int(np.prod(batch))).reshape(batch)
 
 
 def brute_force_closest_hit(vertices, faces, origins, directions, tmin=0.0, tmax=np.inf):
     """Reference: every ray against every triangle, float64 Möller–Trumbore with an
-    inclusive edge test, on the host. For tests on small meshes."""
+    inclusive edge test, on the host. Returns (t, prim, t_all) with t = inf, prim = -1 on a
+    miss and t_all the (rays, faces) distances (inf where a face is missed). For small meshes."""
     v = np.asarray(vertices, np.float64)[np.asarray(faces)]
     o = np.asarray(origins, np.float64).reshape(-1, 1, 3)
     d = np.asarray(directions, np.float64).reshape(-1, 1, 3)

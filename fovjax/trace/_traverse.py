@@ -54,14 +54,14 @@ def _ray_setup(o, d):
 
 
 def _pick(x, k):
-    """x[:, k] for a per-ray component index k, as selects (no gather)."""
-    return jnp.where(k == 0, x[:, 0], jnp.where(k == 1, x[:, 1], x[:, 2]))
+    """x[..., k] for a per-ray component index k, as selects (no gather)."""
+    return jnp.where(k == 0, x[..., 0], jnp.where(k == 1, x[..., 1], x[..., 2]))
 
 
 def _watertight(v0, v1, v2, o, perm, shear):
     """Woop-Benthin-Wald watertight ray/triangle test. Returns (hit, t)."""
-    kx, ky, kz = perm[:, 0], perm[:, 1], perm[:, 2]
-    sx, sy, sz = shear[:, 0], shear[:, 1], shear[:, 2]
+    kx, ky, kz = perm[..., 0], perm[..., 1], perm[..., 2]
+    sx, sy, sz = shear[..., 0], shear[..., 1], shear[..., 2]
     a, b, c = v0 - o, v1 - o, v2 - o
     az, bz, cz = _pick(a, kz), _pick(b, kz), _pick(c, kz)
     ax = _pick(a, kx) - sx * az
@@ -81,19 +81,27 @@ def _watertight(v0, v1, v2, o, perm, shear):
     return ~outside & (det != 0), t
 
 
-def _decode_children(row, o, inv_d):
-    """Slab entry/exit distances of a wide node's four quantised child boxes: (W, 4) each."""
-    origin = lax.bitcast_convert_type(row[:, 0:3], jnp.float32)
+def _decode_boxes(row):
+    """A wide node's four quantised child boxes: per axis (lo, hi), each row.shape[:-1] + (4,)."""
+    origin = lax.bitcast_convert_type(row[..., 0:3], jnp.float32)
     shifts = jnp.arange(4, dtype=jnp.int32) * 8
-    t_lo, t_hi = [], []
+    boxes = []
     for axis in range(3):
-        scale_bits = ((row[:, 3] >> (8 * axis)) & 255) << 23
-        scale = lax.bitcast_convert_type(scale_bits, jnp.float32)[:, None]
-        q_lo = ((row[:, 4 + 2 * axis, None] >> shifts) & 255).astype(jnp.float32)
-        q_hi = ((row[:, 5 + 2 * axis, None] >> shifts) & 255).astype(jnp.float32)
-        base = origin[:, axis, None]
-        t0 = (base + q_lo * scale - o[:, axis, None]) * inv_d[:, axis, None]
-        t1 = (base + q_hi * scale - o[:, axis, None]) * inv_d[:, axis, None]
+        scale_bits = ((row[..., 3] >> (8 * axis)) & 255) << 23
+        scale = lax.bitcast_convert_type(scale_bits, jnp.float32)[..., None]
+        q_lo = ((row[..., 4 + 2 * axis, None] >> shifts) & 255).astype(jnp.float32)
+        q_hi = ((row[..., 5 + 2 * axis, None] >> shifts) & 255).astype(jnp.float32)
+        base = origin[..., axis, None]
+        boxes.append((base + q_lo * scale, base + q_hi * scale))
+    return boxes
+
+
+def _slab4(boxes, o, inv_d):
+    """Entry/exit distances of rays (o, inv_d: (..., 3)) through boxes broadcast against (..., 4)."""
+    t_lo, t_hi = [], []
+    for axis, (lo, hi) in enumerate(boxes):
+        t0 = (lo - o[..., axis, None]) * inv_d[..., axis, None]
+        t1 = (hi - o[..., axis, None]) * inv_d[..., axis, None]
         t_lo.append(jnp.minimum(t0, t1))
         t_hi.append(jnp.maximum(t0, t1))
     t_near = jnp.maximum(jnp.maximum(t_lo[0], t_lo[1]), t_lo[2])
@@ -118,11 +126,13 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     them XLA:CPU re-derives the child-box decode inside every consumer kernel (eight copies,
     ~4x the step time, measured with jax.profiler).
     """
+    barrier = lax.optimization_barrier
+    # A step is a unit: nothing is fused across its start (it would be recomputed per consumer).
+    rays, state = barrier((rays, state))
     o, inv_d, perm, shear, tmin = rays
     cur, sp, stack, t_best, prim = state
     w = cur.shape[0]
     lane = jnp.arange(w)
-    barrier = lax.optimization_barrier
 
     active = cur >= 0
     # Lanes with nothing to do read row 0, which stays in cache.
@@ -130,7 +140,7 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     is_node = cur < num_nodes
 
     # As a 4-wide node: entry distance of each child, inf where the ray misses it.
-    t_near, t_far = _decode_children(row, o, inv_d)
+    t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
     t_near = jnp.maximum(t_near, tmin[:, None])
     t_far = jnp.minimum(t_far, t_best[:, None])
     child = row[:, 10:14]
@@ -187,6 +197,30 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     return cur, sp, stack, t_best, prim
 
 
+def lanes_for(n: int, lanes: int, floor: int = 256) -> int:
+    """Lanes in flight for n rays: at most `lanes`, and few enough that each lane traces ~16
+    rays, so the tail (the last rays finishing while the queue is empty) stays a small part."""
+    target = 1 << max(int(np.log2(max(n, 1) / 16)), 0)
+    return int(min(lanes, max(floor, target)))
+
+
+def _run_steps(step, table, num_nodes, stack_size, any_hit, rays, state, count, like):
+    """`count` steps, each its own while-loop iteration.
+
+    A loop iteration is a hard boundary for XLA's fusion; unrolled steps were fused across
+    (optimization barriers are expanded before fusion on XLA:CPU), and then every consumer
+    re-derived its inputs from earlier steps. The trip count is a traced value so XLA does not
+    unroll the loop either.
+    """
+    count = jnp.asarray(count, jnp.int32) + jnp.zeros_like(like, jnp.int32)
+
+    def body(c):
+        i, st = c
+        return i + 1, step(table, num_nodes, stack_size, any_hit, rays, st)
+
+    return lax.while_loop(lambda c: c[0] < count, body, (jnp.int32(0), state))[1]
+
+
 def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, steps_per_refill):
     """Trace flat rays o, d (n, 3) with per-ray tmin, tmax (n,). Returns (t, prim), t = tmax on a miss.
 
@@ -196,7 +230,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
     until the queue runs dry.
     """
     n = o.shape[0]
-    w = int(min(lanes, max(8, 1 << int(np.ceil(np.log2(max(n, 1)))))))
+    w = lanes_for(n, lanes)
     valid, o_all, inv_d_all, perm_all, shear_all = _ray_setup(o, d)
     valid = valid & (tmax > tmin)
     all_rays = (o_all, inv_d_all, perm_all, shear_all, tmin)
@@ -245,8 +279,9 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
         prim = jnp.where(take, -1, prim)
         next_ray = jnp.minimum(next_ray + jnp.sum(idle.astype(jnp.int32)), n)
         state = (cur, sp, stack, t_best, prim)
-        for _ in range(steps_per_refill):
-            state = _step(table, num_nodes, stack_size, any_hit, rays, state)
+        state = _run_steps(
+            _step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_ray
+        )
         return next_ray, lane_ray, rays, state, out_t, out_prim
 
     carry = (jnp.int32(0), lane_ray, rays, state, out_t, out_prim)

@@ -1,0 +1,108 @@
+"""Pinhole cameras: where primary rays come from.
+
+Camera frame: x right, y up, the camera looks along -z (OpenGL convention). Pixel (0, 0) is the
+top-left pixel; row index grows downwards. The image plane spans the vertical field of view;
+`offset` shifts the projection centre in units of the half-extent of the image plane (an
+off-centre, "canted" projection: offset (0.1, 0) moves the centre of projection a tenth of the
+half-width to the right).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+
+def look_at_rotation(position, look_at, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """World-from-camera rotation (columns: right, up, backward) for a camera at `position`
+    looking at `look_at`."""
+    position = np.asarray(position, np.float64)
+    forward = np.asarray(look_at, np.float64) - position
+    norm = np.linalg.norm(forward)
+    if not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"look_at_rotation: look_at {look_at} must differ from position {position}")
+    forward /= norm
+    right = np.cross(forward, np.asarray(up, np.float64))
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError(f"look_at_rotation: up {up} is parallel to the viewing direction")
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, forward)
+    return np.stack([right, true_up, -forward], axis=1).astype(np.float32)
+
+
+class Camera(eqx.Module):
+    """A pinhole camera. `rotation` is world-from-camera (3x3); `vfov_deg` the vertical field
+    of view; `offset` the projection-centre shift (see module docstring)."""
+
+    position: Float[Array, " 3"]
+    rotation: Float[Array, "3 3"]
+    vfov_deg: Float[Array, ""]
+    offset: Float[Array, " 2"]
+    width: int = eqx.field(static=True)
+    height: int = eqx.field(static=True)
+
+    @classmethod
+    def look_at(
+        cls, position, look_at, up=(0.0, 1.0, 0.0), *, vfov_deg=60.0, width=640, height=480, offset=(0.0, 0.0)
+    ):
+        if width <= 0 or height <= 0:
+            raise ValueError(f"Camera: resolution must be positive, got {width}x{height}")
+        if not 0 < float(vfov_deg) < 180:
+            raise ValueError(f"Camera: vfov_deg must be in (0, 180), got {vfov_deg}")
+        pos = np.asarray(position, np.float32)
+        if pos.shape != (3,) or not np.isfinite(pos).all():
+            raise ValueError(f"Camera: position must be 3 finite numbers, got {position}")
+        return cls(
+            position=pos,
+            rotation=look_at_rotation(position, look_at, up),
+            vfov_deg=np.float32(vfov_deg),
+            offset=np.asarray(offset, np.float32),
+            width=int(width),
+            height=int(height),
+        )
+
+    @classmethod
+    def from_pose(cls, pose, *, width=640, height=480):
+        """From a `fovjax.scenes.CameraPose`."""
+        return cls.look_at(
+            pose.position, pose.look_at, pose.up, vfov_deg=pose.vfov_deg, width=width, height=height
+        )
+
+    def ray_directions(self, pixel_xy: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
+        """Unit world-space directions through continuous pixel coordinates (x right, y down;
+        pixel (i, j) covers [i, i+1) x [j, j+1))."""
+        tan_half = jnp.tan(jnp.deg2rad(self.vfov_deg) / 2)
+        aspect = self.width / self.height
+        sx = (2.0 * pixel_xy[..., 0] / self.width - 1.0 + self.offset[0]) * tan_half * aspect
+        sy = (1.0 - 2.0 * pixel_xy[..., 1] / self.height + self.offset[1]) * tan_half
+        d_cam = jnp.stack([sx, sy, -jnp.ones_like(sx)], axis=-1)
+        d = d_cam @ self.rotation.T
+        return d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+
+    def pixel_centres(self) -> Float[Array, "H W 2"]:
+        x = jnp.arange(self.width, dtype=jnp.float32) + 0.5
+        y = jnp.arange(self.height, dtype=jnp.float32) + 0.5
+        xx, yy = jnp.meshgrid(x, y)
+        return jnp.stack([xx, yy], axis=-1)
+
+    def primary_rays(self) -> tuple[Float[Array, "H W 3"], Float[Array, "H W 3"]]:
+        """One ray through each pixel centre: (origins, directions), each (H, W, 3)."""
+        d = self.ray_directions(self.pixel_centres())
+        o = jnp.broadcast_to(self.position, d.shape)
+        return o, d
+
+
+def stratified_offsets(spp: int, key: jax.Array | None = None) -> Float[Array, "spp 2"]:
+    """Sub-pixel sample positions in [0, 1)^2 on a sqrt(spp) x sqrt(spp) grid, at cell centres,
+    or jittered uniformly inside each cell when `key` is given."""
+    n = int(round(spp**0.5))
+    if n * n != spp or spp < 1:
+        raise ValueError(f"spp must be a positive square (1, 4, 9, 16, ...), got {spp}")
+    i = jnp.arange(n, dtype=jnp.float32)
+    gx, gy = jnp.meshgrid(i, i)
+    cells = jnp.stack([gx.reshape(-1), gy.reshape(-1)], -1)
+    jitter = 0.5 if key is None else jax.random.uniform(key, (spp, 2), jnp.float32)
+    return (cells + jitter) / n

@@ -1,0 +1,177 @@
+"""Packet traversal for coherent rays (camera rays of an image tile, shadow rays from a tile).
+
+A packet of P consecutive rays walks the BVH together: one table row per packet and step, one
+stack per packet, and every per-ray test is dense arithmetic over the packet (no per-ray gather,
+no per-ray stack). A packet visits a child box when any of its live rays enters it before its
+own best hit, in the order of the packet's nearest entry. Rays that disagree cost extra steps,
+so this pays only when consecutive rays are coherent; the caller decides (`packet_size`).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from ._traverse import (
+    ITEM_DONE,
+    ITEM_POP,
+    _decode_boxes,
+    _ray_setup,
+    _run_steps,
+    _slab4,
+    _sort4,
+    _watertight,
+    lanes_for,
+)
+
+
+def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
+    barrier = lax.optimization_barrier
+    rays, state = barrier((rays, state))
+    o, inv_d, perm, shear, tmin = rays  # (K, P, ...)
+    cur, sp, stack, t_best, prim, done = state
+    k = cur.shape[0]
+    packet = jnp.arange(k)
+
+    # Rays that may still gain a hit: not finished (any-hit) and valid.
+    t_limit = jnp.where(done, -jnp.inf, t_best)
+    active = cur >= 0
+    row = table[jnp.maximum(cur, 0)]  # (K, 16)
+    is_node = cur < num_nodes
+
+    boxes = [(lo[:, None, :], hi[:, None, :]) for lo, hi in _decode_boxes(row)]  # (K, 1, 4)
+    t_near, t_far = _slab4(boxes, o, inv_d)  # (K, P, 4)
+    t_near = jnp.maximum(t_near, tmin[..., None])
+    t_far = jnp.minimum(t_far, t_limit[..., None])
+    child = row[:, 10:14]
+    ray_key = jnp.where(t_near <= t_far, t_near, jnp.inf)
+    key = jnp.where(child >= 0, jnp.min(ray_key, axis=1), jnp.inf)  # (K, 4): packet entry distance
+
+    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)[:, None, :]  # (K, 1, 9)
+    hit_t, t_t = _watertight(f[..., 0:3], f[..., 3:6], f[..., 6:9], o, perm, shear)  # (K, P)
+    tri_lane = (active & ~is_node)[:, None]
+    t_tri = jnp.where(tri_lane & hit_t & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
+    key, t_tri = barrier((key, t_tri))
+
+    keys, items = _sort4([key[:, c] for c in range(4)], [child[:, c] for c in range(4)])
+    sorted_kv = barrier(
+        jnp.stack(
+            [
+                jnp.stack([i, lax.bitcast_convert_type(t, jnp.int32)], -1)
+                for i, t in zip(items, keys, strict=True)
+            ],
+            1,
+        )
+    )
+    n_hit = jnp.sum(jnp.isfinite(jnp.stack(keys, 1)), axis=1).astype(jnp.int32)
+
+    found = t_tri < jnp.inf
+    t_best = jnp.where(found, t_tri, t_best)
+    prim = jnp.where(found, row[:, None, 9], prim)
+    if any_hit:
+        done = done | found
+    node_next = jnp.where(n_hit > 0, sorted_kv[:, 0, 0], ITEM_POP)
+    tri_next = jnp.where(row[:, 10] != 0, ITEM_POP, cur + 1)
+    nxt = jnp.where(is_node, node_next, tri_next)
+    if any_hit:
+        nxt = jnp.where(jnp.all(done, axis=1), ITEM_DONE, nxt)
+
+    at_node = active & is_node
+    n_push = jnp.where(at_node, jnp.maximum(n_hit - 1, 0), 0)
+    pos = jnp.stack([jnp.where(j <= n_push, sp + n_push - j, stack_size) for j in (1, 2, 3)], 1)
+    stack = stack.at[pos, packet[:, None]].set(sorted_kv[:, 1:], mode="drop")
+    sp = sp + n_push
+    cur = jnp.where(active, nxt, cur)
+    cur, sp, t_best, prim, done = barrier((cur, sp, t_best, prim, done))
+
+    # Pop after pushing (in-place stack update); skip entries no live ray can still use.
+    reach = jnp.max(jnp.where(done, -jnp.inf, t_best), axis=1)
+    for _ in range(2):
+        popping = cur == ITEM_POP
+        has = sp > 0
+        top = jnp.maximum(sp - 1, 0)
+        entry = stack[top, packet]
+        item, t_entry = entry[:, 0], lax.bitcast_convert_type(entry[:, 1], jnp.float32)
+        sp = sp - (popping & has).astype(jnp.int32)
+        live = jnp.where(t_entry < reach, item, ITEM_POP)
+        cur = jnp.where(popping, jnp.where(has, live, ITEM_DONE), cur)
+    return cur, sp, stack, t_best, prim, done
+
+
+def traverse_packets(
+    table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, packet_size, packets, steps_per_refill
+):
+    """Like `traverse`, for rays grouped into packets of `packet_size` consecutive rays, with
+    `packets` packets in flight. Returns (t, prim), t = tmax on a miss."""
+    n = o.shape[0]
+    p = int(packet_size)
+    n_packets = -(-n // p)
+    pad = n_packets * p - n
+
+    def padded(x, fill):
+        return jnp.concatenate([x, jnp.full((pad,) + x.shape[1:], fill, x.dtype)]) if pad else x
+
+    valid, o_all, inv_d_all, perm_all, shear_all = _ray_setup(padded(o, 0.0), padded(d, 0.0))
+    tmin_all, tmax_all = padded(tmin, 0.0), padded(tmax, 0.0)
+    valid = valid & (tmax_all > tmin_all)
+    group = lambda x: x.reshape((n_packets, p) + x.shape[1:])  # noqa: E731
+    all_rays = tuple(map(group, (o_all, inv_d_all, perm_all, shear_all, tmin_all)))
+    valid, tmax_all = group(valid), group(tmax_all)
+
+    k = lanes_for(n_packets, packets, floor=16)
+    lane_packet = jnp.full(k, n_packets, jnp.int32)
+    rays = jax.tree.map(lambda x: jnp.zeros((k,) + x.shape[1:], x.dtype), all_rays)
+    state = (
+        jnp.full(k, ITEM_DONE, jnp.int32),
+        jnp.zeros(k, jnp.int32),
+        jnp.zeros((stack_size, k, 2), jnp.int32),
+        jnp.zeros((k, p), jnp.float32),
+        jnp.full((k, p), -1, jnp.int32),
+        jnp.ones((k, p), bool),
+    )
+    out_t = tmax_all
+    out_prim = jnp.full((n_packets, p), -1, jnp.int32)
+
+    def write_back(lane_packet, state, out_t, out_prim):
+        cur, _, _, t_best, prim, _ = state
+        dst = jnp.where(cur == ITEM_DONE, lane_packet, n_packets)
+        return out_t.at[dst].set(t_best, mode="drop"), out_prim.at[dst].set(prim, mode="drop")
+
+    def cond(carry):
+        next_packet, _, _, state, _, _ = carry
+        return (next_packet < n_packets) | jnp.any(state[0] != ITEM_DONE)
+
+    def body(carry):
+        next_packet, lane_packet, rays, state, out_t, out_prim = carry
+        out_t, out_prim = write_back(lane_packet, state, out_t, out_prim)
+        cur, sp, stack, t_best, prim, done = state
+        idle = cur == ITEM_DONE
+        new = next_packet + jnp.cumsum(idle.astype(jnp.int32)) - 1
+        take = idle & (new < n_packets)
+        src = jnp.where(take, new, 0)
+        lane_packet = jnp.where(take, new, jnp.where(idle, n_packets, lane_packet))
+        rays = jax.tree.map(
+            lambda lane_x, all_x: jnp.where(
+                take.reshape((k,) + (1,) * (lane_x.ndim - 1)), all_x[src], lane_x
+            ),
+            rays,
+            all_rays,
+        )
+        ray_ok = valid[src]
+        cur = jnp.where(take, jnp.where(jnp.any(ray_ok, axis=1), 0, ITEM_DONE), cur)
+        sp = jnp.where(take, 0, sp)
+        t_best = jnp.where(take[:, None], tmax_all[src], t_best)
+        prim = jnp.where(take[:, None], -1, prim)
+        done = jnp.where(take[:, None], ~ray_ok, done)
+        next_packet = jnp.minimum(next_packet + jnp.sum(idle.astype(jnp.int32)), n_packets)
+        state = (cur, sp, stack, t_best, prim, done)
+        state = _run_steps(
+            _packet_step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_packet
+        )
+        return next_packet, lane_packet, rays, state, out_t, out_prim
+
+    carry = (jnp.int32(0), lane_packet, rays, state, out_t, out_prim)
+    _, lane_packet, _, state, out_t, out_prim = lax.while_loop(cond, body, carry)
+    out_t, out_prim = write_back(lane_packet, state, out_t, out_prim)
+    return out_t.reshape(-1)[:n], out_prim.reshape(-1)[:n]
