@@ -2,15 +2,39 @@
 tracing on eye-tracked stereo head-mounted displays."""
 
 from . import scenes as scenes
+from . import trace as trace
+from ._camera import (
+    Camera as Camera,
+)
+from ._camera import (
+    look_at_rotation as look_at_rotation,
+)
+from ._camera import (
+    stratified_offsets as stratified_offsets,
+)
 from ._loaders import load_scene as load_scene
 from ._scene import (
     DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT,
+)
+from ._scene import (
     POINT_LIGHT as POINT_LIGHT,
+)
+from ._scene import (
     Lights as Lights,
+)
+from ._scene import (
     Materials as Materials,
+)
+from ._scene import (
     Scene as Scene,
+)
+from ._scene import (
     make_lights as make_lights,
+)
+from ._scene import (
     make_materials as make_materials,
+)
+from ._scene import (
     make_scene as make_scene,
 )
 

@@ -75,6 +75,11 @@ def _segment_ids(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np
     return starts[seg] + offsets, seg
 
 
+# Nodes binned with fewer bins than this (fewer than this many triangles) are split along
+# their widest centroid axis only: a third of the work where most of the nodes are.
+SMALL_NODE_BINS = 8
+
+
 def _sah_group(orders, starts, counts, nb, centroid_axis, tri_lo_axis, tri_hi_axis):
     """Best binned-SAH split of each node in [start, start+count), with `nb` bins per axis.
 
@@ -90,13 +95,19 @@ def _sah_group(orders, starts, counts, nb, centroid_axis, tri_lo_axis, tri_hi_ax
     cmax = np.stack([np.maximum.reduceat(centroid_axis[a][t0], seg_starts) for a in range(3)], 1)
     extent = cmax - cmin
     scale = np.where(extent > 0, nb * (1.0 - 1e-6) / np.where(extent > 0, extent, 1.0), 0.0)
-    best_cost = np.full(k, np.inf, np.float32)
-    best_axis = np.zeros(k, np.int64)
-    best_left = np.zeros(k, np.int64)
     cols = np.arange(k)
-    for a in range(3):
-        t_a = orders[a][pos]
-        b = ((centroid_axis[a][t_a] - cmin[:, a][seg]) * scale[:, a][seg]).astype(np.int64)
+
+    def axis_best(a):
+        """Best split along axis a (an int, or an array giving each node's own axis)."""
+        if np.isscalar(a):
+            t_a = orders[a][pos]
+            b = (centroid_axis[a][t_a] - cmin[:, a][seg]) * scale[:, a][seg]
+        else:
+            a_pos = a[seg]
+            t_a = np.choose(a_pos, [orders[0][pos], orders[1][pos], orders[2][pos]])
+            c = np.choose(a_pos, [centroid_axis[0][t_a], centroid_axis[1][t_a], centroid_axis[2][t_a]])
+            b = (c - cmin[cols, a][seg]) * scale[cols, a][seg]
+        b = b.astype(np.int64)
         np.clip(b, 0, nb - 1, out=b)
         # Inside a node a bin is a contiguous run of this axis's order.
         run_start = np.flatnonzero(np.r_[True, (b[1:] != b[:-1]) | (seg[1:] != seg[:-1])])
@@ -118,11 +129,18 @@ def _sah_group(orders, starts, counts, nb, centroid_axis, tri_lo_axis, tri_hi_ax
         cost = _area_t(left_lo, left_hi) * l_n + _area_t(right_lo, right_hi) * r_n
         cost = np.where((l_n > 0) & (r_n > 0), cost, np.inf).astype(np.float32)
         i = np.argmin(cost, axis=0)
-        c_a = cost[i, cols]
-        better = c_a < best_cost
-        best_cost = np.where(better, c_a, best_cost)
-        best_axis = np.where(better, a, best_axis)
-        best_left = np.where(better, l_n[i, cols], best_left)
+        return cost[i, cols], l_n[i, cols]
+
+    if nb >= SMALL_NODE_BINS:
+        results = [axis_best(a) for a in range(3)]
+        costs = np.stack([c for c, _ in results])
+        best_axis = np.argmin(costs, axis=0)  # first axis on ties, as a sequential scan would pick
+        best_cost = costs[best_axis, cols]
+        best_left = np.stack([n for _, n in results])[best_axis, cols]
+    else:
+        # Small nodes (the deep levels, most of the nodes): only the widest centroid axis.
+        best_axis = np.argmax(extent, axis=1)
+        best_cost, best_left = axis_best(best_axis)
     return best_cost, best_axis, best_left, extent
 
 

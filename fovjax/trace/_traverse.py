@@ -30,6 +30,9 @@ GAMMA3 = 3 * F32_EPS / (1 - 3 * F32_EPS)
 # Conservative slab test (Ize 2013, PBRT 3.9.2): rounding never drops a box the ray touches.
 BOX_FAR_SCALE = 1.0 + 2.0 * GAMMA3
 
+# Relative size under which an edge function counts as zero (see _watertight): 8 ulps.
+EDGE_ULPS = 8 * float(np.finfo(np.float32).eps)
+
 ITEM_DONE = -1
 ITEM_POP = -2
 
@@ -70,11 +73,18 @@ def _watertight(v0, v1, v2, o, perm, shear):
     by = _pick(b, ky) - sy * bz
     cx = _pick(c, kx) - sx * cz
     cy = _pick(c, ky) - sy * cz
-    # Edge functions: a shared edge gives exactly opposite values in its two triangles.
+    # Edge functions. In exact float arithmetic a shared edge gives exactly opposite values in
+    # its two triangles, which is what makes the test watertight. A compiler may contract
+    # x*y - z*w into an FMA (XLA:CPU does inside fused loops), which breaks that symmetry by an
+    # ulp or so and opens pinholes along shared edges. So values within a few ulps of the
+    # products count as on the edge: both neighbours accept such a ray, none misses it.
     u = cx * by - cy * bx
     v = ax * cy - ay * cx
     w = bx * ay - by * ax
-    outside = ((u < 0) | (v < 0) | (w < 0)) & ((u > 0) | (v > 0) | (w > 0))
+    u_s = jnp.where(jnp.abs(u) <= EDGE_ULPS * (jnp.abs(cx * by) + jnp.abs(cy * bx)), 0.0, u)
+    v_s = jnp.where(jnp.abs(v) <= EDGE_ULPS * (jnp.abs(ax * cy) + jnp.abs(ay * cx)), 0.0, v)
+    w_s = jnp.where(jnp.abs(w) <= EDGE_ULPS * (jnp.abs(bx * ay) + jnp.abs(by * ax)), 0.0, w)
+    outside = ((u_s < 0) | (v_s < 0) | (w_s < 0)) & ((u_s > 0) | (v_s > 0) | (w_s > 0))
     det = u + v + w
     t_scaled = u * (sz * az) + v * (sz * bz) + w * (sz * cz)
     t = t_scaled / jnp.where(det == 0, 1.0, det)

@@ -55,6 +55,8 @@ def collapse(tree: BuiltTree):
             codes[r, jj], codes[r, slot] = tree.left[b], tree.right[b]
             lo[r, jj], hi[r, jj] = tree.child_lo[b, 0], tree.child_hi[b, 0]
             lo[r, slot], hi[r, slot] = tree.child_lo[b, 1], tree.child_hi[b, 1]
+        # A slot with an empty box (the single-leaf tree's dummy sibling) holds nothing.
+        codes = np.where((lo > hi).any(axis=-1), EMPTY, codes)
         inner = codes >= 0
         n_new = int(inner.sum())
         wide_ids = np.full(codes.shape, -1, np.int64)

@@ -1,0 +1,266 @@
+"""Ray queries against oracles: brute force on small meshes, Embree on the built-in scenes.
+
+Tolerances (perf-notes.md: float32 distances disagree between any two tracers by rounding, so
+distances are compared with an absolute floor): t within 1e-4 relative or 1e-5 absolute;
+`prim` compared only where the nearest hit is unambiguous (the second-nearest face is more
+than that tolerance further away).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import fovjax
+from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, hit_geometry, occluded
+
+RTOL, ATOL = 1e-4, 1e-5
+TRAVERSALS = [pytest.param({}, id="single"), pytest.param({"packet": 16}, id="packet16")]
+
+
+def t_close(a, b):
+    return np.abs(a - b) <= np.maximum(RTOL * np.abs(b), ATOL)
+
+
+def assert_matches_brute_force(V, F, o, d, hit, tmin=0.0, tmax=np.inf):
+    t_ref, prim_ref, t_all = brute_force_closest_hit(V, F, o, d, tmin, tmax)
+    t = np.asarray(hit.t).reshape(-1)
+    prim = np.asarray(hit.prim).reshape(-1)
+    ref_hit = np.isfinite(t_ref)
+    # A float64 hit exactly on an edge may be a float32 miss (or vice versa): exclude rays whose
+    # reference hit is within a hair of a triangle's edge (the margin below).
+    assert np.mean(np.isfinite(t) == ref_hit) >= 0.9999, "hit/miss disagreement"
+    both = np.isfinite(t) & ref_hit
+    assert t_close(t[both], t_ref[both]).all(), np.max(np.abs(t[both] - t_ref[both]))
+    second = np.sort(t_all, axis=1)[:, 1] if t_all.shape[1] > 1 else np.full(len(t), np.inf)
+    clear = both & (second - t_ref > RTOL * np.abs(t_ref) + ATOL)
+    assert (prim[clear] == prim_ref[clear]).all()
+
+
+@pytest.fixture(scope="module")
+def soup():
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-2, 2, (300, 1, 3))
+    V = (centres + rng.normal(0, 0.3, (300, 3, 3))).reshape(-1, 3).astype(np.float32)
+    F = np.arange(900).reshape(300, 3)
+    return V, F, build_bvh(vertices=V, faces=F, cache=False)
+
+
+@pytest.mark.parametrize("opts", TRAVERSALS)
+def test_random_soup_matches_brute_force(soup, opts):
+    V, F, bvh = soup
+    rng = np.random.default_rng(1)
+    o = rng.uniform(-3, 3, (4000, 3)).astype(np.float32)
+    d = rng.normal(size=(4000, 3)).astype(np.float32)
+    assert_matches_brute_force(V, F, o, d, closest_hit(bvh, o, d, **opts))
+
+
+@pytest.mark.parametrize("opts", TRAVERSALS)
+def test_tmin_tmax_bounds(soup, opts):
+    V, F, bvh = soup
+    rng = np.random.default_rng(2)
+    o = rng.uniform(-3, 3, (2000, 3)).astype(np.float32)
+    d = rng.normal(size=(2000, 3)).astype(np.float32)
+    tmin = rng.uniform(0, 1.5, 2000).astype(np.float32)
+    tmax = (tmin + rng.uniform(0, 3, 2000)).astype(np.float32)
+    hit = closest_hit(bvh, o, d, tmin, tmax, **opts)
+    assert_matches_brute_force(V, F, o, d, hit, tmin, tmax)
+    t = np.asarray(hit.t)
+    ok = np.isfinite(t)
+    assert (t[ok] > tmin[ok] * (1 - RTOL) - ATOL).all() and (t[ok] < tmax[ok] * (1 + RTOL) + ATOL).all()
+
+
+@pytest.mark.parametrize("opts", TRAVERSALS)
+def test_occluded_agrees_with_closest_hit(soup, opts):
+    V, F, bvh = soup
+    rng = np.random.default_rng(3)
+    o = rng.uniform(-3, 3, (3000, 3)).astype(np.float32)
+    d = rng.normal(size=(3000, 3)).astype(np.float32)
+    tmax = rng.uniform(0.1, 4, 3000).astype(np.float32)
+    t_ref, _, _ = brute_force_closest_hit(V, F, o, d, 0.0, tmax)
+    occ = np.asarray(occluded(bvh, o, d, tmax, **opts))
+    assert np.mean(occ == np.isfinite(t_ref)) >= 0.9999
+
+
+def test_batch_shapes_and_invalid_rays(soup):
+    V, F, bvh = soup
+    rng = np.random.default_rng(4)
+    o = rng.uniform(-3, 3, (2, 3, 5, 3)).astype(np.float32)
+    d = rng.normal(size=(2, 3, 5, 3)).astype(np.float32)
+    d[0, 0, 0] = 0.0
+    d[0, 0, 1] = np.nan
+    o[0, 0, 2] = np.inf
+    hit = closest_hit(bvh, o, d)
+    assert hit.t.shape == hit.prim.shape == hit.u.shape == (2, 3, 5)
+    assert (np.asarray(hit.prim)[0, 0, :3] == -1).all() and np.isinf(np.asarray(hit.t)[0, 0, :3]).all()
+    assert not np.isnan(np.asarray(hit.t)).any()
+    flat = closest_hit(bvh, o.reshape(-1, 3), d.reshape(-1, 3))
+    np.testing.assert_array_equal(np.asarray(flat.prim), np.asarray(hit.prim).reshape(-1))
+    assert occluded(bvh, o, d).shape == (2, 3, 5)
+
+
+def test_bad_arguments(soup):
+    _, _, bvh = soup
+    with pytest.raises(ValueError, match="backend"):
+        closest_hit(bvh, np.zeros((1, 3)), np.ones((1, 3)), backend="optix")
+    with pytest.raises(ValueError, match="dimension of 3"):
+        closest_hit(bvh, np.zeros((4, 2)), np.ones((4, 2)))
+    with pytest.raises(ValueError, match="packet"):
+        closest_hit(bvh, np.zeros((1, 3)), np.ones((1, 3)), packet=0)
+    with pytest.raises(ValueError, match="2 batch dimensions"):
+        closest_hit(bvh, np.zeros((5, 3)), np.ones((5, 3)), packet=(2, 2))
+
+
+def test_tile_packets_restore_image_order():
+    scene = fovjax.scenes.spheres()
+    bvh = build_bvh(scene, cache=False)
+    cam = fovjax.Camera.from_pose(fovjax.scenes.default_camera(scene), width=37, height=29)
+    o, d = cam.primary_rays()
+    single = closest_hit(bvh, o, d)
+    tiled = closest_hit(bvh, o, d, packet=(8, 8))
+    np.testing.assert_array_equal(np.asarray(single.prim), np.asarray(tiled.prim))
+    np.testing.assert_array_equal(np.asarray(single.t), np.asarray(tiled.t))
+    np.testing.assert_array_equal(
+        np.asarray(occluded(bvh, o, d)), np.asarray(occluded(bvh, o, d, packet=(8, 8)))
+    )
+
+
+# --- watertightness on closed meshes ---------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    m = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    V, F = m.vertices.astype(np.float32), m.faces.astype(np.int32)
+    return V, F, build_bvh(vertices=V, faces=F, cache=False)
+
+
+@pytest.mark.parametrize("opts", TRAVERSALS)
+def test_no_leaks_through_vertices_and_edges(sphere, opts):
+    """Rays from inside aimed exactly at shared vertices and edge midpoints must all hit."""
+    V, F, bvh = sphere
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    targets = np.concatenate([V, 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])]).astype(np.float32)
+    rng = np.random.default_rng(5)
+    for origin in [np.zeros(3), rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.3, 0.3, 3)]:
+        o = np.broadcast_to(origin, targets.shape).astype(np.float32)
+        d = (targets - o).astype(np.float32)
+        hit = closest_hit(bvh, o, d, **opts)
+        assert (np.asarray(hit.prim) >= 0).all(), "a ray leaked through a shared vertex or edge"
+        assert np.asarray(occluded(bvh, o, d, **opts)).all()
+        # From outside, aimed at the same points: never a miss either.
+        o_out = (targets * 3.0).astype(np.float32)
+        assert (np.asarray(closest_hit(bvh, o_out, -targets, **opts).prim) >= 0).all()
+
+
+def test_axis_parallel_rays(sphere):
+    V, F, bvh = sphere
+    axes = np.concatenate([np.eye(3), -np.eye(3)]).astype(np.float32)
+    rng = np.random.default_rng(6)
+    o = rng.uniform(-0.5, 0.5, (600, 3)).astype(np.float32)
+    d = np.repeat(axes, 100, axis=0)
+    o[::7, :] = 0.0  # rays starting exactly on the slab planes of the root's children
+    hit = closest_hit(bvh, o, d)
+    assert (np.asarray(hit.prim) >= 0).all()
+    assert_matches_brute_force(V, F, o, d, hit)
+
+
+def test_rays_starting_on_a_surface(sphere):
+    """With tmin > 0, a ray leaving its own surface does not hit it; going inwards it hits the
+    far side."""
+    V, F, bvh = sphere
+    rng = np.random.default_rng(7)
+    f = rng.integers(0, len(F), 500)
+    w = rng.dirichlet(np.ones(3), 500)
+    p = np.einsum("nk,nkc->nc", w, V[F[f]]).astype(np.float32)
+    n = p / np.linalg.norm(p, axis=1, keepdims=True)
+    out = closest_hit(bvh, p, n, tmin=1e-4)
+    assert (np.asarray(out.prim) == -1).all()
+    inward = closest_hit(bvh, p, -n, tmin=1e-4)
+    t = np.asarray(inward.t)
+    assert (np.asarray(inward.prim) >= 0).all() and (t > 1.5).all()
+
+
+def test_grazing_rays_match_brute_force(sphere):
+    V, F, bvh = sphere
+    rng = np.random.default_rng(8)
+    # Tangent to the unit sphere at random points: most miss, some clip a facet.
+    p = rng.normal(size=(3000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    tangent = np.cross(p, rng.normal(size=(3000, 3)))
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    o = (p * 0.999 - 2 * tangent).astype(np.float32)
+    d = tangent.astype(np.float32)
+    assert_matches_brute_force(V, F, o, d, closest_hit(bvh, o, d))
+
+
+# --- Embree on every built-in scene ----------------------------------------------------------
+
+
+def embree_available():
+    try:
+        import embreex  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+needs_embree = pytest.mark.skipif(
+    not embree_available(), reason="embreex not installed (pip install fovjax[embree])"
+)
+
+
+@pytest.fixture(scope="module", params=["cornell_box", "spheres", "atrium"])
+def builtin(request):
+    scene = fovjax.scenes.BUILTIN[request.param]()
+    return scene, build_bvh(scene)
+
+
+def scene_rays(scene, seed):
+    cam = fovjax.Camera.from_pose(fovjax.scenes.default_camera(scene), width=160, height=128)
+    o, d = cam.primary_rays()
+    rng = np.random.default_rng(seed)
+    lo, hi = scene.bounds
+    ro = rng.uniform(lo, hi, (20000, 3)).astype(np.float32)
+    rd = rng.normal(size=(20000, 3)).astype(np.float32)
+    return {"camera": (np.asarray(o), np.asarray(d)), "random": (ro, rd)}
+
+
+@needs_embree
+def test_builtin_scenes_match_embree(builtin):
+    scene, bvh = builtin
+    for kind, (o, d) in scene_rays(scene, 9).items():
+        ref = closest_hit(bvh, o, d, backend="embree")
+        options = [{}] + ([{"packet": (8, 8)}] if kind == "camera" else [])
+        for opts in options:
+            hit = closest_hit(bvh, o, d, **opts)
+            t, t_ref = np.asarray(hit.t).reshape(-1), np.asarray(ref.t).reshape(-1)
+            agree = np.isfinite(t) == np.isfinite(t_ref)
+            assert agree.mean() >= 0.9999, f"{scene.name} {kind} {opts}: hit/miss agreement {agree.mean()}"
+            both = np.isfinite(t) & np.isfinite(t_ref)
+            assert t_close(t[both], t_ref[both]).mean() >= 0.9999
+            # Same face wherever the hit is unambiguous. Built-in solids touch (coplanar faces),
+            # so where the faces differ, each must lie on the ray at the same distance: a tie.
+            prim, prim_ref = np.asarray(hit.prim).reshape(-1), np.asarray(ref.prim).reshape(-1)
+            differ = both & (prim != prim_ref)
+            t_other, _, _ = hit_geometry(
+                bvh.vertices, bvh.faces, prim_ref, o.reshape(-1, 3), d.reshape(-1, 3)
+            )
+            tie = t_close(t[differ], np.asarray(t_other)[differ])
+            assert tie.all(), f"{scene.name} {kind}: {int((~tie).sum())} unambiguous hits on a different face"
+        occ = np.asarray(occluded(bvh, o, d, 5.0)).reshape(-1)
+        occ_ref = np.asarray(occluded(bvh, o, d, 5.0, backend="embree")).reshape(-1)
+        assert np.mean(occ == occ_ref) >= 0.9999
+
+
+@needs_embree
+def test_embree_backend_under_jit(soup):
+    import jax
+
+    V, F, bvh = soup
+    rng = np.random.default_rng(10)
+    o = rng.uniform(-3, 3, (500, 3)).astype(np.float32)
+    d = rng.normal(size=(500, 3)).astype(np.float32)
+    f = jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="embree"))
+    assert_matches_brute_force(V, F, o, d, f(o, d))
