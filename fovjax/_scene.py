@@ -61,7 +61,9 @@ def make_materials(specs: list[dict], names: list[str] | None = None) -> Materia
         for i, spec in enumerate(specs):
             value = np.broadcast_to(np.asarray(spec.get(key, default), np.float32), (3,))
             if not np.all(np.isfinite(value)):
-                raise ValueError(f"material {i} ({(names or [''] * len(specs))[i]!r}): {key}={value} is not finite")
+                raise ValueError(
+                    f"material {i} ({(names or [''] * len(specs))[i]!r}): {key}={value} is not finite"
+                )
             rows.append(value)
         cols[key] = np.stack(rows).astype(np.float32)
     ns = np.asarray([float(s.get("ns", 32.0)) for s in specs], np.float32)
@@ -216,9 +218,7 @@ def make_scene(
         raise ValueError(f"{where}: face_material index out of range for {len(materials)} materials")
     keep = drop_degenerate(v, f)
     if not keep.all():
-        warnings.warn(
-            f"{where}: dropped {int((~keep).sum())} zero-area triangles of {nf}", stacklevel=2
-        )
+        warnings.warn(f"{where}: dropped {int((~keep).sum())} zero-area triangles of {nf}", stacklevel=2)
         f, fm = f[keep], fm[keep]
         if f.shape[0] == 0:
             raise ValueError(f"{where}: every triangle has zero area")

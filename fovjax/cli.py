@@ -10,6 +10,7 @@ import sys
 # Modules that define `register(subparsers)`. The first one's command is the default
 # when `fovjax` is run with no arguments.
 _SUBCOMMAND_MODULES = [
+    "fovjax._cli_render",
     "fovjax.devices._cli",
     "fovjax.acuity._cli",
 ]

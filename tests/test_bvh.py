@@ -19,7 +19,7 @@ from fovjax.trace._wide import ROW_WORDS
 def decode_tree(bvh):
     """Host decode of the table: per node its 4 child items and decoded (lo, hi) boxes."""
     table = np.asarray(bvh.table)
-    m = bvh.num_nodes
+    m = int(bvh.num_nodes)
     rows = table[:m]
     origin = rows[:, 0:3].view(np.float32)
     exps = np.stack([(rows[:, 3] >> (8 * a)) & 255 for a in range(3)], 1)
@@ -55,7 +55,7 @@ def test_structure_and_conservative_boxes(n):
     F = np.arange(3 * n).reshape(n, 3)
     bvh = build_bvh(vertices=V, faces=F, cache=False)
     table, children, lo, hi = decode_tree(bvh)
-    m = bvh.num_nodes
+    m = int(bvh.num_nodes)
     assert table.shape == (m + n, ROW_WORDS)
     # Every triangle appears exactly once, and leaves end with the "last" flag.
     assert sorted(table[m:, 9].tolist()) == list(range(n))

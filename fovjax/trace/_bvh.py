@@ -31,8 +31,11 @@ from ._wide import ROW_WORDS, pack
 
 FORMAT_VERSION = 2
 
-# Host copies of each BVH's geometry, keyed by `BVH.key`, for host callbacks (Embree backend).
-_HOST_GEOMETRY: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+# Host copies of each BVH's geometry for host callbacks (the Embree backend), indexed by
+# `BVH.host_id`. The id is an array leaf, not a static field, so a new scene of the same array
+# shapes reuses the compiled traversal instead of recompiling.
+_HOST_GEOMETRY: list[tuple[str, np.ndarray, np.ndarray]] = []
+_HOST_ID: dict[str, int] = {}
 
 
 class BVH(eqx.Module):
@@ -45,13 +48,18 @@ class BVH(eqx.Module):
     table: Int[Array, "R 16"]
     vertices: Float[Array, "V 3"]
     faces: Int[Array, "F 3"]
-    num_nodes: int = eqx.field(static=True)
+    num_nodes: Int[Array, ""]
+    host_id: Int[Array, ""]
     stack_size: int = eqx.field(static=True)
-    key: str = eqx.field(static=True)
 
     @property
     def num_triangles(self) -> int:
         return int(np.shape(self.faces)[0])
+
+    @property
+    def key(self) -> str:
+        """The cache key (geometry hash and build parameters); host-side only."""
+        return _HOST_GEOMETRY[int(self.host_id)][0]
 
     @property
     def nbytes(self) -> int:
@@ -163,8 +171,18 @@ def build_bvh(
     LAST_BUILD.update(
         seconds=seconds, from_cache=cached is not None, num_nodes=num_nodes, depth=depth, nbytes=table.nbytes
     )
-    _HOST_GEOMETRY[key] = (v, f)
-    return BVH(table=table, vertices=v, faces=f, num_nodes=num_nodes, stack_size=stack_size, key=key)
+    host_id = _HOST_ID.get(key)
+    if host_id is None:
+        host_id = _HOST_ID[key] = len(_HOST_GEOMETRY)
+        _HOST_GEOMETRY.append((key, v, f))
+    return BVH(
+        table=table,
+        vertices=v,
+        faces=f,
+        num_nodes=np.int32(num_nodes),
+        host_id=np.int32(host_id),
+        stack_size=stack_size,
+    )
 
 
 def last_build_info() -> dict:
@@ -172,11 +190,11 @@ def last_build_info() -> dict:
     return dict(LAST_BUILD)
 
 
-def host_geometry(bvh: BVH) -> tuple[np.ndarray, np.ndarray]:
-    """The build-time (vertices, faces) of `bvh` on the host (for callbacks under jit)."""
+def host_geometry(host_id: int) -> tuple[str, np.ndarray, np.ndarray]:
+    """(key, vertices, faces) at build time of the BVH with this host id (for host callbacks)."""
     try:
-        return _HOST_GEOMETRY[bvh.key]
-    except KeyError:
+        return _HOST_GEOMETRY[int(host_id)]
+    except IndexError:
         raise ValueError(
-            "this BVH's host geometry is unknown in this process; build it with build_bvh()"
+            f"BVH host id {int(host_id)} is unknown in this process; build it with build_bvh()"
         ) from None

@@ -60,14 +60,12 @@ def embree_trace_host(scene, o, d, tmin, tmax, any_hit):
 
 
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):
-    vertices, faces = host_geometry(bvh)
-    key = bvh.key
-
-    def host(o, d, tmin, tmax):
+    def host(host_id, o, d, tmin, tmax):
+        key, vertices, faces = host_geometry(host_id)
         scene = embree_scene(key, vertices, faces)
         t, prim = embree_trace_host(scene, o, d, tmin, tmax, any_hit)
         return np.asarray(t, np.float32), np.asarray(prim, np.int32)
 
     n = o.shape[0]
     shapes = (jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.int32))
-    return jax.pure_callback(host, shapes, o, d, tmin, tmax, vmap_method="sequential")
+    return jax.pure_callback(host, shapes, bvh.host_id, o, d, tmin, tmax, vmap_method="sequential")

@@ -273,7 +273,8 @@ def brute_force_closest_hit(vertices, faces, origins, directions, tmin=0.0, tmax
         t = np.sum(e2 * qvec, -1) * inv
     tmin = np.reshape(np.asarray(tmin, np.float64), (-1, 1))
     tmax = np.reshape(np.asarray(tmax, np.float64), (-1, 1))
-    ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > tmin) & (t < tmax)
+    with np.errstate(invalid="ignore"):  # NaN where det == 0: not a hit
+        ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > tmin) & (t < tmax)
     t = np.where(ok, t, np.inf)
     prim = np.argmin(t, axis=1)
     tbest = t[np.arange(t.shape[0]), prim]
