@@ -23,6 +23,7 @@ from ._traverse import (
     _sort4,
     _watertight,
     lanes_for,
+    live_first,
 )
 
 
@@ -120,6 +121,8 @@ def traverse_packets(
     valid, tmax_all = group(valid), group(tmax_all)
 
     k = lanes_for(n_packets, packets, floor=16)
+    # Only packets with a live ray are queued (see `traverse`).
+    n_live, queue = live_first(jnp.any(valid, axis=1))
     lane_packet = jnp.full(k, n_packets, jnp.int32)
     rays = jax.tree.map(lambda x: jnp.zeros((k,) + x.shape[1:], x.dtype), all_rays)
     state = (
@@ -140,7 +143,7 @@ def traverse_packets(
 
     def cond(carry):
         next_packet, _, _, state, _, _ = carry
-        return (next_packet < n_packets) | jnp.any(state[0] != ITEM_DONE)
+        return (next_packet < n_live) | jnp.any(state[0] != ITEM_DONE)
 
     def body(carry):
         next_packet, lane_packet, rays, state, out_t, out_prim = carry
@@ -148,9 +151,9 @@ def traverse_packets(
         cur, sp, stack, t_best, prim, done = state
         idle = cur == ITEM_DONE
         new = next_packet + jnp.cumsum(idle.astype(jnp.int32)) - 1
-        take = idle & (new < n_packets)
-        src = jnp.where(take, new, 0)
-        lane_packet = jnp.where(take, new, jnp.where(idle, n_packets, lane_packet))
+        take = idle & (new < n_live)
+        src = jnp.where(take, queue[jnp.minimum(new, n_packets - 1)], 0)
+        lane_packet = jnp.where(take, src, jnp.where(idle, n_packets, lane_packet))
         rays = jax.tree.map(
             lambda lane_x, all_x: jnp.where(
                 take.reshape((k,) + (1,) * (lane_x.ndim - 1)), all_x[src], lane_x
@@ -159,12 +162,12 @@ def traverse_packets(
             all_rays,
         )
         ray_ok = valid[src]
-        cur = jnp.where(take, jnp.where(jnp.any(ray_ok, axis=1), 0, ITEM_DONE), cur)
+        cur = jnp.where(take, 0, cur)
         sp = jnp.where(take, 0, sp)
         t_best = jnp.where(take[:, None], tmax_all[src], t_best)
         prim = jnp.where(take[:, None], -1, prim)
         done = jnp.where(take[:, None], ~ray_ok, done)
-        next_packet = jnp.minimum(next_packet + jnp.sum(idle.astype(jnp.int32)), n_packets)
+        next_packet = jnp.minimum(next_packet + jnp.sum(idle.astype(jnp.int32)), n_live)
         state = (cur, sp, stack, t_best, prim, done)
         state = _run_steps(
             _packet_step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_packet

@@ -10,12 +10,12 @@ Both interpretations of the row are computed for every ray and the right one is 
 a SIMD machine the arithmetic is cheap next to the gather, and one row per step keeps every
 ray's step identical.
 
-Rays that finish early would otherwise idle in their lanes, so the batch is compacted: a chunk
-of C rays runs until at most C/2 are still active, the survivors are gathered into a C/2 batch,
-and so on down to a floor. All sizes are static: one XLA program per chunk size.
+Rays that finish early would otherwise idle in their lanes, so a fixed number of lanes is in
+flight and finished lanes take the next ray from a queue of live rays (`traverse`): lanes stay
+full until the queue runs dry, with one loop body and static shapes.
 
 The traversal is not differentiated (reverse mode does not pass through `while_loop`); callers
-recompute the hit from the triangle's vertices (`_hit_geometry`).
+recompute the hit from the triangle's vertices (`hit_geometry`).
 """
 
 from __future__ import annotations
@@ -207,6 +207,15 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     return cur, sp, stack, t_best, prim
 
 
+def live_first(live):
+    """(number live, queue): a stable permutation of the indices with the live ones first."""
+    live = live.astype(jnp.int32)
+    n_live = jnp.sum(live)
+    rank = jnp.where(live > 0, jnp.cumsum(live) - 1, n_live + jnp.cumsum(1 - live) - 1)
+    queue = jnp.zeros_like(rank).at[rank].set(jnp.arange(live.shape[0], dtype=rank.dtype))
+    return n_live, queue
+
+
 def lanes_for(n: int, lanes: int, floor: int = 256) -> int:
     """Lanes in flight for n rays: at most `lanes`, and few enough that each lane traces ~16
     rays, so the tail (the last rays finishing while the queue is empty) stays a small part."""
@@ -238,14 +247,18 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
     finished write its result and take the next ray from the queue (in input order, so
     neighbouring lanes trace neighbouring rays). One loop body, one compiled program, full lanes
     until the queue runs dry.
+
+    The queue holds only live rays (finite, non-zero direction, tmax > tmin), so a caller marks
+    rays it does not want traced with tmax <= tmin and they cost nothing: this is the
+    compaction foveation relies on, with static array shapes and no bucket sizes.
     """
     n = o.shape[0]
     w = lanes_for(n, lanes)
     valid, o_all, inv_d_all, perm_all, shear_all = _ray_setup(o, d)
     valid = valid & (tmax > tmin)
     all_rays = (o_all, inv_d_all, perm_all, shear_all, tmin)
+    n_live, queue = live_first(valid)
 
-    lane = jnp.arange(w, dtype=jnp.int32)
     lane_ray = jnp.full(w, n, jnp.int32)  # n = no ray
     rays = jax.tree.map(lambda x: jnp.zeros((w,) + x.shape[1:], x.dtype), all_rays)
     state = (
@@ -265,7 +278,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
 
     def cond(carry):
         next_ray, _, _, state, _, _ = carry
-        return (next_ray < n) | jnp.any(state[0] != ITEM_DONE)
+        return (next_ray < n_live) | jnp.any(state[0] != ITEM_DONE)
 
     def body(carry):
         next_ray, lane_ray, rays, state, out_t, out_prim = carry
@@ -273,9 +286,9 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
         cur, sp, stack, t_best, prim = state
         idle = cur == ITEM_DONE
         new = next_ray + jnp.cumsum(idle.astype(jnp.int32)) - 1
-        take = idle & (new < n)
-        src = jnp.where(take, new, 0)
-        lane_ray = jnp.where(take, new, jnp.where(idle, n, lane_ray))
+        take = idle & (new < n_live)
+        src = jnp.where(take, queue[jnp.minimum(new, n - 1)], 0)
+        lane_ray = jnp.where(take, src, jnp.where(idle, n, lane_ray))
         rays = jax.tree.map(
             lambda lane_x, all_x: jnp.where(
                 take.reshape((w,) + (1,) * (lane_x.ndim - 1)), all_x[src], lane_x
@@ -283,11 +296,11 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
             rays,
             all_rays,
         )
-        cur = jnp.where(take, jnp.where(valid[src], 0, ITEM_DONE), cur)
+        cur = jnp.where(take, 0, cur)
         sp = jnp.where(take, 0, sp)
         t_best = jnp.where(take, tmax[src], t_best)
         prim = jnp.where(take, -1, prim)
-        next_ray = jnp.minimum(next_ray + jnp.sum(idle.astype(jnp.int32)), n)
+        next_ray = jnp.minimum(next_ray + jnp.sum(idle.astype(jnp.int32)), n_live)
         state = (cur, sp, stack, t_best, prim)
         state = _run_steps(
             _step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_ray
@@ -297,5 +310,4 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
     carry = (jnp.int32(0), lane_ray, rays, state, out_t, out_prim)
     _, lane_ray, _, state, out_t, out_prim = lax.while_loop(cond, body, carry)
     out_t, out_prim = write_back(lane_ray, state, out_t, out_prim)
-    del lane
     return out_t, out_prim
