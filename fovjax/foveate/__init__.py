@@ -1,0 +1,69 @@
+"""Foveated sampling: eccentricity, regions, acuity-driven sample selection, the static ray
+budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, sections 4.4.1, 4.5)."""
+
+from ._budget import plan_budget as plan_budget
+from ._config import (
+    ECCENTRICITY_MODES as ECCENTRICITY_MODES,
+)
+from ._config import (
+    SAMPLING_RULES as SAMPLING_RULES,
+)
+from ._config import (
+    THESIS_PAIRS as THESIS_PAIRS,
+)
+from ._config import (
+    Constant as Constant,
+)
+from ._config import (
+    Foveation as Foveation,
+)
+from ._config import (
+    LinearFalloff as LinearFalloff,
+)
+from ._config import (
+    check_gaze as check_gaze,
+)
+from ._eccentricity import (
+    display_pixel_pitch_mm as display_pixel_pitch_mm,
+)
+from ._eccentricity import (
+    eccentricity_angle as eccentricity_angle,
+)
+from ._eccentricity import (
+    eccentricity_map as eccentricity_map,
+)
+from ._eccentricity import (
+    eccentricity_planar as eccentricity_planar,
+)
+from ._fill import fill_and_blur as fill_and_blur
+from ._fill import resolve as resolve
+from ._sampling import (
+    FOVEA as FOVEA,
+)
+from ._sampling import (
+    MANDATORY as MANDATORY,
+)
+from ._sampling import (
+    OPTIONAL as OPTIONAL,
+)
+from ._sampling import (
+    OUTSIDE as OUTSIDE,
+)
+from ._sampling import (
+    PERIPHERY as PERIPHERY,
+)
+from ._sampling import (
+    SKIPPED as SKIPPED,
+)
+from ._sampling import (
+    compaction_order as compaction_order,
+)
+from ._sampling import (
+    regions as regions,
+)
+from ._sampling import (
+    sample_classes as sample_classes,
+)
+from ._sampling import (
+    top_left as top_left,
+)

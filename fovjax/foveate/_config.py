@@ -1,0 +1,153 @@
+"""The foveation configuration and the sampling-probability models it can use."""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+# The thesis's (fovea, periphery) pairs in degrees (section 5.1, tables 2-5).
+THESIS_PAIRS: tuple[tuple[float, float], ...] = (
+    (5.0, 10.0),
+    (7.5, 15.0),
+    (10.0, 20.0),
+    (12.5, 25.0),
+    (15.0, 30.0),
+)
+
+ECCENTRICITY_MODES = ("angle", "planar")
+SAMPLING_RULES = ("either", "strict")
+
+
+class LinearFalloff(eqx.Module):
+    """Sampling probability falling linearly from 1 at `start` to `floor` at `end` degrees and
+    constant beyond: the linear fall-off of Weier et al. (2016) style foveated ray tracers."""
+
+    start: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=5.0)
+    end: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=30.0)
+    floor: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.05)
+
+    name = "linear_falloff"
+
+    def __call__(self, omega):
+        omega = jnp.asarray(omega, jnp.float32)
+        s = jnp.clip((omega - self.start) / jnp.maximum(self.end - self.start, 1e-6), 0.0, 1.0)
+        return (1.0 - s) + s * self.floor
+
+
+class Constant(eqx.Module):
+    """The same probability everywhere outside the fovea: uniform subsampling, the baseline."""
+
+    p: Float[Array, ""] = eqx.field(converter=jnp.asarray, default=0.25)
+
+    name = "constant"
+
+    def __call__(self, omega):
+        return jnp.broadcast_to(jnp.asarray(self.p, jnp.float32), jnp.shape(omega))
+
+
+def _thesis_model():
+    from ..acuity import THESIS_MODEL
+
+    return THESIS_MODEL
+
+
+class Foveation(eqx.Module):
+    """How a foveated frame is sampled, traced and reconstructed.
+
+    - `fovea_deg`, `periphery_deg`: region boundaries ω0 < ω1 (degrees of eccentricity);
+    - `spp`: samples per pixel (a square: 1, 4, 9, 16, ...);
+    - `acuity`: a callable ω → probability in [0, 1] (default: the thesis's V(ω),
+      `fovjax.acuity.THESIS_MODEL`; any `fovjax.acuity` model, `LinearFalloff`, `Constant`);
+    - `blocks`: block edge in pixels for the periphery and the outside zone (thesis: 2, 4);
+    - `rule`: "either" (default) — a block's top-left pixel is always traced and any other
+      pixel's sub-sample with probability P(ω), the thesis's "either condition"; "strict" — only
+      top-left pixels, each sub-sample kept with probability P(ω);
+    - `blur_sigma`: σ of the 5×5 Gaussian of the fill pass (pixels); `blur_fovea`: blur every
+      pixel (the all-pixel reading of thesis 4.5) instead of keeping the fovea sharp;
+    - `eccentricity`: "angle" (default; the angle between the pixel's ray and the gaze ray) or
+      "planar" (thesis eq. 4-5: Euclidean distance on the display, V = 2·atan(S / 2D));
+    - `eye_display_mm` (D, thesis: 24 mm) and `pixel_pitch_mm` (default: derived from the
+      display width and field of view) for the planar mode;
+    - `ray_budget`: static number of samples traced per eye (None: derived by `plan_budget` from
+      the configuration so that it is exceeded with negligible probability).
+    """
+
+    fovea_deg: float = eqx.field(static=True, default=5.0)
+    periphery_deg: float = eqx.field(static=True, default=10.0)
+    spp: int = eqx.field(static=True, default=1)
+    acuity: object = eqx.field(default_factory=_thesis_model)
+    blocks: tuple[int, int] = eqx.field(static=True, default=(2, 4))
+    rule: str = eqx.field(static=True, default="either")
+    blur_sigma: float = eqx.field(static=True, default=1.0)
+    blur_fovea: bool = eqx.field(static=True, default=False)
+    eccentricity: str = eqx.field(static=True, default="angle")
+    eye_display_mm: float = eqx.field(static=True, default=24.0)
+    pixel_pitch_mm: float | None = eqx.field(static=True, default=None)
+    ray_budget: int | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if not (math.isfinite(self.fovea_deg) and self.fovea_deg >= 0):
+            raise ValueError(f"Foveation.fovea_deg must be a finite angle >= 0, got {self.fovea_deg}")
+        if not (math.isfinite(self.periphery_deg) and self.periphery_deg >= self.fovea_deg):
+            raise ValueError(
+                f"Foveation.periphery_deg must be >= fovea_deg ({self.fovea_deg}), got {self.periphery_deg}"
+            )
+        n = int(round(self.spp**0.5))
+        if self.spp < 1 or n * n != self.spp:
+            raise ValueError(f"Foveation.spp must be a positive square (1, 4, 9, 16, ...), got {self.spp}")
+        if len(self.blocks) != 2 or any(int(b) < 1 for b in self.blocks):
+            raise ValueError(f"Foveation.blocks must be two positive block edges, got {self.blocks}")
+        if self.blocks[1] % self.blocks[0]:
+            raise ValueError(
+                f"Foveation.blocks: the outside block {self.blocks[1]} must be a multiple of {self.blocks[0]}"
+            )
+        if self.rule not in SAMPLING_RULES:
+            raise ValueError(f"Foveation.rule must be one of {SAMPLING_RULES}, got {self.rule!r}")
+        if self.eccentricity not in ECCENTRICITY_MODES:
+            raise ValueError(
+                f"Foveation.eccentricity must be one of {ECCENTRICITY_MODES}, got {self.eccentricity!r}"
+            )
+        if not self.blur_sigma > 0:
+            raise ValueError(f"Foveation.blur_sigma must be > 0, got {self.blur_sigma}")
+        if not callable(self.acuity):
+            raise ValueError(f"Foveation.acuity must be callable (ω -> probability), got {self.acuity!r}")
+        if self.ray_budget is not None and self.ray_budget < 1:
+            raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")
+
+    @classmethod
+    def thesis(cls, pair: int | tuple[float, float] = 0, **kwargs) -> Foveation:
+        """One of the thesis's pairs: an index into `THESIS_PAIRS` or a (fovea, periphery) pair."""
+        fovea, periphery = THESIS_PAIRS[pair] if isinstance(pair, int) else pair
+        return cls(fovea_deg=float(fovea), periphery_deg=float(periphery), **kwargs)
+
+    def probability(self, omega):
+        """P(ω): 1 in the fovea, the acuity model beyond (thesis eq. 7), clipped to [0, 1]."""
+        omega = jnp.asarray(omega, jnp.float32)
+        p = jnp.clip(jnp.asarray(self.acuity(omega), jnp.float32), 0.0, 1.0)
+        return jnp.where(omega <= self.fovea_deg, 1.0, p)
+
+
+def check_gaze(gaze, name: str = "gaze") -> np.ndarray:
+    """Per-eye gaze in normalised display coordinates (x right, y down, (0, 0) top-left of each
+    eye's display), shape (2, 2) for (left, right). Raises on NaN or off-screen values."""
+    g = np.asarray(gaze, np.float64)
+    if g.shape == (4,):
+        g = g.reshape(2, 2)
+    if g.shape != (2, 2):
+        raise ValueError(
+            f"{name} must be ((lx, ly), (rx, ry)) in normalised display coordinates, got shape {g.shape}"
+        )
+    if not np.isfinite(g).all():
+        raise ValueError(
+            f"{name} contains NaN or inf: {g.tolist()} (the tracking layer must hold or drop bad samples)"
+        )
+    if (g < 0).any() or (g > 1).any():
+        eye = ["left", "right"][int(np.argwhere((g < 0) | (g > 1))[0, 0])]
+        raise ValueError(
+            f"{name}: the {eye} eye's point {g.tolist()} is off-screen (each coordinate must be in [0, 1])"
+        )
+    return g.astype(np.float32)

@@ -1,0 +1,76 @@
+"""Which sub-samples of an eye's image are traced: regions, blocks, P(ω) draws, priorities."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+FOVEA, PERIPHERY, OUTSIDE = 0, 1, 2
+# Compaction order: samples that must be traced, then the probabilistic extras, then the rest.
+MANDATORY, OPTIONAL, SKIPPED = 0, 1, 2
+
+
+def regions(ecc: Float[Array, "H W"], foveation) -> Int[Array, "H W"]:
+    """0 fovea (ω ≤ ω0), 1 periphery (ω0 < ω ≤ ω1), 2 outside (ω > ω1)."""
+    return jnp.where(
+        ecc <= foveation.fovea_deg, FOVEA, jnp.where(ecc <= foveation.periphery_deg, PERIPHERY, OUTSIDE)
+    )
+
+
+def block_size(region: Int[Array, "H W"], foveation) -> Int[Array, "H W"]:
+    b_peri, b_out = foveation.blocks
+    return jnp.where(region == FOVEA, 1, jnp.where(region == PERIPHERY, b_peri, b_out)).astype(jnp.int32)
+
+
+def top_left(region, foveation) -> tuple[Int[Array, "H W"], Int[Array, "H W"], Bool[Array, "H W"]]:
+    """(row, col) of each pixel's block's top-left pixel, and whether the pixel is one."""
+    h, w = region.shape
+    b = block_size(region, foveation)
+    y = jnp.arange(h, dtype=jnp.int32)[:, None]
+    x = jnp.arange(w, dtype=jnp.int32)[None, :]
+    ty, tx = y - y % b, x - x % b
+    return ty, tx, (ty == y) & (tx == x)
+
+
+def sample_classes(
+    ecc: Float[Array, "H W"], foveation, key: jax.Array
+) -> tuple[Int[Array, "S H W"], Int[Array, "H W"]]:
+    """Class of every sub-sample (spp, H, W): MANDATORY (traced: fovea, and block top-lefts under
+    the "either" rule), OPTIONAL (traced: kept by its P(ω) draw), SKIPPED; and the pixel regions.
+    Blocks are aligned to the eye's pixel grid; a pixel's block size is its own region's.
+
+    One uniform draw per sub-sample from `key`: a fixed key gives the same pattern frame after
+    frame (temporally stable), a fresh key per frame a fresh pattern.
+    """
+    region = regions(ecc, foveation)
+    ty, tx, _ = top_left(region, foveation)
+    # Every pixel that is some pixel's block top-left: the fill source of that block. (A pixel
+    # that tests only itself, as the thesis's ray generation does, can miss this at region
+    # boundaries, where a 2x2 block's top-left lies in the outside zone and is not 4-aligned.)
+    is_tl = jnp.zeros(ecc.shape, bool).at[ty, tx].set(True)
+    p = foveation.probability(ecc)
+    u = jax.random.uniform(key, (foveation.spp,) + ecc.shape, jnp.float32)
+    kept = u < p[None]
+    fovea = (region == FOVEA)[None]
+    if foveation.rule == "either":
+        mandatory = fovea | is_tl[None]
+        optional = ~mandatory & kept
+    else:  # strict: only top-left pixels, each sub-sample kept with P(ω)
+        mandatory = jnp.broadcast_to(fovea, kept.shape)
+        optional = ~mandatory & is_tl[None] & kept
+    cls = jnp.where(mandatory, MANDATORY, jnp.where(optional, OPTIONAL, SKIPPED)).astype(jnp.int32)
+    return cls, region
+
+
+def compaction_order(classes: Int[Array, " N"]) -> tuple[Int[Array, " N"], Int[Array, " 3"]]:
+    """A stable permutation listing MANDATORY samples first, then OPTIONAL, then SKIPPED (each
+    in its original, spatially coherent order), and the count of each class. O(N), no sort."""
+    counts = jnp.stack([jnp.sum(classes == c) for c in (MANDATORY, OPTIONAL, SKIPPED)]).astype(jnp.int32)
+    offsets = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(counts)[:2]])
+    rank = jnp.zeros_like(classes)
+    for c in (MANDATORY, OPTIONAL, SKIPPED):
+        is_c = (classes == c).astype(jnp.int32)
+        rank = jnp.where(is_c > 0, offsets[c] + jnp.cumsum(is_c) - 1, rank)
+    order = jnp.zeros_like(classes).at[rank].set(jnp.arange(classes.shape[0], dtype=classes.dtype))
+    return order, counts
