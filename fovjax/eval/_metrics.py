@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -430,12 +431,21 @@ def fovvdp(
             "use display.with_resolution(...) for a reduced render"
         )
     n_eyes = width // display.width_px
-    _require("torch", "fvvdp", "FovVideoVDP")
+    fixation = _gaze_pixels(gaze_xy, n_eyes, n_frames, display.width_px, height)
+    with warnings.catch_warnings():
+        # pyfvvdp's bundled loadmat uses a SciPy namespace deprecated since 1.8: not ours to fix.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        return _fovvdp(t, r, display, fixation, foveated, fps)
+
+
+def _fovvdp(t, r, display, fixation, foveated, fps) -> MetricValue:
+    n_frames, height, width = t.shape[:3]
+    n_eyes = width // display.width_px
+    # pyfvvdp imports torch: a missing torch surfaces here too, with the extra named.
     pyfvvdp = _require("pyfvvdp", "fvvdp", "FovVideoVDP")
     import torch
     from pyfvvdp.fvvdp_display_model import fvvdp_display_geometry, fvvdp_display_photo_eotf
 
-    fixation = _gaze_pixels(gaze_xy, n_eyes, n_frames, display.width_px, height)
     geometry = fvvdp_display_geometry((display.width_px, height), fov_horizontal=display.hfov_deg)
     photometry = fvvdp_display_photo_eotf(
         display.peak_luminance, contrast=display.contrast, EOTF="sRGB", E_ambient=display.ambient_lux
