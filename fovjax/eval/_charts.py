@@ -136,6 +136,10 @@ def plot_metric_bars(
     return _save(fig, path)
 
 
+def _edges(rings: RingErrors) -> np.ndarray:
+    return np.append(rings.lower_deg, rings.upper_deg[-1])
+
+
 def plot_ring_errors(
     rings: Mapping[str, RingErrors],
     path,
@@ -143,16 +147,15 @@ def plot_ring_errors(
     rays: Mapping[str, Sequence[float]] | None = None,
     title: str | None = None,
 ) -> Path:
-    """Mean error per eccentricity ring, one line per configuration; with `rays` (per
-    configuration, rays traced per ring, same rings), a second panel with those."""
+    """Mean error per eccentricity ring, one step line per configuration (constant over each
+    ring); with `rays` (per configuration, rays traced per ring, same rings), a second panel."""
     if not rings:
         raise ValueError("plot_ring_errors: no configurations given")
     fig = _figure((8.5, 7 if rays else 4.5))
     axes = fig.subplots(2 if rays else 1, 1, sharex=True, squeeze=False)[:, 0]
     units = set()
     for name, r in rings.items():
-        centre = (r.lower_deg + r.upper_deg) / 2
-        axes[0].plot(centre, r.mean_error, marker="o", ms=4, label=name)
+        axes[0].stairs(r.mean_error, _edges(r), lw=1.6, label=name)
         units.add(f"{r.error} [{r.units}]")
     axes[0].set_ylabel("mean error per pixel")
     axes[0].set_title(title or "error by eccentricity ring: " + "; ".join(sorted(units)), fontsize=9)
@@ -168,7 +171,7 @@ def plot_ring_errors(
                 raise ValueError(
                     f"plot_ring_errors: {name!r}: {counts.size} ray counts for {r.lower_deg.size} rings"
                 )
-            axes[1].plot((r.lower_deg + r.upper_deg) / 2, counts, marker="o", ms=4, label=name)
+            axes[1].stairs(counts, _edges(r), lw=1.6, label=name)
         axes[1].set_ylabel("rays per ring")
         axes[1].set_yscale("log")
         axes[1].grid(alpha=0.3)

@@ -300,7 +300,8 @@ def error_by_eccentricity(
         diff = display_encode(t, transfer) - display_encode(r, transfer)
         per_pixel = np.mean(np.abs(diff) if error == "abs" else diff**2, axis=-1)
         kind = (
-            f"{'mean absolute' if error == 'abs' else 'mean squared'} difference of {transfer}-encoded values"
+            f"{'mean absolute' if error == 'abs' else 'mean squared'} difference of "
+            f"{'sRGB-encoded' if transfer == 'srgb' else 'linear'} values"
         )
         units = (
             "dimensionless (encoded value, 0-1)"
