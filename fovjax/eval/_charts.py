@@ -37,7 +37,7 @@ def _interval(records, name: str, where: str) -> np.ndarray | None:
         return None
     mid = _column(records, name, where)
     lo, hi = _column(records, lo_name, where), _column(records, hi_name, where)
-    return np.nan_to_num(np.stack([mid - lo, hi - mid]), nan=0.0)
+    return np.clip(np.nan_to_num(np.stack([mid - lo, hi - mid]), nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
 
 
 def _labels(records, label: str) -> list[str]:
@@ -185,9 +185,18 @@ def _proportion_bars(ax, rows, pos, width, color, label):
     lo = np.array([r["proportion_same_lo"] for r in rows]) * 100
     hi = np.array([r["proportion_same_hi"] for r in rows]) * 100
     ax.bar(pos, p, width, color=color, alpha=0.85, label=label)
-    ax.errorbar(pos, p, yerr=np.stack([p - lo, hi - p]), fmt="none", ecolor="k", capsize=3, lw=1)
-    for x, r in zip(pos, rows, strict=True):
-        ax.annotate(f"{r['same']}/{r['answers']}", (x, 2), ha="center", fontsize=7, color="white")
+    yerr = np.clip(np.stack([p - lo, hi - p]), 0.0, None)
+    ax.errorbar(pos, p, yerr=yerr, fmt="none", ecolor="k", capsize=3, lw=1)
+    for x, y, r in zip(pos, p, rows, strict=True):
+        inside = y >= 10  # white inside a tall bar, black just above a short one
+        ax.annotate(
+            f"{r['same']}/{r['answers']}",
+            (x, y - 1.5 if inside else y + 1),
+            ha="center",
+            va="top" if inside else "bottom",
+            fontsize=7,
+            color="white" if inside else "black",
+        )
 
 
 def _level_names(rows) -> list[str]:
@@ -225,7 +234,8 @@ def plot_ramp_test(rows: Sequence[dict], path, *, title: str | None = None) -> P
         by_level = {(r["fovea_deg"], r["periphery_deg"]): r for r in rows if r["direction"] == direction}
         idx = [i for i, lv in enumerate(levels) if lv in by_level]
         if idx:
-            ramp = "5°→15°" if direction == "up" else "15°→5°"
+            low, high = f"{levels[0][0]:g}°", f"{levels[-1][0]:g}°"
+            ramp = f"{low}→{high}" if direction == "up" else f"{high}→{low}"
             _proportion_bars(
                 ax,
                 [by_level[levels[i]] for i in idx],
