@@ -9,7 +9,8 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
     fe.error_by_eccentricity(test, ref, eccentricity_deg)            # 5° rings
     fe.pareto_front(table, {"rays_per_frame": "min", "flip": "min"})
     fe.cheapest_within(table, cost="rays_per_frame", metric="jod_drop", threshold=fe.JND_JOD)
-    observer = fe.MetricObserver(lambda trial: jod_drop_at(trial.level), threshold=fe.JND_JOD)
+    # jod_at(level): your FovVideoVDP JOD of that foveation level against the full render
+    observer = fe.MetricObserver(lambda trial: 10 - jod_at(trial.level), threshold=fe.JND_JOD)
     fe.write_study_report(fe.run_study([observer]), "out/study")      # figures 66-68
 """
 
