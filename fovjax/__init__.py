@@ -1,6 +1,7 @@
 """fovjax: a differentiable JAX reference renderer and model-fitting toolkit for foveated ray
 tracing on eye-tracked stereo head-mounted displays."""
 
+from . import render as render
 from . import scenes as scenes
 from . import trace as trace
 from ._camera import (
@@ -10,8 +11,16 @@ from ._camera import (
     look_at_rotation as look_at_rotation,
 )
 from ._camera import (
+    pixel_sample_positions as pixel_sample_positions,
+)
+from ._camera import (
     stratified_offsets as stratified_offsets,
 )
+from ._camera import (
+    vfov_from_hfov as vfov_from_hfov,
+)
+from ._image import load_image as load_image
+from ._image import save_image as save_image
 from ._loaders import load_scene as load_scene
 from ._scene import (
     DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT,
@@ -37,5 +46,9 @@ from ._scene import (
 from ._scene import (
     make_scene as make_scene,
 )
+from .render import Frame as Frame
+from .render import RenderConfig as RenderConfig
+from .render import StereoRig as StereoRig
+from .render import render_stereo as render_stereo
 
 __version__ = "0.1.0"

@@ -5,6 +5,11 @@ top-left pixel; row index grows downwards. The image plane spans the vertical fi
 `offset` shifts the projection centre in units of the half-extent of the image plane (an
 off-centre, "canted" projection: offset (0.1, 0) moves the centre of projection a tenth of the
 half-width to the right).
+
+Samples inside a pixel: `pixel_sample_positions(width, height, spp, key)` puts `spp` samples on a
+sqrt(spp) x sqrt(spp) grid of equal cells in every pixel (at the cell centres, or jittered inside
+each cell, independently per pixel, when a PRNG key is given); `Camera.sample_rays` turns them into
+rays, and `Camera.project` maps world points back to continuous pixel coordinates.
 """
 
 from __future__ import annotations
@@ -78,9 +83,35 @@ class Camera(eqx.Module):
         aspect = self.width / self.height
         sx = (2.0 * pixel_xy[..., 0] / self.width - 1.0 + self.offset[0]) * tan_half * aspect
         sy = (1.0 - 2.0 * pixel_xy[..., 1] / self.height + self.offset[1]) * tan_half
-        d_cam = jnp.stack([sx, sy, -jnp.ones_like(sx)], axis=-1)
-        d = d_cam @ self.rotation.T
-        return d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+        # Written out per component: XLA:CPU runs a matmul or a sum over a length-3 axis
+        # through a far slower library kernel than this fused elementwise arithmetic.
+        r = self.rotation
+        d = jnp.stack([sx * r[i, 0] + sy * r[i, 1] - r[i, 2] for i in range(3)], axis=-1)
+        return d * jax.lax.rsqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)[..., None]
+
+    def project(
+        self, points: Float[Array, "*batch 3"]
+    ) -> tuple[Float[Array, "*batch 2"], Float[Array, "*batch"]]:
+        """Continuous pixel coordinates (x right, y down, as `ray_directions` takes them) of world
+        points, and their depth along the viewing axis (negative: behind the camera)."""
+        pc = (jnp.asarray(points, jnp.float32) - self.position) @ self.rotation
+        depth = -pc[..., 2]
+        tan_half = jnp.tan(jnp.deg2rad(self.vfov_deg) / 2)
+        aspect = self.width / self.height
+        sx = pc[..., 0] / depth
+        sy = pc[..., 1] / depth
+        x = 0.5 * self.width * (sx / (tan_half * aspect) - self.offset[0] + 1.0)
+        y = 0.5 * self.height * (1.0 + self.offset[1] - sy / tan_half)
+        return jnp.stack([x, y], axis=-1), depth
+
+    def sample_rays(
+        self, spp: int = 1, key: jax.Array | None = None
+    ) -> tuple[Float[Array, "spp H W 3"], Float[Array, "spp H W 3"], Float[Array, "spp H W 2"]]:
+        """`spp` rays per pixel on the stratified grid of `pixel_sample_positions` (jittered when
+        `key` is given): (origins, unit directions, pixel coordinates), sample axis first."""
+        xy = pixel_sample_positions(self.width, self.height, spp, key)
+        d = self.ray_directions(xy)
+        return jnp.broadcast_to(self.position, d.shape), d, xy
 
     def pixel_centres(self) -> Float[Array, "H W 2"]:
         x = jnp.arange(self.width, dtype=jnp.float32) + 0.5
@@ -106,3 +137,33 @@ def stratified_offsets(spp: int, key: jax.Array | None = None) -> Float[Array, "
     cells = jnp.stack([gx.reshape(-1), gy.reshape(-1)], -1)
     jitter = 0.5 if key is None else jax.random.uniform(key, (spp, 2), jnp.float32)
     return (cells + jitter) / n
+
+
+def vfov_from_hfov(hfov_deg, width: int, height: int):
+    """The vertical field of view (degrees) of a `width` x `height` pinhole image whose
+    horizontal field of view is `hfov_deg` (square pixels). Works on arrays and tracers."""
+    half = jnp.tan(jnp.deg2rad(jnp.asarray(hfov_deg, jnp.float32)) / 2)
+    return jnp.rad2deg(2 * jnp.arctan(half * (height / width)))
+
+
+def pixel_sample_positions(
+    width: int, height: int, spp: int = 1, key: jax.Array | None = None
+) -> Float[Array, "spp H W 2"]:
+    """Continuous pixel coordinates of `spp` samples in every pixel of a width x height image.
+
+    Sample s lies in cell (s % n, s // n) of an n x n grid over the pixel (n = sqrt(spp)): at the
+    cell's centre without a key, uniformly inside the cell with one (independent draws for every
+    pixel and sample). With spp = 1 and no key that is the pixel centre.
+    """
+    grid = stratified_offsets(spp)  # (spp, 2) cell centres
+    n = int(round(spp**0.5))
+    x = jnp.arange(width, dtype=jnp.float32)
+    y = jnp.arange(height, dtype=jnp.float32)
+    xx, yy = jnp.meshgrid(x, y)
+    corner = jnp.stack([xx, yy], axis=-1)  # (H, W, 2) top-left corner of each pixel
+    if key is None:
+        offsets = grid[:, None, None, :]
+    else:
+        jitter = jax.random.uniform(key, (spp, height, width, 2), jnp.float32)
+        offsets = grid[:, None, None, :] + (jitter - 0.5) / n
+    return corner[None] + offsets

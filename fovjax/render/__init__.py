@@ -1,0 +1,62 @@
+"""The renderer: Whitted ray tracing (Blinn–Phong, shadow rays, mirror reflections, env map),
+the stereo HMD rig with head pose, and frames compiled once per configuration.
+
+The frame is three steps, each usable on its own (the foveation layer reuses them):
+
+- `stereo_sample_rays(rig, head_pose, spp, key)` → `SampleRays(origins, directions)` of shape
+  (2, spp, H, W, 3) and `pixel_xy` (spp, H, W, 2) (or `Camera.sample_rays` for one camera);
+- `radiance(scene_arrays, bvh, origins, directions, active, config=)` →
+  `Radiance(rgb (..., 3), bad (...), counts: RayCounts)`, tracing only the `active` rays;
+- `resolve(rgb, bad)` → the box-filtered pixels (and which are bad); `side_by_side` for stereo.
+
+`render` / `render_stereo` put them together and return a `Frame`; `render_image` /
+`render_stereo_image` are the pure, differentiable versions.
+
+`fovjax.render` is both this subpackage and, when called, `render`: `fovjax.render(scene,
+camera, spp=4)` renders a frame while `fovjax.render.radiance` etc. stay reachable.
+"""
+
+import sys
+import types
+
+from ._arrays import SceneArrays as SceneArrays
+from ._arrays import scene_arrays as scene_arrays
+from ._config import MAGENTA as MAGENTA
+from ._config import THESIS_BACKGROUND as THESIS_BACKGROUND
+from ._config import RenderConfig as RenderConfig
+from ._envmap import constant_envmap as constant_envmap
+from ._envmap import envmap_lookup as envmap_lookup
+from ._envmap import latlong_uv as latlong_uv
+from ._envmap import load_envmap as load_envmap
+from ._frame import Frame as Frame
+from ._frame import FrameStats as FrameStats
+from ._frame import clear_compile_cache as clear_compile_cache
+from ._frame import compile_cache_info as compile_cache_info
+from ._frame import render as render
+from ._frame import render_image as render_image
+from ._frame import render_stereo as render_stereo
+from ._frame import render_stereo_image as render_stereo_image
+from ._frame import resolve as resolve
+from ._frame import side_by_side as side_by_side
+from ._integrator import Radiance as Radiance
+from ._integrator import RayCounts as RayCounts
+from ._integrator import Surface as Surface
+from ._integrator import bilinear_wrap as bilinear_wrap
+from ._integrator import radiance as radiance
+from ._integrator import scene_scale as scene_scale
+from ._integrator import surface_at as surface_at
+from ._stereo import SampleRays as SampleRays
+from ._stereo import StereoRig as StereoRig
+from ._stereo import head_pose_angles as head_pose_angles
+from ._stereo import head_rotation as head_rotation
+from ._stereo import stereo_sample_rays as stereo_sample_rays
+
+
+class _CallableModule(types.ModuleType):
+    """Lets `fovjax.render(...)` call `render` without hiding this subpackage's other names."""
+
+    def __call__(self, *args, **kwargs):
+        return render(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -1,0 +1,81 @@
+"""`SceneArrays`: the arrays of a `Scene` that the integrator reads, and nothing static.
+
+A `Scene` carries static metadata (its name, texture paths, a content hash) that would make every
+new scene, and every edited copy of one, a new compiled program. `SceneArrays` keeps only arrays,
+so one compiled renderer serves every scene of the same array shapes, and `jax.grad` can be taken
+with respect to any of its leaves (vertices, material colours, lights, the environment map).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .._scene import Scene
+from ._envmap import constant_envmap, load_envmap
+
+
+class SceneArrays(eqx.Module):
+    """Geometry, materials (one row per material, see `fovjax.Materials`), lights (see
+    `fovjax.Lights`), the ambient light colour and the lat-long environment map seen by rays
+    that miss (a 1 x 1 map for a constant background)."""
+
+    vertices: Float[Array, "V 3"]
+    faces: Int[Array, "F 3"]
+    face_material: Int[Array, " F"]
+    normals: Float[Array, "V 3"] | None
+    uvs: Float[Array, "V 2"] | None
+    ka: Float[Array, "M 3"]
+    kd: Float[Array, "M 3"]
+    ks: Float[Array, "M 3"]
+    ke: Float[Array, "M 3"]
+    kr: Float[Array, "M 3"]
+    ns: Float[Array, " M"]
+    texture: Int[Array, " M"]
+    textures: tuple
+    light_position: Float[Array, "L 3"]
+    light_color: Float[Array, "L 3"]
+    light_kind: Int[Array, " L"]
+    ambient: Float[Array, " 3"]
+    environment: Float[Array, "He We 3"]
+
+    @property
+    def num_lights(self) -> int:
+        return int(np.shape(self.light_kind)[0])
+
+
+def scene_arrays(scene: Scene, *, envmap=None, background=(0.34, 0.55, 0.85)) -> SceneArrays:
+    """The `SceneArrays` of `scene`. `envmap`: a path to a lat-long image, an (He, We, 3) array,
+    or None for a constant `background` colour. Works on traced scenes too (no host copies),
+    except for loading an `envmap` path."""
+    if isinstance(envmap, str) or hasattr(envmap, "__fspath__"):
+        environment = load_envmap(envmap)
+    elif envmap is None:
+        environment = constant_envmap(background)
+    else:
+        environment = envmap
+        shape = np.shape(environment)
+        if len(shape) != 3 or shape[-1] != 3 or shape[0] < 1 or shape[1] < 1:
+            raise ValueError(f"scene_arrays: envmap must be an (He, We, 3) image, got shape {shape}")
+    m, lights = scene.materials, scene.lights
+    return SceneArrays(
+        vertices=scene.vertices,
+        faces=scene.faces,
+        face_material=scene.face_material,
+        normals=scene.normals,
+        uvs=scene.uvs,
+        ka=m.ka,
+        kd=m.kd,
+        ks=m.ks,
+        ke=m.ke,
+        kr=m.kr,
+        ns=m.ns,
+        texture=m.texture,
+        textures=tuple(scene.textures),
+        light_position=lights.position,
+        light_color=lights.color,
+        light_kind=lights.kind,
+        ambient=scene.ambient,
+        environment=environment,
+    )

@@ -1,0 +1,77 @@
+"""`RenderConfig`: the static settings of the Whitted integrator (one compiled program each)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..trace import BACKENDS
+
+# The thesis's defaults: OptiX max trace depth 5, background ("bg color") (0.34, 0.55, 0.85),
+# exception colour ("bad color") (1, 0, 1).
+THESIS_BACKGROUND = (0.34, 0.55, 0.85)
+MAGENTA = (1.0, 0.0, 1.0)
+
+
+def _rgb(name: str, value) -> tuple[float, float, float]:
+    rgb = np.asarray(value, np.float64)
+    if rgb.shape != (3,) or not np.isfinite(rgb).all():
+        raise ValueError(f"RenderConfig.{name} must be 3 finite numbers, got {value!r}")
+    return tuple(float(c) for c in rgb)
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderConfig:
+    """How the integrator traces and shades. Hashable: every distinct config is compiled once.
+
+    - `max_depth`: reflection rays are spawned while depth < max_depth (primary rays have depth
+      0), so at most `max_depth` bounces; 0 disables reflections. Thesis: 5.
+    - `background`: radiance of rays that miss everything when no environment map is given.
+    - `bad_color`: what a sample whose radiance is NaN or inf becomes (counted as bad).
+    - `ray_offset`: secondary-ray origins move this far along the surface's geometric normal
+      (to the side the new ray leaves from), relative to the scene's size (the larger of its
+      bounding-box diagonal and its largest absolute coordinate), so surfaces never shadow or
+      reflect themselves.
+    - `packet`: traversal of primary rays and of the shadow rays from their hit points, as in
+      `fovjax.trace.closest_hit` (a tile (h, w) over the last two batch axes of the rays, an int
+      for runs of consecutive rays, or None for one by one; a tile needs rays with at least two
+      batch axes laid out as an image). Reflection rays and later shadow rays are incoherent
+      and always traced one by one.
+    - `backend`: "jax" (any XLA device) or "embree" (CPU; needs embreex).
+    """
+
+    max_depth: int = 5
+    background: tuple[float, float, float] = THESIS_BACKGROUND
+    bad_color: tuple[float, float, float] = MAGENTA
+    ray_offset: float = 1e-5
+    packet: int | tuple[int, int] | None = (8, 8)
+    backend: str = "jax"
+
+    def __post_init__(self):
+        if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
+            raise ValueError(f"RenderConfig.max_depth must be an integer >= 0, got {self.max_depth!r}")
+        object.__setattr__(self, "max_depth", int(self.max_depth))
+        object.__setattr__(self, "background", _rgb("background", self.background))
+        object.__setattr__(self, "bad_color", _rgb("bad_color", self.bad_color))
+        if not (np.isfinite(self.ray_offset) and self.ray_offset >= 0):
+            raise ValueError(f"RenderConfig.ray_offset must be finite and >= 0, got {self.ray_offset!r}")
+        object.__setattr__(self, "ray_offset", float(self.ray_offset))
+        packet = self.packet
+        if isinstance(packet, list):
+            packet = tuple(packet)
+        sizes = () if packet is None else (packet,) if isinstance(packet, int) else packet
+        if packet is not None and (
+            not isinstance(sizes, tuple)
+            or len(sizes) not in (1, 2)
+            or any(not isinstance(s, int) or s < 1 for s in sizes)
+        ):
+            raise ValueError(
+                f"RenderConfig.packet must be None, a positive int or a (height, width) tile, got {packet!r}"
+            )
+        object.__setattr__(self, "packet", packet)
+        if self.backend not in BACKENDS:
+            raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
+
+
+DEFAULT_CONFIG = RenderConfig()

@@ -1,0 +1,325 @@
+"""Frames: sample rays → `radiance` → box filter, compiled once per configuration.
+
+- `render_image` / `render_stereo_image`: pure and jittable, for `jax.grad` (scene arrays, BVH,
+  camera or rig, pose and key in; the linear image out).
+- `render` / `render_stereo`: the host entry points. They return a `Frame` (the image as NumPy
+  and statistics: rays traced by kind, bad pixels, compile and render seconds) and keep one
+  compiled program per configuration, keyed by everything static (resolution, spp, jitter or
+  not, `RenderConfig`, the array shapes of scene, BVH and camera), so a new head pose, gaze,
+  key, light colour or scene of the same shapes reuses it.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from .._camera import Camera
+from .._scene import Scene
+from ..trace import BVH, build_bvh
+from ._arrays import SceneArrays, scene_arrays
+from ._config import DEFAULT_CONFIG, RenderConfig
+from ._integrator import RayCounts, radiance
+from ._stereo import StereoRig, head_pose_angles, stereo_sample_rays
+
+
+def resolve(
+    rgb: Float[Array, "*lead spp H W 3"],
+    bad: Bool[Array, "*lead spp H W"] | None = None,
+    *,
+    bad_color=(1.0, 0.0, 1.0),
+) -> tuple[Float[Array, "*lead H W 3"], Bool[Array, "*lead H W"]]:
+    """Box-filter the samples of each pixel (axis -4 of `rgb`) into the pixel. A pixel with any
+    bad sample is `bad_color` outright (the thesis's exception program paints the pixel).
+    Returns (image, bad pixels)."""
+    # Sums written out over the (static) sample axis: see `_vec` on short reductions.
+    spp = rgb.shape[-4]
+    image = rgb[..., 0, :, :, :]
+    for s in range(1, spp):
+        image = image + rgb[..., s, :, :, :]
+    image = image / spp
+    if bad is None:
+        return image, jnp.zeros(image.shape[:-1], bool)
+    bad_pixel = bad[..., 0, :, :]
+    for s in range(1, spp):
+        bad_pixel = bad_pixel | bad[..., s, :, :]
+    return jnp.where(bad_pixel[..., None], jnp.asarray(bad_color, image.dtype), image), bad_pixel
+
+
+def side_by_side(eyes: Float[Array, "2 H W 3"]) -> Float[Array, "H 2W 3"]:
+    """The left eye's image in the left half, the right eye's in the right half."""
+    return jnp.concatenate([eyes[0], eyes[1]], axis=1)
+
+
+def _as_arrays(scene) -> SceneArrays:
+    return scene if isinstance(scene, SceneArrays) else scene_arrays(scene)
+
+
+def render_image(
+    scene: SceneArrays | Scene,
+    bvh: BVH,
+    camera: Camera,
+    *,
+    spp: int = 1,
+    key: jax.Array | None = None,
+    config: RenderConfig = DEFAULT_CONFIG,
+) -> Float[Array, "H W 3"]:
+    """One camera's linear-RGB image: `camera.sample_rays(spp, key)` → `radiance` → `resolve`.
+    Pure; jit it, or take `jax.grad` of a loss of it."""
+    o, d, _ = camera.sample_rays(spp, key)
+    result = radiance(_as_arrays(scene), bvh, o, d, config=config)
+    return resolve(result.rgb, result.bad, bad_color=config.bad_color)[0]
+
+
+def render_stereo_image(
+    scene: SceneArrays | Scene,
+    bvh: BVH,
+    rig: StereoRig,
+    head_pose=None,
+    *,
+    spp: int = 1,
+    key: jax.Array | None = None,
+    config: RenderConfig = DEFAULT_CONFIG,
+) -> Float[Array, "H 2W 3"]:
+    """The side-by-side stereo image (linear RGB) for a head pose. Pure; jittable."""
+    rays = stereo_sample_rays(rig, head_pose, spp, key)
+    result = radiance(_as_arrays(scene), bvh, rays.origins, rays.directions, config=config)
+    return side_by_side(resolve(result.rgb, result.bad, bad_color=config.bad_color)[0])
+
+
+# ---- host side: compiled programs, frames --------------------------------------------------
+
+# Compiled programs by (entry, static arguments, argument structure and shapes); and how many
+# times each entry has been traced (a retrace means a recompile).
+_COMPILED: dict = {}
+TRACE_COUNTS: collections.Counter = collections.Counter()
+
+
+def compile_cache_info() -> dict[str, int]:
+    """Compiled programs held per entry point ("mono", "stereo")."""
+    counts = collections.Counter(key[0] for key in _COMPILED)
+    return dict(counts)
+
+
+def clear_compile_cache() -> None:
+    _COMPILED.clear()
+    TRACE_COUNTS.clear()
+
+
+def _mono_program(scene, bvh, camera, key, *, spp, jitter, config):
+    TRACE_COUNTS["mono"] += 1
+    o, d, _ = camera.sample_rays(spp, key if jitter else None)
+    result = radiance(scene, bvh, o, d, config=config)
+    image, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
+    return image, result.counts, jnp.sum(bad_pixels, dtype=jnp.int32)
+
+
+def _stereo_program(scene, bvh, rig, head_pose, key, *, spp, jitter, config):
+    TRACE_COUNTS["stereo"] += 1
+    rays = stereo_sample_rays(rig, head_pose, spp, key if jitter else None)
+    result = radiance(scene, bvh, rays.origins, rays.directions, config=config)
+    eyes, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
+    return side_by_side(eyes), result.counts, jnp.sum(bad_pixels, dtype=jnp.int32)
+
+
+_PROGRAMS = {"mono": _mono_program, "stereo": _stereo_program}
+
+
+def _signature(args) -> tuple:
+    leaves, treedef = jax.tree.flatten(args)
+    return treedef, tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in leaves)
+
+
+def _run(entry: str, args: tuple, static: dict):
+    """Run `entry` on `args`, compiling it first if this configuration is new. Returns
+    (outputs, compile seconds, render seconds)."""
+    args = jax.tree.map(jnp.asarray, args)
+    cache_key = (entry, tuple(sorted(static.items())), _signature(args))
+    compiled = _COMPILED.get(cache_key)
+    compile_seconds = 0.0
+    if compiled is None:
+        start = time.perf_counter()
+        program = jax.jit(_PROGRAMS[entry], static_argnames=tuple(static))
+        compiled = program.lower(*args, **static).compile()
+        compile_seconds = time.perf_counter() - start
+        _COMPILED[cache_key] = compiled
+    start = time.perf_counter()
+    outputs = jax.block_until_ready(compiled(*args))
+    return outputs, compile_seconds, time.perf_counter() - start
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameStats:
+    """What a frame cost. Ray counts are rays actually traced; `bad_pixels` are pixels painted
+    the bad colour; `compile_seconds` is 0 when a compiled program was reused; `render_seconds`
+    is the compiled program's wall time (rays, shading, filtering; not the host transfers)."""
+
+    primary_rays: int
+    shadow_rays: int
+    reflection_rays: int
+    bad_samples: int
+    bad_pixels: int
+    compile_seconds: float
+    render_seconds: float
+    width: int
+    height: int
+    spp: int
+    stereo: bool
+
+    @property
+    def rays(self) -> int:
+        return self.primary_rays + self.shadow_rays + self.reflection_rays
+
+    def summary(self) -> str:
+        kind = "stereo" if self.stereo else "mono"
+        rate = self.rays / self.render_seconds / 1e6 if self.render_seconds > 0 else float("nan")
+        return (
+            f"{kind} {self.width}x{self.height} spp {self.spp}: {self.primary_rays:,} primary + "
+            f"{self.shadow_rays:,} shadow + {self.reflection_rays:,} reflection rays in "
+            f"{self.render_seconds:.2f} s ({rate:.2f} Mrays/s), compile {self.compile_seconds:.1f} s, "
+            f"{self.bad_pixels} bad pixels"
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """A rendered frame: `image` (H, W, 3) linear-RGB float32 NumPy (side by side for stereo:
+    W = 2 x eye width, left eye on the left) and its `stats`."""
+
+    image: np.ndarray
+    stats: FrameStats
+
+    def eyes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(left, right) halves of a stereo frame."""
+        if not self.stats.stereo:
+            raise ValueError("Frame.eyes: this is a mono frame")
+        half = self.image.shape[1] // 2
+        return self.image[:, :half], self.image[:, half:]
+
+    def save(self, path, **kwargs) -> Path:
+        """Save the image (see `fovjax.save_image`: PNG tone-mapped sRGB, EXR/HDR linear)."""
+        from .._image import save_image
+
+        return save_image(path, self.image, **kwargs)
+
+
+_BVH_MEMO: collections.OrderedDict = collections.OrderedDict()
+
+
+def _bvh_for(scene: Scene, bvh: BVH | None) -> BVH:
+    if bvh is None:
+        if not isinstance(scene, Scene) or not scene.content_hash:
+            raise ValueError("render: pass bvh= when the scene is not a fovjax.Scene with a content hash")
+        bvh = _BVH_MEMO.get(scene.content_hash)
+        if bvh is None:
+            bvh = build_bvh(scene)
+            _BVH_MEMO[scene.content_hash] = bvh
+            while len(_BVH_MEMO) > 4:
+                _BVH_MEMO.popitem(last=False)
+    faces = np.shape(scene.faces)
+    if bvh.num_triangles != faces[0]:
+        raise ValueError(
+            f"render: the BVH has {bvh.num_triangles} triangles but the scene has {faces[0]}; "
+            "build it from this scene (fovjax.trace.build_bvh(scene))"
+        )
+    return bvh
+
+
+def _key_args(key, spp: int):
+    if spp < 1 or int(round(spp**0.5)) ** 2 != spp:
+        raise ValueError(f"spp must be a positive square (1, 4, 9, 16, ...), got {spp}")
+    jitter = key is not None
+    return (key if jitter else jax.random.key(0)), jitter
+
+
+def _frame(outputs, compile_s, render_s, *, spp, stereo) -> Frame:
+    image, counts, bad_pixels = outputs
+    counts = RayCounts(*(int(c) for c in counts))
+    image = np.asarray(image)
+    return Frame(
+        image=image,
+        stats=FrameStats(
+            primary_rays=counts.primary,
+            shadow_rays=counts.shadow,
+            reflection_rays=counts.reflection,
+            bad_samples=counts.bad,
+            bad_pixels=int(bad_pixels),
+            compile_seconds=compile_s,
+            render_seconds=render_s,
+            width=image.shape[1],
+            height=image.shape[0],
+            spp=spp,
+            stereo=stereo,
+        ),
+    )
+
+
+def render(
+    scene: Scene | SceneArrays,
+    camera: Camera,
+    *,
+    spp: int = 1,
+    key: jax.Array | None = None,
+    config: RenderConfig = DEFAULT_CONFIG,
+    envmap=None,
+    bvh: BVH | None = None,
+) -> Frame:
+    """Render one camera's view of `scene` with the Whitted integrator.
+
+    `spp` samples per pixel (a square: 1, 4, 9, 16, ...) on a stratified sub-pixel grid,
+    jittered per pixel from the PRNG `key` (cell centres when None), box-filtered. `envmap`: a
+    lat-long image path or array seen by missing rays (else `config.background`). `bvh`:
+    reused if given, else built (and cached) from the scene.
+    """
+    bvh = _bvh_for(scene, bvh)
+    arrays = (
+        scene
+        if isinstance(scene, SceneArrays)
+        else scene_arrays(scene, envmap=envmap, background=config.background)
+    )
+    key, jitter = _key_args(key, spp)
+    outputs, compile_s, render_s = _run(
+        "mono", (arrays, bvh, camera, key), {"spp": int(spp), "jitter": jitter, "config": config}
+    )
+    return _frame(outputs, compile_s, render_s, spp=int(spp), stereo=False)
+
+
+def render_stereo(
+    scene: Scene | SceneArrays,
+    rig: StereoRig | None = None,
+    *,
+    head_pose=None,
+    spp: int = 1,
+    key: jax.Array | None = None,
+    config: RenderConfig = DEFAULT_CONFIG,
+    envmap=None,
+    bvh: BVH | None = None,
+) -> Frame:
+    """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
+    side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`).
+    Other arguments as `render`."""
+    if rig is None:
+        from ..scenes import default_camera
+
+        if not isinstance(scene, Scene):
+            raise ValueError("render_stereo: pass a rig when the scene is not a fovjax.Scene")
+        rig = StereoRig.from_pose(default_camera(scene))
+    bvh = _bvh_for(scene, bvh)
+    arrays = (
+        scene
+        if isinstance(scene, SceneArrays)
+        else scene_arrays(scene, envmap=envmap, background=config.background)
+    )
+    key, jitter = _key_args(key, spp)
+    angles = np.asarray(head_pose_angles(head_pose), np.float32)
+    outputs, compile_s, render_s = _run(
+        "stereo", (arrays, bvh, rig, angles, key), {"spp": int(spp), "jitter": jitter, "config": config}
+    )
+    return _frame(outputs, compile_s, render_s, spp=int(spp), stereo=True)
