@@ -1,6 +1,8 @@
 """Foveated sampling: eccentricity, regions, acuity-driven sample selection, the static ray
 budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, sections 4.4.1, 4.5)."""
 
+from ._api import FoveatedFrame as FoveatedFrame
+from ._api import render_foveated as render_foveated
 from ._budget import plan_budget as plan_budget
 from ._config import (
     ECCENTRICITY_MODES as ECCENTRICITY_MODES,
@@ -36,6 +38,7 @@ from ._eccentricity import (
     eccentricity_planar as eccentricity_planar,
 )
 from ._fill import fill_and_blur as fill_and_blur
+from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
 from ._fill import resolve as resolve
 from ._sampling import (
     FOVEA as FOVEA,

@@ -70,6 +70,18 @@ def fill_and_blur(
     FOVEA_BLEND_DEG beyond ω0 so the fovea (and every traced foveal pixel) stays untouched;
     `blur_fovea=True` blurs every pixel instead. Returns (image, pixels that were blank)."""
     pix, n = resolve(colors, traced)
+    return fill_and_blur_pixels(pix, n, region, ecc, foveation)
+
+
+def fill_and_blur_pixels(
+    pix: Float[Array, "H W 3"],
+    n: Int[Array, "H W"],
+    region: Int[Array, "H W"],
+    ecc: Float[Array, "H W"],
+    foveation,
+) -> tuple[Float[Array, "H W 3"], Bool[Array, "H W"]]:
+    """`fill_and_blur` from resolved pixels: the mean of each pixel's traced samples and how
+    many there were."""
     blank = n == 0
     ty, tx, _ = top_left(region, foveation)
     filled = jnp.where(blank[..., None], pix[ty, tx], pix)
