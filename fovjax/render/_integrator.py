@@ -208,6 +208,7 @@ def radiance(
 
     Returns `Radiance(rgb (*batch, 3), bad (*batch), counts)`.
     """
+    scene = jax.tree.map(jnp.asarray, scene)  # host NumPy leaves cannot be indexed by traced rays
     origins = jnp.asarray(origins, jnp.float32)
     directions = jnp.asarray(directions, jnp.float32)
     batch = jnp.broadcast_shapes(origins.shape[:-1], directions.shape[:-1])

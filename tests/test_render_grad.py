@@ -1,0 +1,114 @@
+"""Gradients of an image loss against central finite differences.
+
+`jax.grad` (through `eqx.filter_grad`) of a weighted sum of a rendered image, with respect to
+material colours (Kd, Ks, Kr, Ns), the light's colour and position, the camera position and
+vertex positions. Visibility (which triangle a ray hits, whether a shadow ray is blocked) is not
+differentiated; the BVH is built once, so the renderer with perturbed arrays is a smooth function
+of them as long as no shadow edge or silhouette moves across a sample, and the views are chosen
+so: the sphere's front seen from ahead (its reflections see only the sky), and open floor lit
+without shadows. The finite differences use the same compiled program as test_render.py.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_render_reference import FLOOR, SIZE, SPHERE, oracle_scene
+
+import fovjax
+from fovjax.render import RenderConfig, render, render_image, scene_arrays
+from fovjax.trace import build_bvh
+
+CONFIG = RenderConfig(max_depth=1)
+BACKGROUND = np.array(fovjax.render.THESIS_BACKGROUND, np.float32).reshape(1, 1, 3)
+WEIGHTS = np.random.default_rng(3).uniform(0.0, 1.0, (SIZE, SIZE, 3)).astype(np.float32)
+
+
+def loss(params, bvh):
+    arrays, camera = params
+    return jnp.sum(WEIGHTS * render_image(arrays, bvh, camera, config=CONFIG))
+
+
+@pytest.fixture(scope="module")
+def setup():
+    scene = oracle_scene()
+    bvh = build_bvh(scene, cache=False)
+    arrays = scene_arrays(scene, envmap=BACKGROUND)
+    grad = eqx.filter_jit(eqx.filter_grad(loss))
+    return scene, bvh, arrays, grad
+
+
+def forward(arrays, camera, bvh):
+    image = render(arrays, camera, config=CONFIG, bvh=bvh).image
+    return float(np.sum(WEIGHTS.astype(np.float64) * image))
+
+
+def replace_entry(params, where, index, value):
+    """params with leaf `where(params)[index]` set to value."""
+    leaf = np.array(where(params), copy=True)
+    leaf[index] = value
+    return eqx.tree_at(where, params, leaf)
+
+
+def check(params, gradient, bvh, where, index, eps):
+    x0 = float(np.asarray(where(params))[index])
+    plus = forward(*replace_entry(params, where, index, x0 + eps), bvh)
+    minus = forward(*replace_entry(params, where, index, x0 - eps), bvh)
+    fd = (plus - minus) / (2 * eps)
+    g = float(np.asarray(where(gradient))[index])
+    assert g == pytest.approx(fd, rel=2e-2, abs=2e-2), (index, g, fd)
+    return g
+
+
+def sphere_view():
+    return fovjax.Camera.look_at((0.0, 1.0, 6.0), (0.0, 1.0, 0.0), vfov_deg=30.0, width=SIZE, height=SIZE)
+
+
+def floor_view():
+    # x = 5.3, not 5.5: a pixel centre on the texture's texel centre (u = 1.375) would sit on a
+    # kink of the bilinear lookup, where one-sided derivatives differ
+    return fovjax.Camera.look_at((5.3, 5.0, 10.0), (5.3, 0.0, 7.0), vfov_deg=35.0, width=SIZE, height=SIZE)
+
+
+def test_gradients_of_materials_light_colour_and_sphere_vertex(setup):
+    scene, bvh, arrays, grad = setup
+    params = (arrays, sphere_view())
+    gradient = grad(params, bvh)
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(eqx.filter(gradient, eqx.is_array)))
+    a = lambda name: lambda p: getattr(p[0], name)  # noqa: E731
+    checked = []
+    for name, row in [("kd", SPHERE), ("ks", SPHERE), ("kr", SPHERE), ("kd", FLOOR), ("kr", FLOOR)]:
+        for channel in range(3):
+            checked.append(check(params, gradient, bvh, a(name), (row, channel), 1e-2))
+    checked.append(check(params, gradient, bvh, a("ns"), SPHERE, 0.5))
+    for channel in range(3):
+        checked.append(check(params, gradient, bvh, a("light_color"), (0, channel), 1e-2))
+    # the sphere's front pole (0, 1, 1): an interior vertex of the view. The BVH keeps the
+    # original surface, so steps must stay below the secondary-ray offset (2.8e-4 here), or
+    # shadow rays from the moved surface would start behind the original one.
+    pole = int(np.argmin(np.linalg.norm(np.asarray(scene.vertices) - (0.0, 1.0, 1.0), axis=1)))
+    for axis in range(3):
+        checked.append(check(params, gradient, bvh, a("vertices"), (pole, axis), 1e-4))
+    assert np.count_nonzero(np.abs(checked) > 1e-3) >= len(checked) - 2  # not a pile of zeros
+
+
+def test_gradients_of_camera_light_position_and_floor_vertex(setup):
+    scene, bvh, arrays, grad = setup
+    kr = np.array(arrays.kr, copy=True)
+    kr[FLOOR] = 0.0  # open floor without reflections: no edge anywhere in view
+    params = (dataclasses.replace(arrays, kr=kr), floor_view())
+    gradient = grad(params, bvh)
+    checked = []
+    for axis in range(3):
+        checked.append(check(params, gradient, bvh, lambda p: p[1].position, axis, 1e-2))
+        checked.append(check(params, gradient, bvh, lambda p: p[0].light_position, (0, axis), 1e-2))
+    corner = int(np.argmin(np.linalg.norm(np.asarray(scene.vertices) - (10.0, 0.0, 10.0), axis=1)))
+    checked.append(check(params, gradient, bvh, lambda p: p[0].vertices, (corner, 1), 1e-4))  # see above
+    assert np.count_nonzero(np.abs(checked) > 1e-3) == len(checked)
+    # the camera orientation gets a gradient too (finite, non-zero)
+    assert np.abs(np.asarray(gradient[1].rotation)).max() > 0
