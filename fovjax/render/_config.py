@@ -39,6 +39,9 @@ class RenderConfig:
       batch axes laid out as an image). Reflection rays and later shadow rays are incoherent
       and always traced one by one.
     - `backend`: "jax" (any XLA device) or "embree" (CPU; needs embreex).
+    - `chunk_size`: reflection levels trace and shade their live rays in chunks of this many
+      (dead chunks are skipped); larger chunks keep more traversal lanes busy, smaller ones
+      waste less on the last, partly filled chunk.
     """
 
     max_depth: int = 5
@@ -47,6 +50,7 @@ class RenderConfig:
     ray_offset: float = 1e-5
     packet: int | tuple[int, int] | None = (8, 8)
     backend: str = "jax"
+    chunk_size: int = 32768
 
     def __post_init__(self):
         if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
@@ -70,6 +74,9 @@ class RenderConfig:
                 f"RenderConfig.packet must be None, a positive int or a (height, width) tile, got {packet!r}"
             )
         object.__setattr__(self, "packet", packet)
+        if not isinstance(self.chunk_size, int | np.integer) or self.chunk_size < 1:
+            raise ValueError(f"RenderConfig.chunk_size must be a positive integer, got {self.chunk_size!r}")
+        object.__setattr__(self, "chunk_size", int(self.chunk_size))
         if self.backend not in BACKENDS:
             raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
 

@@ -1,7 +1,7 @@
 """The Whitted integrator: closest hit, Blinn–Phong with shadow rays, mirror reflections.
 
 One depth level at a time, for every ray at once (the thesis's closest-hit program, section
-4.4.3, unrolled over a static maximum depth instead of recursing):
+4.4.3, iterated to a static maximum depth instead of recursing):
 
 1. trace the level's rays (`closest_hit`; rays that are not alive get tmax = tmin and cost
    nothing in the traversal);
@@ -12,6 +12,14 @@ One depth level at a time, for every ray at once (the thesis's closest-hit progr
    thesis's light), directional lights shine along −position;
 4. where depth < max_depth and the hit material's Kr is not zero, a reflection ray continues
    with weight × Kr.
+
+Depth 0 runs on the rays as given (camera rays keep their image layout for packet traversal).
+Reflection rays are few and scattered, so levels 1..max_depth compact the live rays first and
+trace and shade them in fixed-size chunks, skipping chunks with none (one `lax.scan` over the
+levels, a `lax.cond` per chunk): static shapes, a cost that follows the rays actually spawned,
+and a program whose size does not grow with max_depth. On a 1280 x 512 stereo atrium frame this
+took the frame from 7.3 s (every level over every pixel) to 1.5 s, and compilation from 28 s
+to 11 s.
 
 Kd is multiplied by the material's diffuse texture (bilinear, wrapping) where it has one. The
 shading normal n is the interpolated vertex normal where the mesh has them, else the face
@@ -33,6 +41,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._scene import POINT_LIGHT
@@ -190,6 +199,113 @@ def _direct_light(scene, bvh, surface, d, lit, kd, ks, ns, offset, packet, backe
     return shaded, jnp.sum(wanted, dtype=jnp.int32)
 
 
+def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn):
+    """One depth level: trace `alive` rays (unit directions `d`), add what they see (weighted),
+    and the reflection rays they spawn where `spawn`. Returns (contribution, (o, d, weight,
+    alive) of the next level, shadow rays traced)."""
+    hit = closest_hit(
+        bvh,
+        o,
+        d,
+        0.0,
+        jnp.where(alive, jnp.inf, 0.0),
+        packet=packet,
+        vertices=scene.vertices,
+        backend=backend,
+    )
+    surface = surface_at(scene, hit, d)
+    lit = alive & surface.found
+    missed = alive & ~surface.found
+    m = surface.material
+    local = scene.ka[m] * jnp.asarray(scene.ambient, jnp.float32) + scene.ke[m]
+    n_shadow = jnp.int32(0)
+    if scene.num_lights:
+        kd = diffuse_color(scene, m, surface.uv)
+        shaded, n_shadow = _direct_light(
+            scene, bvh, surface, d, lit, kd, scene.ks[m], scene.ns[m], offset, packet, backend
+        )
+        local = local + shaded
+    contribution = jnp.where(missed[..., None], weight * envmap_lookup(scene.environment, d), 0.0)
+    contribution = contribution + jnp.where(lit[..., None], weight * local, 0.0)
+
+    weight = weight * scene.kr[m]
+    alive = lit & any3(weight != 0) & spawn
+    n_s, n_g = surface.shading_normal, surface.geometric_normal
+    reflected = d - 2.0 * dot(d, n_s)[..., None] * n_s
+    # A smooth normal can send the mirror direction into the surface: mirror about the
+    # geometric normal there instead.
+    into = dot(reflected, n_g) <= 0
+    reflected = jnp.where(into[..., None], d - 2.0 * dot(d, n_g)[..., None] * n_g, reflected)
+    return contribution, (surface.point + offset * n_g, normalize(reflected), weight, alive), n_shadow
+
+
+def _live_first(alive):
+    """(number alive, a stable permutation that puts the alive entries first). O(n)."""
+    live = alive.astype(jnp.int32)
+    n_live = jnp.sum(live)
+    rank = jnp.where(alive, jnp.cumsum(live) - 1, n_live + jnp.cumsum(1 - live) - 1)
+    return n_live, jnp.zeros_like(rank).at[rank].set(jnp.arange(live.shape[0], dtype=rank.dtype))
+
+
+def _secondary_levels(scene, bvh, total, state, *, offset, config):
+    """Depth levels 1..max_depth on compacted chunks: each level moves its alive rays to the
+    front and shades only the chunks of `config.chunk_size` rays that hold any (a `lax.cond`
+    skips the rest), so the cost follows the reflection rays, not the screen. The levels are
+    one `lax.scan`, so the program (and its compile time) does not grow with max_depth."""
+    batch = total.shape[:-1]
+    n = int(np.prod(batch))
+    size = min(config.chunk_size, n)
+    padded = -(-n // size) * size
+
+    def flat(x, fill):
+        x = x.reshape((n,) + x.shape[len(batch) :])
+        return jnp.concatenate([x, jnp.full((padded - n,) + x.shape[1:], fill, x.dtype)])
+
+    o, d, weight, alive = state
+    carry = (flat(total, 0.0), flat(o, 0.0), flat(d, 1.0), flat(weight, 0.0), flat(alive, False))
+    carry = carry + (jnp.arange(padded, dtype=jnp.int32),)
+
+    def level(carry, depth):
+        total, o, d, weight, alive, pixel = carry
+        n_live, order = _live_first(alive)
+        o, d, weight, alive, pixel = (x[order] for x in (o, d, weight, alive, pixel))
+        spawn = depth < config.max_depth
+
+        def chunk(_, c):
+            rays = tuple(jax.lax.dynamic_slice_in_dim(x, c * size, size) for x in (o, d, weight, alive))
+
+            def work(rays):
+                oc, dc, wc, ac = rays
+                contribution, nxt, n_shadow = _trace_and_shade(
+                    scene,
+                    bvh,
+                    oc,
+                    dc,
+                    ac,
+                    wc,
+                    packet=None,
+                    offset=offset,
+                    backend=config.backend,
+                    spawn=spawn,
+                )
+                return contribution, nxt, n_shadow
+
+            def skip(rays):
+                oc, dc, wc, ac = rays
+                return jnp.zeros_like(wc), (oc, dc, jnp.zeros_like(wc), jnp.zeros_like(ac)), jnp.int32(0)
+
+            return None, jax.lax.cond(c * size < n_live, work, skip, rays)
+
+        _, (contribution, nxt, n_shadow) = jax.lax.scan(chunk, None, jnp.arange(padded // size))
+        unchunk = lambda x: x.reshape((padded,) + x.shape[2:])  # noqa: E731
+        total = total.at[pixel].add(unchunk(contribution))
+        o, d, weight, alive = (unchunk(x) for x in nxt)
+        return (total, o, d, weight, alive, pixel), (n_live, jnp.sum(n_shadow))
+
+    carry, (n_reflection, n_shadow) = jax.lax.scan(level, carry, jnp.arange(1, config.max_depth + 1))
+    return carry[0][:n].reshape(batch + (3,)), jnp.sum(n_reflection), jnp.sum(n_shadow)
+
+
 def radiance(
     scene: SceneArrays,
     bvh: BVH,
@@ -206,6 +322,9 @@ def radiance(
     counted. With `config.packet` a tile, the last two batch axes must be an image (the tile
     pads ragged edges). Pure and jittable; differentiable as the module docstring says.
 
+    Depth 0 (the given rays) is shaded in place, traced as `config.packet`; the reflection
+    levels run on compacted chunks of live rays (see `_secondary_levels`).
+
     Returns `Radiance(rgb (*batch, 3), bad (*batch), counts)`.
     """
     scene = jax.tree.map(jnp.asarray, scene)  # host NumPy leaves cannot be indexed by traced rays
@@ -218,59 +337,25 @@ def radiance(
     valid = jnp.broadcast_to(valid, batch)
     active = jnp.ones(batch, bool) if active is None else jnp.broadcast_to(jnp.asarray(active, bool), batch)
     offset = config.ray_offset * scene_scale(scene)
-    ambient = jnp.asarray(scene.ambient, jnp.float32)
 
-    total = jnp.zeros(batch + (3,), jnp.float32)
-    weight = jnp.ones(batch + (3,), jnp.float32)
-    alive = active
-    n_shadow = jnp.int32(0)
+    total, state, n_shadow = _trace_and_shade(
+        scene,
+        bvh,
+        o,
+        d,
+        active,
+        jnp.ones(batch + (3,), jnp.float32),
+        packet=_usable_packet(config.packet, len(batch)),
+        offset=offset,
+        backend=config.backend,
+        spawn=config.max_depth > 0,
+    )
     n_reflection = jnp.int32(0)
-    for depth in range(config.max_depth + 1):
-        packet = _usable_packet(config.packet, len(batch)) if depth == 0 else None
-        if depth > 0:
-            n_reflection = n_reflection + jnp.sum(alive & valid, dtype=jnp.int32)
-        hit = closest_hit(
-            bvh,
-            o,
-            d,
-            0.0,
-            jnp.where(alive, jnp.inf, 0.0),
-            packet=packet,
-            vertices=scene.vertices,
-            backend=config.backend,
+    if config.max_depth > 0:
+        total, n_reflection, more_shadow = _secondary_levels(
+            scene, bvh, total, state, offset=offset, config=config
         )
-        surface = surface_at(scene, hit, d)
-        lit = alive & surface.found
-        missed = alive & ~surface.found
-        total = total + jnp.where(missed[..., None], weight * envmap_lookup(scene.environment, d), 0.0)
-
-        m = surface.material
-        local = scene.ka[m] * ambient + scene.ke[m]
-        if scene.num_lights:
-            kd = diffuse_color(scene, m, surface.uv)
-            shaded, traced = _direct_light(
-                scene, bvh, surface, d, lit, kd, scene.ks[m], scene.ns[m], offset, packet, config.backend
-            )
-            local = local + shaded
-            n_shadow = n_shadow + traced
-        total = total + jnp.where(lit[..., None], weight * local, 0.0)
-
-        if depth == config.max_depth:
-            break
-        weight = weight * scene.kr[m]
-        alive = lit & any3(weight != 0)
-        n_s, n_g = surface.shading_normal, surface.geometric_normal
-        reflected = d - 2.0 * dot(d, n_s)[..., None] * n_s
-        # A smooth normal can send the mirror direction into the surface: mirror about the
-        # geometric normal there instead.
-        into = dot(reflected, n_g) <= 0
-        reflected = jnp.where(into[..., None], d - 2.0 * dot(d, n_g)[..., None] * n_g, reflected)
-        o = surface.point + offset * n_g
-        d = normalize(reflected)
-        # Materialise each level's state: otherwise XLA fuses every level's contribution into
-        # one final loop that recomputes the shading of all levels per element (measured 3x
-        # slower on the atrium).
-        total, weight, alive, o, d = jax.lax.optimization_barrier((total, weight, alive, o, d))
+        n_shadow = n_shadow + more_shadow
 
     bad = active & ~all3(jnp.isfinite(total))
     bad_color = jnp.asarray(config.bad_color, jnp.float32)
