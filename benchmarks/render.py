@@ -92,8 +92,10 @@ def split_row(scene, arrays, bvh, rig, *, config, repeats):
     jax.block_until_ready(shadow(so, sd, stmax))
     t_primary = median_seconds(lambda: jax.block_until_ready(primary(o, d)), repeats)
     t_shadow = median_seconds(lambda: jax.block_until_ready(shadow(so, sd, stmax)), repeats)
+    # The same expressions compiled in another program may round differently: a handful of
+    # shadow rays with n·l within an ulp of 0 can differ; anything more would be a mistake here.
     n_shadow = int(np.count_nonzero(np.asarray(stmax) > 0))
-    assert n_shadow == integrator["shadow"], (n_shadow, integrator["shadow"])
+    assert abs(n_shadow - integrator["shadow"]) <= 1e-5 * n_shadow + 2, (n_shadow, integrator["shadow"])
     rays = integrator["primary"] + integrator["shadow"]
     traversal_s = t_primary + t_shadow
     return integrator, {
@@ -111,6 +113,7 @@ def main(argv=None) -> int:
     parser.add_argument("--spp", default="1,4", help="comma-separated samples per pixel")
     parser.add_argument("--repeats", type=int, default=3, help="timed frames after the first (median)")
     parser.add_argument("--triangles", type=int, default=262_000)
+    parser.add_argument("--parts", default="frames,split", help="comma-separated: frames, split")
     args = parser.parse_args(argv)
     width, height = (320, 256) if args.quick else (1280, 1024)
     repeats = 1 if args.quick else args.repeats
@@ -131,11 +134,12 @@ def main(argv=None) -> int:
     splits = []
     for backend in args.backends.split(","):
         config = RenderConfig(backend=backend)
-        for spp in (int(s) for s in args.spp.split(",")):
+        for spp in (int(s) for s in args.spp.split(",")) if "frames" in args.parts else ():
             r = frame_row(arrays, bvh, rig, spp=spp, config=config, repeats=repeats)
             counts = f"{r['primary']:11,} {r['shadow']:11,} {r['reflection']:11,}"
             print(f"{backend:8} {spp:3d} {r['compile_s']:9.1f} {r['ms']:9.0f} {counts} {r['mrays']:8.2f}")
-        splits.append((backend, *split_row(scene, arrays, bvh, rig, config=config, repeats=repeats)))
+        if "split" in args.parts:
+            splits.append((backend, *split_row(scene, arrays, bvh, rig, config=config, repeats=repeats)))
     print()
     print(
         "depth 0, SPP 1 (primary + shadow rays only): integrator vs the same rays through the traversal alone"

@@ -80,7 +80,7 @@ def test_lit_sphere_centre_pixel_by_hand(oracle):
     scene, bvh = oracle
     arrays = arrays_with(scene)
     camera = fovjax.Camera.look_at((0.0, 1.0, 6.0), (0.0, 1.0, 0.0), vfov_deg=30.0, width=SIZE, height=SIZE)
-    frame = render(arrays, camera, config=CONFIG, bvh=bvh)
+    frame = fovjax.render(arrays, camera, config=CONFIG, bvh=bvh)  # the subpackage is callable
     # The centre ray meets the sphere's front pole (0, 1, 1), an icosphere vertex with normal +z;
     # the mirror direction there (+z) escapes to the background.
     p, n, view = np.array([0.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
