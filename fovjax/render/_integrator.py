@@ -271,36 +271,37 @@ def _secondary_levels(scene, bvh, total, state, *, offset, config):
         o, d, weight, alive, pixel = (x[order] for x in (o, d, weight, alive, pixel))
         spawn = depth < config.max_depth
 
-        def chunk(_, c):
-            rays = tuple(jax.lax.dynamic_slice_in_dim(x, c * size, size) for x in (o, d, weight, alive))
+        def chunk(inner, c):
+            first = c * size
 
-            def work(rays):
-                oc, dc, wc, ac = rays
-                contribution, nxt, n_shadow = _trace_and_shade(
+            def work(inner):
+                total, o_next, d_next, w_next, alive_next, n_shadow = inner
+                part = lambda x: jax.lax.dynamic_slice_in_dim(x, first, size)  # noqa: E731
+                contribution, nxt, traced = _trace_and_shade(
                     scene,
                     bvh,
-                    oc,
-                    dc,
-                    ac,
-                    wc,
+                    part(o),
+                    part(d),
+                    part(alive),
+                    part(weight),
                     packet=None,
                     offset=offset,
                     backend=config.backend,
                     spawn=spawn,
                 )
-                return contribution, nxt, n_shadow
+                # Only chunks with live rays write anything: no full-size scatter per level.
+                total = total.at[part(pixel)].add(contribution)
+                put = lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, first, 0)  # noqa: E731
+                o_next, d_next, w_next, alive_next = (
+                    put(x, y) for x, y in zip((o_next, d_next, w_next, alive_next), nxt, strict=True)
+                )
+                return total, o_next, d_next, w_next, alive_next, n_shadow + traced
 
-            def skip(rays):
-                oc, dc, wc, ac = rays
-                return jnp.zeros_like(wc), (oc, dc, jnp.zeros_like(wc), jnp.zeros_like(ac)), jnp.int32(0)
+            return jax.lax.cond(first < n_live, work, lambda inner: inner, inner), None
 
-            return None, jax.lax.cond(c * size < n_live, work, skip, rays)
-
-        _, (contribution, nxt, n_shadow) = jax.lax.scan(chunk, None, jnp.arange(padded // size))
-        unchunk = lambda x: x.reshape((padded,) + x.shape[2:])  # noqa: E731
-        total = total.at[pixel].add(unchunk(contribution))
-        o, d, weight, alive = (unchunk(x) for x in nxt)
-        return (total, o, d, weight, alive, pixel), (n_live, jnp.sum(n_shadow))
+        inner = (total, o, d, weight, jnp.zeros_like(alive), jnp.int32(0))
+        (total, o, d, weight, alive, n_shadow), _ = jax.lax.scan(chunk, inner, jnp.arange(padded // size))
+        return (total, o, d, weight, alive, pixel), (n_live, n_shadow)
 
     carry, (n_reflection, n_shadow) = jax.lax.scan(level, carry, jnp.arange(1, config.max_depth + 1))
     return carry[0][:n].reshape(batch + (3,)), jnp.sum(n_reflection), jnp.sum(n_shadow)
