@@ -1,6 +1,7 @@
 """fovjax: a differentiable JAX reference renderer and model-fitting toolkit for foveated ray
 tracing on eye-tracked stereo head-mounted displays."""
 
+from . import foveate as foveate
 from . import render as render
 from . import scenes as scenes
 from . import trace as trace
@@ -46,6 +47,7 @@ from ._scene import (
 from ._scene import (
     make_scene as make_scene,
 )
+from ._session import run_session as run_session
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig
 from .render import StereoRig as StereoRig

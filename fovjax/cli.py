@@ -12,6 +12,7 @@ import sys
 _SUBCOMMAND_MODULES = [
     "fovjax._cli_render",
     "fovjax.devices._cli",
+    "fovjax._cli_session",
     "fovjax.acuity._cli",
 ]
 
