@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
-import time
 
 import jax
 import numpy as np
@@ -60,6 +59,10 @@ def measure(render, repeats):
     return rays, statistics.median(times), compile_s, frames[-1]
 
 
+def speedup(ratio):
+    return f"{pct((ratio - 1) * 100)} {ratio:4.1f}x"
+
+
 def pct(x):
     return f"{x:+7.1f}%"
 
@@ -80,7 +83,8 @@ def main(argv=None):
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "
-        f"backend {args.backend}, max depth {args.max_depth}, jax {jax.__version__} on {jax.devices()[0].platform}"
+        f"backend {args.backend}, max depth {args.max_depth}, "
+        f"jax {jax.__version__} on {jax.devices()[0].platform}"
     )
     results = {}
     for spp in args.spp:
@@ -103,7 +107,8 @@ def main(argv=None):
             results[pair, spp] = (rays, t)
             fs = frame.foveation
             print(
-                f"  {pair[0]:4.1f}/{pair[1]:4.1f}     spp {spp:2d}: {rays / 1e6:7.3f} M rays  {1 / t:7.3f} fps  "
+                f"  {pair[0]:4.1f}/{pair[1]:4.1f}     spp {spp:2d}: "
+                f"{rays / 1e6:7.3f} M rays  {1 / t:7.3f} fps  "
                 f"(compile {c:.1f} s; primary by region {fs.primary_by_region}, budget {fs.budget:,}, "
                 f"padding {fs.padding:,}, dropped {fs.dropped})"
             )
@@ -144,9 +149,7 @@ def main(argv=None):
     )
     table(
         "Table 5: speed-up in FPS (foveated / full - 1); x = ratio",
-        lambda p, s: (
-            f"{pct((results['full', s][1] / results[p, s][1] - 1) * 100)} {results['full', s][1] / results[p, s][1]:4.1f}x"
-        ),
+        lambda p, s: speedup(results["full", s][1] / results[p, s][1]),
         lambda p, s: pct((THESIS_FPS[p][idx[s]] / THESIS_FPS["full"][idx[s]] - 1) * 100),
     )
     return results
