@@ -30,8 +30,15 @@ import jax.numpy as jnp
 import numpy as np
 
 import fovjax
-from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays, stereo_sample_rays
-from fovjax.render._integrator import scene_scale, surface_at
+from fovjax.render import (
+    RenderConfig,
+    StereoRig,
+    render_stereo,
+    scene_arrays,
+    scene_scale,
+    stereo_sample_rays,
+    surface_at,
+)
 from fovjax.render._vec import dot, norm, normalize
 from fovjax.trace import build_bvh, closest_hit, occluded
 
