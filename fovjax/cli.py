@@ -13,6 +13,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax._cli_render",
     "fovjax.devices._cli",
     "fovjax._cli_session",
+    "fovjax.eval._cli",
     "fovjax.acuity._cli",
 ]
 

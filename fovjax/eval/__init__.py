@@ -23,6 +23,7 @@ from ._charts import (
     plot_slider_test,
     write_study_report,
 )
+from ._compare import DEFAULT_CRITERION, DEFAULT_GAZES, Comparison, compare_thresholds
 from ._metrics import (
     JND_JOD,
     HmdDisplay,
@@ -74,6 +75,10 @@ from ._protocols import (
 )
 
 __all__ = [
+    "DEFAULT_CRITERION",
+    "DEFAULT_GAZES",
+    "Comparison",
+    "compare_thresholds",
     "APPENDIX_LEVELS",
     "DECISION_RULE",
     "JND_JOD",

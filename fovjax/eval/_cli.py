@@ -1,0 +1,85 @@
+"""`fovjax compare`: cost against accuracy of fovea thresholds, written as CSV and charts."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        fovea, periphery = (float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"a threshold pair is FOVEA,PERIPHERY in degrees, got {text!r}"
+        ) from None
+    return fovea, periphery
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "compare",
+        help="compare fovea thresholds: cost (rays, ms) against accuracy (PSNR, SSIM, FLIP, FovVideoVDP)",
+        description="Render every threshold pair foveated and the full frame, for a few gaze points and "
+        "keys; write comparison.csv and charts (cost against accuracy with the Pareto front, "
+        "per-threshold bars, error and rays by eccentricity ring) and name the cheapest configuration "
+        "within the criterion.",
+    )
+    p.add_argument("--scene", default="atrium")
+    p.add_argument(
+        "--thresholds", type=_pair, nargs="+", default=[(5, 10), (7.5, 15), (10, 20), (12.5, 25), (15, 30)]
+    )
+    p.add_argument("--spp", type=int, nargs="+", default=[1, 4])
+    p.add_argument("--width", type=int, default=640, help="pixels per eye (the HMD has 1280)")
+    p.add_argument("--height", type=int, default=512)
+    p.add_argument(
+        "--gazes", type=_pair, nargs="+", default=[(0.5, 0.5), (0.3, 0.4)], help="X,Y per gaze point"
+    )
+    p.add_argument("--keys", type=int, nargs="+", default=[0])
+    p.add_argument("--criterion", default="flip", help="metric that must stay below --threshold")
+    p.add_argument("--threshold", type=float, default=0.05)
+    p.add_argument("--max-depth", type=int, default=5)
+    p.add_argument("--no-perceptual", action="store_true", help="skip FovVideoVDP even if installed")
+    p.add_argument("-o", "--output", default="out/compare")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import fovjax
+    from fovjax.eval import compare_thresholds
+    from fovjax.render import RenderConfig, StereoRig
+
+    scene = (
+        fovjax.scenes.BUILTIN[args.scene]()
+        if args.scene in fovjax.scenes.BUILTIN
+        else fovjax.load_scene(args.scene)
+    )
+    rig = StereoRig.from_pose(
+        fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
+    )
+    result = compare_thresholds(
+        scene,
+        rig,
+        thresholds=args.thresholds,
+        spp=args.spp,
+        gazes=args.gazes,
+        keys=args.keys,
+        config=RenderConfig(max_depth=args.max_depth),
+        criterion=(args.criterion, args.threshold),
+        perceptual=False if args.no_perceptual else None,
+    )
+    paths = result.write(args.output)
+    cols = ["config", "rays_per_frame", "ms_per_frame", "speedup", "psnr", "ssim", "flip", "jod", "pareto"]
+    cols = [c for c in cols if c in result.records[0]]
+    print("  ".join(f"{c:>14s}" for c in cols))
+    for r in result.records:
+        cells = [f"{r[c]:14.4g}" if isinstance(r[c], float) else f"{r[c]!s:>14s}" for c in cols]
+        print("  ".join(cells))
+    for s, f in sorted(result.full.items()):
+        print(f"full spp {s}: {f['rays_per_frame']:,.0f} rays, {f['ms_per_frame']:.0f} ms per frame")
+    metric, threshold = result.criterion
+    if result.choice is None:
+        print(f"no configuration keeps {metric} below {threshold:g} over its whole interval")
+    else:
+        print(f"cheapest with {metric} < {threshold:g} (whole 95% interval): {result.choice.name}")
+    print(f"wrote {paths['csv'].parent.resolve()}/")
+    return 0

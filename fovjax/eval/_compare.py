@@ -1,0 +1,212 @@
+"""Compare fovea thresholds programmatically: cost (rays, time) against accuracy (error and
+perceptual difference to the full render of the same frame)."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import statistics
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from ._metrics import HmdDisplay, MissingExtraError, error_by_eccentricity, flip, fovvdp, psnr, ssim
+from ._pareto import cheapest_within, mean_interval, pareto_front, write_csv
+
+# Gaze positions (per-eye normalised display coordinates, both eyes the same) averaged over by
+# default: the centre and two off-centre points.
+DEFAULT_GAZES = ((0.5, 0.5), (0.3, 0.4), (0.7, 0.65))
+# The criterion that names the recommended configuration: mean FLIP (LDR, ppd of the rig) at
+# most this; FLIP 0 is identical, ~0.05 is a difference one has to look for in a flip test.
+DEFAULT_CRITERION = ("flip", 0.05)
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """`records`: one per configuration (CSV-writable); `rings`: per configuration label, the
+    mean |error| (sRGB) and primary rays per 5° eccentricity ring; `choice`: the cheapest
+    configuration meeting `criterion` (None if none does); `full`: the full render's cost."""
+
+    records: list[dict]
+    rings: dict
+    ring_rays: dict
+    choice: object
+    criterion: tuple[str, float]
+    full: dict
+
+    def write(self, out_dir) -> dict[str, Path]:
+        """CSV and charts next to each other in `out_dir`."""
+        from ._charts import plot_cost_accuracy, plot_metric_bars, plot_ring_errors
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        metric, threshold = self.criterion
+        paths = {"csv": write_csv(self.records, out / "comparison.csv")}
+        for spp in sorted({r["spp"] for r in self.records}):
+            rows = [r for r in self.records if r["spp"] == spp]
+            paths[f"cost_accuracy_ms_spp{spp}"] = plot_cost_accuracy(
+                rows,
+                out / f"cost_accuracy_ms_spp{spp}.png",
+                cost="ms_per_frame",
+                accuracy=metric,
+                sense="min",
+                threshold=threshold,
+                title=f"ms per frame against {metric}, SPP {spp} "
+                f"(full: {self.full[spp]['ms_per_frame']:.0f} ms)",
+            )
+            paths[f"cost_accuracy_rays_spp{spp}"] = plot_cost_accuracy(
+                rows,
+                out / f"cost_accuracy_rays_spp{spp}.png",
+                cost="rays_per_frame",
+                accuracy=metric,
+                sense="min",
+                threshold=threshold,
+                title=f"rays per frame against {metric}, SPP {spp}",
+            )
+            metrics = [m for m in ("psnr", "ssim", "flip", "jod") if m in rows[0]]
+            paths[f"bars_spp{spp}"] = plot_metric_bars(
+                rows, out / f"bars_spp{spp}.png", metrics=["speedup", *metrics], title=f"SPP {spp}"
+            )
+        paths["rings"] = plot_ring_errors(
+            self.rings, out / "rings.png", rays=self.ring_rays, title="error and primary rays by eccentricity"
+        )
+        return paths
+
+
+def _metrics(test, ref, eccentricity, display, gazes_xy, use_flip, use_fovvdp):
+    out = {"psnr": psnr(test, ref).value, "ssim": ssim(test, ref).value}
+    if use_flip:
+        out["flip"] = flip(test, ref, ppd=display.ppd).value
+    if use_fovvdp:
+        out["jod"] = fovvdp(test, ref, display, gaze_xy=gazes_xy).value
+    rings = error_by_eccentricity(test, ref, eccentricity)
+    return out, rings
+
+
+def _available(module: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(module) is not None
+
+
+def compare_thresholds(
+    scene,
+    rig,
+    *,
+    thresholds: Sequence[tuple[float, float]] = ((5, 10), (7.5, 15), (10, 20), (12.5, 25), (15, 30)),
+    spp: Sequence[int] = (1, 4),
+    models: Sequence | None = None,
+    gazes: Sequence = DEFAULT_GAZES,
+    keys: Sequence[int] = (0, 1),
+    config=None,
+    criterion: tuple[str, float] = DEFAULT_CRITERION,
+    perceptual: bool | None = None,
+    rule: str = "either",
+    progress: bool = True,
+    bvh=None,
+) -> Comparison:
+    """Render every (threshold pair × spp × acuity model) foveated, for every gaze and key, and
+    the full render for every key (it does not depend on gaze); measure rays per frame, ms per
+    frame (median over renders, compile excluded), the speed-up over full, and PSNR, SSIM, FLIP
+    (extra [flip]) and, with `perceptual` (default: when pyfvvdp is installed), FovVideoVDP JOD
+    at the gaze point, each with a 95% Student-t interval over gaze × key. Names the cheapest
+    configuration (by ms per frame) whose `criterion` metric's interval stays below the
+    threshold. `models`: acuity models for P(ω) (default: the thesis's)."""
+    from ..foveate import Foveation, render_foveated
+    from ..render import render_stereo
+
+    models = list(models) if models is not None else [None]
+    display = HmdDisplay.from_camera(rig.eye_cameras()[0])
+    use_flip = _available("flip_evaluator")
+    if perceptual is None:
+        perceptual = _available("pyfvvdp")
+    if criterion[0] == "flip" and not use_flip:
+        raise MissingExtraError("the FLIP criterion needs flip-evaluator: pip install 'fovjax[flip]'")
+    gazes = [np.broadcast_to(np.asarray(g, np.float32).reshape(-1, 2), (2, 2)) for g in gazes]
+    configs = list(itertools.product(spp, thresholds, models))
+    total = len(spp) * len(keys) + len(configs) * len(gazes) * len(keys)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="frame", desc="compare")
+
+    full, references = {}, {}
+    for s in spp:
+        times, rays = [], []
+        for k in keys:
+            frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
+            if frame.stats.compile_seconds > 0:  # the first frame compiled: time it again
+                frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
+            references[s, k] = frame.image
+            times.append(frame.stats.render_seconds)
+            rays.append(frame.stats.rays)
+            if bar is not None:
+                bar.update(1)
+        full[s] = {"ms_per_frame": 1000 * statistics.median(times), "rays_per_frame": statistics.mean(rays)}
+
+    records, rings, ring_rays = [], {}, {}
+    for s, (fovea, periphery), model in configs:
+        kwargs = {} if model is None else {"acuity": model}
+        fov = Foveation(fovea_deg=float(fovea), periphery_deg=float(periphery), spp=s, rule=rule, **kwargs)
+        model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
+        label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
+        samples, times, rays, ring_acc, ring_ray_acc = {}, [], [], [], []
+        for g, k in itertools.product(gazes, keys):
+            frame = render_foveated(
+                scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
+            )
+            if frame.stats.compile_seconds > 0:
+                frame = render_foveated(
+                    scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
+                )
+            ecc = np.concatenate(list(frame.eccentricity), axis=1)
+            values, ring = _metrics(frame.image, references[s, k], ecc, display, g, use_flip, perceptual)
+            for name, v in values.items():
+                samples.setdefault(name, []).append(v)
+            times.append(frame.stats.render_seconds)
+            rays.append(frame.stats.rays)
+            ring_acc.append(ring.mean_error)
+            traced = np.concatenate(list(frame.sample_mask.sum(axis=1)), axis=1)
+            ring_ray_acc.append(
+                [
+                    traced[(ecc >= lo) & (ecc < hi)].sum()
+                    for lo, hi in zip(ring.lower_deg, ring.upper_deg, strict=True)
+                ]
+            )
+            if bar is not None:
+                bar.update(1)
+        ms = 1000 * statistics.median(times)
+        record = {
+            "config": label,
+            "fovea_deg": float(fovea),
+            "periphery_deg": float(periphery),
+            "spp": s,
+            "model": model_name,
+            "rays_per_frame": float(statistics.mean(rays)),
+            "ms_per_frame": ms,
+            "speedup": full[s]["ms_per_frame"] / ms,
+            "ray_reduction": 1 - statistics.mean(rays) / full[s]["rays_per_frame"],
+            "full_ms_per_frame": full[s]["ms_per_frame"],
+            "full_rays_per_frame": full[s]["rays_per_frame"],
+            "n": len(times),
+        }
+        for name, vals in samples.items():
+            finite = [v for v in vals if np.isfinite(v)]
+            mean, lo, hi = mean_interval(finite) if len(finite) > 1 else (float(np.mean(vals)),) * 3
+            record[name], record[f"{name}_lo"], record[f"{name}_hi"] = mean, lo, hi
+        if "jod" in record:
+            record["jod_drop"] = 10.0 - record["jod"]
+        records.append(record)
+        ring_mean = np.nanmean(np.stack(ring_acc), axis=0)
+        rings[label] = dataclasses.replace(ring, mean_error=ring_mean)
+        ring_rays[label] = list(np.mean(np.stack(ring_ray_acc), axis=0))
+    if bar is not None:
+        bar.close()
+    front = pareto_front(records, {"ms_per_frame": "min", criterion[0]: "min"})
+    for r, on_front in zip(records, front, strict=True):
+        r["pareto"] = bool(on_front)
+    choice = cheapest_within(records, cost="ms_per_frame", metric=criterion[0], threshold=criterion[1])
+    return Comparison(records, rings, ring_rays, choice, criterion, full)
