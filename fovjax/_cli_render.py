@@ -1,8 +1,10 @@
 """`fovjax render`: Whitted-ray-trace a built-in scene or a scene file to an image.
 
 With no arguments: the atrium, stereo (the thesis HMD: two 1280 x 1024 eyes side by side), one
-sample per pixel, written to out/atrium.png. `--preview` draws the old geometry preview instead
-(primary rays only, coloured by surface normal and darkened with depth).
+sample per pixel, foveated around the display centres (fovea 5°, periphery 10°), written to
+out/atrium.png, and the full render of the same frame for comparison (out/atrium_full.png), with
+both ray counts and times printed. `--full` renders only the full frame; `--preview` draws the
+geometry preview (primary rays only, coloured by surface normal and darkened with depth).
 """
 
 from __future__ import annotations
@@ -23,6 +25,18 @@ def _head(text: str) -> tuple[float, float, float]:
     if len(values) != 3:
         raise argparse.ArgumentTypeError(f"--head takes YAW,PITCH,ROLL in degrees, got {text!r}")
     return values
+
+
+def _gaze(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 4:
+        raise argparse.ArgumentTypeError(
+            f"--gaze takes LX,LY,RX,RY (normalised display coordinates per eye), got {text!r}"
+        )
+    return (v[0], v[1]), (v[2], v[3])
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,6 +74,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--exposure", type=float, default=1.0, help="PNG exposure (linear scale before the clip)")
     p.add_argument("--tonemap", default="clip", choices=("clip", "reinhard"), help="PNG tone curve")
     p.add_argument("--preview", action="store_true", help="geometry preview (normal and depth) instead")
+    p.add_argument(
+        "--gaze",
+        type=_gaze,
+        default=((0.5, 0.5), (0.5, 0.5)),
+        metavar="LX,LY,RX,RY",
+        help="gaze per eye in normalised display coordinates, (0,0) top-left (default: the centres)",
+    )
+    p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
+    p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
+    p.add_argument("--full", action="store_true", help="render the full frame only (no foveation)")
+    p.add_argument(
+        "--no-reference", action="store_true", help="skip the full render next to the foveated one"
+    )
+    p.add_argument("--show-samples", action="store_true", help="also write the regions/samples debug view")
     p.add_argument(
         "-o", "--output", default=None, help="output image (.png, .exr, .hdr); default out/SCENE.png"
     )
@@ -118,9 +146,32 @@ def _run(args) -> int:
     pose = fovjax.scenes.default_camera(scene)
     key = None if args.seed is None else jax.random.key(args.seed)
     _progress(3, steps, "compiling and rendering (compiling takes a while the first time)")
+    foveated = args.stereo and not args.full
+    reference = None
     if args.stereo:
         rig = StereoRig.from_pose(pose, eye_width=args.width, eye_height=args.height)
-        frame = render_stereo(arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh)
+        if foveated:
+            from fovjax.foveate import Foveation
+
+            fov = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp)
+            frame = render_stereo(
+                arrays,
+                rig,
+                gaze=args.gaze,
+                foveation=fov,
+                head_pose=args.head,
+                key=key,
+                config=config,
+                bvh=bvh,
+            )
+            if not args.no_reference:
+                reference = render_stereo(
+                    arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
+                )
+        else:
+            frame = render_stereo(
+                arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
+            )
     else:
         camera = fovjax.Camera.from_pose(pose, width=args.width, height=args.height)
         if any(args.head):
@@ -138,7 +189,34 @@ def _run(args) -> int:
     frame.save(out, exposure=args.exposure, tonemap_curve=args.tonemap)
     cached = ", BVH from cache" if build["from_cache"] else f", BVH built in {build['seconds']:.2f} s"
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
-    print(f"{scene.name} {frame.stats.summary()} on {jax.devices()[0].platform} -> {out.resolve()}")
+    platform = jax.devices()[0].platform
+    if foveated:
+        f = frame.foveation
+        print(
+            f"foveated {f.fovea_deg:g}°/{f.periphery_deg:g}° {frame.stats.summary()} on {platform} -> "
+            f"{out.resolve()}"
+        )
+        print(
+            f"  primary rays by region (fovea, periphery, outside) {f.primary_by_region}, "
+            f"budget {f.budget:,} (padding {f.padding:,}, dropped {f.dropped})"
+        )
+        if args.show_samples:
+            samples = out.with_name(out.stem + "_samples.png")
+            fovjax.save_image(samples, frame.debug_view)
+            print(f"  regions and samples -> {samples.resolve()}")
+        if reference is not None:
+            full_out = out.with_name(out.stem + "_full" + out.suffix)
+            reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
+            r, s = reference.stats, frame.stats
+            print(f"full     {r.summary()} -> {full_out.resolve()}")
+            print(
+                f"foveated / full: rays {s.rays / r.rays:.3f} ({s.rays:,} vs {r.rays:,}), "
+                f"time {s.render_seconds / r.render_seconds:.3f} "
+                f"({s.render_seconds:.2f} s vs {r.render_seconds:.2f} s): "
+                f"{r.render_seconds / s.render_seconds:.1f}x faster"
+            )
+    else:
+        print(f"{scene.name} {frame.stats.summary()} on {platform} -> {out.resolve()}")
     return 0
 
 

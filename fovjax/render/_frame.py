@@ -295,8 +295,10 @@ def render_stereo(
     scene: Scene | SceneArrays,
     rig: StereoRig | None = None,
     *,
+    gaze=None,
+    foveation=None,
     head_pose=None,
-    spp: int = 1,
+    spp: int | None = None,
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
     envmap=None,
@@ -304,7 +306,32 @@ def render_stereo(
 ) -> Frame:
     """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
     side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`).
-    Other arguments as `render`."""
+    Other arguments as `render`.
+
+    Foveated: with `foveation=` (a `fovjax.foveate.Foveation`; its `spp` is the frame's) and/or
+    `gaze=((lx, ly), (rx, ry))` (normalised display coordinates; default the centres), the frame
+    traces only the samples the foveation selects and returns a `fovjax.foveate.FoveatedFrame`
+    (image, stats, per-region counts, sample mask, debug view); see
+    `fovjax.foveate.render_foveated`."""
+    if foveation is not None or gaze is not None:
+        from ..foveate import Foveation, render_foveated
+
+        if foveation is None:
+            foveation = Foveation(spp=spp or 1)
+        elif spp is not None and spp != foveation.spp:
+            raise ValueError(f"render_stereo: spp={spp} disagrees with foveation.spp={foveation.spp}")
+        return render_foveated(
+            scene,
+            rig,
+            gaze=((0.5, 0.5), (0.5, 0.5)) if gaze is None else gaze,
+            foveation=foveation,
+            head_pose=head_pose,
+            key=key,
+            config=config,
+            envmap=envmap,
+            bvh=bvh,
+        )
+    spp = 1 if spp is None else spp
     if rig is None:
         from ..scenes import default_camera
 
