@@ -121,12 +121,17 @@ class FoveationStats:
     periphery_deg: float
 
 
-def region_view(outputs: FoveatedOutputs, *, tint: float = 0.35) -> Float[Array, "H W2 3"]:
-    """The debug view of thesis figures 58–59: each eye after ray generation (pixels with no
-    traced sample black), tinted by region (fovea green, periphery yellow, outside red)."""
-    colours = jnp.array([[0.2, 1.0, 0.2], [1.0, 0.9, 0.1], [1.0, 0.25, 0.2]], jnp.float32)
-    tinted = outputs.prefill * (1 - tint) + tint * colours[outputs.region] * jnp.max(
-        outputs.prefill, axis=-1, keepdims=True
-    ).clip(0.15, 1.0)
-    shown = jnp.where(jnp.any(outputs.traced, axis=1)[..., None], tinted, 0.0)
+def region_view(outputs: FoveatedOutputs, *, dim: float = 0.12) -> Float[Array, "H W2 3"]:
+    """The debug view of thesis figures 58–59: each eye right after ray generation — pixels with
+    a traced sample in their rendered colour, the others in a dim colour of their region
+    (periphery yellow, outside red) — and the fovea's edge drawn green."""
+    colours = jnp.array([[0.0, 0.0, 0.0], [1.0, 0.8, 0.1], [1.0, 0.15, 0.1]], jnp.float32)
+    traced = jnp.any(outputs.traced, axis=1)[..., None]
+    shown = jnp.where(traced, outputs.prefill, dim * colours[outputs.region])
+    # One-pixel ring where the region changes from fovea to periphery.
+    fovea = outputs.region == 0
+    edge = fovea & ~(
+        jnp.roll(fovea, 1, 1) & jnp.roll(fovea, -1, 1) & jnp.roll(fovea, 1, 2) & jnp.roll(fovea, -1, 2)
+    )
+    shown = jnp.where(edge[..., None], jnp.array([0.1, 1.0, 0.1]), shown)
     return jnp.concatenate([shown[0], shown[1]], axis=1)
