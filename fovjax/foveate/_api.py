@@ -31,7 +31,6 @@ def _signature(args) -> tuple:
 
 def _budget_for(rig, head_pose, foveation: Foveation) -> int:
     """Static budget of both eyes (cached per rig intrinsics and configuration)."""
-    cameras = rig.eye_cameras(head_pose)
     key = (
         rig.eye_width,
         rig.eye_height,
@@ -52,7 +51,7 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
     )
     budget = _BUDGETS.get(key)
     if budget is None:
-        budget = _BUDGETS[key] = sum(plan_budget(cam, foveation) for cam in cameras)
+        budget = _BUDGETS[key] = sum(plan_budget(cam, foveation) for cam in rig.eye_cameras(head_pose))
     return budget
 
 
@@ -69,7 +68,12 @@ class FoveatedFrame:
     sample_mask: np.ndarray
     regions: np.ndarray
     eccentricity: np.ndarray
-    debug_view: np.ndarray
+    outputs: FoveatedOutputs
+
+    @property
+    def debug_view(self) -> np.ndarray:
+        """Regions and traced samples per eye (thesis figures 58-59), side by side."""
+        return np.asarray(region_view(self.outputs))
 
     def save(self, path, **kwargs):
         from .._image import save_image
@@ -173,5 +177,5 @@ def render_foveated(
         sample_mask=np.asarray(out.traced),
         regions=np.asarray(out.region),
         eccentricity=np.asarray(out.eccentricity),
-        debug_view=np.asarray(region_view(out)),
+        outputs=out,
     )

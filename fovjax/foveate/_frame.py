@@ -29,7 +29,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._eccentricity import eccentricity_map
 from ._fill import fill_and_blur_pixels
-from ._sampling import FOVEA, MANDATORY, OPTIONAL, OUTSIDE, PERIPHERY, compaction_order, sample_classes
+from ._sampling import MANDATORY, OPTIONAL, compaction_order, sample_classes
 
 # fold_in constant that separates the sampling draws from the sub-pixel jitter of the same key.
 SAMPLING_STREAM = 0x5A3
@@ -89,7 +89,8 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, *, spp, jitter, confi
     image = jnp.concatenate(eyes, axis=1)
     traced = jnp.zeros(classes.size, bool).at[slots].set(active).reshape(classes.shape)
 
-    by_region = jnp.stack([jnp.sum(jnp.where(region == r, n_traced, 0)) for r in (FOVEA, PERIPHERY, OUTSIDE)])
+    # One scatter-add instead of three masked reductions (slow on XLA:CPU).
+    by_region = jnp.zeros(3, jnp.int32).at[region.reshape(-1)].add(n_traced.reshape(-1))
     return FoveatedOutputs(
         image=image,
         counts=result.counts,

@@ -65,12 +65,13 @@ def sample_classes(
 
 def compaction_order(classes: Int[Array, " N"]) -> tuple[Int[Array, " N"], Int[Array, " 3"]]:
     """A stable permutation listing MANDATORY samples first, then OPTIONAL, then SKIPPED (each
-    in its original, spatially coherent order), and the count of each class. O(N), no sort."""
-    counts = jnp.stack([jnp.sum(classes == c) for c in (MANDATORY, OPTIONAL, SKIPPED)]).astype(jnp.int32)
-    offsets = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(counts)[:2]])
+    in its original, spatially coherent order), and the count of each class. O(N), no sort;
+    the counts are the running sums' last entries (no separate reductions)."""
+    running = [jnp.cumsum((classes == c).astype(jnp.int32)) for c in (MANDATORY, OPTIONAL, SKIPPED)]
+    counts = jnp.stack([r[-1] for r in running])
+    offsets = (jnp.int32(0), counts[0], counts[0] + counts[1])
     rank = jnp.zeros_like(classes)
     for c in (MANDATORY, OPTIONAL, SKIPPED):
-        is_c = (classes == c).astype(jnp.int32)
-        rank = jnp.where(is_c > 0, offsets[c] + jnp.cumsum(is_c) - 1, rank)
+        rank = jnp.where(classes == c, offsets[c] + running[c] - 1, rank)
     order = jnp.zeros_like(classes).at[rank].set(jnp.arange(classes.shape[0], dtype=classes.dtype))
     return order, counts
