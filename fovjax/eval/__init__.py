@@ -73,12 +73,17 @@ from ._protocols import (
     wilson_interval,
     write_responses,
 )
+from ._shard import FrameBatch, frame_mesh, render_foveated_batch, render_stereo_batch
 
 __all__ = [
     "DEFAULT_CRITERION",
     "DEFAULT_GAZES",
     "Comparison",
     "compare_thresholds",
+    "FrameBatch",
+    "frame_mesh",
+    "render_foveated_batch",
+    "render_stereo_batch",
     "APPENDIX_LEVELS",
     "DECISION_RULE",
     "JND_JOD",
