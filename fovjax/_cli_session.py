@@ -3,46 +3,96 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "session",
         help="render a foveated stereo sequence following a gaze (and head) source",
-        description="Render frames of a foveated stereo session. Gaze/head sources: "
-        "replay:FILE, synthetic:scanpath[:SEED], synthetic:pursuit, synthetic:fixed, serial:PORT[@BAUD], "
-        "pupil:HOST:PORT, viewpoint[:LIB], intersense[:LIB] (head: replay:FILE, synthetic:sway, serial:PORT, "
-        "intersense[:LIB]).",
+        description="Render frames of a foveated stereo session: PNG frames, session.csv (per-frame "
+        "tracking state, latency, thresholds, rays, times) and session.json (the same plus a summary). "
+        "Gaze sources: replay:FILE[@SPEED], synthetic:scanpath[:SEED], synthetic:pursuit, "
+        "synthetic:fixed[:X,Y], serial:PORT[@BAUD], pupil:HOST:PORT, viewpoint[:LIB]; head sources: "
+        "replay:FILE, synthetic:sway, serial:PORT, intersense[:LIB]. When the gaze goes stale the "
+        "fovea is held, then widened step by step up to the whole screen, and narrowed again once "
+        "good samples return.",
     )
     p.add_argument("--gaze", required=True, help="gaze source spec")
     p.add_argument("--head", default=None, help="head-pose source spec (default: head still)")
     n = p.add_mutually_exclusive_group(required=True)
-    n.add_argument("--frames", type=int)
-    n.add_argument("--seconds", type=float)
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the session's timeline")
-    p.add_argument("--scene", default="atrium")
-    p.add_argument("--width", type=int, default=640, help="pixels per eye")
-    p.add_argument("--height", type=int, default=512)
-    p.add_argument("--fovea", type=float, default=5.0)
-    p.add_argument("--periphery", type=float, default=10.0)
-    p.add_argument("--spp", type=int, default=1)
-    p.add_argument("--max-depth", type=int, default=5)
-    p.add_argument("--clock", choices=("virtual", "wall"), default="virtual")
+    n.add_argument("--frames", type=int, help="number of frames")
+    n.add_argument("--seconds", type=float, help="session length (frames = seconds x fps)")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second of the timeline (30)")
+    p.add_argument("--scene", default="atrium", help="atrium, cornell, spheres, or a scene file")
+    p.add_argument("--triangles", type=int, default=262_000, help="atrium size (triangles)")
+    p.add_argument("--width", type=int, default=640, help="pixels per eye (default 640)")
+    p.add_argument("--height", type=int, default=512, help="pixels per eye (default 512)")
+    p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
+    p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
+    p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
+    p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
+    p.add_argument("--backend", default="jax", choices=("jax", "embree"), help="ray traversal backend")
+    p.add_argument(
+        "--clock",
+        choices=("auto", "virtual", "wall"),
+        default="auto",
+        help="virtual: frame k at k/fps on a simulated clock (deterministic); wall: as fast as it "
+        "renders, for live devices; auto (default): wall for live devices, else virtual",
+    )
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the sampling (default 0)")
     p.add_argument("--fixed-key", action="store_true", help="the same sampling pattern every frame")
+    p.add_argument("--hold-for", type=float, default=None, help="seconds the last gaze is held (0.15)")
+    p.add_argument("--widen-every", type=float, default=None, help="seconds per widening step (0.1)")
+    p.add_argument("--widen-steps", type=int, default=None, help="steps to the full screen (4)")
+    p.add_argument(
+        "--smoothing", choices=("none", "ema", "one_euro"), default="none", help="gaze filter (default none)"
+    )
+    p.add_argument(
+        "--show-samples", action="store_true", help="also write debug_*.png: regions and traced samples"
+    )
     p.add_argument("--video", action="store_true", help="also write session.mp4 (needs imageio-ffmpeg)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    try:
+        return _run(args)
+    except ValueError as err:
+        print(f"fovjax session: error: {err}", file=sys.stderr)
+        return 2
+
+
+def _run(args) -> int:
+    import dataclasses
+
+    import jax
+
     import fovjax
+    from fovjax._cli_render import _load_scene
+    from fovjax.devices import FallbackPolicy, GazeTracker
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
 
-    if args.scene in fovjax.scenes.BUILTIN:
-        scene = fovjax.scenes.BUILTIN[args.scene]()
-    else:
-        scene = fovjax.load_scene(args.scene)
+    if args.width <= 0 or args.height <= 0:
+        raise ValueError(f"--width/--height must be positive, got {args.width}x{args.height}")
+    policy = FallbackPolicy()
+    changes = {
+        name: value
+        for name, value in (
+            ("hold_for", args.hold_for),
+            ("widen_every", args.widen_every),
+            ("widen_steps", args.widen_steps),
+        )
+        if value is not None
+    }
+    if "hold_for" in changes:
+        changes["stale_after"] = min(policy.stale_after, changes["hold_for"])
+    policy = dataclasses.replace(policy, **changes)
+    tracker = GazeTracker(policy, smoothing=None if args.smoothing == "none" else args.smoothing)
+    scene = _load_scene(args)
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
@@ -56,18 +106,28 @@ def run(args) -> int:
         seconds=args.seconds,
         fps=args.fps,
         out=args.output,
+        key=jax.random.key(args.seed),
         fresh_key_per_frame=not args.fixed_key,
-        clock=args.clock,
-        config=RenderConfig(max_depth=args.max_depth),
+        clock=None if args.clock == "auto" else args.clock,
+        tracker=tracker,
+        config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
         video=args.video,
+        debug=args.show_samples,
+        progress=not args.no_progress,
     )
-    states = result.states()
-    rays = sum(f.primary_rays + f.shadow_rays + f.reflection_rays for f in result.frames)
-    render_s = sum(f.render_s for f in result.frames)
+    s = result.summary
+    if not result.frames:
+        print("no frames rendered (interrupted)")
+        return 1
+    states = ", ".join(f"{state} {count}" for state, count in s["tracking_states"].items())
+    latency = "" if s["ok_latency_s_mean"] is None else f", ok latency {s['ok_latency_s_mean'] * 1e3:.1f} ms"
     print(
-        f"{len(result.frames)} frames, {rays / len(result.frames) / 1e6:.3f} M rays per frame, "
-        f"{render_s / len(result.frames):.2f} s per frame; tracking "
-        + ", ".join(f"{s} {states.count(s)}" for s in ("ok", "holding", "degraded", "lost") if s in states)
+        f"{s['frames']} frames ({s['clock']} clock): {s['rays_per_frame_mean'] / 1e6:.3f} M rays and "
+        f"{s['render_s_mean']:.3f} s per frame, compile {s['compile_s_total']:.1f} s; tracking {states}"
+        f"{latency}{' (interrupted)' if s['interrupted'] else ''}"
     )
-    print(f"wrote {result.out.resolve()}/ (frame_*.png, session.csv, session.json)")
+    written = "frame_*.png, " + ("debug_*.png, " if args.show_samples else "") + "session.csv, session.json"
+    if result.video is not None:
+        written += ", session.mp4"
+    print(f"wrote {result.out.resolve()}/ ({written})")
     return 0

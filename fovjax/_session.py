@@ -2,34 +2,43 @@
 
 Two clocks:
 
-- "virtual" (default): frame k is displayed at t = k / fps on a simulated clock shared with the
-  sources (specs are built on it; recordings and synthetic gaze are paced on it), so a session
-  that renders slower than real time still sees the gaze exactly as it was at each frame's
-  time, and the same inputs give the same frames.
-- "wall": frames are rendered as fast as they can be on `time.monotonic`, for live devices; each
-  frame uses whatever samples arrived since the previous one.
+- "virtual": frame k is displayed at t = k / fps on a simulated clock shared with the sources
+  (they are re-clocked onto it before they open; recordings and synthetic gaze are paced on it),
+  so a session that renders slower than real time still sees the gaze exactly as it was at each
+  frame's time, and the same inputs give the same frames.
+- "wall": frames are rendered as fast as they can be on the gaze source's clock
+  (`time.monotonic` for specs), for live devices; each frame uses whatever samples arrived since
+  the previous one. Every widening level is compiled before the first frame (`warmup`), so a
+  tracker that goes silent does not freeze the display while a new program compiles.
+
+The default picks "wall" for live devices (serial, Pupil, ViewPoint, InterSense) and "virtual"
+for recordings and synthetic gaze.
 
 Per frame: every sample that arrived goes through the `GazeTracker` (quality filter, hold, widen,
 recover) and the `HeadTracker`; the tracker's widening turns into the frame's fovea and
-periphery thresholds (widening 1 renders everything at full quality); then `render_foveated`.
-Gaze the tracker accepts slightly off screen (within its `max_offscreen`) is clamped to the
-screen edge.
+periphery thresholds, widened towards the largest eccentricity any pixel of the display can have
+(widening 1: every pixel is foveal, full quality); then `render_foveated`. Each widening level
+is a separate compiled program (its thresholds fix the static ray budget). Gaze the tracker
+accepts slightly off screen (within its `max_offscreen`) is clamped to the screen edge.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import importlib.util
 import json
+import math
 import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-# Eccentricity that covers any display (the thresholds widen towards it; at 180° every pixel is
-# foveal).
-FULL_DEG = 180.0
+# Schemes of live devices: their samples arrive in real time, so the default clock is "wall".
+LIVE_SCHEMES = ("serial", "pupil", "viewpoint", "intersense")
+CLOCKS = ("virtual", "wall")
 
 
 class VirtualClock:
@@ -41,25 +50,37 @@ class VirtualClock:
     def __call__(self) -> float:
         return self.now
 
-    def advance(self, dt: float) -> None:
-        self.now += float(dt)
+    def set(self, t: float) -> None:
+        self.now = float(t)
 
 
 @dataclasses.dataclass(frozen=True)
 class SessionFrame:
-    """One frame's statistics (also a row of `session.csv`)."""
+    """One frame's statistics (also a row of `session.csv`).
+
+    `time_s`: the frame's time on the session clock; `latency_s`: sample-to-frame latency, from
+    the timestamp of the gaze sample the frame follows to the frame's display (virtual clock:
+    its display time; wall clock: when its rendering finished); `gaze_age_s`: that sample's age
+    when the frame started; `gaze_*`: the gaze rendered from (normalised display coordinates
+    per eye); `fovea_pixels`: foveal pixels of both eyes; `rejected_samples`: bad samples so far
+    (cumulative); `render_s`/`compile_s`: the compiled program's run time and the compile time
+    this frame paid (0 when the program was cached)."""
 
     frame: int
     time_s: float
     tracking_state: str
     widening: float
+    widening_step: int
+    saccade: bool
     gaze_age_s: float
+    latency_s: float
     gaze_left: tuple[float, float]
     gaze_right: tuple[float, float]
     head_state: str
     head_pose: tuple[float, float, float]
     fovea_deg: float
     periphery_deg: float
+    fovea_pixels: int
     primary_rays: int
     shadow_rays: int
     reflection_rays: int
@@ -69,10 +90,18 @@ class SessionFrame:
     rejected_samples: int
     path: str
 
+    @property
+    def rays(self) -> int:
+        return self.primary_rays + self.shadow_rays + self.reflection_rays
+
 
 @dataclasses.dataclass(frozen=True)
 class SessionResult:
+    """What `run_session` did: per-frame stats, the summary (also in `session.json`), the output
+    directory and the video (None when not written)."""
+
     frames: list[SessionFrame]
+    summary: dict
     out: Path | None
     video: Path | None
 
@@ -80,14 +109,94 @@ class SessionResult:
         return [f.tracking_state for f in self.frames]
 
 
-def _source(spec_or_source, kind, clock, duration):
+def _scheme(spec) -> str | None:
+    return spec.partition(":")[0] if isinstance(spec, str) else None
+
+
+def _is_live(spec_or_source) -> bool:
+    if spec_or_source is None:
+        return False
+    if isinstance(spec_or_source, str):
+        return _scheme(spec_or_source) in LIVE_SCHEMES
+    from .devices import ThreadedSource
+
+    return isinstance(spec_or_source, ThreadedSource)
+
+
+def _source(spec_or_source, kind, clock, duration, name):
+    """A source for `spec_or_source` on `clock`: specs are built on it, source objects that are
+    not open yet are re-clocked onto it (an open one must already use it)."""
     if spec_or_source is None:
         return None
     if isinstance(spec_or_source, str):
         from .devices import source_from_spec
 
         return source_from_spec(spec_or_source, kind, duration=duration, clock=clock)
-    return spec_or_source
+    from .devices import Source
+
+    source = spec_or_source
+    if not isinstance(source, Source):
+        raise ValueError(
+            f"run_session: {name} must be a source spec such as 'replay:FILE' or a fovjax.devices "
+            f"source, got {type(source).__name__}"
+        )
+    if source.kind != kind:
+        raise ValueError(f"run_session: {name} is a {source.kind} source, not {kind}")
+    if source.is_open:
+        if source.clock is not clock:
+            raise ValueError(
+                f"run_session: {name} source is already open on another clock; pass it unopened "
+                "so the session can put it on its clock"
+            )
+    else:
+        source.clock = clock
+    return source
+
+
+def full_eccentricity(rig, foveation) -> float:
+    """The largest eccentricity (degrees) any pixel of either eye's display can have for any
+    gaze on that display -- the fovea that covers the whole screen -- rounded up to 0.1°.
+    Eccentricity is measured in the eye's own camera, so the head pose does not matter."""
+    from .foveate import eccentricity_map
+
+    corners = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0))
+    worst = 0.0
+    for camera in rig.eye_cameras(None):
+        for corner in corners:
+            worst = max(worst, float(jnp.max(eccentricity_map(camera, jnp.asarray(corner), foveation))))
+    return min(180.0, math.ceil(worst * 10.0 + 1e-6) / 10.0)
+
+
+def _check_count(frames, seconds, fps) -> int:
+    if frames is None and seconds is None:
+        raise ValueError("run_session: give frames= or seconds=")
+    if frames is not None and seconds is not None:
+        raise ValueError(f"run_session: give frames= or seconds=, not both (got {frames}, {seconds})")
+    try:
+        rate = float(fps)
+    except (TypeError, ValueError):
+        rate = math.nan
+    if isinstance(fps, bool) or not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"run_session: fps must be a positive number, got {fps!r}")
+    if frames is not None:
+        if isinstance(frames, bool) or not isinstance(frames, int | np.integer):
+            raise ValueError(f"run_session: frames must be an integer, got {frames!r}")
+        n = int(frames)
+    else:
+        if isinstance(seconds, bool) or not (isinstance(seconds, int | float) and math.isfinite(seconds)):
+            raise ValueError(f"run_session: seconds must be a finite number, got {seconds!r}")
+        n = int(round(seconds * rate))
+    if n < 1:
+        raise ValueError(
+            f"run_session: need at least one frame, got frames={frames}, seconds={seconds}, fps={fps}"
+        )
+    return n
+
+
+def _describe(spec_or_source) -> str | None:
+    if spec_or_source is None or isinstance(spec_or_source, str):
+        return spec_or_source
+    return type(spec_or_source).__name__
 
 
 def run_session(
@@ -103,102 +212,169 @@ def run_session(
     out=None,
     key: jax.Array | None = None,
     fresh_key_per_frame: bool = True,
-    clock: str = "virtual",
+    clock: str | None = None,
     policy=None,
+    tracker=None,
     config=None,
+    envmap=None,
     video: bool = False,
+    debug: bool = False,
+    warmup: bool | None = None,
     progress: bool = True,
     bvh=None,
 ) -> SessionResult:
     """Render `frames` (or `seconds` × `fps`) foveated stereo frames of `scene` following the
-    `gaze` source (a `fovjax.devices` source or a spec such as "synthetic:scanpath:0",
-    "replay:FILE", "serial:PORT", "pupil:HOST:PORT") and optionally a `head` source. Writes
-    `out/frame_00000.png`..., `out/session.csv` and `out/session.json` when `out` is given, and
-    `out/session.mp4` with `video=True` (needs imageio-ffmpeg). Returns the per-frame stats."""
-    from .devices import FallbackPolicy, GazeTracker, HeadTracker
-    from .foveate import Foveation, render_foveated
+    `gaze` source and optionally a `head` source (a spec such as "synthetic:scanpath:0",
+    "replay:FILE", "serial:PORT", "pupil:HOST:PORT", or an unopened `fovjax.devices` source).
 
-    if frames is None and seconds is None:
-        raise ValueError("run_session: give frames= or seconds=")
-    if not (np.isfinite(fps) and fps > 0):
-        raise ValueError(f"run_session: fps must be positive, got {fps}")
-    n_frames = int(frames if frames is not None else round(seconds * fps))
-    if n_frames < 1:
-        raise ValueError(f"run_session: need at least one frame, got {n_frames}")
-    if clock not in ("virtual", "wall"):
-        raise ValueError(f"run_session: clock must be 'virtual' or 'wall', got {clock!r}")
+    `rig`: a `StereoRig` (default: the scene's default camera at the rig's default size).
+    `foveation`: the `Foveation` when tracking is good (default `Foveation()`). `policy` (a
+    `FallbackPolicy`) or `tracker` (a `GazeTracker`, e.g. with smoothing): the fallback. `key`:
+    the PRNG key (default key 0), folded with the frame number unless `fresh_key_per_frame` is
+    False. `clock`: "virtual", "wall" or None (wall for live devices, else virtual; module
+    docstring). `warmup`: compile every widening level before the first frame (default: on the
+    wall clock only).
+
+    With `out`: `out/frame_00000.png`..., `out/session.csv` (one row per frame),
+    `out/session.json` (``{"summary": ..., "frames": [...]}``), with `debug=True` the regions /
+    samples view `out/debug_00000.png`..., with `video=True` `out/session.mp4` (needs the
+    `video` extra, imageio-ffmpeg). Ctrl-C ends the session early; the frames so far are kept
+    and logged (``summary["interrupted"]``)."""
+    from .devices import GazeTracker, HeadTracker, widen_thresholds
+    from .foveate import Foveation, render_foveated
+    from .render import StereoRig
+    from .render._arrays import SceneArrays, scene_arrays
+    from .render._config import DEFAULT_CONFIG
+    from .render._frame import _bvh_for
+
+    n_frames = _check_count(frames, seconds, fps)
+    rate = float(fps)
+    if gaze is None:
+        raise ValueError("run_session: gaze must be a source spec or a fovjax.devices source, got None")
+    if clock is None:
+        clock = "wall" if (_is_live(gaze) or _is_live(head)) else "virtual"
+    if clock not in CLOCKS:
+        raise ValueError(f"run_session: clock must be one of {CLOCKS} or None, got {clock!r}")
+    if tracker is not None and policy is not None:
+        raise ValueError("run_session: give policy= or tracker=, not both (the tracker has its policy)")
+    if (video or debug) and out is None:
+        raise ValueError("run_session: video=True and debug=True write files; give out=")
+    if video and importlib.util.find_spec("imageio_ffmpeg") is None:
+        raise ImportError("run_session(video=True) needs imageio-ffmpeg: pip install 'fovjax[video]'")
     foveation = foveation or Foveation()
-    vclock = VirtualClock() if clock == "virtual" else None
-    now = vclock if vclock is not None else time.monotonic
-    duration = n_frames / fps + 1.0
-    gaze_source = _source(gaze, "gaze", now, duration)
-    head_source = _source(head, "head", now, duration)
-    tracker = GazeTracker(policy=policy or FallbackPolicy())
+    config = config or DEFAULT_CONFIG
+    tracker = tracker or GazeTracker(policy=policy)
     head_tracker = HeadTracker()
+    if rig is None:
+        from .scenes import default_camera
+
+        rig = StereoRig.from_pose(default_camera(scene))
+    # The scene's arrays and BVH once, not per frame.
+    bvh = _bvh_for(scene, bvh)
+    arrays = (
+        scene
+        if isinstance(scene, SceneArrays)
+        else scene_arrays(scene, envmap=envmap, background=config.background)
+    )
+    arrays = jax.tree.map(jnp.asarray, arrays)
+    omega_full = max(full_eccentricity(rig, foveation), foveation.periphery_deg)
+
+    vclock = VirtualClock() if clock == "virtual" else None
+    # Wall clock: a source object keeps its own clock and the session runs on it.
+    now = vclock if vclock is not None else (time.monotonic if isinstance(gaze, str) else gaze.clock)
+    # Synthetic sources end after `duration`; on the wall clock rendering may be slower than the
+    # timeline, so there they never end.
+    duration = n_frames / rate + 1.0 if vclock is not None else None
+    gaze_source = _source(gaze, "gaze", now, duration, "gaze")
+    head_source = _source(head, "head", now, duration, "head")
     key = jax.random.key(0) if key is None else key
     out = Path(out) if out is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
 
+    def foveation_at(widening: float) -> Foveation:
+        fovea, periphery = widen_thresholds(
+            foveation.fovea_deg, foveation.periphery_deg, widening, omega_full
+        )
+        return dataclasses.replace(foveation, fovea_deg=fovea, periphery_deg=periphery)
+
+    def render(gaze_xy, fov, pose, frame_key):
+        return render_foveated(
+            arrays, rig, gaze=gaze_xy, foveation=fov, head_pose=pose, key=frame_key, config=config, bvh=bvh
+        )
+
+    warmup = clock == "wall" if warmup is None else warmup
+    warmup_s = 0.0
+    if warmup:
+        t0 = time.perf_counter()
+        steps = tracker.policy.widen_steps
+        for step in range(steps + 1):
+            render(((0.5, 0.5), (0.5, 0.5)), foveation_at(step / steps), (0.0, 0.0, 0.0), key)
+        warmup_s = time.perf_counter() - t0
+
     rows: list[SessionFrame] = []
     writer = None
     bar = None
+    interrupted = False
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=n_frames, unit="frame", desc="session")
+    started = time.perf_counter()
     try:
         gaze_source.open()
         if head_source is not None:
             head_source.open()
-        if video and out is not None:
+        if video:
             import imageio.v2 as iio
 
-            try:
-                writer = iio.get_writer(out / "session.mp4", fps=fps, macro_block_size=1)
-            except Exception as exc:  # no ffmpeg backend
-                raise ImportError(
-                    f"video=True needs imageio-ffmpeg (pip install 'fovjax[video]'): {exc}"
-                ) from exc
+            writer = iio.get_writer(
+                out / "session.mp4", format="FFMPEG", fps=rate, codec="libx264", macro_block_size=1
+            )
+        last_frame_s = 0.0
         for k in range(n_frames):
+            if vclock is not None:
+                vclock.set(k / rate)  # not a running sum: no drift over long sessions
             t = now()
-            tf = tracker.step(t, gaze_source.drain(), display_time=t)
+            # Wall clock: the frame is shown about one frame's rendering time from now.
+            display_time = t if vclock is not None else t + last_frame_s
+            tf = tracker.step(t, gaze_source.drain(), display_time=display_time)
             hf = head_tracker.step(t, head_source.drain()) if head_source is not None else None
             pose = (hf.yaw, hf.pitch, hf.roll) if hf is not None else (0.0, 0.0, 0.0)
-            fovea, periphery = tf.thresholds(foveation.fovea_deg, foveation.periphery_deg, FULL_DEG)
-            frame_fov = dataclasses.replace(foveation, fovea_deg=fovea, periphery_deg=periphery)
+            frame_fov = foveation_at(tf.widening)
             gaze_xy = np.clip(np.array([tf.left, tf.right], np.float32), 0.0, 1.0)
             frame_key = jax.random.fold_in(key, k) if fresh_key_per_frame else key
-            frame = render_foveated(
-                scene,
-                rig,
-                gaze=gaze_xy,
-                foveation=frame_fov,
-                head_pose=pose,
-                key=frame_key,
-                config=config,
-                bvh=bvh,
-            )
+            frame = render(gaze_xy, frame_fov, pose, frame_key)
+            shown = now() if vclock is None else display_time
+            last_frame_s = max(shown - t, 0.0)
             path = ""
             if out is not None:
                 path = str(frame.save(out / f"frame_{k:05d}.png"))
-                if writer is not None:
-                    from ._image import linear_to_srgb
+                if debug:
+                    from ._image import save_image
 
-                    writer.append_data(np.round(linear_to_srgb(frame.image) * 255).astype(np.uint8))
+                    save_image(out / f"debug_{k:05d}.png", frame.debug_view)
+                if writer is not None:
+                    writer.append_data(_video_frame(frame.image))
             rows.append(
                 SessionFrame(
                     frame=k,
                     time_s=float(t),
                     tracking_state=str(tf.state),
                     widening=float(tf.widening),
+                    widening_step=int(tf.widening_step),
+                    saccade=bool(tf.saccade),
                     gaze_age_s=float(tf.sample_age),
+                    latency_s=float(shown - tf.sample_timestamp)
+                    if math.isfinite(tf.sample_timestamp)
+                    else math.inf,
                     gaze_left=tuple(float(x) for x in gaze_xy[0]),
                     gaze_right=tuple(float(x) for x in gaze_xy[1]),
                     head_state=str(hf.state) if hf is not None else "none",
                     head_pose=tuple(float(x) for x in pose),
-                    fovea_deg=float(fovea),
-                    periphery_deg=float(periphery),
+                    fovea_deg=float(frame_fov.fovea_deg),
+                    periphery_deg=float(frame_fov.periphery_deg),
+                    fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
                     primary_rays=frame.stats.primary_rays,
                     shadow_rays=frame.stats.shadow_rays,
                     reflection_rays=frame.stats.reflection_rays,
@@ -211,11 +387,12 @@ def run_session(
             )
             if bar is not None:
                 bar.set_postfix_str(
-                    f"{tf.state} {fovea:.0f}°/{periphery:.0f}° {frame.stats.rays / 1e6:.2f} Mrays"
+                    f"{tf.state} {frame_fov.fovea_deg:.0f}°/{frame_fov.periphery_deg:.0f}° "
+                    f"{frame.stats.rays / 1e6:.2f} Mrays"
                 )
                 bar.update(1)
-            if vclock is not None:
-                vclock.advance(1.0 / fps)
+    except KeyboardInterrupt:
+        interrupted = True
     finally:
         gaze_source.close()
         if head_source is not None:
@@ -224,12 +401,78 @@ def run_session(
             writer.close()
         if bar is not None:
             bar.close()
+    summary = _summary(
+        rows,
+        n_frames=n_frames,
+        fps=rate,
+        clock=clock,
+        gaze=_describe(gaze),
+        head=_describe(head),
+        rig=rig,
+        foveation=foveation,
+        omega_full=omega_full,
+        policy=tracker.policy,
+        warmup_s=warmup_s,
+        wall_s=time.perf_counter() - started,
+        interrupted=interrupted,
+    )
     if out is not None:
-        _write_log(out, rows)
-    return SessionResult(frames=rows, out=out, video=(out / "session.mp4") if (video and out) else None)
+        _write_log(out, rows, summary)
+    return SessionResult(
+        frames=rows,
+        summary=summary,
+        out=out,
+        video=(out / "session.mp4") if video else None,
+    )
 
 
-def _write_log(out: Path, rows: list[SessionFrame]) -> None:
+def _video_frame(image: np.ndarray) -> np.ndarray:
+    """8-bit sRGB as the PNGs, padded to even sides (H.264 in yuv420p needs them)."""
+    from ._image import linear_to_srgb, tonemap
+
+    rgb8 = np.round(linear_to_srgb(tonemap(image)) * 255).astype(np.uint8)
+    h, w = rgb8.shape[:2]
+    return np.pad(rgb8, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+
+
+def _summary(rows: list[SessionFrame], **info) -> dict:
+    rig, foveation, policy = info.pop("rig"), info.pop("foveation"), info.pop("policy")
+    n = len(rows)
+    states = [r.tracking_state for r in rows]
+    latencies = [r.latency_s for r in rows if r.tracking_state == "ok" and math.isfinite(r.latency_s)]
+    return {
+        "frames": n,
+        "frames_requested": info.pop("n_frames"),
+        **info,
+        "eye_size": [rig.eye_width, rig.eye_height],
+        "fovea_deg": foveation.fovea_deg,
+        "periphery_deg": foveation.periphery_deg,
+        "spp": foveation.spp,
+        "policy": dataclasses.asdict(policy),
+        "tracking_states": {s: states.count(s) for s in dict.fromkeys(states)},
+        "ok_latency_s_mean": float(np.mean(latencies)) if latencies else None,
+        "ok_latency_s_max": float(np.max(latencies)) if latencies else None,
+        "rays_total": sum(r.rays for r in rows),
+        "rays_per_frame_mean": sum(r.rays for r in rows) / n if n else None,
+        "render_s_mean": float(np.mean([r.render_s for r in rows])) if n else None,
+        "compile_s_total": sum(r.compile_s for r in rows),
+        "dropped_samples_total": sum(r.dropped for r in rows),
+        "rejected_samples": rows[-1].rejected_samples if n else 0,
+    }
+
+
+def _jsonable(value):
+    """Non-finite floats become null (JSON has no inf/NaN); tuples lists."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def _write_log(out: Path, rows: list[SessionFrame], summary: dict) -> None:
     fields = [f.name for f in dataclasses.fields(SessionFrame)]
     with open(out / "session.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields)
@@ -239,4 +482,9 @@ def _write_log(out: Path, rows: list[SessionFrame]) -> None:
                 {k: (json.dumps(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(r).items()}
             )
     with open(out / "session.json", "w") as fh:
-        json.dump([dataclasses.asdict(r) for r in rows], fh, indent=1)
+        json.dump(
+            _jsonable({"summary": summary, "frames": [dataclasses.asdict(r) for r in rows]}),
+            fh,
+            indent=1,
+            allow_nan=False,
+        )
