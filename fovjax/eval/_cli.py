@@ -15,6 +15,23 @@ def _pair(text: str) -> tuple[float, float]:
     return fovea, periphery
 
 
+def _distributed(text: str) -> tuple[str, int, int]:
+    """COORDINATOR_HOST:PORT,NUM_PROCESSES,PROCESS_ID for `jax.distributed.initialize`."""
+    try:
+        address, num_processes, process_id = text.split(",")
+        num_processes, process_id = int(num_processes), int(process_id)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--distributed is HOST:PORT,NUM_PROCESSES,PROCESS_ID (e.g. 10.0.0.1:1234,2,0), got {text!r}"
+        ) from None
+    if ":" not in address or num_processes < 1 or not 0 <= process_id < num_processes:
+        raise argparse.ArgumentTypeError(
+            f"--distributed {text!r}: need HOST:PORT of process 0, NUM_PROCESSES >= 1 and "
+            "0 <= PROCESS_ID < NUM_PROCESSES"
+        )
+    return address, num_processes, process_id
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
@@ -39,13 +56,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threshold", type=float, default=0.05)
     p.add_argument("--max-depth", type=int, default=5)
     p.add_argument("--no-perceptual", action="store_true", help="skip FovVideoVDP even if installed")
+    p.add_argument(
+        "--shard",
+        action="store_true",
+        help="render each configuration's frames in one program sharded over jax.devices() "
+        "(ms per frame = batch time / frames)",
+    )
+    p.add_argument(
+        "--distributed",
+        type=_distributed,
+        metavar="HOST:PORT,N,ID",
+        help="run on N processes (hosts) with jax.distributed: the same command on every host, "
+        "ID 0..N-1, HOST:PORT the address of process 0; implies --shard, process 0 writes the results",
+    )
     p.add_argument("-o", "--output", default="out/compare")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.distributed is not None:
+        import jax
+
+        # Before anything touches a JAX backend: then jax.devices() lists every host's devices.
+        address, num_processes, process_id = args.distributed
+        jax.distributed.initialize(
+            coordinator_address=address, num_processes=num_processes, process_id=process_id
+        )
+        args.shard = True
+    import jax
+
     import fovjax
     from fovjax.eval import compare_thresholds
+    from fovjax.eval._compare import HIGHER_IS_BETTER
     from fovjax.render import RenderConfig, StereoRig
 
     scene = (
@@ -66,7 +108,10 @@ def run(args) -> int:
         config=RenderConfig(max_depth=args.max_depth),
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
+        shard=args.shard,
     )
+    if jax.process_index() != 0:  # every process holds the same results; one writes them
+        return 0
     paths = result.write(args.output)
     cols = ["config", "rays_per_frame", "ms_per_frame", "speedup", "psnr", "ssim", "flip", "jod", "pareto"]
     cols = [c for c in cols if c in result.records[0]]
@@ -77,9 +122,10 @@ def run(args) -> int:
     for s, f in sorted(result.full.items()):
         print(f"full spp {s}: {f['rays_per_frame']:,.0f} rays, {f['ms_per_frame']:.0f} ms per frame")
     metric, threshold = result.criterion
+    side = ("above", ">") if metric in HIGHER_IS_BETTER else ("below", "<")
     if result.choice is None:
-        print(f"no configuration keeps {metric} below {threshold:g} over its whole interval")
+        print(f"no configuration keeps {metric} {side[0]} {threshold:g} over its whole interval")
     else:
-        print(f"cheapest with {metric} < {threshold:g} (whole 95% interval): {result.choice.name}")
+        print(f"cheapest with {metric} {side[1]} {threshold:g} (whole 95% interval): {result.choice.name}")
     print(f"wrote {paths['csv'].parent.resolve()}/")
     return 0

@@ -21,13 +21,21 @@ DEFAULT_GAZES = ((0.5, 0.5), (0.3, 0.4), (0.7, 0.65))
 # The criterion that names the recommended configuration: mean FLIP (LDR, ppd of the rig) at
 # most this; FLIP 0 is identical, ~0.05 is a difference one has to look for in a flip test.
 DEFAULT_CRITERION = ("flip", 0.05)
+# Metrics where larger is better: a criterion on them asks for the interval to stay above.
+HIGHER_IS_BETTER = ("psnr", "ssim", "jod")
+
+
+def _sense(metric: str) -> str:
+    return "max" if metric in HIGHER_IS_BETTER else "min"
 
 
 @dataclasses.dataclass(frozen=True)
 class Comparison:
     """`records`: one per configuration (CSV-writable); `rings`: per configuration label, the
     mean |error| (sRGB) and primary rays per 5° eccentricity ring; `choice`: the cheapest
-    configuration meeting `criterion` (None if none does); `full`: the full render's cost."""
+    configuration meeting `criterion` (None if none does); `full`: the full render's cost.
+    `criterion` (metric, threshold): the metric's whole interval must stay below the threshold
+    (above it for PSNR, SSIM and JOD, where larger is better)."""
 
     records: list[dict]
     rings: dict
@@ -51,7 +59,7 @@ class Comparison:
                 out / f"cost_accuracy_ms_spp{spp}.png",
                 cost="ms_per_frame",
                 accuracy=metric,
-                sense="min",
+                sense=_sense(metric),
                 threshold=threshold,
                 title=f"ms per frame against {metric}, SPP {spp} "
                 f"(full: {self.full[spp]['ms_per_frame']:.0f} ms)",
@@ -61,7 +69,7 @@ class Comparison:
                 out / f"cost_accuracy_rays_spp{spp}.png",
                 cost="rays_per_frame",
                 accuracy=metric,
-                sense="min",
+                sense=_sense(metric),
                 threshold=threshold,
                 title=f"rays per frame against {metric}, SPP {spp}",
             )
@@ -106,6 +114,8 @@ def compare_thresholds(
     rule: str = "either",
     progress: bool = True,
     bvh=None,
+    shard: bool = False,
+    devices: Sequence | None = None,
 ) -> Comparison:
     """Render every (threshold pair × spp × acuity model) foveated, for every gaze and key, and
     the full render for every key (it does not depend on gaze); measure rays per frame, ms per
@@ -113,15 +123,25 @@ def compare_thresholds(
     (extra [flip]) and, with `perceptual` (default: when pyfvvdp is installed), FovVideoVDP JOD
     at the gaze point, each with a 95% Student-t interval over gaze × key. Names the cheapest
     configuration (by ms per frame) whose `criterion` metric's interval stays below the
-    threshold. `models`: acuity models for P(ω) (default: the thesis's)."""
+    threshold (above it for PSNR, SSIM, JOD). `models`: acuity models for P(ω) (default: the
+    thesis's).
+
+    `shard=True` renders each configuration's frames (every gaze × key; the full render's every
+    key) in one program, vmapped and sharded over `devices` (default `jax.devices()`, every
+    host's under `jax.distributed`; see `render_foveated_batch`). Its ms per frame is then the
+    batch's wall time over its frames, not a median of single frames, and includes what
+    batching costs (each device's frames wait for its slowest; see `fovjax.eval._shard`); the
+    images, rays and metrics are those of `shard=False`."""
     from ..foveate import Foveation, render_foveated
     from ..render import render_stereo
+    from ._shard import render_foveated_batch, render_stereo_batch
 
     models = list(models) if models is not None else [None]
     display = HmdDisplay.from_camera(rig.eye_cameras()[0])
     use_flip = _available("flip_evaluator")
     if perceptual is None:
         perceptual = _available("pyfvvdp")
+    criterion = (str(criterion[0]), float(criterion[1]))
     if criterion[0] == "flip" and not use_flip:
         raise MissingExtraError("the FLIP criterion needs flip-evaluator: pip install 'fovjax[flip]'")
     gazes = [np.broadcast_to(np.asarray(g, np.float32).reshape(-1, 2), (2, 2)) for g in gazes]
@@ -135,16 +155,28 @@ def compare_thresholds(
 
     full, references = {}, {}
     for s in spp:
-        times, rays = [], []
-        for k in keys:
-            frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
-            if frame.stats.compile_seconds > 0:  # the first frame compiled: time it again
-                frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
-            references[s, k] = frame.image
-            times.append(frame.stats.render_seconds)
-            rays.append(frame.stats.rays)
+        if shard:
+            batch = render_stereo_batch(scene, rig, keys=keys, spp=s, config=config, bvh=bvh, devices=devices)
+            if batch.compile_seconds > 0:  # the first batch compiled: time it again
+                batch = render_stereo_batch(
+                    scene, rig, keys=keys, spp=s, config=config, bvh=bvh, devices=devices
+                )
+            for k, image in zip(keys, batch.images, strict=True):
+                references[s, k] = image
+            times, rays = [batch.ms_per_frame / 1000] * len(keys), list(batch.rays)
             if bar is not None:
-                bar.update(1)
+                bar.update(len(keys))
+        else:
+            times, rays = [], []
+            for k in keys:
+                frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
+                if frame.stats.compile_seconds > 0:  # the first frame compiled: time it again
+                    frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
+                references[s, k] = frame.image
+                times.append(frame.stats.render_seconds)
+                rays.append(frame.stats.rays)
+                if bar is not None:
+                    bar.update(1)
         full[s] = {"ms_per_frame": 1000 * statistics.median(times), "rays_per_frame": statistics.mean(rays)}
 
     records, rings, ring_rays = [], {}, {}
@@ -154,22 +186,42 @@ def compare_thresholds(
         model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
         label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
         samples, times, rays, ring_acc, ring_ray_acc = {}, [], [], [], []
-        for g, k in itertools.product(gazes, keys):
-            frame = render_foveated(
-                scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
-            )
-            if frame.stats.compile_seconds > 0:
+        frames = list(itertools.product(gazes, keys))
+        if shard:
+            batch_args = {"foveation": fov, "config": config, "bvh": bvh, "devices": devices}
+            g_k = {"gazes": [g for g, _ in frames], "keys": [k for _, k in frames]}
+            batch = render_foveated_batch(scene, rig, **g_k, **batch_args)
+            if batch.compile_seconds > 0:
+                batch = render_foveated_batch(scene, rig, **g_k, **batch_args)
+            # (image, eccentricity, sample mask, rays) per frame, as frames one by one give them.
+            rendered = [
+                (batch.images[i], batch.eccentricity[i], batch.sample_mask[i], batch.rays[i])
+                for i in range(len(frames))
+            ]
+            seconds = [batch.ms_per_frame / 1000] * len(frames)
+        else:
+            rendered, seconds = [], []
+            for g, k in frames:
                 frame = render_foveated(
                     scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
                 )
-            ecc = np.concatenate(list(frame.eccentricity), axis=1)
-            values, ring = _metrics(frame.image, references[s, k], ecc, display, g, use_flip, perceptual)
+                if frame.stats.compile_seconds > 0:
+                    frame = render_foveated(
+                        scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
+                    )
+                rendered.append((frame.image, frame.eccentricity, frame.sample_mask, frame.stats.rays))
+                seconds.append(frame.stats.render_seconds)
+        for (g, k), (image, eccentricity, sample_mask, n_rays), t in zip(
+            frames, rendered, seconds, strict=True
+        ):
+            ecc = np.concatenate(list(eccentricity), axis=1)
+            values, ring = _metrics(image, references[s, k], ecc, display, g, use_flip, perceptual)
             for name, v in values.items():
                 samples.setdefault(name, []).append(v)
-            times.append(frame.stats.render_seconds)
-            rays.append(frame.stats.rays)
-            ring_acc.append(ring.mean_error)
-            traced = np.concatenate(list(frame.sample_mask.sum(axis=1)), axis=1)
+            times.append(t)
+            rays.append(int(n_rays))
+            ring_acc.append(ring)
+            traced = np.concatenate(list(sample_mask.sum(axis=1)), axis=1)
             ring_ray_acc.append(
                 [
                     traced[(ecc >= lo) & (ecc < hi)].sum()
@@ -192,6 +244,7 @@ def compare_thresholds(
             "full_ms_per_frame": full[s]["ms_per_frame"],
             "full_rays_per_frame": full[s]["rays_per_frame"],
             "n": len(times),
+            "timing": f"batch over {batch.devices} devices / frames" if shard else "median of frames",
         }
         for name, vals in samples.items():
             finite = [v for v in vals if np.isfinite(v)]
@@ -200,13 +253,23 @@ def compare_thresholds(
         if "jod" in record:
             record["jod_drop"] = 10.0 - record["jod"]
         records.append(record)
-        ring_mean = np.nanmean(np.stack(ring_acc), axis=0)
-        rings[label] = dataclasses.replace(ring, mean_error=ring_mean)
-        ring_rays[label] = list(np.mean(np.stack(ring_ray_acc), axis=0))
+        # Rings reach each frame's largest eccentricity, which moves with the gaze: pad to the
+        # widest (no pixels there: NaN error, 0 rays) before averaging.
+        widest = max(ring_acc, key=lambda r: len(r.lower_deg))
+        n_rings = len(widest.lower_deg)
+        errors = [
+            np.pad(r.mean_error, (0, n_rings - len(r.mean_error)), constant_values=np.nan) for r in ring_acc
+        ]
+        ring_rays_padded = [np.pad(np.asarray(r, float), (0, n_rings - len(r))) for r in ring_ray_acc]
+        rings[label] = dataclasses.replace(widest, mean_error=np.nanmean(np.stack(errors), axis=0))
+        ring_rays[label] = list(np.mean(np.stack(ring_rays_padded), axis=0))
     if bar is not None:
         bar.close()
-    front = pareto_front(records, {"ms_per_frame": "min", criterion[0]: "min"})
+    metric, threshold = criterion
+    front = pareto_front(records, {"ms_per_frame": "min", metric: _sense(metric)})
     for r, on_front in zip(records, front, strict=True):
         r["pareto"] = bool(on_front)
-    choice = cheapest_within(records, cost="ms_per_frame", metric=criterion[0], threshold=criterion[1])
+    choice = cheapest_within(
+        records, cost="ms_per_frame", metric=metric, threshold=threshold, below=_sense(metric) == "min"
+    )
     return Comparison(records, rings, ring_rays, choice, criterion, full)
