@@ -1,0 +1,175 @@
+"""compare_thresholds end to end on a tiny rig: the record fields and their arithmetic, the
+intervals, the choice checked by hand against the records, the CSV and charts, the CLI."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+import fovjax
+from fovjax.eval import Comparison, compare_thresholds, read_csv
+from fovjax.render import RenderConfig, StereoRig
+
+EYE_W, EYE_H = 32, 24
+THRESHOLDS = [(5, 10), (15, 30)]
+GAZES = [(0.5, 0.5), (0.3, 0.4)]
+KEYS = [0, 1]
+CONFIG = RenderConfig(max_depth=0)  # no reflections: the shortest compile
+HAS_FLIP = importlib.util.find_spec("flip_evaluator") is not None
+
+FIELDS = {
+    "config",
+    "fovea_deg",
+    "periphery_deg",
+    "spp",
+    "model",
+    "rays_per_frame",
+    "ms_per_frame",
+    "speedup",
+    "ray_reduction",
+    "full_ms_per_frame",
+    "full_rays_per_frame",
+    "n",
+    "timing",
+    "pareto",
+    *(f"{m}{suffix}" for m in ("psnr", "ssim") for suffix in ("", "_lo", "_hi")),
+}
+
+
+@pytest.fixture(scope="module")
+def scene_rig():
+    scene = fovjax.scenes.cornell_box()
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=EYE_W, eye_height=EYE_H)
+    return scene, rig
+
+
+def _compare(scene_rig, criterion) -> Comparison:
+    scene, rig = scene_rig
+    return compare_thresholds(
+        scene,
+        rig,
+        thresholds=THRESHOLDS,
+        spp=[1],
+        gazes=GAZES,
+        keys=KEYS,
+        config=CONFIG,
+        criterion=criterion,
+        perceptual=False,
+        progress=False,
+    )
+
+
+@pytest.fixture(scope="module")
+def everything_passes(scene_rig):
+    # PSNR above 0 dB: every configuration meets it.
+    return _compare(scene_rig, ("psnr", 0.0))
+
+
+def _by_hand(records, metric, threshold, higher_is_better):
+    """The cheapest (ms per frame) record whose whole interval is on the right side."""
+    bound = f"{metric}_lo" if higher_is_better else f"{metric}_hi"
+    ok = [r for r in records if (r[bound] > threshold if higher_is_better else r[bound] < threshold)]
+    return min(ok, key=lambda r: r["ms_per_frame"])["config"] if ok else None
+
+
+def test_records_fields_and_arithmetic(everything_passes):
+    result = everything_passes
+    assert [r["config"] for r in result.records] == ["5/10 spp1", "15/30 spp1"]
+    full = result.full[1]
+    # Full stereo frame at SPP 1: one primary ray per pixel of both eyes, plus shadow rays.
+    assert full["rays_per_frame"] >= 2 * EYE_W * EYE_H
+    for r in result.records:
+        assert FIELDS <= set(r), FIELDS - set(r)
+        assert ("flip" in r) == HAS_FLIP
+        assert r["n"] == len(GAZES) * len(KEYS)
+        assert r["timing"] == "median of frames"
+        assert r["full_ms_per_frame"] == full["ms_per_frame"]
+        assert r["full_rays_per_frame"] == full["rays_per_frame"]
+        assert math.isclose(r["speedup"], r["full_ms_per_frame"] / r["ms_per_frame"], rel_tol=1e-12)
+        assert math.isclose(
+            r["ray_reduction"], 1 - r["rays_per_frame"] / r["full_rays_per_frame"], rel_tol=1e-12
+        )
+        assert 0 < r["rays_per_frame"] < full["rays_per_frame"]
+        for m in ("psnr", "ssim", "flip"):
+            if m in r:
+                assert r[f"{m}_lo"] <= r[m] <= r[f"{m}_hi"], (m, r)
+                assert r[f"{m}_lo"] < r[f"{m}_hi"]  # four different frames: a real interval
+    small, large = result.records
+    # A larger fovea traces more rays and is closer to the full render.
+    assert small["rays_per_frame"] < large["rays_per_frame"]
+    assert small["psnr"] < large["psnr"]
+    # Rings: per configuration, error and rays per 5° ring of the widest frame's rings.
+    for label in ("5/10 spp1", "15/30 spp1"):
+        ring = result.rings[label]
+        assert len(ring.mean_error) == len(ring.lower_deg) == len(result.ring_rays[label])
+        assert np.nansum(result.ring_rays[label]) > 0
+
+
+def test_choice_is_the_cheapest_meeting_the_criterion(everything_passes, scene_rig):
+    records = everything_passes.records
+    assert everything_passes.choice is not None
+    assert everything_passes.choice.name == _by_hand(records, "psnr", 0.0, True)
+    # A PSNR threshold between the two configurations' lower bounds: only the better one passes.
+    lows = sorted(r["psnr_lo"] for r in records)
+    assert lows[0] < lows[1]
+    between = _compare(scene_rig, ("psnr", (lows[0] + lows[1]) / 2))
+    expected = _by_hand(between.records, "psnr", between.criterion[1], True)
+    assert expected == max(records, key=lambda r: r["psnr_lo"])["config"]
+    assert between.choice.name == expected
+    # Above every upper bound: nothing qualifies.
+    beyond = _compare(scene_rig, ("psnr", max(r["psnr_hi"] for r in records) + 1.0))
+    assert beyond.choice is None
+    if HAS_FLIP:  # FLIP: lower is better, the upper bound must stay below
+        highs = sorted(r["flip_hi"] for r in records)
+        flip = _compare(scene_rig, ("flip", (highs[0] + highs[1]) / 2))
+        assert flip.choice.name == _by_hand(flip.records, "flip", flip.criterion[1], False)
+        assert flip.choice.name == min(records, key=lambda r: r["flip_hi"])["config"]
+
+
+def test_write_csv_and_charts(everything_passes, tmp_path):
+    paths = everything_passes.write(tmp_path)
+    rows = read_csv(paths["csv"])
+    assert [r["config"] for r in rows] == [r["config"] for r in everything_passes.records]
+    for row, rec in zip(rows, everything_passes.records, strict=True):
+        assert math.isclose(float(row["speedup"]), rec["speedup"], rel_tol=1e-9)
+        assert math.isclose(float(row["psnr_lo"]), rec["psnr_lo"], rel_tol=1e-9)
+    charts = [p for name, p in paths.items() if name != "csv"]
+    assert {p.name for p in charts} == {
+        "cost_accuracy_ms_spp1.png",
+        "cost_accuracy_rays_spp1.png",
+        "bars_spp1.png",
+        "rings.png",
+    }
+    for p in charts:
+        image = iio.imread(p)
+        assert image.ndim == 3 and image.shape[0] > 100 and image.shape[1] > 100
+        assert image.std() > 0  # something is drawn
+
+
+def test_cli_compare(scene_rig, tmp_path, capsys):
+    from fovjax.cli import main
+
+    out = tmp_path / "cmp"
+    # The same tiny configuration as the fixtures, so the compiled programs are reused.
+    argv = ["compare", "--scene", "cornell_box", "--thresholds", "5,10", "15,30", "--spp", "1"]
+    argv += ["--width", str(EYE_W), "--height", str(EYE_H), "--gazes", "0.5,0.5", "0.3,0.4"]
+    argv += ["--keys", "0", "1", "--criterion", "psnr", "--threshold", "0", "--max-depth", "0"]
+    argv += ["--no-perceptual", "-o", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "5/10 spp1" in text and "15/30 spp1" in text
+    assert "cheapest with psnr > 0 (whole 95% interval):" in text
+    assert len(read_csv(out / "comparison.csv")) == 2
+    assert (out / "rings.png").is_file()
+
+
+def test_cli_rejects_a_bad_distributed_spec(capsys):
+    from fovjax.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["compare", "--distributed", "localhost:1234,2,2"])
+    assert "PROCESS_ID < NUM_PROCESSES" in capsys.readouterr().err
