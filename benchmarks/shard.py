@@ -7,10 +7,11 @@
 Renders the same batch of foveated stereo frames (gaze points spread over the display, a fresh
 key per frame) on the atrium three ways: `render_foveated` frame by frame, `render_foveated_batch`
 on one device (the frames vmapped in one program), and `render_foveated_batch` sharded over all
-devices. Prints the median over --repeats of the batch's wall time per frame (compile excluded,
-one warm-up) and the ratios. `--devices N` forces N XLA host (CPU) devices through XLA_FLAGS
-before JAX starts; on a GPU machine pass --devices 0 to use the devices there are. The machine
-is noisy: read the ratios of one run.
+devices with `shard_map` (with --auto also left to jit's partitioner). Prints the median over
+--repeats of the batch's wall time per frame (compile excluded, one warm-up) and the ratios.
+`--devices N` forces N XLA host (CPU) devices through XLA_FLAGS before JAX starts; on a GPU
+machine pass --devices 0 to use the devices there are. The machine is noisy: read the ratios of
+one run.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ def _args(argv):
     p.add_argument("--fovea", type=float, nargs=2, default=(5.0, 10.0), metavar=("FOVEA", "PERIPHERY"))
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--full", action="store_true", help="also the full render, the same three ways")
+    p.add_argument(
+        "--auto", action="store_true", help="also partition='auto' (loop conditions reduced over devices)"
+    )
     return p.parse_args(argv)
 
 
@@ -78,10 +82,17 @@ def main(argv=None) -> int:
         ]
         return sum(f.stats.render_seconds for f in frames), frames[0].stats.compile_seconds
 
-    def batch_foveated(devs):
+    def batch_foveated(devs, partition="shard_map"):
         def run(repeat):
             b = render_foveated_batch(
-                scene, rig, gazes=gazes, keys=keys(repeat), foveation=fov, devices=devs, **common
+                scene,
+                rig,
+                gazes=gazes,
+                keys=keys(repeat),
+                foveation=fov,
+                devices=devs,
+                partition=partition,
+                **common,
             )
             return b.render_seconds, b.compile_seconds
 
@@ -93,9 +104,11 @@ def main(argv=None) -> int:
         ]
         return sum(f.stats.render_seconds for f in frames), frames[0].stats.compile_seconds
 
-    def batch_full(devs):
+    def batch_full(devs, partition="shard_map"):
         def run(repeat):
-            b = render_stereo_batch(scene, rig, keys=keys(repeat), spp=args.spp, devices=devs, **common)
+            b = render_stereo_batch(
+                scene, rig, keys=keys(repeat), spp=args.spp, devices=devs, partition=partition, **common
+            )
             return b.render_seconds, b.compile_seconds
 
         return run
@@ -120,7 +133,9 @@ def main(argv=None) -> int:
         print(kind)
         single = measure("one by one (render_*)", one_by_one)
         unsharded = measure("batch, 1 device (vmap)", batch(devices[:1]))
-        sharded = measure(f"batch, sharded over {len(devices)} devices", batch(devices))
+        sharded = measure(f"batch, shard_map over {len(devices)} devices", batch(devices))
+        if args.auto:
+            measure(f"batch, jit-partitioned over {len(devices)}", batch(devices, "auto"))
         print(
             f"  ratios: one-by-one / sharded {single / sharded:.2f}x, "
             f"1-device batch / sharded {unsharded / sharded:.2f}x, one-by-one / 1-device batch "

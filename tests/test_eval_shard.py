@@ -11,9 +11,12 @@ one-device batches were also bit for bit equal when this was written.
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 import textwrap
+
+import pytest
 
 OPT_LEVEL_0 = "--xla_backend_optimization_level=0"
 SCRIPT = textwrap.dedent(
@@ -107,3 +110,50 @@ def test_sharded_frames_equal_one_device_and_frames_one_by_one():
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-6000:]
     assert result.stdout.strip().endswith("OK")
+
+
+@pytest.mark.skipif(
+    os.environ.get("FOVJAX_TEST_DISTRIBUTED") != "1",
+    reason="two JAX processes on localhost with jax.distributed (about 2 minutes on 2 cores): "
+    "set FOVJAX_TEST_DISTRIBUTED=1",
+)
+def test_compare_over_two_processes_with_jax_distributed(tmp_path):
+    """`fovjax compare --distributed` on two processes of one CPU device each (the multi-host
+    path, on one machine) writes what one process writes without sharding."""
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    common = ["compare", "--scene", "cornell_box", "--thresholds", "5,10", "--spp", "1"]
+    common += ["--width", "32", "--height", "24", "--gazes", "0.5,0.5", "0.3,0.4", "--keys", "0", "1"]
+    common += ["--criterion", "psnr", "--threshold", "0", "--max-depth", "0", "--no-perceptual"]
+    cli = [sys.executable, "-m", "fovjax.cli"]
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    procs = [
+        subprocess.Popen(
+            [*cli, *common, "-o", str(tmp_path / f"out{i}"), "--distributed", f"localhost:{port},2,{i}"],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    outputs = [p.communicate(timeout=900) for p in procs]
+    for p, (out, err) in zip(procs, outputs, strict=True):
+        assert p.returncode == 0, out[-2000:] + err[-4000:]
+    assert (tmp_path / "out0" / "comparison.csv").is_file()
+    assert not (tmp_path / "out1").exists()  # process 1 computes, process 0 writes
+    single = subprocess.run(
+        [*cli, *common, "-o", str(tmp_path / "single")], env=env, capture_output=True, text=True, timeout=900
+    )
+    assert single.returncode == 0, single.stderr[-4000:]
+    from fovjax.eval import read_csv
+
+    (a,), (b,) = (
+        read_csv(tmp_path / "out0" / "comparison.csv"),
+        read_csv(tmp_path / "single" / "comparison.csv"),
+    )
+    assert a["timing"].startswith("batch over 2 devices") and b["timing"] == "median of frames"
+    assert float(a["rays_per_frame"]) == float(b["rays_per_frame"])
+    for col in ("psnr", "psnr_lo", "psnr_hi", "ssim", "ssim_lo", "ssim_hi"):
+        assert abs(float(a[col]) - float(b[col])) <= 1e-4 * max(1.0, abs(float(b[col]))), col

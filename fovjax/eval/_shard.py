@@ -4,8 +4,11 @@ A batch (gaze points × keys × head poses, one frame each) becomes one jitted p
 frame function (`fovjax.foveate._frame.foveated_stereo`, or the full render's
 `fovjax.render._frame._stereo_program`) is `jax.vmap`ped over the frames, and the frame axis is
 laid out over a one-axis mesh `Mesh(devices, ("frames",))` with `NamedSharding(mesh,
-P("frames"))`; the scene, BVH, rig and foveation are replicated. XLA's partitioner then gives
-each device its slice of frames; there is no scheduler of ours. The batch is padded to a multiple
+P("frames"))`; the scene, BVH, rig and foveation are replicated. `jax.shard_map` gives each
+device its slice of frames, vmapped there; there is no scheduler of ours. (Left to jit's own
+partitioner, `partition="auto"`, the vmapped loops' conditions become all-reduces over the
+devices: each traversal step waits for every device, and all run until the batch's slowest
+frame.) The batch is padded to a multiple
 of the device count by repeating its last frame (the copies are traced, then dropped).
 
 Under `jax.distributed` (several processes, possibly on several hosts) `jax.devices()` lists
@@ -14,7 +17,7 @@ own frames, and the results are gathered back to every process.
 
 Costs of batching with `vmap`, the price of one program for many frames:
 - a `lax.while_loop` (BVH traversal) runs until the slowest frame of the device's slice is done,
-  the finished frames idling along;
+  the finished frames idling along (with `partition="auto"`, of the whole batch);
 - a `lax.cond` whose predicate differs per frame (the integrator skips reflection chunks with no
   live rays) becomes a `select`: every chunk of every frame is shaded;
 - memory grows with the frames per device (every frame's buffers live at once).
@@ -37,6 +40,11 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 FRAME_AXIS = "frames"
+# "shard_map": each device runs the vmapped frames of its own slice (its loops end with its own
+# slowest frame); "auto": jit's partitioner splits the one vmapped program, and every batched
+# loop condition becomes an all-reduce over the devices (each iteration synchronises them and
+# all run until the slowest frame of the whole batch).
+PARTITIONS = ("shard_map", "auto")
 
 _COMPILED: dict = {}
 
@@ -175,7 +183,9 @@ def _full_program(scene, bvh, rig, head_poses, key_data, **static):
 _PROGRAMS = {"foveated": _foveated_program, "full": _full_program}
 
 
-def _run_sharded(kind: str, replicated: tuple, batched: tuple, static: dict, mesh: Mesh, n: int):
+def _run_sharded(
+    kind: str, replicated: tuple, batched: tuple, static: dict, mesh: Mesh, n: int, partition: str
+):
     """Pad the batched inputs to a multiple of the mesh size, run the (cached) compiled program,
     drop the padding. Returns (host outputs, padded size, compile s, render s, output sharding)."""
     devices = mesh.devices.size
@@ -185,8 +195,11 @@ def _run_sharded(kind: str, replicated: tuple, batched: tuple, static: dict, mes
     whole = NamedSharding(mesh, P())
     # Canonical dtypes (float64 host values become float32, as jnp.asarray makes them).
     replicated = jax.tree.map(lambda x: np.asarray(jnp.asarray(x)), replicated)
+    if partition not in PARTITIONS:
+        raise ValueError(f"render batch: partition must be one of {PARTITIONS}, got {partition!r}")
     cache_key = (
         kind,
+        partition,
         tuple(static.items()),
         tuple(d.id for d in mesh.devices.flat),
         _signature(replicated),
@@ -199,9 +212,16 @@ def _run_sharded(kind: str, replicated: tuple, batched: tuple, static: dict, mes
         t0 = time.perf_counter()
         shardings = (*(whole,) * len(replicated), *(sharded,) * len(batched))
         # The static settings are bound (jit takes no keyword arguments with in_shardings).
-        program = jax.jit(
-            functools.partial(_PROGRAMS[kind], **static), in_shardings=shardings, out_shardings=sharded
-        )
+        frames = functools.partial(_PROGRAMS[kind], **static)
+        if partition == "shard_map":
+            specs = (*(P(),) * len(replicated), *(P(FRAME_AXIS),) * len(batched))
+            # No collectives inside, every output is per frame: the varying-axis type check
+            # (which the renderer's loop carries, begun from replicated constants, would fail)
+            # has nothing to protect.
+            frames = jax.shard_map(
+                frames, mesh=mesh, in_specs=specs, out_specs=P(FRAME_AXIS), check_vma=False
+            )
+        program = jax.jit(frames, in_shardings=shardings, out_shardings=sharded)
         compiled = program.lower(*args).compile()
         compile_s = time.perf_counter() - t0
         _COMPILED[cache_key] = compiled
@@ -251,6 +271,7 @@ def render_foveated_batch(
     envmap=None,
     bvh=None,
     devices: Sequence | None = None,
+    partition: str = "shard_map",
 ) -> FrameBatch:
     """Foveated stereo frames for a batch, one frame per entry of `gazes` (each ((lx, ly),
     (rx, ry)) or (x, y) for both eyes), `keys` (ints seed `jax.random.key`, or key arrays;
@@ -258,7 +279,9 @@ def render_foveated_batch(
     of one length or of length 1 (broadcast). One compiled program per configuration (as
     `fovjax.foveate.render_foveated`, plus the padded batch size and the devices), the frames
     `vmap`ped and sharded over `devices` (default `jax.devices()`). Each frame equals
-    `render_foveated` of the same gaze, key and head pose (ray budget included)."""
+    `render_foveated` of the same gaze, key and head pose (ray budget included). `partition`:
+    "shard_map" (default; each device loops over its own frames) or "auto" (see
+    `PARTITIONS`)."""
     from ..foveate import Foveation
     from ..foveate._api import _budget_for
     from ..foveate._config import check_gaze
@@ -286,6 +309,7 @@ def render_foveated_batch(
         static,
         frame_mesh(devices),
         n,
+        partition,
     )
     return FrameBatch(
         images=out.image,
@@ -316,6 +340,7 @@ def render_stereo_batch(
     envmap=None,
     bvh=None,
     devices: Sequence | None = None,
+    partition: str = "shard_map",
 ) -> FrameBatch:
     """Full stereo frames for a batch of `keys` and/or `head_poses` (as
     `render_foveated_batch`), `vmap`ped and sharded over `devices`. Each frame equals
@@ -331,7 +356,7 @@ def render_stereo_batch(
     arrays, bvh, rig = _scene_inputs(scene, rig, config, envmap, bvh)
     static = {"spp": int(spp), "jitter": jitter, "config": config}
     (image, counts, bad_pixels), padded, compile_s, render_s, sharding = _run_sharded(
-        "full", (arrays, bvh, rig), (poses, key_data), static, frame_mesh(devices), n
+        "full", (arrays, bvh, rig), (poses, key_data), static, frame_mesh(devices), n, partition
     )
     return FrameBatch(
         images=image,
