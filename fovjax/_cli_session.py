@@ -58,9 +58,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
+    from fovjax.devices import DeviceError
+
     try:
         return _run(args)
-    except ValueError as err:
+    except (ValueError, OSError, ImportError, DeviceError) as err:
+        # Bad arguments, a missing recording, an unusable device or the video extra missing.
         print(f"fovjax session: error: {err}", file=sys.stderr)
         return 2
 

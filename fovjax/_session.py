@@ -24,12 +24,14 @@ accepts slightly off screen (within its `max_offscreen`) is clamped to the scree
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import importlib.util
 import json
 import math
 import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -328,9 +330,10 @@ def run_session(
         if video:
             import imageio.v2 as iio
 
-            writer = iio.get_writer(
-                out / "session.mp4", format="FFMPEG", fps=rate, codec="libx264", macro_block_size=1
-            )
+            with _forking_ffmpeg():
+                writer = iio.get_writer(
+                    out / "session.mp4", format="FFMPEG", fps=rate, codec="libx264", macro_block_size=1
+                )
         last_frame_s = 0.0
         for k in range(n_frames):
             if vclock is not None:
@@ -355,7 +358,8 @@ def run_session(
 
                     save_image(out / f"debug_{k:05d}.png", frame.debug_view)
                 if writer is not None:
-                    writer.append_data(_video_frame(frame.image))
+                    with _forking_ffmpeg():
+                        writer.append_data(_video_frame(frame.image))
             rows.append(
                 SessionFrame(
                     frame=k,
@@ -398,7 +402,8 @@ def run_session(
         if head_source is not None:
             head_source.close()
         if writer is not None:
-            writer.close()
+            with _forking_ffmpeg():
+                writer.close()
         if bar is not None:
             bar.close()
     summary = _summary(
@@ -424,6 +429,15 @@ def run_session(
         out=out,
         video=(out / "session.mp4") if video else None,
     )
+
+
+@contextlib.contextmanager
+def _forking_ffmpeg():
+    """imageio-ffmpeg runs ffmpeg as a subprocess (fork then exec at once), which JAX's warning
+    about forking a multithreaded process does not apply to."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+        yield
 
 
 def _video_frame(image: np.ndarray) -> np.ndarray:
