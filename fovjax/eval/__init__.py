@@ -15,15 +15,44 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
 """
 
 from ._charts import (
+    plot_acuity_models,
+    plot_after_saccade,
+    plot_checkerboard,
+    plot_corner_gaze,
     plot_cost_accuracy,
+    plot_flicker,
+    plot_high_spp,
     plot_metric_bars,
     plot_pair_test,
     plot_ramp_test,
     plot_ring_errors,
+    plot_scanpath_flicker,
     plot_slider_test,
+    plot_tracking_error,
     write_study_report,
 )
 from ._compare import DEFAULT_CRITERION, DEFAULT_GAZES, Comparison, compare_thresholds
+from ._failures import (
+    CASES as FAILURE_CASES,
+)
+from ._failures import (
+    AcuityTerms,
+    EqualBudget,
+    FailureCase,
+    FailureReport,
+    acuity_models,
+    after_saccade,
+    checkerboard,
+    checkerboard_scene,
+    corner_gaze,
+    default_models,
+    equal_budget_foveations,
+    failure_cases,
+    high_spp,
+    offset_gaze,
+    scanpath_flicker,
+    tracking_error,
+)
 from ._metrics import (
     JND_JOD,
     HmdDisplay,
@@ -74,6 +103,16 @@ from ._protocols import (
     write_responses,
 )
 from ._shard import FrameBatch, frame_mesh, render_foveated_batch, render_stereo_batch
+from ._stability import (
+    FLICKER_REGIONS,
+    KEY_MODES,
+    FullRenders,
+    StabilityResult,
+    flicker,
+    gaze_sequence,
+    region_masks,
+    temporal_stability,
+)
 
 __all__ = [
     "DEFAULT_CRITERION",
@@ -134,4 +173,37 @@ __all__ = [
     "write_csv",
     "write_responses",
     "write_study_report",
+    "FAILURE_CASES",
+    "AcuityTerms",
+    "EqualBudget",
+    "FailureCase",
+    "FailureReport",
+    "acuity_models",
+    "after_saccade",
+    "checkerboard",
+    "checkerboard_scene",
+    "corner_gaze",
+    "default_models",
+    "equal_budget_foveations",
+    "failure_cases",
+    "high_spp",
+    "offset_gaze",
+    "scanpath_flicker",
+    "tracking_error",
+    "FLICKER_REGIONS",
+    "KEY_MODES",
+    "FullRenders",
+    "StabilityResult",
+    "flicker",
+    "gaze_sequence",
+    "region_masks",
+    "temporal_stability",
+    "plot_acuity_models",
+    "plot_after_saccade",
+    "plot_checkerboard",
+    "plot_corner_gaze",
+    "plot_flicker",
+    "plot_high_spp",
+    "plot_scanpath_flicker",
+    "plot_tracking_error",
 ]

@@ -292,3 +292,290 @@ def write_study_report(responses, out_dir, *, levels=None) -> dict[str, Path]:
         paths["slider_csv"] = write_csv(slider, out / "slider_test.csv")
         paths["slider_png"] = plot_slider_test(slider, out / "fig68_slider_test.png")
     return paths
+
+
+# ---- temporal stability and failure cases (fovjax.eval._stability, fovjax.eval._failures) -----
+
+
+def _rows(records, where: str, **match) -> list[dict]:
+    rows = [r for r in as_records(records) if all(r.get(k) == v for k, v in match.items())]
+    if not rows:
+        raise ValueError(f"{where}: no records with {match}")
+    return rows
+
+
+def _mean_by(rows: Sequence[dict], by: str, value: str) -> tuple[list, np.ndarray]:
+    """Distinct values of `by` (in order of appearance) and the mean of `value` for each."""
+    keys = list(dict.fromkeys(r[by] for r in rows))
+    means = [np.nanmean([float(r[value]) for r in rows if r[by] == k]) for k in keys]
+    return keys, np.asarray(means, np.float64)
+
+
+def _error_metrics(rows, *names) -> list[str]:
+    """Those of `names` present in the records (FLIP columns exist only with flip-evaluator)."""
+    return [n for n in names if n in rows[0]]
+
+
+def plot_flicker(records, path, *, summary: Sequence[dict] | None = None, title: str | None = None) -> Path:
+    """Flicker per frame step (`temporal_stability` records): beyond the fovea and in the
+    periphery band, foveated per key mode against the full render with a fresh key, and the
+    gaze step per frame; the summary ratios in the legend."""
+    rows = as_records(records)
+    if not rows:
+        raise ValueError("plot_flicker: no records")
+    modes = list(dict.fromkeys(r["key_mode"] for r in rows))
+    ratio = {r["key_mode"]: r for r in (summary or [])}
+    fig = _figure((9, 8))
+    axes = fig.subplots(3, 1, sharex=True)
+    colours = {"fresh": "tab:red", "fixed": "tab:blue"}
+    for ax, region in zip(axes[:2], ("beyond_fovea", "periphery"), strict=True):
+        first = _rows(rows, "plot_flicker", key_mode=modes[0])
+        t = [r["frame"] for r in first]
+        ax.plot(
+            t,
+            [r[f"full_fresh_flicker_{region}"] for r in first],
+            "k--",
+            lw=1.4,
+            label="full render, fresh key",
+        )
+        for mode in modes:
+            mrows = _rows(rows, "plot_flicker", key_mode=mode)
+            label = f"foveated, {mode} key"
+            if mode in ratio:
+                label += f" (ratio {ratio[mode][f'ratio_{region}']:.2f})"
+            ax.plot(
+                [r["frame"] for r in mrows],
+                [r[f"flicker_{region}"] for r in mrows],
+                "o-",
+                color=colours.get(mode),
+                ms=3,
+                label=label,
+            )
+        ax.set_ylabel(f"mean |Δ| {region.replace('_', ' ')}\n(sRGB, 0-1)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[2].bar(t, [r["gaze_step_deg"] for r in first], color="0.5")
+    axes[2].set_ylabel("gaze step (deg)")
+    axes[2].set_xlabel("frame")
+    axes[2].grid(alpha=0.3)
+    fig.suptitle(title or "flicker frame to frame, foveated against the full render")
+    return _save(fig, path)
+
+
+def plot_scanpath_flicker(records, path, *, title: str | None = None) -> Path:
+    """`plot_flicker` for the scanpath failure case (ratios recomputed from the records)."""
+    rows = as_records(records)
+    summary = []
+    for mode in dict.fromkeys(r["key_mode"] for r in rows):
+        mrows = [r for r in rows if r["key_mode"] == mode]
+        row = {"key_mode": mode}
+        for region in ("beyond_fovea", "periphery"):
+            fov = np.nanmean([r[f"flicker_{region}"] for r in mrows])
+            full = np.nanmean([r[f"full_fresh_flicker_{region}"] for r in mrows])
+            row[f"ratio_{region}"] = fov / full if full > 0 else math.nan
+        summary.append(row)
+    return plot_flicker(rows, path, summary=summary, title=title)
+
+
+def _ring_panels(fig, rows, group: str, metrics: Sequence[str], labels: Mapping[str, str] | None = None):
+    axes = fig.subplots(len(metrics), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, metric in zip(axes, metrics, strict=True):
+        for g in dict.fromkeys(r[group] for r in rows):
+            grows = [r for r in rows if r[group] == g and r.get("ring_pixels", 1) > 0]
+            lower, means = _mean_by(grows, "ring_lower_deg", metric)
+            width = float(grows[0]["ring_upper_deg"] - grows[0]["ring_lower_deg"])
+            edges = np.append(np.asarray(lower, float), float(lower[-1]) + width)
+            ax.stairs(means, edges, lw=1.6, label=(labels or {}).get(g, str(g)))
+        ax.set_ylabel({"abs_error": "mean |error| (sRGB)", "flip": "mean FLIP"}.get(metric, metric))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[-1].set_xlabel("eccentricity from the gaze (degrees)")
+    return axes
+
+
+def plot_corner_gaze(records, path, *, title: str | None = None) -> Path:
+    """Error (and FLIP) per eccentricity ring for the centre and the corner gaze."""
+    rows = as_records(records)
+    if not rows:
+        raise ValueError("plot_corner_gaze: no records")
+    labels = {}
+    for g in dict.fromkeys(r["gaze"] for r in rows):
+        grows = [r for r in rows if r["gaze"] == g]
+        extra = (
+            f", frame FLIP {np.mean([r['frame_flip'] for r in grows]):.4f}"
+            if "frame_flip" in grows[0]
+            else ""
+        )
+        labels[g] = f"{g} ({grows[0]['gaze_x']:.2f}, {grows[0]['gaze_y']:.2f}){extra}"
+    fig = _figure((8.5, 7))
+    _ring_panels(fig, rows, "gaze", _error_metrics(rows, "abs_error", "flip"), labels)
+    fig.suptitle(title or "corner gaze against centre gaze")
+    return _save(fig, path)
+
+
+def plot_tracking_error(records, path, *, title: str | None = None) -> Path:
+    """Error around the true gaze against the tracker error, one line per fovea size (mean
+    over directions and keys; each direction a faint point), inside the true fovea and the
+    central 2°, and the share of the true fovea the rendered fovea covers."""
+    rows = as_records(records)
+    if not rows:
+        raise ValueError("plot_tracking_error: no records")
+    metrics = _error_metrics(rows, "flip_true_fovea", "flip_central") or ["abs_true_fovea", "abs_central"]
+    metrics = [*metrics, "true_fovea_covered"]
+    fig = _figure((8.5, 3.0 * len(metrics)))
+    axes = fig.subplots(len(metrics), 1, sharex=True)
+    for ax, metric in zip(axes, metrics, strict=True):
+        for fovea in dict.fromkeys(r["fovea_deg"] for r in rows):
+            frows = [r for r in rows if r["fovea_deg"] == fovea]
+            errs, means = _mean_by(frows, "tracker_error_deg", metric)
+            line = ax.plot(
+                errs,
+                means,
+                "o-",
+                lw=1.6,
+                label=f"fovea {fovea:g}° (periphery {frows[0]['periphery_deg']:g}°)",
+            )
+            ax.scatter(
+                [r["tracker_error_deg"] for r in frows],
+                [r[metric] for r in frows],
+                s=10,
+                color=line[0].get_color(),
+                alpha=0.4,
+            )
+            ax.axvline(fovea, color=line[0].get_color(), ls=":", lw=1)
+        ax.set_ylabel(metric.replace("_", " "))
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("tracker error (degrees; dotted: the fovea radius)")
+    fig.suptitle(title or "error around the true gaze against tracker error")
+    return _save(fig, path)
+
+
+def plot_after_saccade(records, path, *, title: str | None = None) -> Path:
+    """Per display policy, frame by frame around the saccade: the angle between the shown
+    and the true gaze, and the error around the true gaze (central 2° and the true fovea);
+    the saccade shaded."""
+    rows = as_records(records)
+    if not rows:
+        raise ValueError("plot_after_saccade: no records")
+    metrics = [
+        "gaze_error_deg",
+        *(_error_metrics(rows, "flip_central", "flip_true_fovea") or ["abs_central", "abs_true_fovea"]),
+    ]
+    fig = _figure((8.5, 8))
+    axes = fig.subplots(len(metrics), 1, sharex=True)
+    sacc = [r["since_landing_ms"] for r in rows if r["phase"] == "saccade"]
+    onset = min(sacc, default=0.0)
+    for ax, metric in zip(axes, metrics, strict=True):
+        for policy in dict.fromkeys(r["policy"] for r in rows):
+            prows = [r for r in rows if r["policy"] == policy]
+            ax.plot(
+                [r["since_landing_ms"] for r in prows], [r[metric] for r in prows], "o-", ms=3, label=policy
+            )
+        ax.axvspan(onset, 0.0, color="0.85", zorder=0)
+        ax.set_ylabel(metric.replace("_", " "))
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, title="gaze the frame is foveated on")
+    axes[-1].set_xlabel("time since the saccade landed (ms; grey: frames shown during the saccade)")
+    fig.suptitle(title or "frames around a saccade")
+    return _save(fig, path)
+
+
+def plot_high_spp(records, path, *, title: str | None = None) -> Path:
+    """Per spp: ms per frame of the full and the foveated render (speed-up annotated), and
+    the error of the foveated frame against the full one and of both against a converged
+    image."""
+    rows = as_records(records)
+    if not rows:
+        raise ValueError("plot_high_spp: no records")
+    m = "flip" if "flip_foveated_vs_full" in rows[0] else "abs"
+    spp, full_ms = _mean_by(rows, "spp", "full_ms")
+    _, fov_ms = _mean_by(rows, "spp", "foveated_ms")
+    fig = _figure((8.5, 7))
+    ax0, ax1 = fig.subplots(2, 1, sharex=True)
+    ax0.plot(spp, full_ms, "s-", color="k", label="full")
+    ax0.plot(spp, fov_ms, "o-", color="tab:red", label="foveated")
+    for s, a, b in zip(spp, full_ms, fov_ms, strict=True):
+        ax0.annotate(f"{a / b:.1f}x", (s, b), xytext=(4, -12), textcoords="offset points", fontsize=9)
+    ax0.set_yscale("log")
+    ax0.set_ylabel("ms per frame (compile excluded)")
+    ax0.legend(fontsize=8)
+    ax0.grid(alpha=0.3, which="both")
+    for col, style, label in (
+        (f"{m}_foveated_vs_full", "o-", "foveated vs full (same spp, key)"),
+        (f"{m}_foveated_vs_converged", "o--", "foveated vs converged"),
+        (f"{m}_full_vs_converged", "s--", "full vs converged"),
+    ):
+        ax1.plot(spp, _mean_by(rows, "spp", col)[1], style, label=label)
+    ax1.set_ylabel(f"mean {m.upper() if m == 'flip' else '|error|'}")
+    ax1.set_xscale("log", base=2)
+    ax1.set_xticks(spp, [str(s) for s in spp])
+    ax1.set_xlabel("samples per pixel")
+    ax1.legend(fontsize=8)
+    ax1.grid(alpha=0.3)
+    fig.suptitle(title or "samples per pixel: time and error")
+    return _save(fig, path)
+
+
+def plot_checkerboard(records, path, *, title: str | None = None) -> Path:
+    """Error per ring, checkerboard against smooth wall, and the flicker ratios (foveated /
+    full fresh-key render, beyond the fovea) per key mode."""
+    rows = as_records(records)
+    rings = [r for r in rows if r.get("kind") == "ring"]
+    flick = [r for r in rows if r.get("kind") == "flicker"]
+    if not rings or not flick:
+        raise ValueError("plot_checkerboard: need both 'ring' and 'flicker' records")
+    metrics = _error_metrics(rings, "abs_error", "flip")
+    fig = _figure((8.5, 3.0 * (len(metrics) + 1)))
+    sub = fig.subfigures(2, 1, height_ratios=[len(metrics), 1])
+    _ring_panels(sub[0], rings, "scene", metrics)
+    ax = sub[1].subplots()
+    scenes = list(dict.fromkeys(r["scene"] for r in flick))
+    modes = list(dict.fromkeys(r["key_mode"] for r in flick))
+    width = 0.8 / len(modes)
+    for j, mode in enumerate(modes):
+        vals = [
+            next(r["ratio_beyond_fovea"] for r in flick if r["scene"] == s and r["key_mode"] == mode)
+            for s in scenes
+        ]
+        bars = ax.bar(
+            np.arange(len(scenes)) + (j - (len(modes) - 1) / 2) * width, vals, width, label=f"{mode} key"
+        )
+        ax.bar_label(bars, fmt="%.2f", fontsize=8)
+    ax.axhline(1.0, color="k", ls="--", lw=1)
+    ax.set_xticks(np.arange(len(scenes)), scenes)
+    ax.set_ylabel("flicker / full fresh-key\n(beyond the fovea)")
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(title or "fine checkerboard periphery against a smooth wall")
+    return _save(fig, path)
+
+
+def plot_acuity_models(records, path, *, title: str | None = None) -> Path:
+    """Acuity models at an equal ray budget: error and primary rays per ring per model, and
+    frame FLIP (or |error|) per model with its realised rays."""
+    rows = as_records(records)
+    rings = [r for r in rows if r.get("kind") == "ring"]
+    frames = [r for r in rows if r.get("kind") == "frame"]
+    if not rings or not frames:
+        raise ValueError("plot_acuity_models: need both 'ring' and 'frame' records")
+    metric = "flip" if "flip" in rings[0] else "abs_error"
+    fig = _figure((9, 10))
+    sub = fig.subfigures(2, 1, height_ratios=[2, 1])
+    axes = _ring_panels(sub[0], rings, "model", [metric, "ring_primary_rays"])
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("primary rays per ring")
+    ax = sub[1].subplots()
+    fm = "frame_flip" if "frame_flip" in frames[0] else "frame_abs_error"
+    names, vals = _mean_by(frames, "model", fm)
+    _, rays = _mean_by(frames, "model", "primary_rays")
+    bars = ax.bar(np.arange(len(names)), vals, color="tab:blue", alpha=0.8)
+    ax.bar_label(
+        bars, labels=[f"{v:.4f}\n{r:,.0f} rays" for v, r in zip(vals, rays, strict=True)], fontsize=8
+    )
+    ax.set_xticks(np.arange(len(names)), names, rotation=10)
+    ax.set_ylabel(f"mean {fm.replace('_', ' ')}")
+    ax.set_ylim(0, float(np.nanmax(vals)) * 1.35 if np.isfinite(vals).any() else 1)
+    ax.grid(axis="y", alpha=0.3)
+    fig.suptitle(title or "acuity models at an equal ray budget")
+    return _save(fig, path)
