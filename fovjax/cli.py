@@ -14,6 +14,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax.devices._cli",
     "fovjax._cli_session",
     "fovjax.eval._cli",
+    "fovjax.eval._cli_failures",
     "fovjax.acuity._cli",
 ]
 

@@ -1,0 +1,143 @@
+"""`fovjax failures` and `fovjax stability`: where foveation fails, and flicker along a moving
+gaze, written as CSV and charts."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a resolution is WIDTHxHEIGHT, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"a resolution must be positive, got {text!r}")
+    return w, h
+
+
+def _common(p: argparse.ArgumentParser, output: str) -> None:
+    p.add_argument("--scene", default="atrium", help="a built-in scene or a scene file")
+    p.add_argument("--width", type=int, default=320, help="pixels per eye")
+    p.add_argument("--height", type=int, default=256)
+    p.add_argument("--max-depth", type=int, default=2, help="reflection bounces")
+    p.add_argument("--fovea", type=float, default=10.0, help="fovea radius, degrees")
+    p.add_argument("--periphery", type=float, default=20.0, help="periphery radius, degrees")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("-o", "--output", default=output)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ._failures import CASES
+
+    p = sub.add_parser(
+        "failures",
+        help="where foveation fails: corner gaze, tracker error, after a saccade, high spp, "
+        "checkerboard, acuity models at an equal budget, scanpath flicker",
+        description="Run each failure case and write NAME.csv and NAME.png per case and findings.csv "
+        "into the output folder; print one finding per case.",
+    )
+    _common(p, "out/failures")
+    p.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
+    p.add_argument("--small", type=_resolution, default=(128, 96), help="per-eye resolution of high_spp")
+    p.add_argument("--spp", type=int, nargs="+", default=[1, 16], help="samples per pixel for high_spp")
+    p.set_defaults(func=run_failures)
+
+    s = sub.add_parser(
+        "stability",
+        help="flicker in the periphery along a moving gaze, fresh against fixed key",
+        description="Render a foveated sequence along a synthetic gaze with a fresh and with a fixed "
+        "key per frame and the full render with a fresh key; write stability.csv, "
+        "stability_summary.csv and stability.png.",
+    )
+    _common(s, "out/stability")
+    s.add_argument("--gaze", choices=("scanpath", "pursuit", "still"), default="scanpath")
+    s.add_argument("--frames", type=int, default=16)
+    s.add_argument("--fps", type=float, default=90.0)
+    s.add_argument("--seed", type=int, default=3, help="scanpath seed and first key")
+    s.set_defaults(func=run_stability)
+
+
+def _setup(args):
+    import fovjax
+    from fovjax.foveate import Foveation
+    from fovjax.render import RenderConfig, StereoRig
+
+    scene = (
+        fovjax.scenes.BUILTIN[args.scene]()
+        if args.scene in fovjax.scenes.BUILTIN
+        else fovjax.load_scene(args.scene)
+    )
+    rig = StereoRig.from_pose(
+        fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
+    )
+    foveation = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery)
+    return scene, rig, foveation, RenderConfig(max_depth=args.max_depth)
+
+
+def run_failures(args) -> int:
+    from fovjax.eval import failure_cases
+
+    scene, rig, foveation, config = _setup(args)
+    report = failure_cases(
+        scene,
+        rig,
+        foveation,
+        cases=args.cases,
+        config=config,
+        small_resolution=args.small,
+        high_spp_values=args.spp,
+        progress=not args.no_progress,
+    )
+    paths = report.write(args.output)
+    for case in report.cases.values():
+        print(f"{case.name} ({case.seconds:.0f} s): {case.finding}")
+    print(f"wrote {paths['findings'].parent.resolve()}/")
+    return 0
+
+
+def run_stability(args) -> int:
+    from fovjax.devices import Scanpath, SmoothPursuit
+    from fovjax.eval import HmdDisplay, temporal_stability
+
+    scene, rig, foveation, config = _setup(args)
+    if args.gaze == "scanpath":
+        cam = rig.eye_cameras()[0]
+        path = Scanpath(
+            args.seed, display_fov_deg=(HmdDisplay.from_camera(cam).hfov_deg, float(cam.vfov_deg))
+        )
+        onset = next(start for kind, start, _, _ in path.segments_until(60.0) if kind == "saccade")
+        start = max(0.0, onset - 4 / args.fps)
+        gaze = lambda t: path.position(t + start)  # noqa: E731
+    elif args.gaze == "pursuit":
+        gaze = SmoothPursuit(centre=(0.5, 0.5), radius=(0.1, 0.1), frequency=0.5)
+    else:
+        gaze = (0.5, 0.5)
+    bar = None
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(unit="frame", desc="stability")
+    result = temporal_stability(
+        scene,
+        rig,
+        gaze,
+        foveation,
+        frames=args.frames,
+        fps=args.fps,
+        seed=args.seed,
+        config=config,
+        progress=None if bar is None else (lambda: bar.update(1)),
+    )
+    if bar is not None:
+        bar.close()
+    paths = result.write(args.output)
+    for row in result.summary:
+        print(
+            f"{row['key_mode']:>5s} key: flicker beyond the fovea {row['flicker_beyond_fovea']:.4f} "
+            f"(full render, fresh key {row['full_fresh_flicker_beyond_fovea']:.4f}; same policy "
+            f"{row['full_same_policy_flicker_beyond_fovea']:.4f}) ratio {row['ratio_beyond_fovea']:.3f}; "
+            f"periphery band ratio {row['ratio_periphery']:.3f}"
+        )
+    print(f"wrote {paths['csv'].parent.resolve()}/")
+    return 0
