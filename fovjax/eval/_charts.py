@@ -377,7 +377,14 @@ def plot_scanpath_flicker(records, path, *, title: str | None = None) -> Path:
     return plot_flicker(rows, path, summary=summary, title=title)
 
 
-def _ring_panels(fig, rows, group: str, metrics: Sequence[str], labels: Mapping[str, str] | None = None):
+def _ring_panels(
+    fig,
+    rows,
+    group: str,
+    metrics: Sequence[str],
+    labels: Mapping[str, str] | None = None,
+    styles: Mapping[str, dict] | None = None,
+):
     axes = fig.subplots(len(metrics), 1, sharex=True, squeeze=False)[:, 0]
     for ax, metric in zip(axes, metrics, strict=True):
         for g in dict.fromkeys(r[group] for r in rows):
@@ -385,7 +392,8 @@ def _ring_panels(fig, rows, group: str, metrics: Sequence[str], labels: Mapping[
             lower, means = _mean_by(grows, "ring_lower_deg", metric)
             width = float(grows[0]["ring_upper_deg"] - grows[0]["ring_lower_deg"])
             edges = np.append(np.asarray(lower, float), float(lower[-1]) + width)
-            ax.stairs(means, edges, lw=1.6, label=(labels or {}).get(g, str(g)))
+            style = {"lw": 1.6, **(styles or {}).get(g, {})}
+            ax.stairs(means, edges, label=(labels or {}).get(g, str(g)), **style)
         ax.set_ylabel({"abs_error": "mean |error| (sRGB)", "flip": "mean FLIP"}.get(metric, metric))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
@@ -451,6 +459,12 @@ def plot_tracking_error(records, path, *, title: str | None = None) -> Path:
     return _save(fig, path)
 
 
+def _policy_style(row, latencies) -> dict:
+    colour = {"perfect": "tab:blue", "latest": "tab:orange", "predicted": "tab:green"}.get(row["policy"])
+    rank = latencies.index(row["latency_ms"]) if row.get("latency_ms") in latencies else 0
+    return {"color": colour, "ls": ("-", "--", ":", "-.")[rank % 4], "marker": "o"}
+
+
 def plot_after_saccade(records, path, *, title: str | None = None) -> Path:
     """Per display policy, frame by frame around the saccade: the angle between the shown
     and the true gaze, and the error around the true gaze (central 2° and the true fovea);
@@ -464,13 +478,18 @@ def plot_after_saccade(records, path, *, title: str | None = None) -> Path:
     ]
     fig = _figure((8.5, 8))
     axes = fig.subplots(len(metrics), 1, sharex=True)
+    latencies = sorted({r.get("latency_ms", 0.0) for r in rows if r["policy"] != "perfect"})
     sacc = [r["since_landing_ms"] for r in rows if r["phase"] == "saccade"]
     onset = min(sacc, default=0.0)
     for ax, metric in zip(axes, metrics, strict=True):
-        for policy in dict.fromkeys(r["policy"] for r in rows):
-            prows = [r for r in rows if r["policy"] == policy]
+        for display in dict.fromkeys(r.get("display", r["policy"]) for r in rows):
+            prows = [r for r in rows if r.get("display", r["policy"]) == display]
             ax.plot(
-                [r["since_landing_ms"] for r in prows], [r[metric] for r in prows], "o-", ms=3, label=policy
+                [r["since_landing_ms"] for r in prows],
+                [r[metric] for r in prows],
+                **_policy_style(prows[0], latencies),
+                ms=3,
+                label=display,
             )
         ax.axvspan(onset, 0.0, color="0.85", zorder=0)
         ax.set_ylabel(metric.replace("_", " "))
@@ -531,20 +550,23 @@ def plot_checkerboard(records, path, *, title: str | None = None) -> Path:
     _ring_panels(sub[0], rings, "scene", metrics)
     ax = sub[1].subplots()
     scenes = list(dict.fromkeys(r["scene"] for r in flick))
-    modes = list(dict.fromkeys(r["key_mode"] for r in flick))
-    width = 0.8 / len(modes)
-    for j, mode in enumerate(modes):
+    bars = [("full render, fresh key", "full_fresh_flicker_beyond_fovea", "fresh", "0.3")]
+    bars += [
+        (f"foveated, {m} key", "flicker_beyond_fovea", m, c)
+        for m, c in (("fresh", "tab:red"), ("fixed", "tab:blue"))
+    ]
+    width = 0.8 / len(bars)
+    for j, (label, col, mode, colour) in enumerate(bars):
         vals = [
-            next(r["ratio_beyond_fovea"] for r in flick if r["scene"] == s and r["key_mode"] == mode)
+            next((r[col] for r in flick if r["scene"] == s and r["key_mode"] == mode), math.nan)
             for s in scenes
         ]
-        bars = ax.bar(
-            np.arange(len(scenes)) + (j - (len(modes) - 1) / 2) * width, vals, width, label=f"{mode} key"
-        )
-        ax.bar_label(bars, fmt="%.2f", fontsize=8)
-    ax.axhline(1.0, color="k", ls="--", lw=1)
+        pos = np.arange(len(scenes)) + (j - (len(bars) - 1) / 2) * width
+        drawn = ax.bar(pos, np.maximum(np.nan_to_num(vals), 1e-6), width, color=colour, label=label)
+        ax.bar_label(drawn, labels=[f"{v:.2g}" for v in vals], fontsize=8)
+    ax.set_yscale("log")
     ax.set_xticks(np.arange(len(scenes)), scenes)
-    ax.set_ylabel("flicker / full fresh-key\n(beyond the fovea)")
+    ax.set_ylabel("flicker beyond the fovea\n(mean |Δ| per frame, sRGB)")
     ax.legend(fontsize=8)
     ax.grid(axis="y", alpha=0.3)
     fig.suptitle(title or "fine checkerboard periphery against a smooth wall")
@@ -562,18 +584,29 @@ def plot_acuity_models(records, path, *, title: str | None = None) -> Path:
     metric = "flip" if "flip" in rings[0] else "abs_error"
     fig = _figure((9, 10))
     sub = fig.subfigures(2, 1, height_ratios=[2, 1])
-    axes = _ring_panels(sub[0], rings, "model", [metric, "ring_primary_rays"])
+    group = "arm" if "arm" in rings[0] else "model"
+    models = list(dict.fromkeys(r["model"] for r in rings))
+    rules = list(dict.fromkeys(r.get("rule", "") for r in rings))
+    colours = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+    styles = {
+        r[group]: {
+            "color": colours[models.index(r["model"]) % 6],
+            "ls": ("-", "--", ":")[rules.index(r.get("rule", "")) % 3],
+        }
+        for r in rings
+    }
+    axes = _ring_panels(sub[0], rings, group, [metric, "ring_primary_rays"], styles=styles)
     axes[1].set_yscale("log")
     axes[1].set_ylabel("primary rays per ring")
     ax = sub[1].subplots()
     fm = "frame_flip" if "frame_flip" in frames[0] else "frame_abs_error"
-    names, vals = _mean_by(frames, "model", fm)
-    _, rays = _mean_by(frames, "model", "primary_rays")
-    bars = ax.bar(np.arange(len(names)), vals, color="tab:blue", alpha=0.8)
+    names, vals = _mean_by(frames, group, fm)
+    _, rays = _mean_by(frames, group, "primary_rays")
+    bars = ax.bar(np.arange(len(names)), vals, color=[styles[n]["color"] for n in names], alpha=0.8)
     ax.bar_label(
         bars, labels=[f"{v:.4f}\n{r:,.0f} rays" for v, r in zip(vals, rays, strict=True)], fontsize=8
     )
-    ax.set_xticks(np.arange(len(names)), names, rotation=10)
+    ax.set_xticks(np.arange(len(names)), names, rotation=20, ha="right", fontsize=8)
     ax.set_ylabel(f"mean {fm.replace('_', ' ')}")
     ax.set_ylim(0, float(np.nanmax(vals)) * 1.35 if np.isfinite(vals).any() else 1)
     ax.grid(axis="y", alpha=0.3)

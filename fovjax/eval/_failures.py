@@ -6,23 +6,24 @@ that a failure shows as the case it is and is not averaged into one number.
   in four directions, error measured around the *true* gaze (inside the true fovea radius and
   the central 2°), for a fovea smaller than the error and one larger;
 - `after_saccade`: the frames around a main-sequence saccade, foveated on the gaze a tracker
-  delivered `latency_s` earlier ("latest"), on that gaze extrapolated at constant velocity to
-  display time ("predicted", `fovjax.devices.GazePredictor`) and on the true gaze ("perfect"),
-  error around the true gaze frame by frame;
+  delivered 25 ms and 50 ms earlier ("latest"), on that gaze extrapolated at constant velocity
+  to display time ("predicted", `fovjax.devices.GazePredictor`) and on the true gaze
+  ("perfect"), error around the true gaze frame by frame;
 - `high_spp`: 1 against 16 samples per pixel at a small resolution — does foveation still win
   on time, and how far are both from a converged image;
 - `checkerboard`: a fine high-contrast checkerboard filling the periphery against the same wall
   in its mean grey — error per ring and flicker (fresh and fixed key) along a pursuit;
 - `acuity_models`: the thesis's exponential, a fitted linear-MAR curve, a linear fall-off and
-  a constant probability at the same ray budget (`equal_budget_foveations`) — error per ring;
+  a constant probability at the same ray budget (`equal_budget_foveations`), under the
+  "either" and the "strict" sampling rule — error per ring;
 - `scanpath_flicker`: `temporal_stability` along a synthetic scanpath, fresh against fixed key.
 
 Errors are against the full render with the *same* key (the same sub-pixel positions), so they
 measure what foveation changes, not Monte-Carlo noise: with perfect tracking the fovea is the
-full render exactly. |error| is the channel mean of the difference of display-encoded (clipped,
-sRGB) values; FLIP is LDR-FLIP at the rig's pixels per degree (extra `[flip]`; its columns are
-left out when flip-evaluator is missing). Masked values average the per-pixel maps over the
-mask, both eyes side by side.
+full render (to float32 rounding: the two programs are compiled separately). |error| is the
+channel mean of the difference of display-encoded (clipped, sRGB) values; FLIP is LDR-FLIP at
+the rig's pixels per degree (extra `[flip]`; its columns are left out when flip-evaluator is
+missing). Masked values average the per-pixel maps over the mask, both eyes side by side.
 """
 
 from __future__ import annotations
@@ -635,7 +636,7 @@ def after_saccade(
     amplitude_deg: float = 20.0,
     direction_deg: float = 0.0,
     fps: float = 60.0,
-    latency_s: float = 0.025,
+    latencies_s: Sequence[float] = (0.025, 0.05),
     tracker_hz: float = 120.0,
     before_frames: int = 2,
     after_s: float = 0.1,
@@ -649,10 +650,11 @@ def after_saccade(
     """Frames around one saccade (main-sequence duration, minimum-jerk profile, as
     `fovjax.devices.Scanpath`) of `amplitude_deg` from `start`, displayed at `fps`. The frame
     shown at time t is foveated on: "perfect" the true gaze at t; "latest" the last tracker
-    sample (at `tracker_hz`) taken `latency_s` before t; "predicted" that sample extrapolated
-    at the velocity of the last two samples to t (`fovjax.devices.GazePredictor`). Error around
-    the true gaze at t (true fovea, central `central_deg`), frame by frame; the key is fixed so
-    a still frame with perfect tracking has no error in the fovea."""
+    sample (at `tracker_hz`) taken a latency before t, for each of `latencies_s`; "predicted"
+    that sample extrapolated at the velocity of the last two samples to t
+    (`fovjax.devices.GazePredictor`, horizon at most 50 ms). Error around the true gaze at t
+    (true fovea, central `central_deg`), frame by frame; the key is fixed so a still frame with
+    perfect tracking has no error in the fovea. `display` names policy and latency."""
     from ..devices import GazePredictor
     from ..foveate import Foveation
 
@@ -663,10 +665,12 @@ def after_saccade(
     for name, value in (("fps", fps), ("tracker_hz", tracker_hz), ("amplitude_deg", amplitude_deg)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"after_saccade: {name} must be > 0, got {value}")
-    if not (math.isfinite(latency_s) and latency_s >= 0) or not (after_s >= 0) or before_frames < 1:
+    latencies = [float(x) for x in latencies_s]
+    if not latencies or any(not (math.isfinite(x) and x >= 0) for x in latencies):
+        raise ValueError(f"after_saccade: latencies_s must be finite seconds >= 0, got {latencies_s!r}")
+    if not (after_s >= 0) or before_frames < 1:
         raise ValueError(
-            "after_saccade: need latency_s >= 0, after_s >= 0, before_frames >= 1; got "
-            f"{latency_s}, {after_s}, {before_frames}"
+            f"after_saccade: need after_s >= 0 and before_frames >= 1, got {after_s}, {before_frames}"
         )
     onset = (before_frames - 0.5) / fps
     path, landing, duration = _saccade_path(rig, start, amplitude_deg, direction_deg, onset)
@@ -678,25 +682,29 @@ def after_saccade(
     for f in range(n_frames):
         t = f / fps
         true = path(t)
-        sample_t = math.floor((t - latency_s) * tracker_hz + 1e-9) / tracker_hz
-        sample = path(sample_t)
-        velocity = (sample - path(sample_t - 1.0 / tracker_hz)) * tracker_hz
-        shown_by = {
-            "perfect": true,
-            "latest": sample,
-            "predicted": np.clip(
-                np.array([predictor(sample[i], velocity[i], sample_t, t) for i in range(2)]), 0.0, 1.0
-            ),
-        }
+        shown_by = {}
+        for policy in policies:
+            for latency in [0.0] if policy == "perfect" else latencies:
+                if policy == "perfect":
+                    shown = true
+                else:
+                    sample_t = math.floor((t - latency) * tracker_hz + 1e-9) / tracker_hz
+                    shown = sample = path(sample_t)
+                    if policy == "predicted":
+                        velocity = (sample - path(sample_t - 1.0 / tracker_hz)) * tracker_hz
+                        shown = np.array([predictor(sample[i], velocity[i], sample_t, t) for i in range(2)])
+                label = policy if policy == "perfect" else f"{policy}, {1000 * latency:g} ms"
+                shown_by[label] = (policy, latency, np.clip(shown, 0.0, 1.0).astype(np.float32))
         ecc = _true_eccentricity(rig, true, foveation)
         masks = {"true_fovea": ecc <= foveation.fovea_deg, "central": ecc <= central_deg}
         phase = "before" if t < onset else "saccade" if t < landing else "after"
-        for policy in policies:
-            shown = shown_by[policy].astype(np.float32)
+        for label, (policy, latency, shown) in shown_by.items():
             frame = bench.foveated(shown, foveation, key)
             maps = bench.maps(frame.image, ref)
             row = {
+                "display": label,
                 "policy": policy,
+                "latency_ms": 1000 * latency,
                 "frame": f,
                 "time_ms": 1000 * t,
                 "since_landing_ms": 1000 * (t - landing),
@@ -711,22 +719,22 @@ def after_saccade(
             for name, mask in masks.items():
                 row.update(_masked(maps, mask, name))
             records.append(row)
-    m = _metric(records, "flip_central")
+    m = _metric(records, "flip_true_fovea")
     parts = []
-    for policy in policies:
-        rows = [r for r in records if r["policy"] == policy and r["phase"] == "after"]
+    for label in dict.fromkeys(r["display"] for r in records):
+        rows = [r for r in records if r["display"] == label and r["phase"] == "after"]
         values = ", ".join(f"{r[m]:.4f}" for r in rows[:4])
-        parts.append(f"{policy} [{values}]")
-    parts[0] = f"central {m} in the first frames after landing: " + parts[0]
-    finding = f"{amplitude_deg:g}° saccade, {1000 * latency_s:g} ms latency at {fps:g} Hz: " + "; ".join(
-        parts
+        parts.append(f"{label} [{values}]")
+    finding = (
+        f"{amplitude_deg:g}° saccade at {fps:g} Hz, {m} in the first frames after landing: "
+        + "; ".join(parts)
     )
     params = {
         "start": tuple(np.ravel(start)),
         "amplitude_deg": amplitude_deg,
         "direction_deg": direction_deg,
         "fps": fps,
-        "latency_s": latency_s,
+        "latencies_s": tuple(latencies),
         "tracker_hz": tracker_hz,
         "saccade_ms": 1000 * duration,
         "onset_ms": 1000 * onset,
@@ -989,16 +997,20 @@ def acuity_models(
     models: Mapping[str, object] | None = None,
     gazes: Sequence = ((0.5, 0.5), (0.3, 0.4)),
     keys: Sequence[int] = (0,),
+    rules: Sequence[str] = ("either", "strict"),
     ring_deg: float = 5.0,
-    budget: EqualBudget | None = None,
+    budgets: Mapping[str, EqualBudget] | None = None,
     config=None,
     full: FullRenders | None = None,
     progress=None,
 ) -> FailureCase:
-    """Acuity models at the same ray budget (`equal_budget_foveations`; `budget` to reuse one):
-    per model, gaze and key the primary rays (and their difference from the reference model's),
-    frame error and FLIP ("frame" rows), and error and primary rays per ring ("ring" rows)."""
-    from ..foveate import Foveation, check_gaze
+    """Acuity models at the same ray budget (`equal_budget_foveations`), under each sampling
+    rule of `rules` (under "either" the block top-lefts are traced whatever the curve, under
+    "strict" every sample beyond the fovea is the curve's draw); `budgets` (rule -> EqualBudget)
+    reuses ones already made. Per rule, model, gaze and key the primary rays (and their
+    difference from the rule's reference model's), frame error and FLIP ("frame" rows), and
+    error and primary rays per ring ("ring" rows); `arm` names rule and model."""
+    from ..foveate import SAMPLING_RULES, Foveation, check_gaze
 
     t0 = time.perf_counter()
     foveation = foveation or Foveation.thesis(2)
@@ -1008,61 +1020,79 @@ def acuity_models(
     ]
     if not gazes or not keys:
         raise ValueError("acuity_models: need at least one gaze and one key")
-    budget = budget or equal_budget_foveations(rig, foveation, models or default_models(), gazes=gazes)
+    if not rules or any(r not in SAMPLING_RULES for r in rules):
+        raise ValueError(f"acuity_models: rules must be among {SAMPLING_RULES}, got {rules!r}")
+    budgets = dict(budgets or {})
+    models = models or default_models()
+    for rule in rules:
+        if rule not in budgets:
+            budgets[rule] = equal_budget_foveations(
+                rig, dataclasses.replace(foveation, rule=rule), models, gazes=gazes
+            )
     bench = _Bench.make(scene, rig, config, full, progress)
     records, rays_ref = [], {}
-    for name, fov in budget.foveations.items():
-        for gi, g in enumerate(gazes):
-            for k in keys:
-                frame = bench.foveated(g, fov, k)
-                ref = bench.reference(k)
-                maps = bench.maps(frame.image, ref)
-                ecc = _side(frame.eccentricity)
-                traced = _side(frame.sample_mask.sum(axis=1))
-                primary = frame.stats.primary_rays
-                rays_ref.setdefault((gi, k), primary)
-                common = {
-                    "model": name,
-                    "gaze_x": float(g[0, 0]),
-                    "gaze_y": float(g[0, 1]),
-                    "key": int(k),
-                    "gain": budget.gains[name],
-                    "expected_primary_rays": budget.expected_rays[name],
-                    "ray_budget_per_eye": budget.ray_budget,
-                }
-                records.append(
-                    {
-                        "kind": "frame",
-                        **common,
-                        "primary_rays": primary,
-                        "rays": frame.stats.rays,
-                        "primary_rays_vs_reference": primary / rays_ref[gi, k] - 1.0,
-                        "dropped": frame.foveation.dropped,
-                        "ms": 1000 * frame.stats.render_seconds,
-                        **_frame_metrics(maps, frame.image, ref),
+    for rule in rules:
+        budget = budgets[rule]
+        for name, fov in budget.foveations.items():
+            for gi, g in enumerate(gazes):
+                for k in keys:
+                    frame = bench.foveated(g, fov, k)
+                    ref = bench.reference(k)
+                    maps = bench.maps(frame.image, ref)
+                    ecc = _side(frame.eccentricity)
+                    traced = _side(frame.sample_mask.sum(axis=1))
+                    primary = frame.stats.primary_rays
+                    rays_ref.setdefault((rule, gi, k), primary)
+                    common = {
+                        "arm": f"{rule}: {name}",
+                        "rule": rule,
+                        "model": name,
+                        "gaze_x": float(g[0, 0]),
+                        "gaze_y": float(g[0, 1]),
+                        "key": int(k),
+                        "gain": budget.gains[name],
+                        "expected_primary_rays": budget.expected_rays[name],
+                        "ray_budget_per_eye": budget.ray_budget,
                     }
-                )
-                for row in _ring_rows(maps, frame.image, ref, ecc, ring_deg):
-                    inside = (ecc >= row["ring_lower_deg"]) & (ecc < row["ring_upper_deg"])
                     records.append(
-                        {"kind": "ring", **common, **row, "ring_primary_rays": int(traced[inside].sum())}
+                        {
+                            "kind": "frame",
+                            **common,
+                            "primary_rays": primary,
+                            "rays": frame.stats.rays,
+                            "primary_rays_vs_reference": primary / rays_ref[rule, gi, k] - 1.0,
+                            "dropped": frame.foveation.dropped,
+                            "ms": 1000 * frame.stats.render_seconds,
+                            **_frame_metrics(maps, frame.image, ref),
+                        }
                     )
+                    for row in _ring_rows(maps, frame.image, ref, ecc, ring_deg):
+                        inside = (ecc >= row["ring_lower_deg"]) & (ecc < row["ring_upper_deg"])
+                        records.append(
+                            {"kind": "ring", **common, **row, "ring_primary_rays": int(traced[inside].sum())}
+                        )
     frames = [r for r in records if r["kind"] == "frame"]
     m = _metric(frames, "frame_flip")
-    parts = [
-        f"{name} {_mean(frames, m, model=name):.4f} (gain {budget.gains[name]:.3g})"
-        for name in budget.foveations
-    ]
-    spread = max(abs(r["primary_rays_vs_reference"]) for r in frames)
-    finding = (
-        f"{m} at {budget.expected_rays[budget.reference]:.0f} expected primary rays per frame "
-        f"(realised within {100 * spread:.1f}% of the reference's): " + ", ".join(parts)
-    )
+    parts = []
+    for rule in rules:
+        budget = budgets[rule]
+        rows = [r for r in frames if r["rule"] == rule]
+        spread = max(abs(r["primary_rays_vs_reference"]) for r in rows)
+        models_text = ", ".join(
+            f"{name} {_mean(rows, m, model=name):.4f} (gain {budget.gains[name]:.3g})"
+            for name in budget.foveations
+        )
+        parts.append(
+            f"{rule}: {m} at {budget.expected_rays[budget.reference]:.0f} expected primary rays "
+            f"(realised within {100 * spread:.1f}%): {models_text}"
+        )
+    finding = "; ".join(parts)
     params = {
-        "models": tuple(budget.foveations),
+        "models": tuple(models),
+        "rules": tuple(rules),
         "gazes": tuple(tuple(map(float, g[0])) for g in gazes),
         "keys": tuple(keys),
-        "ray_budget_per_eye": budget.ray_budget,
+        "ray_budget_per_eye": {r: budgets[r].ray_budget for r in rules},
         "fovea_deg": foveation.fovea_deg,
         "periphery_deg": foveation.periphery_deg,
     }
@@ -1173,7 +1203,8 @@ def failure_cases(
     full = FullRenders(scene, rig, config)
     model_opts = dict(options.get("acuity_models", {}))
     gazes = model_opts.pop("gazes", ((0.5, 0.5), (0.3, 0.4)))
-    budget = equal_budget_foveations(rig, foveation, models or default_models(), gazes=gazes)
+    models = models or default_models()
+    budget = equal_budget_foveations(rig, foveation, models, gazes=gazes)
     base = budget.foveations[budget.reference]
     common = {"config": config, "progress": tick}
     report = {}
@@ -1198,7 +1229,15 @@ def failure_cases(
             case = checkerboard(rig, base, **common, **opts)
         elif name == "acuity_models":
             case = acuity_models(
-                scene, rig, foveation, gazes=gazes, budget=budget, full=full, **common, **model_opts
+                scene,
+                rig,
+                foveation,
+                gazes=gazes,
+                budgets={foveation.rule: budget},
+                models=models,
+                full=full,
+                **common,
+                **model_opts,
             )
         else:
             case = scanpath_flicker(scene, rig, base, full=full, **common, **opts)

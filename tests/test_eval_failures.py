@@ -1,0 +1,201 @@
+"""Failure cases: corner gaze, tracker error, after a saccade, acuity models at an equal ray
+budget, and their input checks, on a tiny rig (the same scene, rig, config and foveation as
+tests/test_eval_stability.py, so one session compiles the two programs once)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import fovjax
+from fovjax.acuity import THESIS_MODEL, LinearMAR, PowerMAR
+from fovjax.eval import (
+    AcuityTerms,
+    FullRenders,
+    after_saccade,
+    checkerboard_scene,
+    corner_gaze,
+    equal_budget_foveations,
+    failure_cases,
+    high_spp,
+    offset_gaze,
+    tracking_error,
+)
+from fovjax.foveate import Constant, Foveation, LinearFalloff, eccentricity_angle
+from fovjax.render import RenderConfig, StereoRig
+
+CONFIG = RenderConfig(max_depth=0)
+# The equal-budget arms of these models share one ray budget; their reference ("thesis") arm is
+# the foveation of every test, so every foveated frame here reuses one compiled program.
+MODELS = {
+    "thesis": THESIS_MODEL,
+    "linear MAR": LinearMAR(1.0, 2.35),
+    "fall-off": LinearFalloff(),
+    "constant": Constant(),
+}
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    scene = fovjax.scenes.spheres(subdivisions=1, ground_cells=2)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=64, eye_height=48)
+    budget = equal_budget_foveations(rig, Foveation(10.0, 20.0), MODELS, gazes=((0.5, 0.5),))
+    return scene, rig, budget.foveations["thesis"], FullRenders(scene, rig, CONFIG)
+
+
+def test_acuity_terms_reproduce_each_family():
+    omega = np.linspace(0.0, 90.0, 721, dtype=np.float32)
+    assert np.array_equal(np.asarray(AcuityTerms.of(THESIS_MODEL)(omega)), np.asarray(THESIS_MODEL(omega)))
+    for model in (
+        LinearMAR(1.0, 2.35),
+        PowerMAR(0.9, 3.0, 1.7),
+        LinearFalloff(5.0, 30.0, 0.05),
+        Constant(0.3),
+    ):
+        np.testing.assert_allclose(AcuityTerms.of(model)(omega), model(omega), rtol=2e-6, atol=1e-7)
+    np.testing.assert_allclose(AcuityTerms.of(Constant(0.3), 2.0)(omega), 0.6, rtol=1e-6)
+    with pytest.raises(ValueError, match="cannot express"):
+        AcuityTerms.of(lambda w: w)
+
+
+def test_offset_gaze_is_the_stated_angle_away(tiny):
+    _, rig, _, _ = tiny
+    cam = rig.eye_cameras()[0]
+    for angle, direction in ((4.0, 0.0), (10.0, 90.0), (7.0, 225.0)):
+        shown = offset_gaze(rig, (0.5, 0.5), angle, direction)
+        px = shown[0] * np.array([cam.width, cam.height], np.float32)
+        measured = float(eccentricity_angle(cam, np.array([0.5, 0.5], np.float32), px[None])[0])
+        assert measured == pytest.approx(angle, abs=0.01)
+    assert shown[0, 0] < 0.5 and shown[0, 1] < 0.5  # 225°: left and up
+    with pytest.raises(ValueError, match="leaves the screen"):
+        offset_gaze(rig, (0.95, 0.5), 20.0, 0.0)
+    with pytest.raises(ValueError, match="angle_deg"):
+        offset_gaze(rig, (0.5, 0.5), -1.0)
+
+
+def test_corner_gaze_gives_a_valid_frame_and_ring_records(tiny, tmp_path):
+    scene, rig, fov, full = tiny
+    case = corner_gaze(scene, rig, fov, keys=(0,), config=CONFIG, full=full)
+    assert {r["gaze"] for r in case.records} == {"centre", "corner"}
+    corner = [r for r in case.records if r["gaze"] == "corner"]
+    centre = [r for r in case.records if r["gaze"] == "centre"]
+    # The corner sees eccentricities the centre never does.
+    assert max(r["ring_upper_deg"] for r in corner) > max(r["ring_upper_deg"] for r in centre)
+    assert corner[0]["fovea_rays"] > 0 and centre[0]["fovea_rays"] > 0
+    assert all(r["dropped"] == 0 and math.isfinite(r["frame_psnr"]) for r in case.records)
+    populated = [r for r in corner if r["ring_pixels"] > 0]
+    assert populated and all(math.isfinite(r["abs_error"]) for r in populated)
+    assert (
+        populated[0]["ring_lower_deg"] == 0 and populated[0]["abs_error"] < 1e-5
+    )  # the fovea is the full render
+    assert "corner" in case.finding
+    paths = case.write(tmp_path)
+    assert paths["csv"].exists() and paths["chart"].stat().st_size > 0
+
+
+def test_tracker_error_raises_the_error_at_the_true_gaze(tiny):
+    scene, rig, fov, full = tiny
+    case = tracking_error(
+        scene, rig, [fov], errors_deg=(0.0, 8.0), directions_deg=(0.0,), config=CONFIG, full=full
+    )
+    perfect, off = case.records
+    assert perfect["tracker_error_deg"] == 0 and off["measured_error_deg"] == pytest.approx(8.0, abs=0.05)
+    # Perfect tracking: the true fovea is the full render (to float32 rounding).
+    assert perfect["abs_true_fovea"] < 1e-5 and perfect["true_fovea_covered"] == 1.0
+    assert off["abs_true_fovea"] > 1e-3 + perfect["abs_true_fovea"]
+    assert off["true_fovea_covered"] < 1.0
+
+
+def test_after_saccade_latest_gaze_lags_and_perfect_does_not(tiny):
+    scene, rig, fov, full = tiny
+    case = after_saccade(scene, rig, fov, latencies_s=(0.025,), after_s=0.05, config=CONFIG, full=full)
+    rows = {(r["display"], r["frame"]): r for r in case.records}
+    perfect = [r for r in case.records if r["policy"] == "perfect"]
+    assert all(r["gaze_error_deg"] < 1e-3 and r["abs_true_fovea"] < 1e-5 for r in perfect)
+    landing = min(r["frame"] for r in perfect if r["phase"] == "after")
+    lagging = rows["latest, 25 ms", landing]
+    assert lagging["gaze_error_deg"] > 1.0 and lagging["abs_true_fovea"] > 1e-3
+    assert {"before", "saccade", "after"} <= {r["phase"] for r in case.records}
+
+
+def test_equal_budget_models_match_rays(tiny):
+    scene, rig, fov, full = tiny
+    models = MODELS
+    budget = equal_budget_foveations(rig, Foveation(10.0, 20.0), models, gazes=((0.5, 0.5),))
+    assert budget.foveations["thesis"] == fov
+    target = budget.expected_rays["thesis"]
+    assert all(e == pytest.approx(target, rel=1e-4) for e in budget.expected_rays.values())
+    assert budget.gains["thesis"] == 1.0 and all(0 < g < 1 for n, g in budget.gains.items() if n != "thesis")
+    assert {f.ray_budget for f in budget.foveations.values()} == {budget.ray_budget}
+    from fovjax.eval import acuity_models
+
+    case = acuity_models(
+        scene,
+        rig,
+        gazes=((0.5, 0.5),),
+        rules=("either",),
+        budgets={"either": budget},
+        config=CONFIG,
+        full=full,
+    )
+    frames = [r for r in case.records if r["kind"] == "frame"]
+    assert len(frames) == 4 and all(r["dropped"] == 0 for r in frames)
+    assert all(abs(r["primary_rays_vs_reference"]) < 0.05 for r in frames)
+    rings = [r for r in case.records if r["kind"] == "ring"]
+    assert sum(r["ring_primary_rays"] for r in rings if r["model"] == "thesis") == frames[0]["primary_rays"]
+    # Under the strict rule every sample beyond the fovea is the curve's draw: gains still match.
+    strict = equal_budget_foveations(rig, Foveation(10.0, 20.0, rule="strict"), models)
+    target = strict.expected_rays["thesis"]
+    assert all(e == pytest.approx(target, rel=1e-4) for e in strict.expected_rays.values())
+    assert strict.gains != budget.gains
+
+
+def test_checkerboard_scene_is_a_textured_wall_and_its_smooth_twin_shares_shapes():
+    scene, pose = checkerboard_scene(check_size=0.05)
+    smooth, _ = checkerboard_scene(check_size=0.05, smooth=True)
+    tex, flat = scene.textures[0], smooth.textures[0]
+    assert tex.shape == flat.shape and set(np.unique(tex)) == {np.float32(0.03), np.float32(0.9)}
+    assert np.allclose(flat, tex.mean())
+    assert np.shape(scene.uvs) == np.shape(smooth.uvs) and pose.position[2] > 0
+    for kwargs in ({"check_size": 0.0}, {"distance": -1.0}, {"light": 2.0}):
+        with pytest.raises(ValueError, match="checkerboard_scene"):
+            checkerboard_scene(**kwargs)
+
+
+def test_bad_inputs_raise_clear_errors(tiny):
+    scene, rig, fov, full = tiny
+    with pytest.raises(ValueError, match="unknown cases"):
+        failure_cases(scene, rig, cases=("nope",), progress=False)
+    with pytest.raises(ValueError, match="options for unknown"):
+        failure_cases(scene, rig, options={"nope": {}}, progress=False)
+    with pytest.raises(ValueError, match="policies"):
+        after_saccade(scene, rig, fov, policies=("psychic",), full=full)
+    with pytest.raises(ValueError, match="latencies_s"):
+        after_saccade(scene, rig, fov, latencies_s=(-0.01,), full=full)
+    with pytest.raises(ValueError, match="rules"):
+        from fovjax.eval import acuity_models
+
+        acuity_models(scene, rig, fov, rules=("loose",), full=full)
+    with pytest.raises(ValueError, match="positive squares"):
+        high_spp(scene, rig, spp=(1, 3))
+    with pytest.raises(ValueError, match="errors >= 0"):
+        tracking_error(scene, rig, [fov], errors_deg=(-1.0,), full=full)
+    with pytest.raises(ValueError, match="another rig"):
+        corner_gaze(
+            scene,
+            rig,
+            fov,
+            full=FullRenders(
+                scene,
+                rig.__class__.from_pose(fovjax.scenes.default_camera(scene), eye_width=32, eye_height=24),
+                CONFIG,
+            ),
+        )
+    with pytest.raises(ValueError, match="off-screen"):
+        corner_gaze(scene, rig, fov, corner=(1.2, 0.5), full=full)
+    with pytest.raises(ValueError, match="at least one model"):
+        equal_budget_foveations(rig, fov, {})
+    with pytest.raises(ValueError, match="cannot reach"):
+        equal_budget_foveations(rig, Foveation(10.0, 20.0), {"thesis": THESIS_MODEL, "zero": Constant(0.0)})
