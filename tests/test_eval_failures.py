@@ -199,3 +199,18 @@ def test_bad_inputs_raise_clear_errors(tiny):
         equal_budget_foveations(rig, fov, {})
     with pytest.raises(ValueError, match="cannot reach"):
         equal_budget_foveations(rig, Foveation(10.0, 20.0), {"thesis": THESIS_MODEL, "zero": Constant(0.0)})
+
+
+def test_cli_registers_failures_and_stability():
+    from fovjax.cli import build_parser
+    from fovjax.eval import _cli_failures
+
+    parser = build_parser()
+    args = parser.parse_args(["failures", "--cases", "corner_gaze", "--small", "64x48", "--spp", "1", "4"])
+    assert args.func is _cli_failures.run_failures and args.small == (64, 48) and args.spp == [1, 4]
+    args = parser.parse_args(["stability", "--gaze", "pursuit", "--frames", "4"])
+    assert args.func is _cli_failures.run_stability and args.frames == 4
+    with pytest.raises(SystemExit):
+        parser.parse_args(["failures", "--small", "64by48"])
+    with pytest.raises(SystemExit):
+        parser.parse_args(["failures", "--cases", "nope"])
