@@ -12,6 +12,9 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
     # jod_at(level): your FovVideoVDP JOD of that foveation level against the full render
     observer = fe.MetricObserver(lambda trial: 10 - jod_at(trial.level), threshold=fe.JND_JOD)
     fe.write_study_report(fe.run_study([observer]), "out/study")      # figures 66-68
+    # or from a `fovjax compare` table: 15 observers judging 10 - JOD (else FLIP) per level
+    observers = fe.observers_from_comparison(fe.read_csv("out/compare/comparison.csv"), spp=4)
+    fe.study_majorities(fe.run_study(observers))                       # {"pair": 12.5, ...}
 """
 
 from ._charts import (
@@ -113,6 +116,15 @@ from ._stability import (
     region_masks,
     temporal_stability,
 )
+from ._study import (
+    STUDY_METRICS,
+    THESIS_LEVEL,
+    LevelDifference,
+    default_metric,
+    difference_from_comparison,
+    observers_from_comparison,
+    study_majorities,
+)
 
 __all__ = [
     "DEFAULT_CRITERION",
@@ -173,6 +185,13 @@ __all__ = [
     "write_csv",
     "write_responses",
     "write_study_report",
+    "STUDY_METRICS",
+    "THESIS_LEVEL",
+    "LevelDifference",
+    "default_metric",
+    "difference_from_comparison",
+    "observers_from_comparison",
+    "study_majorities",
     "FAILURE_CASES",
     "AcuityTerms",
     "EqualBudget",

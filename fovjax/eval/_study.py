@@ -1,0 +1,251 @@
+"""The user study answered from measured metrics: a `fovjax compare` table (comparison.csv)
+gives, per study level, the mean of a metric against the full render; that becomes the
+difference d the automatic observers (`MetricObserver`) judge, and their answers go through the
+same analysis as people's (figures 66-68).
+
+    table = fe.read_csv("out/compare/comparison.csv")
+    observers = fe.observers_from_comparison(table, metric="jod", spp=4, n=15, noise_sd=0.3, seed=0)
+    responses = fe.run_study(observers)
+    fe.study_majorities(responses)     # {"pair": 12.5, "ramp up": ..., "ramp down": ..., "slider": ...}
+
+Metrics (`STUDY_METRICS`): "jod" (FovVideoVDP): d = 10 - mean JOD, threshold `JND_JOD` = 1;
+"flip": d = mean FLIP, threshold 0.05 (`fovjax compare`'s default criterion). The mean is taken
+over the level's rows at one spp (and one acuity model, when the table has several).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._compare import DEFAULT_CRITERION
+from ._metrics import JND_JOD
+from ._pareto import as_records
+from ._protocols import (
+    APPENDIX_LEVELS,
+    RAMP_DIRECTIONS,
+    MetricObserver,
+    Response,
+    Trial,
+    _check_levels,
+    _level_label,
+    analyse_pair,
+    analyse_ramp,
+    analyse_slider,
+    majority_level,
+)
+
+STUDY_METRICS: dict[str, tuple[str, float]] = {
+    # metric column -> (how d is made from the level's mean, default threshold on d)
+    "jod": ("d = 10 - mean FovVideoVDP JOD", JND_JOD),
+    "flip": ("d = mean FLIP", float(DEFAULT_CRITERION[1])),
+}
+THESIS_LEVEL = (12.5, 25.0)
+"""The level the thesis's participants chose (fovea, periphery in degrees, chapter 5.2)."""
+MAJORITY_TESTS = ("pair", "ramp up", "ramp down", "slider")
+
+
+def default_metric(table) -> str:
+    """The study's default metric: "jod" when the table has a FovVideoVDP JOD column with a value
+    in it, else "flip" when it has a FLIP column; a ValueError naming the columns otherwise."""
+    records = as_records(table)
+    columns = _columns(records)
+    if any(r.get("jod") is not None for r in records):
+        return "jod"
+    if "flip" in columns:
+        return "flip"
+    raise ValueError(f"comparison table has neither a 'jod' nor a 'flip' column (columns: {columns})")
+
+
+def _columns(records: Sequence[dict]) -> list[str]:
+    return list(dict.fromkeys(k for r in records for k in r))
+
+
+def _sorted_values(values: Iterable) -> list:
+    """Distinct values, numbers first in numeric order, then anything else as text."""
+    distinct = set(values)
+    numbers = sorted(v for v in distinct if isinstance(v, int | float) and not isinstance(v, bool))
+    return numbers + sorted((v for v in distinct if v not in numbers), key=str)
+
+
+def _same(a, b) -> bool:
+    try:
+        return math.isclose(float(a), float(b), rel_tol=0, abs_tol=1e-9)
+    except (TypeError, ValueError):
+        return False
+
+
+@dataclass(frozen=True)
+class LevelDifference:
+    """A Trial -> float callable for `MetricObserver`: the difference d at the trial's level,
+    from a comparison table. `means`: the metric's mean per level; `differences`: d per level;
+    `rows`: how many table rows each mean is over."""
+
+    metric: str
+    threshold: float
+    spp: int
+    model: str | None
+    means: dict[tuple[float, float], float] = field(repr=False)
+    differences: dict[tuple[float, float], float]
+    rows: dict[tuple[float, float], int] = field(repr=False)
+
+    def __call__(self, trial: Trial) -> float:
+        for level, d in self.differences.items():
+            if _same(level[0], trial.fovea_deg) and _same(level[1], trial.periphery_deg):
+                return d
+        have = ", ".join(_level_label(*lv) for lv in self.differences)
+        raise ValueError(
+            f"no {self.metric} for level {_level_label(*trial.level)} ({trial.condition!r}); "
+            f"the comparison gave levels {have}"
+        )
+
+    def seen(self, level: tuple[float, float]) -> bool:
+        """Whether a noise-free observer sees the difference at `level` (d > threshold)."""
+        return self.differences[level] > self.threshold
+
+
+def difference_from_comparison(
+    table,
+    *,
+    metric: str | None = None,
+    spp: int = 4,
+    model: str | None = None,
+    threshold: float | None = None,
+    levels=APPENDIX_LEVELS,
+    where: str = "comparison table",
+) -> LevelDifference:
+    """For every study level (fovea, periphery), the mean of `metric` over the table's rows at
+    that level, `spp` and `model` (needed only when the table has several models), turned into
+    the difference d of `STUDY_METRICS`. `metric` defaults to `default_metric(table)`;
+    `threshold` to the metric's default. `where` names the table in error messages (e.g. its
+    path). ValueErrors name what is missing: a level (with the levels and spp values the table
+    has), the metric column (with the columns), a model, or a row with a non-finite value."""
+    records = as_records(table)
+    if not records:
+        raise ValueError(f"{where}: no rows")
+    levels = _check_levels(levels, "difference_from_comparison")
+    columns = _columns(records)
+    metric = default_metric(records) if metric is None else metric
+    if metric not in STUDY_METRICS:
+        raise ValueError(f"{where}: metric must be one of {sorted(STUDY_METRICS)}, got {metric!r}")
+    threshold = STUDY_METRICS[metric][1] if threshold is None else float(threshold)
+    if not math.isfinite(threshold):
+        raise ValueError(f"{where}: threshold must be finite, got {threshold}")
+    for needed in ("fovea_deg", "periphery_deg", "spp", metric):
+        if needed not in columns:
+            raise ValueError(f"{where}: no column {needed!r} (columns: {columns})")
+
+    spp_values = _sorted_values(r.get("spp") for r in records)
+    at_spp = [(i, r) for i, r in enumerate(records) if _same(r.get("spp"), spp)]
+    if not at_spp:
+        raise ValueError(f"{where}: no rows at spp {spp} (spp values: {spp_values})")
+    models = list(dict.fromkeys(r.get("model") for _, r in at_spp))
+    if model is not None:
+        if "model" not in columns:
+            raise ValueError(f"{where}: model {model!r} asked for but there is no 'model' column")
+        at_spp = [(i, r) for i, r in at_spp if r.get("model") == model]
+        if not at_spp:
+            raise ValueError(f"{where}: no rows with model {model!r} at spp {spp} (models: {models})")
+    elif len(models) > 1:
+        raise ValueError(f"{where}: several acuity models at spp {spp}: {models}; choose one (--model)")
+    else:
+        model = models[0]
+
+    have = list(dict.fromkeys((float(r["fovea_deg"]), float(r["periphery_deg"])) for _, r in at_spp))
+    which = f"spp {spp}" + ("" if model is None else f", model {model!r}")
+    means, differences, counts = {}, {}, {}
+    for level in levels:
+        rows = [
+            (i, r)
+            for i, r in at_spp
+            if _same(r["fovea_deg"], level[0]) and _same(r["periphery_deg"], level[1])
+        ]
+        if not rows:
+            raise ValueError(
+                f"{where}: study level {_level_label(*level)} (fovea/periphery degrees) has no rows "
+                f"at {which}; the table has levels "
+                f"[{', '.join(_level_label(*lv) for lv in have)}] there, spp values {spp_values}"
+            )
+        values = []
+        for i, r in rows:
+            v = r.get(metric)
+            try:
+                x = math.nan if v is None else float(v)
+            except (TypeError, ValueError):
+                x = math.nan
+            if not math.isfinite(x):
+                label = f" (config {r['config']!r})" if "config" in r else ""
+                raise ValueError(
+                    f"{where}: row {i + 1}{label}: {metric} is {v!r}, not a finite number "
+                    f"(level {_level_label(*level)}, {which})"
+                )
+            values.append(x)
+        means[level] = float(np.mean(values))
+        differences[level] = 10.0 - means[level] if metric == "jod" else means[level]
+        counts[level] = len(values)
+    return LevelDifference(metric, threshold, int(spp), model, means, differences, counts)
+
+
+def observer_seeds(n: int, seed: int | None) -> list[int | None]:
+    """`n` independent seeds derived from `seed` (all None when `seed` is None)."""
+    if seed is None:
+        return [None] * n
+    return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(n)]
+
+
+def observers_from_comparison(
+    table,
+    *,
+    metric: str | None = None,
+    spp: int = 4,
+    model: str | None = None,
+    n: int = 15,
+    noise_sd: float = 0.0,
+    seed: int | None = 0,
+    threshold: float | None = None,
+    levels=APPENDIX_LEVELS,
+    where: str = "comparison table",
+) -> list[MetricObserver]:
+    """`n` automatic observers ("auto01", ...) judging the difference of
+    `difference_from_comparison` (same arguments) against its threshold. With `noise_sd` > 0
+    each draws its own noise, from its own seed derived from `seed`; with 0 they all answer
+    alike."""
+    if n < 1:
+        raise ValueError(f"observers_from_comparison: n must be >= 1, got {n}")
+    difference = difference_from_comparison(
+        table, metric=metric, spp=spp, model=model, threshold=threshold, levels=levels, where=where
+    )
+    return [
+        MetricObserver(difference, difference.threshold, name=f"auto{k + 1:02d}", noise_sd=noise_sd, seed=s)
+        for k, s in enumerate(observer_seeds(n, seed))
+    ]
+
+
+def study_majorities(responses: Iterable[Response], levels=APPENDIX_LEVELS) -> dict[str, float | None]:
+    """Per test, the lowest fovea (degrees) the majority accepts, None if none: pair and each
+    ramp direction, the lowest level where more than half the answers are "same"
+    (`majority_level`); slider, the lowest level that more than half the participants accept,
+    i.e. whose chosen level is at or below it (the median choice). Tests without answers are
+    left out."""
+    responses = list(responses)
+    out: dict[str, float | None] = {}
+    pair = analyse_pair(responses)
+    if pair:
+        out["pair"] = majority_level(pair)
+    ramp = analyse_ramp(responses)
+    for direction in RAMP_DIRECTIONS:
+        rows = [r for r in ramp if r["direction"] == direction]
+        if rows:
+            out[f"ramp {direction}"] = majority_level(rows)
+    slider = analyse_slider(responses, levels)
+    if any(r["participants"] for r in slider):
+        total = sum(r["participants"] for r in slider)
+        cumulative, accepted = 0, []
+        for r in slider:
+            cumulative += r["participants"]
+            accepted.append({"fovea_deg": r["fovea_deg"], "accepted": cumulative / total})
+        out["slider"] = majority_level(accepted, "accepted")
+    return out
