@@ -15,6 +15,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax._cli_session",
     "fovjax.eval._cli",
     "fovjax.eval._cli_failures",
+    "fovjax.eval._cli_study",
     "fovjax.acuity._cli",
 ]
 

@@ -1,0 +1,219 @@
+"""`fovjax study`: the thesis's user study (pair, ramp and slider tests, appendix levels 5°/10°
+to 15°/30°) answered by automatic observers from a `fovjax compare` table, or by people from
+results files; written as figures 66-68 with their tables.
+
+From measured metrics (FovVideoVDP JOD when the table has it, else FLIP):
+
+    fovjax study --comparison out/compare -o out/study
+    fovjax study --comparison out/compare/comparison.csv --metric flip --threshold 0.05 \\
+        --spp 4 --model thesis --observers 15 --noise-sd 0.01 --seed 0 -o out/study
+
+writes out/study/responses.csv (the results-file format, `RESULT_FIELDS`), pair_test.csv,
+ramp_test.csv, slider_test.csv, majority.csv and fig66_pair_test.png, fig67_ramp_test.png,
+fig68_slider_test.png, and prints per test the level the observers' majority accepts next to
+the thesis's (12.5°/25°). For jod, d = 10 - mean JOD, seen when d > 1 (`JND_JOD`); for flip,
+d = mean FLIP, seen when d > 0.05 (or --threshold).
+
+From answers in the results-file format (.csv or .jsonl; several files are pooled):
+
+    fovjax study --responses results/p01.csv results/p02.csv -o out/study
+    fovjax study --responses out/study/responses.csv -o out/study_again
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+# Options that only mean something with --comparison (their defaults, applied there).
+_COMPARISON_DEFAULTS = {
+    "metric": None,
+    "threshold": None,
+    "spp": 4,
+    "model": None,
+    "observers": 15,
+    "noise_sd": 0.0,
+    "seed": 0,
+    "shuffle": False,
+}
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return value
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "study",
+        help="the thesis's user study (pair, ramp, slider tests, figures 66-68) answered from a "
+        "comparison table's metrics or from people's results files",
+        description="Run the pair, ramp and slider tests at the appendix levels with automatic observers "
+        "judging a `fovjax compare` metric (--comparison), or analyse answers in the results-file format "
+        "(--responses); write the answers, the per-test tables and figures 66-68 into the output folder "
+        "and print the level each test's majority accepts beside the thesis's 12.5°/25°.",
+    )
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument(
+        "--comparison",
+        metavar="DIR_OR_CSV",
+        help="comparison.csv written by `fovjax compare` (or its folder)",
+    )
+    source.add_argument(
+        "--responses", metavar="FILE", nargs="+", help="results files (.csv/.jsonl, RESULT_FIELDS columns)"
+    )
+    p.add_argument(
+        "--metric",
+        choices=("jod", "flip"),
+        help="jod: d = 10 - FovVideoVDP JOD, threshold 1; flip: d = FLIP, threshold 0.05 "
+        "(default: jod when the table has it, else flip)",
+    )
+    p.add_argument("--threshold", type=float, help="just-noticeable d (default: the metric's)")
+    p.add_argument("--spp", type=int, help="samples per pixel of the rows to use (default 4, the thesis's)")
+    p.add_argument("--model", help="acuity model of the rows to use (needed when the table has several)")
+    p.add_argument("--observers", type=_positive_int, help="automatic observers (default 15, as the thesis)")
+    p.add_argument(
+        "--noise-sd",
+        type=_non_negative,
+        help="Gaussian noise on d per judgement, so observers differ (default 0: all answer alike)",
+    )
+    p.add_argument("--seed", type=int, help="seed of the observers' noise (each gets its own; default 0)")
+    p.add_argument(
+        "--shuffle",
+        action="store_true",
+        default=None,
+        help="each observer its own trial order (from --seed) instead of the appendix's",
+    )
+    p.add_argument("-o", "--output", default="out/study")
+    p.set_defaults(func=run, _parser=p)
+
+
+def _comparison_csv(text: str, parser: argparse.ArgumentParser) -> Path:
+    path = Path(text)
+    if path.is_dir():
+        path = path / "comparison.csv"
+    if not path.is_file():
+        parser.error(f"--comparison {text}: no such file ({path})")
+    return path
+
+
+def _level_text(fovea: float | None, levels) -> str:
+    if fovea is None:
+        return "none (no level has a majority)"
+    periphery = {f: p for f, p in levels}.get(fovea)
+    return f"{fovea:g}°" if periphery is None else f"{fovea:g}°/{periphery:g}°"
+
+
+def run(args) -> int:
+    from fovjax.eval import read_csv, read_responses, run_study, write_csv, write_responses
+    from fovjax.eval import write_study_report as report
+    from fovjax.eval._protocols import APPENDIX_LEVELS
+    from fovjax.eval._study import (
+        MAJORITY_TESTS,
+        STUDY_METRICS,
+        THESIS_LEVEL,
+        default_metric,
+        observers_from_comparison,
+        study_majorities,
+    )
+
+    parser = args._parser
+    levels = APPENDIX_LEVELS
+    out = Path(args.output)
+    given = [k for k, default in _COMPARISON_DEFAULTS.items() if getattr(args, k) is not None]
+    for k, default in _COMPARISON_DEFAULTS.items():
+        if getattr(args, k) is None:
+            setattr(args, k, default)
+    paths = {}
+    if args.responses is not None:
+        if given:
+            names = ", ".join("--" + k.replace("_", "-") for k in given)
+            parser.error(f"{names}: only with --comparison (--responses files already hold the answers)")
+        responses = []
+        for name in args.responses:
+            if not Path(name).is_file():
+                parser.error(f"--responses {name}: no such file")
+            responses.extend(read_responses(name, levels=levels))
+        if not responses:
+            parser.error(f"--responses {' '.join(args.responses)}: no answers in the file(s)")
+        participants = len({r.participant for r in responses})
+        files = len(args.responses)
+        print(f"read {len(responses)} answers from {participants} participant(s) in {files} file(s)")
+    else:
+        csv_path = _comparison_csv(args.comparison, parser)
+        table = read_csv(csv_path)
+        metric = args.metric
+        if metric is None:
+            metric = default_metric(table)
+            why = (
+                "the table has FovVideoVDP JOD"
+                if metric == "jod"
+                else "the table has no FovVideoVDP JOD (pyfvvdp was not installed for `fovjax compare`)"
+            )
+            print(f"note: metric {metric}: {why}; choose with --metric")
+        observers = observers_from_comparison(
+            table,
+            metric=metric,
+            spp=args.spp,
+            model=args.model,
+            n=args.observers,
+            noise_sd=args.noise_sd,
+            seed=args.seed,
+            threshold=args.threshold,
+            levels=levels,
+            where=str(csv_path),
+        )
+        diff = observers[0].difference
+        model = "" if diff.model is None else f", model {diff.model}"
+        rule = f"{STUDY_METRICS[metric][0]}, seen when d > {diff.threshold:g}"
+        print(f"{csv_path}: spp {diff.spp}{model}; {rule}")
+        print(f"  {'level':>10s}  {'mean ' + metric:>10s}  {'d':>8s}  {'rows':>4s}  seen")
+        for level in levels:
+            seen = "yes" if diff.seen(level) else "no"
+            print(
+                f"  {f'{level[0]:g}/{level[1]:g}':>10s}  {diff.means[level]:10.4g}  "
+                f"{diff.differences[level]:8.4g}  {diff.rows[level]:4d}  {seen}"
+            )
+        print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
+        responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)
+        paths["responses"] = write_responses(responses, out / "responses.csv")
+
+    majorities = study_majorities(responses, levels)
+    paths.update(report(responses, out, levels=levels))
+    thesis = _level_text(THESIS_LEVEL[0], levels)
+    rows = []
+    print(f"{'test':>10s}  {'majority accepts':<32s}  thesis")
+    for test in MAJORITY_TESTS:
+        if test not in majorities:
+            continue
+        fovea = majorities[test]
+        print(f"{test:>10s}  {_level_text(fovea, levels):<32s}  {thesis}")
+        periphery = None if fovea is None else dict(levels).get(fovea)
+        rows.append(
+            {
+                "test": test,
+                "majority_fovea_deg": fovea,
+                "majority_periphery_deg": periphery,
+                "thesis_fovea_deg": THESIS_LEVEL[0],
+                "thesis_periphery_deg": THESIS_LEVEL[1],
+            }
+        )
+    if rows:
+        paths["majority"] = write_csv(rows, out / "majority.csv")
+    print(f"wrote {out.resolve()}/: {', '.join(sorted(p.name for p in paths.values()))}")
+    return 0
