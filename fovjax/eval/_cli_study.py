@@ -189,6 +189,13 @@ def run(args) -> int:
                 f"  {f'{level[0]:g}/{level[1]:g}':>10s}  {diff.means[level]:10.4g}  "
                 f"{diff.differences[level]:8.4g}  {diff.rows[level]:4d}  {seen}"
             )
+        if args.noise_sd == 0 and all(diff.seen(level) for level in levels):
+            # The slider cannot go past the last level: its answer then means "the best on
+            # offer", not "equivalent to the reference".
+            print(
+                f"note: every level is seen (d > {diff.threshold:g}); the slider stops at the "
+                "highest level, which is not an equivalence"
+            )
         print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
         responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)
         paths["responses"] = write_responses(responses, out / "responses.csv")
