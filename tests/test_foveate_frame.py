@@ -3,12 +3,14 @@ covering the screen is the full render, hand-countable ray counts, no recompiles
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import fovjax
-from fovjax.foveate import Foveation, render_foveated
+from fovjax.foveate import Constant, Foveation, render_foveated
 from fovjax.foveate import _api as fov_api
 from fovjax.render import RenderConfig, StereoRig, render_stereo
 
@@ -98,3 +100,27 @@ def test_bad_gaze_is_rejected_before_rendering(atrium_small):
         render_foveated(scene, rig, gaze=((np.nan, 0.5), (0.5, 0.5)), config=CONFIG)
     with pytest.raises(ValueError, match="off-screen"):
         render_foveated(scene, rig, gaze=((0.5, 0.5), (0.5, -0.1)), config=CONFIG)
+
+
+class _Tabulated(eqx.Module):
+    """An acuity curve given as a table (array leaves, not scalar parameters)."""
+
+    omega: jax.Array
+    p: jax.Array
+
+    def __call__(self, omega):
+        return jnp.interp(omega, self.omega, self.p)
+
+
+def test_budget_of_an_array_valued_acuity_model(atrium_small):
+    # The static budget is cached by the acuity's parameters; a table must key it like scalars do.
+    _, rig = atrium_small
+    head = (0.0, 0.0, 0.0)
+    flat = _Tabulated(jnp.array([0.0, 90.0]), jnp.array([0.25, 0.25]))
+    steep = _Tabulated(jnp.array([0.0, 90.0]), jnp.array([1.0, 0.0]))
+    budget = {
+        name: fov_api._budget_for(rig, head, Foveation(fovea_deg=5, periphery_deg=10, acuity=acuity))
+        for name, acuity in [("flat", flat), ("steep", steep), ("constant", Constant(0.25))]
+    }
+    assert budget["flat"] == budget["constant"]  # same P(ω) everywhere, same plan
+    assert budget["steep"] != budget["flat"]  # a different table is not served from the cache

@@ -46,7 +46,11 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
         foveation.eye_display_mm,
         foveation.pixel_pitch_mm,
         foveation.ray_budget,
-        tuple(np.asarray(x).item() for x in jax.tree.leaves(foveation.acuity)),
+        # Any acuity callable: scalar parameters or arrays (a tabulated curve, a batch of fits).
+        tuple(
+            (np.shape(x), tuple(np.asarray(x).reshape(-1).tolist()))
+            for x in jax.tree.leaves(foveation.acuity)
+        ),
         type(foveation.acuity).__name__,
     )
     budget = _BUDGETS.get(key)
