@@ -31,7 +31,8 @@ def margin(V, F, o, d):
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.sum((o - p0) * pvec, -1) / det
         w = np.sum(d * np.cross(o - p0, e1), -1) / det
-    return np.nan_to_num(np.minimum(np.minimum(u, w), 1 - u - w), nan=-1.0), det
+        margin = np.minimum(np.minimum(u, w), 1 - u - w)  # inf - inf on degenerate triangles
+    return np.nan_to_num(margin, nan=-1.0), det
 
 
 @SETTINGS
