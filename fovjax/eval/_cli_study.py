@@ -135,7 +135,7 @@ def run(args) -> int:
     parser = args._parser
     levels = APPENDIX_LEVELS
     out = Path(args.output)
-    given = [k for k, default in _COMPARISON_DEFAULTS.items() if getattr(args, k) is not None]
+    given = [k for k in _COMPARISON_DEFAULTS if getattr(args, k) is not None]
     for k, default in _COMPARISON_DEFAULTS.items():
         if getattr(args, k) is None:
             setattr(args, k, default)

@@ -48,6 +48,11 @@ THESIS_LEVEL = (12.5, 25.0)
 MAJORITY_TESTS = ("pair", "ramp up", "ramp down", "slider")
 
 
+def _difference(metric: str, mean: float) -> float:
+    """d of `STUDY_METRICS`: larger means more visible."""
+    return 10.0 - mean if metric == "jod" else mean
+
+
 def default_metric(table) -> str:
     """The study's default metric: "jod" when the table has a FovVideoVDP JOD column with a value
     in it, else "flip" when it has a FLIP column; a ValueError naming the columns otherwise."""
@@ -81,16 +86,19 @@ def _same(a, b) -> bool:
 @dataclass(frozen=True)
 class LevelDifference:
     """A Trial -> float callable for `MetricObserver`: the difference d at the trial's level,
-    from a comparison table. `means`: the metric's mean per level; `differences`: d per level;
-    `rows`: how many table rows each mean is over."""
+    from a comparison table. `means`: the metric's mean per level; `rows`: how many table rows
+    each mean is over; `differences`: d per level, made from the means by `STUDY_METRICS`."""
 
     metric: str
     threshold: float
     spp: int
     model: str | None
-    means: dict[tuple[float, float], float] = field(repr=False)
-    differences: dict[tuple[float, float], float]
+    means: dict[tuple[float, float], float]
     rows: dict[tuple[float, float], int] = field(repr=False)
+
+    @property
+    def differences(self) -> dict[tuple[float, float], float]:
+        return {level: _difference(self.metric, mean) for level, mean in self.means.items()}
 
     def __call__(self, trial: Trial) -> float:
         for level, d in self.differences.items():
@@ -156,7 +164,7 @@ def difference_from_comparison(
 
     have = list(dict.fromkeys((float(r["fovea_deg"]), float(r["periphery_deg"])) for _, r in at_spp))
     which = f"spp {spp}" + ("" if model is None else f", model {model!r}")
-    means, differences, counts = {}, {}, {}
+    means, counts = {}, {}
     for level in levels:
         rows = [
             (i, r)
@@ -184,9 +192,8 @@ def difference_from_comparison(
                 )
             values.append(x)
         means[level] = float(np.mean(values))
-        differences[level] = 10.0 - means[level] if metric == "jod" else means[level]
         counts[level] = len(values)
-    return LevelDifference(metric, threshold, int(spp), model, means, differences, counts)
+    return LevelDifference(metric, threshold, int(spp), model, means, counts)
 
 
 def observer_seeds(n: int, seed: int | None) -> list[int | None]:
