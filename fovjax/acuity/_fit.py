@@ -13,6 +13,9 @@ Jacobian of the (weighted) residuals at the optimum.
 
 Every fit is checked before numbers are returned. The checks, in order, and the error each raises:
 
+Outcomes are read from optimistix by name (`optx.RESULTS.successful`, `.nonlinear_max_steps_reached`,
+lineax's `.singular`, ...), never by their integer codes, which differ between releases.
+
 - optimistix stopped at `max_steps`                                -> `StepLimitError`
   (unless the Gauss–Newton step still to take from the last iterate is below the tolerance:
   optimistix tests convergence only on accepted steps, and once the remaining step is below
@@ -27,6 +30,14 @@ Every fit is checked before numbers are returned. The checks, in order, and the 
   or the column-equilibrated Jacobian is numerically rank-deficient:
   some parameter combination is not constrained by the data         -> `IdentifiabilityError`
 - fewer data points than free parameters + 1                       -> `TooFewPointsError`
+
+Which parameters an `IdentifiabilityError` names is decided from the Jacobian at the point where
+the solver stopped, never from the path it took: the parameters whose columns are ~0, else every
+parameter with a large share in the near-null right singular vector of the equilibrated Jacobian.
+Data with several equally good solutions (flat data: a = 0 with any b, or b -> 0 with any a) can
+end at either, and the error names what is unconstrained at that point. Every error carries the
+solver (`.solver`), the point (`.params`), the parameters it names (`.unconstrained`) and what to
+try (`.remedy`, also in the message).
 """
 
 from __future__ import annotations
@@ -37,6 +48,7 @@ from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 
@@ -56,13 +68,47 @@ GRADIENT_COSINE_TOL = 1e-4  # max |J_jᵀr| / (‖J_j‖·‖r‖) at an accepte
 CONDITION_LIMIT = 1e7  # condition number of the column-equilibrated Jacobian
 SENSITIVITY_LIMIT = 1e-7  # |∂r/∂log p| relative to |data|: below it a parameter moves nothing
 
-# optimistix/lineax result codes -> outcome kinds.
-_CODE_KIND = {0: "ok", 7: "step_limit", 8: "diverged", 9: "diverged", 6: "diverged", 2: "singular_step"}
+# optimistix/lineax results, by name -> outcome kinds. Looked up by name at trace time (a release
+# that lacks a name skips it); any result not listed is a divergence.
+RESULT_KINDS = {
+    "successful": "ok",
+    "nonlinear_max_steps_reached": "step_limit",
+    "nonlinear_divergence": "diverged",
+    "nonfinite": "diverged",
+    "nonfinite_input": "diverged",
+    "singular": "singular_step",  # lineax: the Gauss–Newton normal equations lost rank
+    "max_steps_reached": "diverged",  # an iterative linear solve ran out of steps
+    "breakdown": "diverged",
+    "stagnation": "diverged",
+    "conlim": "diverged",
+}
+# Share of the near-null right singular vector (unit length) above which a parameter is named as
+# part of an unconstrained combination.
+NULL_SHARE = 0.25
 OUTCOMES = ("ok", "step_limit", "diverged", "singular_step", "stalled", "unidentifiable", "too_few_points")
 
 
 class FitError(ValueError):
-    """A fit that did not produce trustworthy numbers. Subclasses say why."""
+    """A fit that did not produce trustworthy numbers. Subclasses say why.
+
+    `solver`: the solver that ran; `params`: the point where it stopped (natural parameters);
+    `unconstrained`: the parameters the data leave free there (IdentifiabilityError); `remedy`:
+    what to try (also in the message)."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        solver: str | None = None,
+        params: dict[str, float] | None = None,
+        unconstrained: tuple[str, ...] = (),
+        remedy: str = "",
+    ):
+        super().__init__(message)
+        self.solver = solver
+        self.params = dict(params or {})
+        self.unconstrained = tuple(unconstrained)
+        self.remedy = remedy
 
 
 class StepLimitError(FitError):
@@ -146,6 +192,7 @@ def _core(
     bounds = tuple(family.bounds[i] for i in free)
     opt = SOLVERS[solver](rtol=rtol, atol=atol)
     free_idx = jnp.asarray(free)
+    names, members = _result_members()
 
     def residual_natural(q, fixed_p, omega, acuity, weight):
         p = fixed_p.at[free_idx].set(q)
@@ -156,19 +203,38 @@ def _core(
             return residual_natural(_to_natural(bounds, u), fixed_p, omega, acuity, weight)
 
         sol = optx.least_squares(residual, opt, u0, max_steps=max_steps, throw=False)
+        # The result's index in `names` (-1: none of them), compared by name.
+        result = jnp.int32(-1)
+        for j, member in enumerate(members):
+            result = jnp.where(sol.result == member, j, result)
         q = _to_natural(bounds, sol.value)
         jac = jax.jacfwd(residual_natural)(q, fixed_p, omega, acuity, weight)
         r = residual_natural(q, fixed_p, omega, acuity, weight)
         return {
             "p": fixed_p.at[free_idx].set(q),
-            "code": sol.result._value,
+            "result": result,
             "steps": sol.stats["num_steps"],
             "jac": jac,
             "r": r,
         }
 
     # XLA's backend optimisation roughly doubles compile time for solves that run in ~1 ms.
-    return jax.jit(jax.vmap(one), compiler_options={"xla_backend_optimization_level": 0})
+    return names, jax.jit(jax.vmap(one), compiler_options={"xla_backend_optimization_level": 0})
+
+
+def _result_members() -> tuple[tuple[str, ...], list]:
+    """The optimistix results this release has, by name (lineax's singular promoted)."""
+    names, members = [], []
+    for name in RESULT_KINDS:
+        if name == "singular" and hasattr(lx.RESULTS, "singular"):
+            member = optx.RESULTS.promote(lx.RESULTS.singular)
+        elif hasattr(optx.RESULTS, name):
+            member = getattr(optx.RESULTS, name)
+        else:
+            continue
+        names.append(name)
+        members.append(member)
+    return tuple(names), members
 
 
 def _bucket(n: int, smallest: int = 8) -> int:
@@ -186,8 +252,9 @@ class BatchFit:
     r: np.ndarray  # [B, N] weighted residuals
     condition: np.ndarray  # [B] condition number of the equilibrated Jacobian
     gradient_cosine: np.ndarray  # [B]
-    code: np.ndarray  # [B] optimistix result code
+    result: np.ndarray  # [B] optimistix result, by name ("successful", "singular", ...)
     culprit: np.ndarray  # [B] index (into all parameters) of the unconstrained one, or -1
+    unconstrained: np.ndarray  # [B] tuple of indices (into all parameters) the data leave free
     converged_at_limit: np.ndarray  # [B] hit max_steps, but the remaining step was below tolerance
 
 
@@ -232,7 +299,8 @@ def batch_fit(
             np.pad(x, ((0, rows), (0, 0)), mode="edge") for x in (u0, fixed_p, omega, acuity, weight)
         )
     with jax.enable_x64(True):
-        out = _core(family, free, solver, float(rtol), float(atol), int(max_steps))(
+        names, core = _core(family, free, solver, float(rtol), float(atol), int(max_steps))
+        out = core(
             jnp.asarray(u0),
             jnp.asarray(fixed_p),
             jnp.asarray(omega),
@@ -249,10 +317,13 @@ def batch_fit(
         [out["p"][:, i] if math.isfinite(family.bounds[i][0]) else data_scale[:, 0] for i in free], axis=1
     )
     signal = np.linalg.norm(acuity[:, :n] * weight[:, :n], axis=1)
-    kind, cond, gcos, culprit, at_limit = _classify(
-        out["code"], out["p"], jac, r, np.abs(scale), signal, free, rtol, atol
+    result = np.array([names[i] if i >= 0 else "unknown" for i in out["result"]], dtype=object)
+    kind, cond, gcos, culprit, at_limit, loose = _classify(
+        result, out["p"], jac, r, np.abs(scale), signal, free, rtol, atol
     )
     culprit = np.array([free[c] if c >= 0 else -1 for c in culprit])
+    unconstrained = np.empty(nb, dtype=object)
+    unconstrained[:] = [tuple(free[j] for j in idx) for idx in loose]
     return BatchFit(
         out["p"],
         kind,
@@ -261,18 +332,25 @@ def batch_fit(
         r,
         cond,
         gcos,
-        out["code"].astype(int),
+        result,
         culprit,
+        unconstrained,
         at_limit,
     )
 
 
-def _classify(code, p, jac, r, scale, signal, free, rtol, atol):
-    """Outcome of each fit, the equilibrated condition number, the gradient cosine, the free
-    parameter (index) most to blame for an unidentifiable fit (-1 otherwise), and whether a fit
-    that hit the step limit had in fact converged (see `batch_fit`)."""
-    nb = code.shape[0]
-    kind = np.array([_CODE_KIND.get(int(c), "diverged") for c in code], dtype=object)
+def _classify(result, p, jac, r, scale, signal, free, rtol, atol):
+    """Outcome of each fit (from the optimistix result's name, then the checks), the equilibrated
+    condition number, the gradient cosine, the free parameter (index) most to blame for an
+    unidentifiable fit (-1 otherwise), whether a fit that hit the step limit had in fact converged
+    (see `batch_fit`), and the free parameters (indices) the data leave unconstrained.
+
+    What is unconstrained is read from the Jacobian at the final point alone: the parameters
+    whose columns move no prediction, else those with a share >= NULL_SHARE in the right
+    singular vector of the smallest singular value of the column-equilibrated Jacobian."""
+    nb = len(result)
+    kind = np.array([RESULT_KINDS.get(str(c), "diverged") for c in result], dtype=object)
+    loose: list[tuple[int, ...]] = [()] * nb
     at_limit = np.zeros(nb, bool)
     for i in np.flatnonzero(kind == "step_limit"):
         if not (np.all(np.isfinite(p[i])) and np.all(np.isfinite(r[i])) and np.all(np.isfinite(jac[i]))):
@@ -295,9 +373,11 @@ def _classify(code, p, jac, r, scale, signal, free, rtol, atol):
             continue
         col = np.linalg.norm(jac[i], axis=0)
         sensitivity = col * scale[i]
-        if np.any(sensitivity <= SENSITIVITY_LIMIT * signal[i]):
+        dead = sensitivity <= SENSITIVITY_LIMIT * signal[i]
+        if np.any(dead):
             kind[i] = "unidentifiable"
             culprit[i] = int(np.argmin(sensitivity))
+            loose[i] = tuple(int(j) for j in np.flatnonzero(dead))
             continue
         rnorm = np.linalg.norm(r[i])
         gcos[i] = float(np.max(np.abs(jac[i].T @ r[i]) / (col * rnorm))) if rnorm > 0 else 0.0
@@ -308,8 +388,10 @@ def _classify(code, p, jac, r, scale, signal, free, rtol, atol):
             kind[i] = "stalled"
         elif cond[i] > CONDITION_LIMIT:
             kind[i] = "unidentifiable"
-            culprit[i] = int(np.argmax(np.abs(vt[-1])))
-    return kind, cond, gcos, culprit, at_limit
+            share = np.abs(vt[-1])
+            culprit[i] = int(np.argmax(share))
+            loose[i] = tuple(int(j) for j in np.flatnonzero(share >= NULL_SHARE))
+    return kind, cond, gcos, culprit, at_limit, loose
 
 
 # -- the public fit -------------------------------------------------------------------------------
@@ -489,39 +571,55 @@ class FitResult:
         return "\n".join(lines)
 
 
-def _raise_for(kind: str, family, solver, data, steps, p, max_steps, cond, gcos, culprit) -> None:
+def _remedy(kind: str, solver: str) -> str:
+    other = "another solver (levenberg_marquardt)" if solver != "levenberg_marquardt" else "another solver"
+    return {
+        "step_limit": f"try a larger max_steps, another start (init=...) or {other}, or fix a parameter "
+        "(fixed=...): an optimum at a parameter's limit is never reached",
+        "diverged": f"try {other} or another start (init=...)",
+        "singular_step": f"try {other} (its damping keeps the step defined) or another start (init=...)",
+        "stalled": f"try another start (init=...) or {other}, or fix the parameter that runs off (fixed=...)",
+        "unidentifiable": "try fixing a parameter (fixed=...) or adding data over a wider eccentricity range",
+    }[kind]
+
+
+def _raise_for(kind: str, family, solver, data, steps, p, max_steps, cond, gcos, culprit, loose) -> None:
     params = ", ".join(f"{k}={v:.6g}" for k, v in zip(family.param_names, p, strict=True))
     where = f"fit {family.name} to {data.where} ({len(data)} points) with {solver}"
+    remedy = _remedy(kind, solver)
+    names: tuple[str, ...] = ()
     if kind == "step_limit":
-        msg = (
-            f"{where}: stopped at the step limit max_steps={max_steps} without converging; "
-            f"last iterate {params}"
-        )
+        msg = f"{where}: stopped at the step limit max_steps={max_steps} without converging"
     elif kind == "diverged":
-        msg = f"{where}: diverged after {steps} steps (non-finite values); last iterate {params}"
+        msg = f"{where}: diverged after {steps} steps (non-finite values)"
     elif kind == "singular_step":
         msg = (
             f"{where}: the linear solve for a step was singular after {steps} steps (the Gauss–Newton "
-            f"normal equations lost rank; try levenberg_marquardt); last iterate {params}"
+            "normal equations lost rank)"
         )
     elif kind == "stalled":
         msg = (
             f"{where}: stopped after {steps} steps with a non-zero gradient (cosine {gcos:.2g} > "
-            f"{GRADIENT_COSINE_TOL:g}); a parameter is probably running off to a bound; last iterate {params}"
+            f"{GRADIENT_COSINE_TOL:g}); a parameter is probably running off to a bound"
         )
     else:
-        name = family.param_names[culprit]
+        names = tuple(family.param_names[j] for j in (loose or (culprit,)))
+        listed = " and ".join(names)
         why = (
-            f"changing {name} no longer changes the predictions"
+            f"changing {listed} no longer changes the predictions"
             if not math.isfinite(cond)
-            else f"{name} is confounded with the others "
+            else f"{'they are' if len(names) > 1 else f'{listed} is'} confounded "
+            f"{'' if len(names) > 1 else 'with the others '}"
             f"(equilibrated Jacobian condition {cond:.3g} > {CONDITION_LIMIT:g})"
         )
-        msg = (
-            f"{where}: the data do not constrain {name}: {why}, at {params}; fix a parameter or add data "
-            "over a wider eccentricity range"
-        )
-    raise _ERRORS[kind](msg)
+        msg = f"{where}: the data do not constrain {listed}: {why}"
+    raise _ERRORS[kind](
+        f"{msg}; last iterate {params}; {remedy}",
+        solver=solver,
+        params=dict(zip(family.param_names, map(float, p), strict=True)),
+        unconstrained=names,
+        remedy=remedy,
+    )
 
 
 def fit(
@@ -589,6 +687,7 @@ def fit(
             out.condition[0],
             out.gradient_cosine[0],
             out.culprit[0],
+            out.unconstrained[0],
         )
 
     jac, wres = out.jac[0], out.r[0]
