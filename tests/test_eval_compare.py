@@ -20,6 +20,7 @@ GAZES = [(0.5, 0.5), (0.3, 0.4)]
 KEYS = [0, 1]
 CONFIG = RenderConfig(max_depth=0)  # no reflections: the shortest compile
 HAS_FLIP = importlib.util.find_spec("flip_evaluator") is not None
+HAS_FVVDP = importlib.util.find_spec("pyfvvdp") is not None
 
 FIELDS = {
     "config",
@@ -173,3 +174,49 @@ def test_cli_rejects_a_bad_distributed_spec(capsys):
     with pytest.raises(SystemExit):
         main(["compare", "--distributed", "localhost:1234,2,2"])
     assert "PROCESS_ID < NUM_PROCESSES" in capsys.readouterr().err
+
+
+def test_documented_defaults_and_one_frame_has_no_interval(scene_rig):
+    # Every keyword but the loops' sizes at its default (config, criterion, perceptual, rule,
+    # models, bvh, shard): the defaults once let config=None reach render_stereo. One gaze × one
+    # key: a single frame per configuration gives no interval, so no criterion can be met.
+    scene, rig = scene_rig
+    one = compare_thresholds(
+        scene, rig, thresholds=[(15, 30)], spp=[1], gazes=[(0.5, 0.5)], keys=[0], progress=False
+    )
+    (record,) = one.records
+    assert record["n"] == 1
+    metrics = ["psnr", "ssim"] + ["flip"] * HAS_FLIP + ["jod"] * HAS_FVVDP
+    for m in metrics:
+        assert math.isfinite(record[m]) and record[f"{m}_n"] == 1, (m, record)
+        assert math.isnan(record[f"{m}_lo"]) and math.isnan(record[f"{m}_hi"]), (m, record)
+    assert one.criterion == ("flip", 0.05)
+    assert one.choice is None
+    # PSNR > 0 dB holds for any frame, yet one frame cannot pass it either.
+    psnr = compare_thresholds(
+        scene,
+        rig,
+        thresholds=[(15, 30)],
+        spp=[1],
+        gazes=[(0.5, 0.5)],
+        keys=[0],
+        criterion=("psnr", 0.0),
+        perceptual=False,
+        progress=False,
+    )
+    assert psnr.choice is None
+
+
+def test_metric_summary_needs_two_finite_samples():
+    from fovjax.eval._compare import _summarise
+
+    two = _summarise("psnr", [30.0, 32.0])
+    assert two["psnr"] == 31.0 and two["psnr_lo"] < 31.0 < two["psnr_hi"] and two["psnr_n"] == 2
+    # One finite sample among infinite ones (identical frames but one): no interval.
+    mixed = _summarise("psnr", [math.inf, 30.0, math.inf])
+    assert mixed["psnr"] == 30.0 and math.isnan(mixed["psnr_lo"]) and mixed["psnr_n"] == 1
+    # Every frame identical to the reference: the degenerate interval at +inf, which passes.
+    same = _summarise("psnr", [math.inf, math.inf])
+    assert same["psnr"] == same["psnr_lo"] == same["psnr_hi"] == math.inf
+    single = _summarise("flip", [0.01])
+    assert single["flip"] == 0.01 and math.isnan(single["flip_lo"]) and math.isnan(single["flip_hi"])

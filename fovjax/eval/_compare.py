@@ -93,6 +93,23 @@ def _metrics(test, ref, eccentricity, display, gazes_xy, use_flip, use_fovvdp):
     return out, rings
 
 
+def _summarise(name: str, values: Sequence[float]) -> dict:
+    """Mean and 95% interval of a metric over a configuration's frames. The interval is over the
+    finite samples and needs two of them; every frame identical (all values equal, e.g. PSNR +inf
+    for identical images) gives the degenerate interval at that value; otherwise, with fewer than
+    two finite samples, the interval is NaN and no criterion can be met on it."""
+    values = [float(v) for v in values]
+    finite = [v for v in values if np.isfinite(v)]
+    if len(finite) >= 2:
+        mean, lo, hi = mean_interval(finite)
+    elif len(values) >= 2 and all(v == values[0] for v in values):
+        mean = lo = hi = values[0]
+    else:
+        mean = float(np.mean(finite)) if finite else float(np.mean(values))
+        lo = hi = float("nan")
+    return {name: mean, f"{name}_lo": lo, f"{name}_hi": hi, f"{name}_n": len(finite)}
+
+
 def _available(module: str) -> bool:
     import importlib.util
 
@@ -124,7 +141,11 @@ def compare_thresholds(
     at the gaze point, each with a 95% Student-t interval over gaze × key. Names the cheapest
     configuration (by ms per frame) whose `criterion` metric's interval stays below the
     threshold (above it for PSNR, SSIM, JOD). `models`: acuity models for P(ω) (default: the
-    thesis's).
+    thesis's). `config`: the `RenderConfig` of every render (default: `render_stereo`'s).
+
+    A metric with fewer than two finite samples for a configuration (one gaze × key, or PSNR of
+    identical frames but one) has no interval (`_lo`/`_hi` NaN), so it cannot meet the criterion;
+    `{metric}_n` counts the finite samples.
 
     `shard=True` renders each configuration's frames (every gaze × key; the full render's every
     key) in one program, vmapped and sharded over `devices` (default `jax.devices()`, every
@@ -133,9 +154,10 @@ def compare_thresholds(
     batching costs (each device's frames wait for its slowest; see `fovjax.eval._shard`); the
     images, rays and metrics are those of `shard=False`."""
     from ..foveate import Foveation, render_foveated
-    from ..render import render_stereo
+    from ..render import RenderConfig, render_stereo
     from ._shard import render_foveated_batch, render_stereo_batch
 
+    config = RenderConfig() if config is None else config
     models = list(models) if models is not None else [None]
     display = HmdDisplay.from_camera(rig.eye_cameras()[0])
     use_flip = _available("flip_evaluator")
@@ -247,9 +269,7 @@ def compare_thresholds(
             "timing": f"batch over {batch.devices} devices / frames" if shard else "median of frames",
         }
         for name, vals in samples.items():
-            finite = [v for v in vals if np.isfinite(v)]
-            mean, lo, hi = mean_interval(finite) if len(finite) > 1 else (float(np.mean(vals)),) * 3
-            record[name], record[f"{name}_lo"], record[f"{name}_hi"] = mean, lo, hi
+            record.update(_summarise(name, vals))
         if "jod" in record:
             record["jod_drop"] = 10.0 - record["jod"]
         records.append(record)
