@@ -25,6 +25,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import equinox as eqx
 import numpy as np
 
 from ._scene import Lights, Materials, Scene, make_lights, make_materials, make_scene
@@ -91,8 +92,11 @@ def load_scene(
         path: the file; its extension picks the format (.obj, .gltf, .glb, .ply).
         scale: multiplies every vertex position (the thesis loaded Sponza scaled by 2).
         lights: the scene's lights. Files carry none that we read, so by default one white point
-            light (colour 1) is placed above the centre of the scene's bounds: at the centre's x
-            and z, at `max_y + 0.1 * diagonal` (y is up, as in OBJ and glTF).
+            light (colour 1) is a headlight at the position of `fovjax.scenes.default_camera`
+            for the loaded scene: every surface point that camera sees has a clear line to the
+            light, so the default view shows the whole model lit (shaded by n·l, no shadow
+            visible from there). Materials keep the file's Ka (MTL's default is 0, so the scene's
+            ambient adds nothing unless the file sets Ka). Pass `lights` for any other set-up.
         name: the scene's name; defaults to the file's stem.
 
     Materials (`Scene.materials`, Blinn-Phong; the diffuse colour at a point is
@@ -762,13 +766,11 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
         if not np.isfinite(uvs).all():
             raise ValueError(f"{path}: texture coordinates contain NaN or infinite values")
 
-    if lights is None:
-        lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-        centre = (lo + hi) / 2
-        diagonal = float(np.linalg.norm(hi - lo))
-        lights = make_lights([[centre[0], hi[1] + 0.1 * diagonal, centre[2]]], [[1.0, 1.0, 1.0]])
+    headlight = lights is None
+    if headlight:  # placeholder until the scene exists to place the camera in
+        lights = make_lights([[0.0, 0.0, 0.0]], [[1.0, 1.0, 1.0]])
     materials: Materials = make_materials(specs, names=names)
-    return make_scene(
+    scene = make_scene(
         vertices,
         faces,
         face_material=face_material,
@@ -781,3 +783,9 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
         name=name or Path(path).stem,
         where=str(path),
     )
+    if headlight:
+        from .scenes import default_camera  # here: fovjax.scenes imports this module's package
+
+        eye = default_camera(scene).position
+        scene = eqx.tree_at(lambda s: s.lights, scene, make_lights([eye], [[1.0, 1.0, 1.0]]))
+    return scene

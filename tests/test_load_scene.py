@@ -5,6 +5,7 @@ import os
 import re
 import warnings
 
+import equinox as eqx
 import numpy as np
 import pytest
 import trimesh
@@ -125,11 +126,40 @@ def test_obj_round_trip(tmp_path):
     for i in np.unique(f):
         assert tuple(uv[i]) == expected_uv[tuple(v[i].tolist())]
         np.testing.assert_allclose(n[i], [0, 0, 1] if v[i][2] == 0 else [0, 0.6, 0.8], atol=1e-6)
-    # no lights in an OBJ: one point light above the bounds' centre
+    # no lights in an OBJ: one white point light at the default camera (a headlight)
     light = np.asarray(scene.lights.position)
     assert light.shape == (1, 3)
-    np.testing.assert_allclose(light[0, [0, 2]], [0.5, 0.5])
-    assert light[0, 1] > 1.0
+    np.testing.assert_allclose(light[0], fovjax.scenes.default_camera(scene).position, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(scene.lights.color), [[1.0, 1.0, 1.0]])
+
+
+def test_a_closed_mesh_without_lights_or_materials_renders_lit(tmp_path):
+    # A user's own closed mesh, OBJ without MTL (grey Kd 0.8, Ka 0): from the default camera,
+    # nearly every pixel that sees the mesh is lit by the default light.
+    from fovjax.render import MAGENTA, RenderConfig, render
+
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in ball.vertices]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in ball.faces]
+    path = tmp_path / "ball.obj"
+    path.write_text("\n".join(lines) + "\n")
+    scene = load_quietly(path)
+    pose = fovjax.scenes.default_camera(scene)
+    camera = fovjax.Camera.look_at(
+        pose.position, pose.look_at, pose.up, vfov_deg=pose.vfov_deg, width=24, height=24
+    )
+    config = RenderConfig(max_depth=0, background=MAGENTA)
+
+    def lit_fraction(s):
+        image = np.asarray(render(s, camera, config=config).image)
+        seen = ~np.all(np.isclose(image, MAGENTA, atol=1e-3), axis=-1)  # rays that hit the ball
+        assert 0.1 < seen.mean() < 0.9  # the ball is in view and does not fill it
+        return float((image[seen].mean(axis=-1) > 0.05).mean())
+
+    assert lit_fraction(scene) > 0.95
+    # The former default, one light straight above the ball, leaves its lower half dark.
+    above = eqx.tree_at(lambda t: t.lights, scene, fovjax.make_lights([[0.0, 1.2, 0.0]], [[1.0, 1.0, 1.0]]))
+    assert lit_fraction(above) < 0.7
 
 
 def test_obj_reflectivity_conventions(tmp_path):
