@@ -42,10 +42,10 @@ class Camera(eqx.Module):
     """A pinhole camera. `rotation` is world-from-camera (3x3); `vfov_deg` the vertical field
     of view; `offset` the projection-centre shift (see module docstring)."""
 
-    position: Float[Array, " 3"]
-    rotation: Float[Array, "3 3"]
-    vfov_deg: Float[Array, ""]
-    offset: Float[Array, " 2"]
+    position: Float[np.ndarray | Array, " 3"]
+    rotation: Float[np.ndarray | Array, "3 3"]
+    vfov_deg: Float[np.ndarray | np.number | Array, ""]
+    offset: Float[np.ndarray | Array, " 2"]
     width: int = eqx.field(static=True)
     height: int = eqx.field(static=True)
 

@@ -27,13 +27,13 @@ class Materials(eqx.Module):
     baseColorTexture by baseColorFactor).
     """
 
-    ka: Float[Array, "M 3"]
-    kd: Float[Array, "M 3"]
-    ks: Float[Array, "M 3"]
-    ke: Float[Array, "M 3"]
-    kr: Float[Array, "M 3"]
-    ns: Float[Array, " M"]
-    texture: Int[Array, " M"]
+    ka: Float[np.ndarray | Array, "M 3"]
+    kd: Float[np.ndarray | Array, "M 3"]
+    ks: Float[np.ndarray | Array, "M 3"]
+    ke: Float[np.ndarray | Array, "M 3"]
+    kr: Float[np.ndarray | Array, "M 3"]
+    ns: Float[np.ndarray | Array, " M"]
+    texture: Int[np.ndarray | Array, " M"]
     names: tuple[str, ...] = eqx.field(static=True)
 
     def __len__(self) -> int:
@@ -77,9 +77,9 @@ class Lights(eqx.Module):
     """Lights, one row each. `kind` is POINT_LIGHT (position is a point, infinite range, no falloff,
     as in the thesis) or DIRECTIONAL_LIGHT (position is the direction *towards* the light)."""
 
-    position: Float[Array, "L 3"]
-    color: Float[Array, "L 3"]
-    kind: Int[Array, " L"]
+    position: Float[np.ndarray | Array, "L 3"]
+    color: Float[np.ndarray | Array, "L 3"]
+    kind: Int[np.ndarray | Array, " L"]
 
     def __len__(self) -> int:
         return int(np.shape(self.kind)[0])
@@ -112,15 +112,15 @@ class Scene(eqx.Module):
     - `content_hash` sha256 of the geometry (vertices and faces), the BVH cache key.
     """
 
-    vertices: Float[Array, "V 3"]
-    faces: Int[Array, "F 3"]
-    face_material: Int[Array, " F"]
+    vertices: Float[np.ndarray | Array, "V 3"]
+    faces: Int[np.ndarray | Array, "F 3"]
+    face_material: Int[np.ndarray | Array, " F"]
     materials: Materials
     lights: Lights
-    normals: Float[Array, "V 3"] | None = None
-    uvs: Float[Array, "V 2"] | None = None
+    normals: Float[np.ndarray | Array, "V 3"] | None = None
+    uvs: Float[np.ndarray | Array, "V 2"] | None = None
     textures: tuple = ()
-    ambient: Float[Array, " 3"] = eqx.field(default_factory=lambda: np.full(3, 0.1, np.float32))
+    ambient: Float[np.ndarray | Array, " 3"] = eqx.field(default_factory=lambda: np.full(3, 0.1, np.float32))
     name: str = eqx.field(static=True, default="scene")
     texture_paths: tuple[str, ...] = eqx.field(static=True, default=())
     content_hash: str = eqx.field(static=True, default="")

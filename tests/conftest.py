@@ -1,6 +1,25 @@
 """Shared test set-up. The suite runs in two pytest-xdist workers (pyproject's addopts): on a
-GPU each worker is its own JAX process, so neither may preallocate most of the device memory."""
+GPU each worker is its own JAX process, so neither may preallocate most of the device memory.
+
+The package's jaxtyping annotations are checked while the tests run: jaxtyping's import hook
+wraps every function and dataclass of `fovjax` in a beartype check of its arguments and return
+value (array kinds, dtypes and shapes included) when the package is first imported, which is
+here, before any test module imports it. beartype is configured with PEP 484's numeric tower (an
+int is a valid `float`), as the annotations mean it. Set FOVJAX_TYPECHECK=0 to run without (e.g.
+to time something)."""
 
 import os
+import sys
+import types
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
+    from beartype import BeartypeConf, beartype
+    from jaxtyping import install_import_hook
+
+    # The hook names its typechecker by import path: register one configured for the package.
+    checker = types.ModuleType("_fovjax_typecheck")
+    checker.typecheck = beartype(conf=BeartypeConf(is_pep484_tower=True))
+    sys.modules[checker.__name__] = checker
+    install_import_hook("fovjax", "_fovjax_typecheck.typecheck")

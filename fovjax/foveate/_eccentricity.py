@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._camera import Camera
 
 
-def gaze_pixel(camera: Camera, gaze_xy: Float[Array, " 2"]) -> Float[Array, " 2"]:
+def gaze_pixel(camera: Camera, gaze_xy: Float[np.ndarray | Array, " 2"]) -> Float[Array, " 2"]:
     """Normalised display coordinates (x right, y down, [0, 1]) to continuous pixel coordinates."""
     return jnp.asarray(gaze_xy, jnp.float32) * jnp.array([camera.width, camera.height], jnp.float32)
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
+from typing import SupportsFloat
 
 import numpy as np
 
@@ -15,9 +17,10 @@ class CameraPose:
     """Where a pinhole camera stands and looks: world-space `position` and `look_at` points,
     an `up` vector, and the vertical field of view in degrees."""
 
-    position: tuple[float, float, float]
-    look_at: tuple[float, float, float]
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    # Given as any three numbers (tuple, list, array); stored as a tuple of Python floats.
+    position: Sequence[SupportsFloat] | np.ndarray
+    look_at: Sequence[SupportsFloat] | np.ndarray
+    up: Sequence[SupportsFloat] | np.ndarray = (0.0, 1.0, 0.0)
     vfov_deg: float = 60.0
 
     def __post_init__(self):

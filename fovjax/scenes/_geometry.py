@@ -96,7 +96,7 @@ def add_box(mb: MeshBuilder, lo, hi, n, material: int, skip=()):
             points[..., v_axis] = v
             normal = np.zeros(3)
             normal[axis] = side
-            mb.add_grid(points, np.broadcast_to(normal, points.shape), material, flip=side < 0)
+            mb.add_grid(points, np.broadcast_to(normal, points.shape), material, flip=bool(side < 0))
 
 
 # --- vertical cylinder -------------------------------------------------------------------------
@@ -251,7 +251,7 @@ def add_cloth(mb, x0, x1, y_top, y_bottom, z, folds, depth, sag, nu, nv, materia
     du = np.stack([dx_du, dy_du, dz_du], axis=-1)
     dv = np.stack([np.zeros_like(uu), dy_dv, dz_dv], axis=-1)
     normals = np.cross(du, dv)
-    flip = (normals[..., 2].mean() * facing) < 0
+    flip = bool(normals[..., 2].mean() * facing < 0)
     if flip:
         normals = -normals
     mb.add_grid(points, normals, material, flip=flip)

@@ -45,11 +45,11 @@ class BVH(eqx.Module):
     arrays, used to recompute hit distances and barycentrics differentiably.
     """
 
-    table: Int[Array, "R 16"]
-    vertices: Float[Array, "V 3"]
-    faces: Int[Array, "F 3"]
-    num_nodes: Int[Array, ""]
-    host_id: Int[Array, ""]
+    table: Int[np.ndarray | Array, "R 16"]
+    vertices: Float[np.ndarray | Array, "V 3"]
+    faces: Int[np.ndarray | Array, "F 3"]
+    num_nodes: Int[np.ndarray | np.number | Array, ""]
+    host_id: Int[np.ndarray | np.number | Array, ""]
     stack_size: int = eqx.field(static=True)
 
     @property
@@ -190,7 +190,7 @@ def last_build_info() -> dict:
     return dict(LAST_BUILD)
 
 
-def host_geometry(host_id: int) -> tuple[str, np.ndarray, np.ndarray]:
+def host_geometry(host_id: int | np.integer | np.ndarray | Array) -> tuple[str, np.ndarray, np.ndarray]:
     """(key, vertices, faces) at build time of the BVH with this host id (for host callbacks)."""
     try:
         return _HOST_GEOMETRY[int(host_id)]

@@ -176,14 +176,14 @@ def _query(
 
 def closest_hit(
     bvh: BVH,
-    origins: Float[Array, "*batch 3"],
-    directions: Float[Array, "*batch 3"],
-    tmin: float | Float[Array, "*batch"] = 0.0,
-    tmax: float | Float[Array, "*batch"] = jnp.inf,
+    origins: Float[np.ndarray | Array, "*#batch 3"],
+    directions: Float[np.ndarray | Array, "*#batch 3"],
+    tmin: float | Float[np.ndarray | Array, "*#batch"] = 0.0,
+    tmax: float | Float[np.ndarray | Array, "*#batch"] = jnp.inf,
     *,
     backend: str = "jax",
     packet: Packet = None,
-    vertices: Float[Array, "V 3"] | None = None,
+    vertices: Float[np.ndarray | Array, "V 3"] | None = None,
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
@@ -225,17 +225,17 @@ def closest_hit(
 
 def occluded(
     bvh: BVH,
-    origins: Float[Array, "*batch 3"],
-    directions: Float[Array, "*batch 3"],
-    tmax: float | Float[Array, "*batch"] = jnp.inf,
+    origins: Float[np.ndarray | Array, "*#batch 3"],
+    directions: Float[np.ndarray | Array, "*#batch 3"],
+    tmax: float | Float[np.ndarray | Array, "*#batch"] = jnp.inf,
     *,
-    tmin: float | Float[Array, "*batch"] = 0.0,
+    tmin: float | Float[np.ndarray | Array, "*#batch"] = 0.0,
     backend: str = "jax",
     packet: Packet = None,
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
-) -> Bool[Array, "*batch"]:
+) -> Bool[Array, "..."]:
     """Whether anything lies on each ray with tmin < t < tmax (a shadow ray; stops at the
     first hit found, not the nearest). Options as for `closest_hit`."""
     batch, _, _, prim, order = _query(
