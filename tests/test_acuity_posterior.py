@@ -105,3 +105,19 @@ def test_plots_are_written(tmp_path, well_posed, posterior):
             assert im.size[0] > 500 and im.size[1] > 500
             # Not a blank canvas.
             assert len(np.unique(np.asarray(im.convert("L")))) > 20
+
+
+def test_public_defaults_run(tmp_path):
+    # bootstrap, sample_posterior and plot_fit with every keyword at its documented default
+    # (1000 resamples; 32 walkers × 5000 steps; the thesis's curve as the reference).
+    from pathlib import Path
+
+    data = fa.load_csv(Path(__file__).resolve().parents[1] / "data" / "mandelbaum" / "curve_samples.csv")
+    result = fa.fit(data)
+    for samples, method in ((fa.bootstrap(data), "bootstrap"), (fa.sample_posterior(data), "emcee")):
+        assert samples.method == method and samples.names == ("a", "b", "c")
+        assert samples.draws.shape[1] == 3 and np.isfinite(samples.draws).all()
+        for k, (lo, hi) in samples.intervals().items():
+            assert lo <= result.params[k] <= hi, (method, k, lo, hi)
+    path = fa.plot_fit(result, tmp_path / "fit.png")
+    assert Image.open(path).size[0] > 100
