@@ -76,7 +76,7 @@ class Camera(eqx.Module):
             pose.position, pose.look_at, pose.up, vfov_deg=pose.vfov_deg, width=width, height=height
         )
 
-    def ray_directions(self, pixel_xy: Float[Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
+    def ray_directions(self, pixel_xy: Float[np.ndarray | Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
         """Unit world-space directions through continuous pixel coordinates (x right, y down;
         pixel (i, j) covers [i, i+1) x [j, j+1))."""
         tan_half = jnp.tan(jnp.deg2rad(self.vfov_deg) / 2)

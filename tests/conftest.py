@@ -12,6 +12,8 @@ import os
 import sys
 import types
 
+import pytest
+
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
@@ -23,3 +25,26 @@ if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
     checker.typecheck = beartype(conf=BeartypeConf(is_pep484_tower=True))
     sys.modules[checker.__name__] = checker
     install_import_hook("fovjax", "_fovjax_typecheck.typecheck")
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers",
+        "no_typecheck: the test checks the package's own validation of bad arguments (its ValueError "
+        "and message), which the annotation check would otherwise preempt with a TypeError",
+    )
+
+
+@pytest.fixture(autouse=True)
+def _annotation_checks(request):
+    """Annotation checks stay on, except in tests marked `no_typecheck`."""
+    if request.node.get_closest_marker("no_typecheck") is None:
+        yield
+        return
+    import jaxtyping
+
+    jaxtyping.config.update("jaxtyping_disable", True)
+    try:
+        yield
+    finally:
+        jaxtyping.config.update("jaxtyping_disable", False)

@@ -434,6 +434,7 @@ def test_resolve_box_filter_and_bad_pixels():
 # ---- configuration, images, CLI ------------------------------------------------------------
 
 
+@pytest.mark.no_typecheck
 def test_config_and_argument_errors(oracle):
     scene, bvh = oracle
     with pytest.raises(ValueError, match="max_depth"):

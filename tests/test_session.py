@@ -366,6 +366,7 @@ def test_cli_errors(tmp_path, capsys, extra, message):
         ({"frames": 2, "policy": POLICY, "tracker": GazeTracker()}, "not both"),
     ],
 )
+@pytest.mark.no_typecheck
 def test_bad_input_is_a_clear_value_error(scene, rig, kwargs, message):
     kwargs.setdefault("gaze", f"replay:{SCANPATH}")
     with pytest.raises(ValueError, match=re.escape(message)):

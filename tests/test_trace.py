@@ -101,13 +101,12 @@ def test_batch_shapes_and_invalid_rays(soup):
     assert occluded(bvh, o, d).shape == (2, 3, 5)
 
 
+@pytest.mark.no_typecheck
 def test_bad_arguments(soup):
     _, _, bvh = soup
     with pytest.raises(ValueError, match="backend"):
         closest_hit(bvh, np.zeros((1, 3)), np.ones((1, 3)), backend="optix")
-    # A ValueError from closest_hit's own check; a TypeError from its annotation where the tests
-    # check annotations (tests/conftest.py).
-    with pytest.raises((ValueError, TypeError), match="dimension of 3|parameter 'origins'"):
+    with pytest.raises(ValueError, match="dimension of 3"):
         closest_hit(bvh, np.zeros((4, 2)), np.ones((4, 2)))
     with pytest.raises(ValueError, match="packet"):
         closest_hit(bvh, np.zeros((1, 3)), np.ones((1, 3)), packet=0)

@@ -85,7 +85,7 @@ class AcuityData:
 
 
 def mar_to_acuity(
-    mar_arcmin: np.ndarray, sd_arcmin: np.ndarray | None = None, reference_arcmin: float = 1.0
+    mar_arcmin: np.ndarray, sd_arcmin: np.ndarray | None = None, reference_arcmin: float | np.ndarray = 1.0
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Convert a minimum angle of resolution (arcmin) into acuity.
 

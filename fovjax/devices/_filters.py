@@ -154,7 +154,7 @@ class VelocityThresholdDetector:
         xy = (float(xy[0]), float(xy[1]))
         if self._t is not None and t > self._t:
             self.speed = angular_speed(self._xy, xy, t - self._t, self.display_fov_deg)
-            self.in_saccade = self.speed > self.threshold
+            self.in_saccade = bool(self.speed > self.threshold)
         self._t, self._xy = t, xy
         return self.in_saccade
 

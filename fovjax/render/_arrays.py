@@ -21,24 +21,24 @@ class SceneArrays(eqx.Module):
     `fovjax.Lights`), the ambient light colour and the lat-long environment map seen by rays
     that miss (a 1 x 1 map for a constant background)."""
 
-    vertices: Float[Array, "V 3"]
-    faces: Int[Array, "F 3"]
-    face_material: Int[Array, " F"]
-    normals: Float[Array, "V 3"] | None
-    uvs: Float[Array, "V 2"] | None
-    ka: Float[Array, "M 3"]
-    kd: Float[Array, "M 3"]
-    ks: Float[Array, "M 3"]
-    ke: Float[Array, "M 3"]
-    kr: Float[Array, "M 3"]
-    ns: Float[Array, " M"]
-    texture: Int[Array, " M"]
+    vertices: Float[np.ndarray | Array, "V 3"]
+    faces: Int[np.ndarray | Array, "F 3"]
+    face_material: Int[np.ndarray | Array, " F"]
+    normals: Float[np.ndarray | Array, "V 3"] | None
+    uvs: Float[np.ndarray | Array, "V 2"] | None
+    ka: Float[np.ndarray | Array, "M 3"]
+    kd: Float[np.ndarray | Array, "M 3"]
+    ks: Float[np.ndarray | Array, "M 3"]
+    ke: Float[np.ndarray | Array, "M 3"]
+    kr: Float[np.ndarray | Array, "M 3"]
+    ns: Float[np.ndarray | Array, " M"]
+    texture: Int[np.ndarray | Array, " M"]
     textures: tuple
-    light_position: Float[Array, "L 3"]
-    light_color: Float[Array, "L 3"]
-    light_kind: Int[Array, " L"]
-    ambient: Float[Array, " 3"]
-    environment: Float[Array, "He We 3"]
+    light_position: Float[np.ndarray | Array, "L 3"]
+    light_color: Float[np.ndarray | Array, "L 3"]
+    light_kind: Int[np.ndarray | Array, " L"]
+    ambient: Float[np.ndarray | Array, " 3"]
+    environment: Float[np.ndarray | Array, "He We 3"]
 
     @property
     def num_lights(self) -> int:

@@ -24,7 +24,7 @@ from .._image import load_image
 from ._vec import dot
 
 
-def latlong_uv(directions: Float[Array, "*batch 3"]) -> Float[Array, "*batch 2"]:
+def latlong_uv(directions: Float[np.ndarray | Array, "*batch 3"]) -> Float[Array, "*batch 2"]:
     """(u, v) of directions (any length) in the lat-long parametrisation above."""
     d = jnp.asarray(directions, jnp.float32)
     norm2 = dot(d, d)
@@ -40,7 +40,7 @@ def latlong_uv(directions: Float[Array, "*batch 3"]) -> Float[Array, "*batch 2"]
 
 
 def envmap_lookup(
-    image: Float[Array, "He We 3"], directions: Float[Array, "*batch 3"]
+    image: Float[np.ndarray | Array, "He We 3"], directions: Float[np.ndarray | Array, "*batch 3"]
 ) -> Float[Array, "*batch 3"]:
     """Bilinear lookup of lat-long `image` (row 0 = top = v 1) along `directions`."""
     h, w = image.shape[0], image.shape[1]

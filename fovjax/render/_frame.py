@@ -53,7 +53,7 @@ def resolve(
     return jnp.where(bad_pixel[..., None], jnp.asarray(bad_color, image.dtype), image), bad_pixel
 
 
-def side_by_side(eyes: Float[Array, "2 H W 3"]) -> Float[Array, "H 2W 3"]:
+def side_by_side(eyes: Float[Array, "2 H W 3"]) -> Float[Array, "H 2*W 3"]:
     """The left eye's image in the left half, the right eye's in the right half."""
     return jnp.concatenate([eyes[0], eyes[1]], axis=1)
 
@@ -87,7 +87,7 @@ def render_stereo_image(
     spp: int = 1,
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
-) -> Float[Array, "H 2W 3"]:
+) -> Float[Array, "H 2*W 3"]:
     """The side-by-side stereo image (linear RGB) for a head pose. Pure; jittable."""
     rays = stereo_sample_rays(rig, head_pose, spp, key)
     result = radiance(_as_arrays(scene), bvh, rays.origins, rays.directions, config=config)
@@ -213,7 +213,7 @@ class Frame:
 _BVH_MEMO: collections.OrderedDict = collections.OrderedDict()
 
 
-def _bvh_for(scene: Scene, bvh: BVH | None) -> BVH:
+def _bvh_for(scene: Scene | SceneArrays, bvh: BVH | None) -> BVH:
     if bvh is None:
         if not isinstance(scene, Scene) or not scene.content_hash:
             raise ValueError("render: pass bvh= when the scene is not a fovjax.Scene with a content hash")
@@ -303,7 +303,7 @@ def render_stereo(
     config: RenderConfig = DEFAULT_CONFIG,
     envmap=None,
     bvh: BVH | None = None,
-) -> Frame:
+) -> Frame | FoveatedFrame:
     """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
     side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`).
     Other arguments as `render`.
@@ -350,3 +350,8 @@ def render_stereo(
         "stereo", (arrays, bvh, rig, angles, key), {"spp": int(spp), "jitter": jitter, "config": config}
     )
     return _frame(outputs, compile_s, render_s, spp=int(spp), stereo=True)
+
+
+# For render_stereo's return annotation (resolved when called): fovjax.foveate imports this
+# package only inside its functions, so importing it last here makes no cycle.
+from ..foveate import FoveatedFrame  # noqa: E402

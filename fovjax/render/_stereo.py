@@ -104,13 +104,13 @@ class StereoRig(eqx.Module):
     - `eye_width`, `eye_height`: pixels per eye.
     """
 
-    position: Float[Array, " 3"]
-    rotation: Float[Array, "3 3"]
-    ipd: Float[Array, ""]
-    toe_out_deg: Float[Array, ""]
-    fov_deg: Float[Array, ""]
-    offsets: Float[Array, "2 2"]
-    eye_centre: Float[Array, " 3"]
+    position: Float[np.ndarray | Array, " 3"]
+    rotation: Float[np.ndarray | Array, "3 3"]
+    ipd: Float[np.ndarray | np.number | Array, ""]
+    toe_out_deg: Float[np.ndarray | np.number | Array, ""]
+    fov_deg: Float[np.ndarray | np.number | Array, ""]
+    offsets: Float[np.ndarray | Array, "2 2"]
+    eye_centre: Float[np.ndarray | Array, " 3"]
     eye_width: int = eqx.field(static=True, default=EYE_WIDTH)
     eye_height: int = eqx.field(static=True, default=EYE_HEIGHT)
     fov_axis: str = eqx.field(static=True, default="horizontal")
@@ -217,9 +217,9 @@ class SampleRays(NamedTuple):
     (2, spp, H, W, 3), eye 0 the left; `pixel_xy` (spp, H, W, 2) the continuous pixel
     coordinates of each sample within its eye's image (the same for both eyes)."""
 
-    origins: Float[Array, "2 spp H W 3"]
-    directions: Float[Array, "2 spp H W 3"]
-    pixel_xy: Float[Array, "spp H W 2"]
+    origins: Float[np.ndarray | Array, "2 spp H W 3"]
+    directions: Float[np.ndarray | Array, "2 spp H W 3"]
+    pixel_xy: Float[np.ndarray | Array, "spp H W 2"]
 
 
 def stereo_sample_rays(
