@@ -114,7 +114,7 @@ def test_measured_fits_all_fall_off_far_more_slowly_than_the_thesis_curve(tmp_pa
     spec = importlib.util.spec_from_file_location("measured_acuity", REPO / "fits" / "measured_acuity.py")
     chart = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(chart)
-    assert {f"{stem}.json" for stem, _, _ in chart.RECORDS} == set(MEASURED_FITS)
+    assert {f"{stem}.json" for stem, _, _ in chart.RECORDS} <= set(MEASURED_FITS)
     rows = chart.table()
     thesis, fits = rows[0], rows[1:]
     assert thesis["fit"].startswith("thesis") and thesis["10"] == pytest.approx(0.0427, abs=1e-4)
