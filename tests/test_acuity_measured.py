@@ -80,6 +80,12 @@ def test_observer_level_rows_are_internally_consistent_and_give_the_weighted_mea
                 assert r[ppd] == "NaN"
             else:
                 assert float(r[ppd]) == pytest.approx(2 * (-float(r[thr])) ** 3, rel=1e-12)
+    table = _readme_rows(ASHRAF / "README.md", 6)
+    written = [
+        line.split(",")[:4]
+        for line in (ASHRAF / "resolution_limit_achromatic_mean.csv").read_text().splitlines()[6:]
+    ]
+    assert [[t[0], t[1], t[4], t[5]] for t in table] == [[w[0], w[3], w[1], w[2]] for w in written]
     mean = fa.load_csv(ASHRAF / "resolution_limit_achromatic_mean.csv")
     assert mean.weighted and mean.conditions == ("achromatic",)
     for i, e in enumerate(("0", "10", "20")):
