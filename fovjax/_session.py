@@ -384,9 +384,9 @@ def run_session(
             frame = render(gaze_xy, frame_fov, pose, frame_key)
             shown = now() if vclock is None else display_time
             last_frame_s = max(shown - t, 0.0)
-            path = ""
-            if out is not None:
-                with deferred_interrupt():  # a frame's files are written whole
+            with deferred_interrupt():  # a frame's files and its row: whole or not at all
+                path = ""
+                if out is not None:
                     path = str(frame.save(out / f"frame_{k:05d}.png"))
                     if debug:
                         from ._image import save_image
@@ -395,36 +395,36 @@ def run_session(
                     if writer is not None:
                         with _forking_ffmpeg():
                             writer.append_data(_video_frame(frame.image))
-            rows.append(
-                SessionFrame(
-                    frame=k,
-                    time_s=float(t),
-                    tracking_state=str(tf.state),
-                    widening=float(tf.widening),
-                    widening_step=int(tf.widening_step),
-                    saccade=bool(tf.saccade),
-                    gaze_age_s=float(tf.sample_age),
-                    latency_s=float(shown - tf.sample_timestamp)
-                    if math.isfinite(tf.sample_timestamp)
-                    else math.inf,
-                    gaze_left=tuple(float(x) for x in gaze_xy[0]),
-                    gaze_right=tuple(float(x) for x in gaze_xy[1]),
-                    head_state=str(hf.state) if hf is not None else "none",
-                    head_pose=tuple(float(x) for x in pose),
-                    fovea_deg=float(frame_fov.fovea_deg),
-                    periphery_deg=float(frame_fov.periphery_deg),
-                    fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
-                    primary_rays=frame.stats.primary_rays,
-                    shadow_rays=frame.stats.shadow_rays,
-                    reflection_rays=frame.stats.reflection_rays,
-                    dropped=frame.foveation.dropped,
-                    render_s=frame.stats.render_seconds,
-                    compile_s=frame.stats.compile_seconds,
-                    rejected_samples=int(sum(tf.rejected.values())),
-                    path=path,
-                    **states,
+                rows.append(
+                    SessionFrame(
+                        frame=k,
+                        time_s=float(t),
+                        tracking_state=str(tf.state),
+                        widening=float(tf.widening),
+                        widening_step=int(tf.widening_step),
+                        saccade=bool(tf.saccade),
+                        gaze_age_s=float(tf.sample_age),
+                        latency_s=float(shown - tf.sample_timestamp)
+                        if math.isfinite(tf.sample_timestamp)
+                        else math.inf,
+                        gaze_left=tuple(float(x) for x in gaze_xy[0]),
+                        gaze_right=tuple(float(x) for x in gaze_xy[1]),
+                        head_state=str(hf.state) if hf is not None else "none",
+                        head_pose=tuple(float(x) for x in pose),
+                        fovea_deg=float(frame_fov.fovea_deg),
+                        periphery_deg=float(frame_fov.periphery_deg),
+                        fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
+                        primary_rays=frame.stats.primary_rays,
+                        shadow_rays=frame.stats.shadow_rays,
+                        reflection_rays=frame.stats.reflection_rays,
+                        dropped=frame.foveation.dropped,
+                        render_s=frame.stats.render_seconds,
+                        compile_s=frame.stats.compile_seconds,
+                        rejected_samples=int(sum(tf.rejected.values())),
+                        path=path,
+                        **states,
+                    )
                 )
-            )
             if bar is not None:
                 bar.set_postfix_str(
                     f"{tf.state} {frame_fov.fovea_deg:.0f}°/{frame_fov.periphery_deg:.0f}° "

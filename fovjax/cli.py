@@ -188,6 +188,8 @@ def output(path, option: str, *, suffixes=None, directory: bool = False) -> Path
     """An output file (of a type in `suffixes`) or folder that can be created or overwritten."""
     p = Path(path)
     what = "folder" if directory else "file"
+    if not directory and p.is_dir():
+        raise UsageError(f"{option} {path}: is a folder; expected a file name")
     if suffixes is not None and p.suffix.lower() not in suffixes:
         raise UsageError(
             f"{option} {path}: unknown output type {p.suffix or '(no suffix)'!r} "
