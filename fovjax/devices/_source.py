@@ -193,9 +193,9 @@ class ThreadedSource(Source[S]):
         self._thread.start()
         timeout = self.connect_timeout
         if timeout is not None and not self._connected_event.wait(timeout):
-            reason = self.status.last_error or "no answer"
-            self._close()
+            self._close()  # joins the reader: its last attempt's error is in the status now
             self._closed = True
+            reason = self.status.last_error or "no answer"
             raise DeviceError(
                 f"{self._name()}: could not connect within {timeout:g} s "
                 f"({self.status.errors} attempt(s) failed); last error: {reason}"
