@@ -139,7 +139,7 @@ def number(value, option: str, *, gt=None, ge=None, lt=None, le=None, integer: b
             parts.append(f"{sign} {bound:g}")
             ok = ok and holds(value, bound)
     if not ok:
-        what = "a whole number" if integer else "a finite number"
+        what = "a whole number" if integer or isinstance(value, int) else "a finite number"
         raise UsageError(f"{option} {_show(value)}: expected {what} {' and '.join(parts)}".rstrip())
     return value
 
