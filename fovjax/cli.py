@@ -252,10 +252,14 @@ def scene(name: str, option: str = "--scene") -> None:
 
     if name in BUILTIN or name == "cornell":
         return
+    formats = ", ".join(SUPPORTED_FORMATS)
     if Path(name).suffix.lower() not in SUPPORTED_FORMATS:
         raise UsageError(
-            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor a scene file "
-            f"({', '.join(SUPPORTED_FORMATS)})"
+            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor a scene file ({formats})"
+        )
+    if not Path(name).is_file():
+        raise UsageError(
+            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor an existing file"
         )
     input_file(name, option)
 

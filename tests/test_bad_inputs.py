@@ -110,7 +110,7 @@ ROWS = [
     ("render --head 0,nan,0", 2, "--head pitch nan"),
     ("render --head 1,2", 2, "YAW,PITCH,ROLL"),
     ("render --scene nowhere", 2, "'nowhere'"),
-    ("render --scene nowhere.obj", 2, "nowhere.obj: no such file"),
+    ("render --scene nowhere.obj", 2, "'nowhere.obj': not a built-in scene"),
     ("render --scene {scene_txt}", 2, "scene.txt"),
     ("render --scene {tmp}", 2, "not a built-in scene"),
     ("render --envmap /no/such/sky.hdr", 2, "/no/such/sky.hdr: no such file"),

@@ -91,11 +91,8 @@ def _setup(args):
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
 
-    scene = (
-        fovjax.scenes.BUILTIN[args.scene]()
-        if args.scene in fovjax.scenes.BUILTIN
-        else fovjax.load_scene(args.scene)
-    )
+    name = {"cornell": "cornell_box"}.get(args.scene, args.scene)  # the alias `render` takes
+    scene = fovjax.scenes.BUILTIN[name]() if name in fovjax.scenes.BUILTIN else fovjax.load_scene(name)
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
