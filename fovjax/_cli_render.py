@@ -132,8 +132,15 @@ def validate(args) -> Path:
     cli.display_point(args.gaze[0], "--gaze (left eye)")
     cli.display_point(args.gaze[1], "--gaze (right eye)")
     cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+    args.envmap_image = None
     if args.envmap is not None:
+        from fovjax.render import load_envmap
+
         cli.input_file(args.envmap, "--envmap")
+        try:  # loaded here, once: a file that does not decode is refused before any work
+            args.envmap_image = load_envmap(args.envmap)
+        except (ValueError, OSError) as err:
+            raise cli.UsageError(f"--envmap {args.envmap}: {err}") from None
     suffixes = (".png", *HDR_SUFFIXES)
     if args.preview:
         out = Path(args.output or f"out/{_scene_name(args)}_preview.png")
@@ -178,7 +185,7 @@ def _run(args, out: Path) -> int:
     _progress(2, steps, f"BVH of {scene.num_triangles:,} triangles")
     bvh = build_bvh(scene)
     build = last_build_info()
-    arrays = scene_arrays(scene, envmap=args.envmap, background=config.background)
+    arrays = scene_arrays(scene, envmap=args.envmap_image, background=config.background)
     pose = fovjax.scenes.default_camera(scene)
     key = None if args.seed is None else jax.random.key(args.seed)
     _progress(3, steps, "compiling and rendering (compiling takes a while the first time)")

@@ -109,7 +109,7 @@ def run(args) -> int:
     import fovjax
     from fovjax import cli
     from fovjax._cli_render import _load_scene
-    from fovjax.devices import DEFAULT_CONNECT_TIMEOUT, DeviceError, FallbackPolicy, GazeTracker
+    from fovjax.devices import DEFAULT_CONNECT_TIMEOUT, ConnectTimeoutError, FallbackPolicy, GazeTracker
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
 
@@ -153,8 +153,8 @@ def run(args) -> int:
             progress=not args.no_progress,
             wait=DEFAULT_CONNECT_TIMEOUT if args.wait is None else args.wait,
         )
-    except DeviceError as err:
-        raise DeviceError(f"{err} (--wait SECONDS keeps trying longer)") from None
+    except ConnectTimeoutError as err:
+        raise ConnectTimeoutError(f"{err} (--wait SECONDS keeps trying longer)") from None
     s = result.summary
     written = _written(result, args)
     cli.wrote(*written)

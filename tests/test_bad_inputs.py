@@ -73,6 +73,10 @@ def files(tmp_path):
     recording_bin.write_bytes(b'{"fovjax_recording": 1, "kind": "gaze"}\n\xff\xfe\n')
     scene_txt = tmp_path / "scene.txt"
     scene_txt.write_text("v 0 0 0\n")
+    bad_hdr = tmp_path / "sky.hdr"
+    bad_hdr.write_text("not an image")
+    not_recording = tmp_path / "table.csv"
+    not_recording.write_text("a,b\n1,2\n")
     return {
         "curve": str(CURVE),
         "scanpath": str(SCANPATH),
@@ -85,6 +89,8 @@ def files(tmp_path):
         "unwritable_dir": str(a_file / "out"),
         "recording_bin": str(recording_bin),
         "scene_txt": str(scene_txt),
+        "bad_hdr": str(bad_hdr),
+        "not_recording": str(not_recording),
         "tmp": str(tmp_path),
     }
 
@@ -114,6 +120,7 @@ ROWS = [
     ("render --scene {scene_txt}", 2, "scene.txt"),
     ("render --scene {tmp}", 2, "not a built-in scene"),
     ("render --envmap /no/such/sky.hdr", 2, "/no/such/sky.hdr: no such file"),
+    ("render --envmap {bad_hdr}", 2, "--envmap {bad_hdr}: load_image"),
     ("render -o out.jpg", 2, "unknown output type '.jpg'"),
     ("render -o out", 2, "'(no suffix)'"),
     ("render -o {unwritable}", 2, "is a file, not a folder"),
@@ -169,6 +176,9 @@ ROWS = [
     ("record --head synthetic:nod -o {tmp}/r.jsonl", 2, "must be 'sway'"),
     ("record --gaze synthetic:scanpath:x -o {tmp}/r.jsonl", 2, "'x' is not an integer"),
     ("record --gaze replay: -o {tmp}/r.jsonl", 2, "replay needs a file"),
+    ("record --gaze replay:{binary} -o {tmp}/r.jsonl", 2, "binary.csv:3: not a text recording"),
+    ("record --gaze replay:{not_recording} -o {tmp}/r.jsonl", 2, "gaze or a head recording"),
+    ("record --gaze replay:{scanpath}@0 -o {tmp}/r.jsonl", 2, "replay speed '0'"),
     ("record --gaze serial: -o {tmp}/r.jsonl", 2, "serial needs a port"),
     ("record --gaze serial:/dev/x@-9600 -o {tmp}/r.jsonl", 2, "'-9600'"),
     ("record -o {tmp}/r.jsonl", 2, "one of the arguments --gaze --head is required"),

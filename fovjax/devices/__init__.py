@@ -95,6 +95,9 @@ from ._source import (
     DEFAULT_CONNECT_TIMEOUT as DEFAULT_CONNECT_TIMEOUT,
 )
 from ._source import (
+    ConnectTimeoutError as ConnectTimeoutError,
+)
+from ._source import (
     DeviceError as DeviceError,
 )
 from ._source import (

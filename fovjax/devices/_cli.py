@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     from fovjax import cli
 
     from ._recording import load_recording, record
-    from ._source import DEFAULT_CONNECT_TIMEOUT, DeviceError
+    from ._source import DEFAULT_CONNECT_TIMEOUT, ConnectTimeoutError
     from ._specs import source_from_spec
 
     dropouts = validate(args)
@@ -117,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
         metadata["description"] = args.description
     try:
         source.open()
-    except DeviceError as err:
-        raise DeviceError(f"{err} (--wait SECONDS keeps trying longer)") from None
+    except ConnectTimeoutError as err:
+        raise ConnectTimeoutError(f"{err} (--wait SECONDS keeps trying longer)") from None
     with source:
         summary = record(
             source, args.output, seconds=args.seconds, max_samples=args.samples, metadata=metadata

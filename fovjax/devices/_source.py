@@ -36,6 +36,10 @@ class DeviceError(RuntimeError):
 DEFAULT_CONNECT_TIMEOUT = 3.0
 
 
+class ConnectTimeoutError(DeviceError):
+    """A live device did not connect within its connect timeout."""
+
+
 class LibraryNotFoundError(DeviceError, FileNotFoundError):
     """A vendor SDK library (ViewPoint, InterSense) is not present where it was looked for."""
 
@@ -196,7 +200,7 @@ class ThreadedSource(Source[S]):
             self._close()  # joins the reader: its last attempt's error is in the status now
             self._closed = True
             reason = self.status.last_error or "no answer"
-            raise DeviceError(
+            raise ConnectTimeoutError(
                 f"{self._name()}: could not connect within {timeout:g} s "
                 f"({self.status.errors} attempt(s) failed); last error: {reason}"
             )
