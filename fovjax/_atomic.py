@@ -8,6 +8,11 @@ user looking at the folder after an interrupt or a crash, never sees a half-writ
 `deferred_interrupt()` holds a Ctrl-C (SIGINT) that arrives inside the block until the block
 ends, then raises KeyboardInterrupt; outside the main thread it does nothing (Python delivers
 signals to the main thread only).
+
+`interrupt_flag()` is for loops that stop cleanly on Ctrl-C: it yields a `threading.Event` that
+a Ctrl-C sets (as well as raising KeyboardInterrupt as usual). A KeyboardInterrupt can be lost
+-- raised inside a garbage-collection callback (JAX has one) Python only prints "Exception
+ignored" and carries on -- so the loop checks the flag at each step too.
 """
 
 from __future__ import annotations
@@ -30,6 +35,28 @@ def atomic_path(path):
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+
+
+@contextlib.contextmanager
+def interrupt_flag():
+    """Yield an Event that Ctrl-C sets while the block runs (and KeyboardInterrupt raised)."""
+    flag = threading.Event()
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    ):
+        yield flag
+        return
+
+    def on_sigint(signum, frame):
+        flag.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager

@@ -267,7 +267,7 @@ def run_session(
     a `DeviceError` naming the spec, the device and the reason. Each frame logs its sources'
     state (`SessionFrame`); ``summary["sources"]`` has each source's final state and
     ``summary["warnings"]`` says when a source never delivered a sample."""
-    from ._atomic import deferred_interrupt
+    from ._atomic import deferred_interrupt, interrupt_flag
     from .devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from .foveate import Foveation, render_foveated
     from .render import StereoRig
@@ -340,6 +340,9 @@ def run_session(
     bar = None
     interrupted = False
     started = time.perf_counter()
+    # Ctrl-C sets `stop` (checked every frame) as well as raising KeyboardInterrupt.
+    interrupt = interrupt_flag()
+    stop = interrupt.__enter__()
     try:
         # Open before compiling: a device that cannot connect says so at once.
         gaze_source.open()
@@ -364,6 +367,8 @@ def run_session(
                 )
         last_frame_s = 0.0
         for k in range(n_frames):
+            if stop.is_set():
+                raise KeyboardInterrupt
             if vclock is not None:
                 vclock.set(k / rate)  # not a running sum: no drift over long sessions
             t = now()
@@ -434,6 +439,8 @@ def run_session(
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        interrupt.__exit__(None, None, None)
+        interrupted = interrupted or stop.is_set()
         gaze_source.close()
         if head_source is not None:
             head_source.close()

@@ -15,6 +15,7 @@ import argparse
 import importlib
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -56,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     XLA may still be compiling on its own threads, which ends in a segmentation fault."""
     program = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
+    if program:
+        _on_interrupt_exit("fovjax")
     parser = build_parser()
     if not [a for a in argv if a != "--debug"] and _SUBCOMMAND_MODULES:
         argv.append(next(iter(parser._subparsers._group_actions[0].choices)))
@@ -65,13 +68,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     name = f"fovjax {args.command}"
     _WRITTEN.clear()
+    if program:
+        _on_interrupt_exit(name)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"{name}: interrupted; {_written_text()}", file=sys.stderr, flush=True)
-        sys.stdout.flush()
         if program:
-            os._exit(INTERRUPTED)
+            _exit_interrupted(name)
+        print(f"{name}: interrupted; {_written_text()}", file=sys.stderr, flush=True)
         return INTERRUPTED
     except Exception as err:
         if args.debug:
@@ -79,6 +83,27 @@ def main(argv: list[str] | None = None) -> int:
         status, text = _explain(err)
         print(f"{name}: error: {text}", file=sys.stderr, flush=True)
         return status
+
+
+def _exit_interrupted(name: str) -> None:
+    """Say what was written and end the process now, without Python's finalisation."""
+    try:
+        sys.stdout.flush()
+        print(f"{name}: interrupted; {_written_text()}", file=sys.stderr, flush=True)
+    finally:
+        os._exit(INTERRUPTED)
+
+
+def _on_interrupt_exit(name: str) -> None:
+    """Ctrl-C ends the program at once with `_exit_interrupted`, wherever the main thread is.
+
+    Raising KeyboardInterrupt instead is not enough: raised inside a garbage-collection callback
+    it is printed and ignored, and after one raised inside an XLA compile the interpreter's
+    exit can crash. Blocks that must finish (writing a file, a session's frame, a recording)
+    install their own handler for their duration (`fovjax._atomic`, `fovjax.devices.record`)
+    and end with KeyboardInterrupt, which `main` answers the same way."""
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, lambda signum, frame: _exit_interrupted(name))
 
 
 def _explain(err: Exception) -> tuple[int, str]:
