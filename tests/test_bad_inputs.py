@@ -161,6 +161,7 @@ ROWS = [
     # -- record ------------------------------------------------------------------------------
     ("record --gaze serial:/dev/ttyNOPE --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "/dev/ttyNOPE"),
     ("record --gaze pupil:127.0.0.1:9 --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "127.0.0.1:9"),
+    ("record --gaze pupil:notaport.invalid --wait 0.3 -o {tmp}/r.jsonl", 1, "'notaport.invalid'"),
     ("record --head intersense:/no/libisense.so -o {tmp}/r.csv", 1, "/no/libisense.so"),
     ("record --gaze viewpoint:/no/libvpx.so -o {tmp}/r.csv", 1, "/no/libvpx.so"),
     ("record --gaze synthetic:scanpath --seconds -1 -o {tmp}/r.jsonl", 2, "--seconds -1"),
@@ -199,6 +200,7 @@ ROWS = [
     ("fit {curve} --posterior --nwalkers 2 -o {tmp}/f", 2, "--nwalkers"),
     ("fit {curve} --posterior bootstrap --n-boot 0 -o {tmp}/f", 2, "--n-boot 0"),
     ("fit {curve} --model gauss -o {tmp}/f", 2, "invalid choice: 'gauss'"),
+    ("fit {curve} --condition scotopic -o {tmp}/f", 2, "--condition 'scotopic'"),
     ("fit {curve} -o {unwritable_dir}", 2, "is a file, not a folder"),
     ("fit-stability -o {a_file}", 2, "not a folder"),
     # -- compare -----------------------------------------------------------------------------

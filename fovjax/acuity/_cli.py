@@ -155,6 +155,20 @@ def run_fit(args) -> int:
     ref = args.mar_reference if args.mar_reference == "fovea" else float(args.mar_reference)
     try:
         data = load_csv(args.data, mar_reference_arcmin=ref)
+    except AcuityDataError as err:
+        print(f"fovjax fit: {err}", file=sys.stderr)
+        return 1
+    if args.condition is not None and args.condition not in data.conditions:
+        raise cli.UsageError(
+            f"--condition {args.condition!r}: {args.data} has no such condition "
+            f"(conditions: {', '.join(map(repr, data.conditions))})"
+        )
+    if args.condition is None and len(data.conditions) > 1:
+        raise cli.UsageError(
+            f"{args.data} has {len(data.conditions)} conditions "
+            f"({', '.join(map(repr, data.conditions))}); choose one with --condition"
+        )
+    try:
         result = fit(data, args.model, solver=args.solver, fixed=fixed, condition=args.condition)
     except (AcuityDataError, FitError) as err:
         print(f"fovjax fit: {err}", file=sys.stderr)
