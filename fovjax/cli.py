@@ -60,9 +60,13 @@ def main(argv: list[str] | None = None) -> int:
     if program:
         _on_interrupt_exit("fovjax")
     parser = build_parser()
-    if not [a for a in argv if a != "--debug"] and _SUBCOMMAND_MODULES:
+    # --debug is taken anywhere on the line (`fovjax render --debug ...` too).
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
+    if not argv and _SUBCOMMAND_MODULES:
         argv.append(next(iter(parser._subparsers._group_actions[0].choices)))
     args = parser.parse_args(argv)
+    args.debug = debug
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2

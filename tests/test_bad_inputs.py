@@ -279,9 +279,12 @@ def test_every_command_has_rows():
     assert commands - {"bogus-command"} <= covered | {"view"}, commands - covered
 
 
-def test_debug_shows_the_traceback(files, capsys):
+@pytest.mark.parametrize("where", [0, -1])
+def test_debug_shows_the_traceback(where):
+    argv = ["render", "--exposure", "nan"]
+    argv.insert(where if where == 0 else len(argv), "--debug")
     with pytest.raises(ValueError, match="--exposure nan"):
-        main(["--debug", "render", "--exposure", "nan"])
+        main(argv)
 
 
 # -- the real entry point --------------------------------------------------------------------
