@@ -121,11 +121,11 @@ def validate(args) -> Path:
 
     cli.scene(args.scene)
     cli.squares(args.spp, "--spp")
+    cli.seed(args.seed)
     cli.number(args.width, "--width", ge=1)
     cli.number(args.height, "--height", ge=1)
     cli.number(args.max_depth, "--max-depth", ge=0)
-    if args.scene == "atrium":
-        cli.number(args.triangles, "--triangles", ge=1)
+    cli.number(args.triangles, "--triangles", ge=1)
     cli.number(args.exposure, "--exposure", gt=0)
     for name, value in zip(("yaw", "pitch", "roll"), args.head, strict=True):
         cli.number(value, f"--head {name}")

@@ -81,12 +81,12 @@ def validate(args) -> None:
         if round(args.seconds * args.fps) < 1:
             raise cli.UsageError(f"--seconds {args.seconds:g}: shorter than one frame at --fps {args.fps:g}")
     cli.scene(args.scene)
-    if args.scene == "atrium":
-        cli.number(args.triangles, "--triangles", ge=1)
+    cli.number(args.triangles, "--triangles", ge=1)
     cli.number(args.width, "--width", ge=1)
     cli.number(args.height, "--height", ge=1)
     cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
     cli.squares(args.spp, "--spp")
+    cli.seed(args.seed)
     cli.number(args.max_depth, "--max-depth", ge=0)
     if args.hold_for is not None:
         cli.number(args.hold_for, "--hold-for", ge=0)

@@ -173,6 +173,13 @@ def number(value, option: str, *, gt=None, ge=None, lt=None, le=None, integer: b
     return value
 
 
+def seed(value, option: str = "--seed"):
+    """A PRNG seed: a whole number 0 .. 2**32 - 1 (what JAX keys and NumPy generators share)."""
+    if value is not None:
+        number(value, option, ge=0, le=2**32 - 1, integer=True)
+    return value
+
+
 def squares(values, option: str):
     """Samples per pixel: each a perfect square 1, 4, 9, 16, ..."""
     for v in [values] if isinstance(values, int) else values:

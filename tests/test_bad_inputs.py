@@ -129,6 +129,8 @@ ROWS = [
     ("render --backend optix", 2, "invalid choice: 'optix'"),
     ("render --tonemap aces", 2, "invalid choice: 'aces'"),
     ("render --spp two", 2, "invalid int value: 'two'"),
+    ("render --seed -1", 2, "--seed -1"),
+    ("render --seed 99999999999999999999", 2, "--seed 99999999999999999999"),
     ("bogus-command", 2, "invalid choice: 'bogus-command'"),
     # -- session -----------------------------------------------------------------------------
     ("session --gaze bogus:thing --frames 2 -o {tmp}/s", 2, "unknown scheme 'bogus'"),
@@ -176,6 +178,7 @@ ROWS = [
     ("record --gaze synthetic:scanpath -o {unwritable}.csv", 2, "is a file, not a folder"),
     ("record --head synthetic:nod -o {tmp}/r.jsonl", 2, "must be 'sway'"),
     ("record --gaze synthetic:scanpath:x -o {tmp}/r.jsonl", 2, "'x' is not an integer"),
+    ("record --gaze synthetic:scanpath:-3 -o {tmp}/r.jsonl", 2, "seed '-3' must be >= 0"),
     ("record --gaze replay: -o {tmp}/r.jsonl", 2, "replay needs a file"),
     ("record --gaze replay:{binary} -o {tmp}/r.jsonl", 2, "binary.csv:3: not a text recording"),
     ("record --gaze replay:{not_recording} -o {tmp}/r.jsonl", 2, "gaze or a head recording"),
@@ -199,6 +202,9 @@ ROWS = [
     ("fit {curve} --posterior --nsteps 0 -o {tmp}/f", 2, "--nsteps 0"),
     ("fit {curve} --posterior --nwalkers 2 -o {tmp}/f", 2, "--nwalkers"),
     ("fit {curve} --posterior bootstrap --n-boot 0 -o {tmp}/f", 2, "--n-boot 0"),
+    ("fit {curve} --nsteps -5 -o {tmp}/f", 2, "--nsteps -5"),
+    ("fit {curve} --seed -2 -o {tmp}/f", 2, "--seed -2"),
+    ("fit-stability --seed -1 -o {tmp}/fs", 2, "--seed -1"),
     ("fit {curve} --model gauss -o {tmp}/f", 2, "invalid choice: 'gauss'"),
     ("fit {curve} --condition scotopic -o {tmp}/f", 2, "--condition 'scotopic'"),
     ("fit {curve} -o {unwritable_dir}", 2, "is a file, not a folder"),
@@ -217,6 +223,7 @@ ROWS = [
     ("compare --criterion ssim --threshold -3 -o {tmp}/c", 2, "-3"),
     ("compare --criterion jod --no-perceptual -o {tmp}/c", 2, "--criterion jod"),
     ("compare --max-depth -2 -o {tmp}/c", 2, "--max-depth -2"),
+    ("compare --keys 0 -4 -o {tmp}/c", 2, "--keys -4"),
     ("compare --scene nowhere -o {tmp}/c", 2, "'nowhere'"),
     ("compare -o {a_file}", 2, "not a folder"),
     ("compare --distributed nohost,2,5 -o {tmp}/c", 2, "nohost,2,5"),
@@ -231,6 +238,7 @@ ROWS = [
     ("study --comparison {table} --observers 0 -o {tmp}/st", 2, "--observers: must be >= 1"),
     ("study --comparison {table} --noise-sd nan -o {tmp}/st", 2, "'nan'"),
     ("study --comparison {table} --metric psnr -o {tmp}/st", 2, "invalid choice: 'psnr'"),
+    ("study --comparison {table} --seed -7 -o {tmp}/st", 2, "--seed -7"),
     ("study --comparison {table} -o {a_file}", 2, "not a folder"),
     ("study --responses {binary} -o {tmp}/st", 2, "binary.csv:3: not a text file"),
     ("study --responses {scene_txt} -o {tmp}/st", 2, "'.txt'"),
@@ -245,6 +253,7 @@ ROWS = [
     ("stability --fps -90 -o {tmp}/sb", 2, "--fps -90"),
     ("stability --scene nowhere -o {tmp}/sb", 2, "'nowhere'"),
     ("stability --max-depth -1 -o {tmp}/sb", 2, "--max-depth -1"),
+    ("stability --seed -1 -o {tmp}/sb", 2, "--seed -1"),
 ]
 
 

@@ -125,12 +125,11 @@ def validate_fit(args) -> None:
             raise cli.UsageError(
                 f"--mar-reference {args.mar_reference!r}: expected a MAR in arcmin > 0 or 'fovea'"
             )
-    if args.posterior == "emcee":
-        free = len(family.param_names) - len(dict(args.fix))
-        cli.number(args.nsteps, "--nsteps", ge=1)
-        cli.number(args.nwalkers, f"--nwalkers (2 per free parameter, {free} free)", ge=2 * free)
-    elif args.posterior == "bootstrap":
-        cli.number(args.n_boot, "--n-boot", ge=2)
+    free = len(family.param_names) - len(dict(args.fix))
+    cli.number(args.nsteps, "--nsteps", ge=1)
+    cli.number(args.nwalkers, f"--nwalkers (2 per free parameter, {free} free)", ge=2 * free)
+    cli.number(args.n_boot, "--n-boot", ge=2)
+    cli.seed(args.seed)
     if args.plot_max is not None:
         cli.number(args.plot_max, "--plot-max", gt=0)
     stem = Path(args.output)
@@ -226,6 +225,7 @@ def run_stability(args) -> int:
     from ._stability import SweepConfig, write_sweep
 
     cli.output(args.output, "-o", directory=True)
+    cli.seed(args.seed)
     with cli.deferred_interrupt():
         out = write_sweep(args.output, SweepConfig(seed=args.seed), write_runs=args.runs)
         cli.wrote(args.output)

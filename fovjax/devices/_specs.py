@@ -73,6 +73,8 @@ def _build(spec, kind, duration, clock, rate, paced, dropouts, connect_timeout) 
                 seed = int(arg) if arg else 0
             except ValueError:
                 raise ValueError(f"source spec {spec!r}: scanpath seed {arg!r} is not an integer") from None
+            if seed < 0:
+                raise ValueError(f"source spec {spec!r}: scanpath seed {arg!r} must be >= 0")
             model = Scanpath(seed)
         elif model_name == "fixed":
             try:

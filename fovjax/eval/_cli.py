@@ -87,6 +87,8 @@ def validate(args) -> None:
     for fovea, periphery in args.thresholds:
         cli.fovea_periphery(fovea, periphery, "--thresholds")
     cli.squares(args.spp, "--spp")
+    for key in args.keys:
+        cli.seed(key, "--keys")
     cli.number(args.width, "--width", ge=1)
     cli.number(args.height, "--height", ge=1)
     for gaze in args.gazes:

@@ -83,6 +83,7 @@ def validate_stability(args) -> None:
 
     _validate_common(args)
     cli.number(args.frames, "--frames", ge=2)
+    cli.seed(args.seed)
     cli.number(args.fps, "--fps", gt=0)
 
 

@@ -118,6 +118,7 @@ def validate(args) -> None:
     """The arguments of `fovjax study` that argparse does not check, before anything is read."""
     from fovjax import cli
 
+    cli.seed(args.seed)
     if args.threshold is not None:
         cli.number(args.threshold, "--threshold", ge=0)
     if args.spp is not None:
