@@ -341,7 +341,8 @@ def _interrupt(cmd, ready, tmp_path, timeout=120.0):
 
 def test_ctrl_c_while_render_compiles_exits_130_without_a_crash(tmp_path):
     out = tmp_path / "img.png"
-    cmd = [sys.executable, "-m", "fovjax", "render", *TINY, "--mono", "--max-depth", "1", "-o", str(out)]
+    # Five bounces (the default): a program that takes seconds to compile on any machine.
+    cmd = [sys.executable, "-m", "fovjax", "render", *TINY, "--mono", "-o", str(out)]
     status, stdout, stderr = _interrupt(cmd, lambda text: "[3/4] compiling" in text, tmp_path)
     assert status == 130, stderr  # not -11 (segmentation fault) or 1
     assert "fovjax render: interrupted; nothing was written" in stderr
