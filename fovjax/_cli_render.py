@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from fovjax import cli
+
 SCENE_ALIASES = {"cornell": "cornell_box"}
 
 
@@ -116,7 +118,6 @@ def _load_scene(args):
 def validate(args) -> Path:
     """Every argument of `fovjax render`, before anything is built or compiled; returns the
     output path."""
-    from fovjax import cli
     from fovjax._image import HDR_SUFFIXES
 
     cli.scene(args.scene)
@@ -172,7 +173,6 @@ def _run(args, out: Path) -> int:
     import numpy as np
 
     import fovjax
-    from fovjax import cli
     from fovjax.render import RenderConfig, StereoRig, head_rotation, render, render_stereo, scene_arrays
     from fovjax.trace import build_bvh, last_build_info
 
@@ -273,7 +273,6 @@ def _run_preview(args, out: Path) -> int:
     import numpy as np
 
     import fovjax
-    from fovjax import cli
     from fovjax._image import save_image
     from fovjax._preview import normal_depth_image_jit
     from fovjax.trace import build_bvh, last_build_info
