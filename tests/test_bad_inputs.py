@@ -163,7 +163,7 @@ ROWS = [
     # -- record ------------------------------------------------------------------------------
     ("record --gaze serial:/dev/ttyNOPE --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "/dev/ttyNOPE"),
     ("record --gaze pupil:127.0.0.1:9 --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "127.0.0.1:9"),
-    ("record --gaze pupil:notaport.invalid --wait 0.3 -o {tmp}/r.jsonl", 1, "'notaport.invalid'"),
+    ("record --gaze pupil:notaport.invalid --wait 0.3 -o {tmp}/r.jsonl", 1, "pupil:notaport.invalid"),
     ("record --head intersense:/no/libisense.so -o {tmp}/r.csv", 1, "/no/libisense.so"),
     ("record --gaze viewpoint:/no/libvpx.so -o {tmp}/r.csv", 1, "/no/libvpx.so"),
     ("record --gaze synthetic:scanpath --seconds -1 -o {tmp}/r.jsonl", 2, "--seconds -1"),
