@@ -97,12 +97,13 @@ def validate(args) -> None:
     cli.choice(args.criterion, "--criterion", tuple(METRIC_RANGES))
     lo, hi = METRIC_RANGES[args.criterion]
     cli.number(args.threshold, f"--threshold (of {args.criterion})", ge=lo, le=hi)
+    cli.output(args.output, "-o", directory=True)
+    # Installed extras last: every row of tests/test_bad_inputs.py answers the same without them.
     if args.criterion == "flip" and importlib.util.find_spec("flip_evaluator") is None:
         raise cli.UsageError("--criterion flip: needs flip-evaluator (pip install 'fovjax[flip]')")
     if args.criterion == "jod" and (args.no_perceptual or importlib.util.find_spec("pyfvvdp") is None):
         why = "--no-perceptual skips it" if args.no_perceptual else "pip install 'fovjax[fvvdp]'"
         raise cli.UsageError(f"--criterion jod: needs FovVideoVDP ({why})")
-    cli.output(args.output, "-o", directory=True)
 
 
 def run(args) -> int:
