@@ -352,6 +352,8 @@ def run_session(
             t0 = time.perf_counter()
             steps = tracker.policy.widen_steps
             for step in range(steps + 1):
+                if stop.is_set():
+                    raise KeyboardInterrupt
                 render(((0.5, 0.5), (0.5, 0.5)), foveation_at(step / steps), (0.0, 0.0, 0.0), key)
             warmup_s = time.perf_counter() - t0
         if progress:
