@@ -363,3 +363,51 @@ def test_ctrl_c_during_a_session_exits_130_and_keeps_a_complete_log(tmp_path):
     frames = sorted(out.glob("frame_*.png"))
     assert len(frames) == log["summary"]["frames"] == len(log["frames"]) >= 1
     assert not list(out.glob(".*part*"))  # no half-written file left behind
+
+
+@pytest.fixture
+def default_sigint():
+    """Python's own Ctrl-C handler while the test runs (a test runner may have another)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_a_write_is_not_cut_by_ctrl_c(default_sigint):
+    from fovjax.cli import deferred_interrupt
+
+    finished = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the signal is taken here and held
+            finished.append(True)
+    assert finished == [True]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+def test_interrupt_flag_is_set_even_when_the_exception_is_lost(default_sigint):
+    from fovjax._atomic import interrupt_flag
+
+    with interrupt_flag() as stop:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+        except KeyboardInterrupt:
+            pass  # as if swallowed (e.g. raised inside a gc callback)
+        assert stop.is_set()
+
+
+def test_atomic_path_leaves_the_old_file_or_the_new_one(tmp_path):
+    from fovjax.cli import atomic_path
+
+    path = tmp_path / "a.txt"
+    path.write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_path(path) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("stopped while writing")
+    assert path.read_text() == "old" and list(tmp_path.iterdir()) == [path]
+    with atomic_path(path) as tmp:
+        tmp.write_text("new")
+    assert path.read_text() == "new" and list(tmp_path.iterdir()) == [path]
