@@ -17,6 +17,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax.eval._cli_failures",
     "fovjax.eval._cli_study",
     "fovjax.acuity._cli",
+    "fovjax.view._cli",
 ]
 
 
