@@ -8,6 +8,7 @@ import asyncio
 import importlib.util
 import logging
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -134,7 +135,18 @@ def _run(args) -> int:
         seed=args.seed,
     )
     viewer = Viewer(renderer, host=args.host, port=args.port, save_dir=args.save_dir)
-    return asyncio.run(_serve(viewer, args.open))
+    try:
+        code = asyncio.run(_serve(viewer, args.open))
+    except KeyboardInterrupt:
+        print("fovjax view: stopped", file=sys.stderr)
+        code = 0
+    if viewer.render_busy:
+        # The render thread is inside XLA (a compile or a frame), which cannot be interrupted,
+        # and finalising the interpreter around it aborts the process: leave at once.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
 
 
 async def _serve(viewer, open_browser: bool) -> int:
@@ -149,8 +161,6 @@ async def _serve(viewer, open_browser: bool) -> int:
         webbrowser.open(url)
     try:
         await viewer.frame_loop
-    except asyncio.CancelledError:
-        pass
     except Exception as err:
         print(f"fovjax view: error: rendering failed: {type(err).__name__}: {err}", file=sys.stderr)
         return 1

@@ -55,7 +55,8 @@ def encode_jpeg(image: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
 
     rgb8 = np.round(linear_to_srgb(tonemap(np.asarray(image, np.float32))) * 255).astype(np.uint8)
     buf = io.BytesIO()
-    Image.fromarray(rgb8).save(buf, format="JPEG", quality=quality)
+    # No chroma subsampling: the debug view's one-pixel region edges stay their colour.
+    Image.fromarray(rgb8).save(buf, format="JPEG", quality=quality, subsampling=0)
     return buf.getvalue()
 
 

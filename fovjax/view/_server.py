@@ -66,6 +66,7 @@ class RenderThread(concurrent.futures.Executor):
 
     def __init__(self, name: str = "fovjax-view-render"):
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self.busy = False  # running a task now (a frame or a compile)
         self._thread = threading.Thread(target=self._work, name=name, daemon=True)
         self._thread.start()
 
@@ -77,10 +78,13 @@ class RenderThread(concurrent.futures.Executor):
             future, fn, args, kwargs = item
             if not future.set_running_or_notify_cancel():
                 continue
+            self.busy = True
             try:
                 future.set_result(fn(*args, **kwargs))
             except BaseException as err:  # handed to the waiting coroutine
                 future.set_exception(err)
+            finally:
+                self.busy = False
 
     def submit(self, fn, /, *args, **kwargs):
         future = concurrent.futures.Future()
@@ -395,10 +399,15 @@ class Viewer:
                 await client.ws.close()
         if self._runner is not None:
             await self._runner.cleanup()
-        loop = asyncio.get_running_loop()
+        # Not through the render thread: it may be in the middle of a compile.
         with contextlib.suppress(Exception):
-            await loop.run_in_executor(self._executor, self.renderer.close)
+            self.renderer.close()
         self._executor.shutdown(wait=False)
+
+    @property
+    def render_busy(self) -> bool:
+        """Whether the render thread is inside a task now (a frame, a compile)."""
+        return self._executor.busy
 
     @property
     def frame_loop(self) -> asyncio.Task | None:
