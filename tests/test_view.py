@@ -164,6 +164,37 @@ def test_binocular_gaze_points_both_eyes_at_one_scene_point():
         binocular_gaze(bvh, rig, None, "left", (math.nan, 0.5))
 
 
+def test_tracker_gaze_and_full_mode_in_process(tmp_path):
+    """A gaze source spec drives the fovea through the tracker; "full" renders every pixel."""
+    import fovjax
+    from fovjax.foveate import Foveation
+    from fovjax.render import StereoRig
+    from fovjax.view import LiveRenderer
+
+    scene = fovjax.scenes.BUILTIN["spheres"]()
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=48, eye_height=32)
+    r = LiveRenderer(
+        scene, rig, Foveation(fovea_deg=10.0, periphery_deg=20.0), gaze="synthetic:fixed:0.3,0.4"
+    )
+    r.open()
+    try:
+        r.warmup()
+        time.sleep(0.1)  # samples arrive at 120 Hz
+        stats = r.render_next().stats
+        assert stats["gaze_source"] == "synthetic:fixed:0.3,0.4" and stats["tracking_state"] == "ok"
+        assert stats["gaze_left"] == pytest.approx([0.3, 0.4], abs=1e-6)
+        assert stats["fovea_centre"][0] == pytest.approx([0.3, 0.4], abs=0.05)
+        assert stats["ms"]["compile"] == 0.0  # warmup compiled what the frames use
+        foveated_rays = stats["primary_rays"]
+        r.apply_action("toggle_full")
+        full = r.render_next()
+        assert full.stats["mode"] == "full" and full.stats["primary_rays"] == 2 * 48 * 32 > foveated_rays
+        paths = r.save(tmp_path)
+        assert json.loads(paths[-1].read_text())["mode"] == "full"
+    finally:
+        r.close()
+
+
 # ---- the server: one `fovjax view` process for the module ---------------------------------------------
 
 

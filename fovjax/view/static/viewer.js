@@ -17,7 +17,8 @@ const overlay = document.getElementById("overlay");
 const statusLine = document.getElementById("status");
 
 // For tests and the curious: the newest frame's statistics and counters.
-const view = { stats: null, displayed: 0, latencyMs: null, status: null, saved: null };
+const view = { stats: null, displayed: 0, latencyMs: null, status: null, saved: null,
+  latencies: [], shownAt: [] };
 window.fovjaxView = view;
 
 const token = new URLSearchParams(location.search).get("token");
@@ -106,6 +107,8 @@ async function showFrame(s, blob) {
       latency = now - s.gaze_t;
     }
     view.latencyMs = latency;
+    if (latency !== null && view.latencies.length < 100000) view.latencies.push(latency);
+    if (view.shownAt.length < 100000) view.shownAt.push(now);
     send({ type: "shown", frame: s.frame, latency_ms: latency });
     shownTimes.push(now);
     if (shownTimes.length > 30) shownTimes.shift();
