@@ -169,10 +169,12 @@ def main() -> None:
     )
     print(
         f"  last frame's stages (ms): render {ms['render']:.1f}, host {ms['host']:.1f}, "
-        f"gaze {ms['gaze']:.1f}, encode {ms['encode']:.1f}, server total {ms['frame']:.1f}; {v['rays']:,} rays"
+        f"gaze {ms['gaze']:.1f}, encode {ms['encode']:.1f}, server total {ms['frame']:.1f}; "
+        f"{v['rays']:,} rays"
     )
     print(
-        f"  bare render_stereo: {bare_ms:.1f} ms per frame ({1000 / bare_ms:.1f} fps), median of {args.bare_frames}"
+        f"  bare render_stereo: {bare_ms:.1f} ms per frame ({1000 / bare_ms:.1f} fps), "
+        f"median of {args.bare_frames}"
     )
     print(
         f"  ratios: viewer fps / bare fps = {v['fps'] * bare_ms / 1000:.2f}; "
