@@ -96,6 +96,7 @@ def test_parse_message_rejects_with_the_reason(message, reason):
         (["--periphery", "200"], "--periphery"),
         (["--port", "70000"], "--port"),
         (["--host", " "], "--host"),
+        (["--host", "192.0.2.1"], "cannot listen on 192.0.2.1:8000"),
         (["--scene", "no_such_scene"], "no_such_scene"),
         (["--gaze", "telepathy:1"], "telepathy"),
         (["--gaze", "synthetic:fixed:a,b"], "fixed point"),

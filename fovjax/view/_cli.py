@@ -9,6 +9,7 @@ import importlib.util
 import logging
 import math
 import os
+import socket
 import sys
 from pathlib import Path
 
@@ -85,6 +86,22 @@ def check_args(args) -> None:
         source_from_spec(args.head, "head")
     if importlib.util.find_spec("aiohttp") is None:
         raise ImportError("fovjax view needs aiohttp: pip install 'fovjax[view]'")
+    _check_listen(args.host, args.port)
+
+
+def _check_listen(host: str, port: int) -> None:
+    """Fail now, not after the scene is built, when the address cannot be listened on."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as err:
+        raise ValueError(f"--host {host!r}: not an address of this machine ({err.strerror})") from None
+    family, kind, proto, _, address = infos[0]
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as aiohttp does
+        try:
+            probe.bind(address)
+        except OSError as err:
+            raise OSError(f"cannot listen on {host}:{port}: {err.strerror or err}") from None
 
 
 def _load_scene(args):
@@ -155,6 +172,16 @@ async def _serve(viewer, open_browser: bool) -> int:
     except OSError as err:
         raise OSError(f"cannot listen on {viewer.host}:{viewer.port}: {err.strerror or err}") from None
     print(f"fovjax view: serving {url}  (Ctrl-C to stop; the first frame compiles for a while)", flush=True)
+    if viewer.token is not None:
+        print(
+            f"fovjax view: listening on {viewer.host}, not loopback: the page needs the token in this URL"
+            + (
+                " (put this machine's address in place of 0.0.0.0)"
+                if viewer.host in ("0.0.0.0", "::")
+                else ""
+            ),
+            flush=True,
+        )
     if open_browser:
         import webbrowser
 

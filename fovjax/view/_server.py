@@ -1,10 +1,13 @@
 """The viewer's web server (aiohttp): the page, its static files, and one WebSocket per client.
 
 One renderer, one frame loop: while a client is connected, frames are rendered one after
-another on a single worker thread for the newest gaze and sent to the active client (the first
-connected; the others wait their turn and are told so). Latency over throughput: a frame is
-rendered only once the page has acknowledged the previous one (or `ACK_TIMEOUT_S` passed); a
-frame that finishes while the previous one is still unacknowledged is dropped, not queued.
+another on a single worker thread, each for the newest gaze at its start, and sent to the
+active client (the first connected; the others wait their turn and are told so). Latency over
+throughput, never a queue: at most one frame is in flight to the page. The next frame is
+rendered while the page shows the previous one; when it is done and the page has not
+acknowledged the previous one yet, it waits at most one frame's time for that (still fresher
+than a new frame would be), else it is dropped and the next one rendered. A page that stops
+acknowledging for `ACK_TIMEOUT_S` gets one frame rendered per `ACK_TIMEOUT_S`.
 
 Gaze-to-display latency: for the mouse, the page measures it on its own clock (mouse event ->
 the animation frame that shows the first frame rendered from it) and reports it with the
@@ -315,7 +318,8 @@ class Viewer:
                 await self._wake.wait()
                 continue
             client = self.clients[0]
-            if not client.acked.is_set():
+            if not client.acked.is_set() and time.perf_counter() - client.sent_at > ACK_TIMEOUT_S:
+                # A page that stopped acknowledging (a background tab) costs one frame a second.
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(client.acked.wait(), ACK_TIMEOUT_S)
             try:
@@ -331,8 +335,17 @@ class Viewer:
             if not self.clients or self.clients[0] is not client or client.ws.closed:
                 continue  # the client left while it rendered
             if client.awaiting is not None:
-                self.dropped_frames += 1  # the page has not shown the previous one: never queue
-                continue
+                # The page has not shown the previous frame yet. If it does within one frame's
+                # time, this frame is still fresher than a new one would be; otherwise it is
+                # dropped (never queued) and the next one rendered for the newest gaze.
+                grace = min(ACK_TIMEOUT_S, frame.stats["ms"]["frame"] / 1e3)
+                try:
+                    await asyncio.wait_for(client.acked.wait(), grace)
+                except TimeoutError:
+                    self.dropped_frames += 1
+                    continue
+                if not self.clients or self.clients[0] is not client or client.ws.closed:
+                    continue
             await self._send_frame(client, frame)
 
     async def _send_frame(self, client, frame) -> None:

@@ -18,7 +18,7 @@ const statusLine = document.getElementById("status");
 
 // For tests and the curious: the newest frame's statistics and counters.
 const view = { stats: null, displayed: 0, latencyMs: null, status: null, saved: null,
-  latencies: [], shownAt: [] };
+  latencies: [], shownAt: [], serverMs: [] };
 window.fovjaxView = view;
 
 const token = new URLSearchParams(location.search).get("token");
@@ -108,7 +108,7 @@ async function showFrame(s, blob) {
     }
     view.latencyMs = latency;
     if (latency !== null && view.latencies.length < 100000) view.latencies.push(latency);
-    if (view.shownAt.length < 100000) view.shownAt.push(now);
+    if (view.shownAt.length < 100000) { view.shownAt.push(now); view.serverMs.push(s.ms.frame); }
     send({ type: "shown", frame: s.frame, latency_ms: latency });
     shownTimes.push(now);
     if (shownTimes.length > 30) shownTimes.shift();
