@@ -102,6 +102,7 @@ def test_parse_message_rejects_with_the_reason(message, reason):
         (["--gaze", "synthetic:fixed:a,b"], "fixed point"),
         (["--head", "synthetic:nod"], "sway"),
         (["--gaze", "replay:/no/such/file.jsonl"], "file.jsonl"),
+        (["--save-dir", __file__], "is a file"),
     ],
 )
 def test_bad_arguments_are_one_line_errors(args, named, capsys):

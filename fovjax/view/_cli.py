@@ -68,6 +68,10 @@ def check_args(args) -> None:
         raise ValueError(f"--triangles must be positive, got {args.triangles}")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in 0..65535 (0: any free port), got {args.port}")
+    if args.backend == "embree" and importlib.util.find_spec("embreex") is None:
+        raise ImportError("--backend embree needs embreex: pip install 'fovjax[embree]'")
+    if Path(args.save_dir).exists() and not Path(args.save_dir).is_dir():
+        raise ValueError(f"--save-dir {args.save_dir!r} is a file, not a directory")
     if not args.host.strip():
         raise ValueError("--host must not be empty")
     name = SCENE_ALIASES.get(args.scene, args.scene)
