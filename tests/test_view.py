@@ -187,6 +187,7 @@ def test_tracker_gaze_and_full_mode_in_process(tmp_path):
         assert stats["gaze_left"] == pytest.approx([0.3, 0.4], abs=1e-6)
         assert stats["fovea_centre"][0] == pytest.approx([0.3, 0.4], abs=0.05)
         assert stats["ms"]["compile"] == 0.0  # warmup compiled what the frames use
+        assert re.fullmatch(r"\d+ samples", stats["source_status"])
         foveated_rays = stats["primary_rays"]
         r.apply_action("toggle_full")
         full = r.render_next()
@@ -309,6 +310,150 @@ def _decode(jpeg: bytes) -> np.ndarray:
     from PIL import Image
 
     return np.asarray(Image.open(io.BytesIO(jpeg)).convert("RGB"))
+
+
+# ---- the page in a real browser --------------------------------------------------------------------
+
+
+def _chromium():
+    """A headless Chromium through selenium, or the reason there is none."""
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        return None, "selenium is not installed (the dev extra installs it)"
+    binary = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    driver_path = shutil.which("chromedriver")
+    if binary is None or driver_path is None:
+        return (
+            None,
+            "no chromium/chromedriver on PATH (.ci/run installs Debian's chromium and chromium-driver)",
+        )
+    options = webdriver.ChromeOptions()
+    options.binary_location = binary
+    profile = tempfile.mkdtemp(prefix="fovjax-view-chromium-")
+    for flag in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--window-size=1400,900",
+        f"--user-data-dir={profile}",
+    ):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(options=options, service=Service(driver_path))
+    driver.fovjax_profile = profile
+    return driver, None
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver, why = _chromium()
+    if driver is None:
+        pytest.skip(why)
+    yield driver
+    driver.quit()
+    shutil.rmtree(driver.fovjax_profile, ignore_errors=True)
+
+
+def _wait(driver, script, timeout=START_TIMEOUT_S, what=""):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = driver.execute_script(script)
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what or script}")
+
+
+# The left eye's fovea ring in the regions/samples view, from the canvas's pixels: green
+# (0.1, 1, 0.1) in linear RGB, after JPEG. Returns the ring's centre (normalised) or null.
+RING_CENTRE_JS = """
+const c = document.getElementById('frame');
+const w = c.width, h = c.height;
+const d = c.getContext('2d').getImageData(0, 0, w / 2, h).data;
+let sx = 0, sy = 0, n = 0;
+for (let y = 0; y < h; y++) for (let x = 0; x < w / 2; x++) {
+  const i = 4 * (y * (w / 2) + x);
+  if (d[i + 1] > 150 && d[i + 1] - Math.max(d[i], d[i + 2]) > 60) { sx += x + 0.5; sy += y + 0.5; n++; }
+}
+return n < 4 ? null : [sx / n / (w / 2), sy / n / h, n];
+"""
+
+
+def _move_mouse(driver, canvas, eye_x, eye_y):
+    """Put the mouse at (eye_x, eye_y) of the left eye's display."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    rect = driver.execute_script(
+        "const r = arguments[0].getBoundingClientRect(); return [r.width, r.height];", canvas
+    )
+    # Offsets from the element's centre (selenium 4).
+    dx = int(round(eye_x * rect[0] / 2 - rect[0] / 2))
+    dy = int(round(eye_y * rect[1] - rect[1] / 2))
+    ActionChains(driver).move_to_element_with_offset(canvas, dx, dy).perform()
+    return (dx + rect[0] / 2) / (rect[0] / 2), (dy + rect[1] / 2) / rect[1]
+
+
+def test_browser_shows_frames_and_the_fovea_follows_the_mouse(server, browser):
+    try:
+        _browser_session(server, browser)
+    finally:
+        browser.get("about:blank")  # the page leaves: the next clients are served
+
+
+def _browser_session(server, browser):
+    from selenium.webdriver.common.by import By
+
+    browser.get(server.url)
+    _wait(browser, "return window.fovjaxView && window.fovjaxView.displayed >= 1", what="a frame on the page")
+    # The module's first client: the time from the command's start to a frame shown on the page.
+    print(f"first frame on the page {time.monotonic() - server.started:.1f} s after `fovjax view` started")
+    pixels = browser.execute_script(
+        "const c = document.getElementById('frame'); const d = c.getContext('2d')"
+        ".getImageData(0, 0, c.width, c.height).data; let lo = 255, hi = 0;"
+        "for (let i = 0; i < d.length; i += 4) { lo = Math.min(lo, d[i + 1]); hi = Math.max(hi, d[i + 1]); }"
+        "return [c.width, c.height, lo, hi];"
+    )
+    assert pixels[:2] == [320, 128] and pixels[3] - pixels[2] > 50  # a rendered scene is on the canvas
+    assert "fps" in browser.find_element(By.ID, "overlay").text
+    canvas = browser.find_element(By.ID, "frame")
+
+    browser.find_element(By.TAG_NAME, "body").send_keys("v")  # the regions/samples view
+    _wait(browser, "return window.fovjaxView.stats.view === 'debug'", what="the debug view", timeout=120)
+    rings = []
+    for target in ((0.3, 0.5), (0.7, 0.35)):
+        x, y = _move_mouse(browser, canvas, *target)
+        stats = _wait(
+            browser,
+            f"const s = window.fovjaxView.stats; return s.view === 'debug' && "
+            f"Math.abs(s.gaze_left[0] - {x}) < 0.02 && Math.abs(s.gaze_left[1] - {y}) < 0.02 && s;",
+            timeout=60,
+            what=f"the reported gaze at {target}",
+        )
+        assert stats["tracking_state"] == "mouse (left eye)"
+        assert stats["fovea_centre"][0] == pytest.approx([x, y], abs=0.03)
+        # The next frame shown: its sharp region (the fovea ring drawn in the page) is at the mouse.
+        frame = stats["frame"]
+        _wait(browser, f"return window.fovjaxView.stats.frame > {frame}", timeout=60, what="the next frame")
+        ring = browser.execute_script(RING_CENTRE_JS)
+        assert ring is not None, "no fovea ring in the displayed frame"
+        assert ring[0] == pytest.approx(x, abs=0.04) and ring[1] == pytest.approx(y, abs=0.04)
+        rings.append(ring)
+    assert rings[1][0] - rings[0][0] > 0.3 and rings[0][1] - rings[1][1] > 0.1
+    latency = _wait(
+        browser,
+        "const s = window.fovjaxView.stats; return s.latency.count > 0 && s.latency;",
+        timeout=60,
+        what="a gaze-to-display latency",
+    )
+    assert latency["last_ms"] > 0
+    browser.find_element(By.TAG_NAME, "body").send_keys("v")
+    _wait(browser, "return window.fovjaxView.stats.view === 'image'", what="the image view", timeout=60)
+    assert server.alive()
 
 
 def test_serves_the_page_and_frames(server):
@@ -495,142 +640,6 @@ def test_save_writes_the_frame_and_its_statistics(server, save_dir):
     assert png.parent == save_dir.resolve() and png.is_file() and stats_path.is_file()
     stats = json.loads(stats_path.read_text())
     assert stats["rays"] > 0 and "latency" in stats and stats["size"] == [160, 128]
-
-
-# ---- the page in a real browser --------------------------------------------------------------------
-
-
-def _chromium():
-    """A headless Chromium through selenium, or the reason there is none."""
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        return None, "selenium is not installed (the dev extra installs it)"
-    binary = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
-    driver_path = shutil.which("chromedriver")
-    if binary is None or driver_path is None:
-        return (
-            None,
-            "no chromium/chromedriver on PATH (.ci/run installs Debian's chromium and chromium-driver)",
-        )
-    options = webdriver.ChromeOptions()
-    options.binary_location = binary
-    profile = tempfile.mkdtemp(prefix="fovjax-view-chromium-")
-    for flag in (
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--window-size=1400,900",
-        f"--user-data-dir={profile}",
-    ):
-        options.add_argument(flag)
-    driver = webdriver.Chrome(options=options, service=Service(driver_path))
-    driver.fovjax_profile = profile
-    return driver, None
-
-
-@pytest.fixture(scope="module")
-def browser():
-    driver, why = _chromium()
-    if driver is None:
-        pytest.skip(why)
-    yield driver
-    driver.quit()
-    shutil.rmtree(driver.fovjax_profile, ignore_errors=True)
-
-
-def _wait(driver, script, timeout=START_TIMEOUT_S, what=""):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = driver.execute_script(script)
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what or script}")
-
-
-# The left eye's fovea ring in the regions/samples view, from the canvas's pixels: green
-# (0.1, 1, 0.1) in linear RGB, after JPEG. Returns the ring's centre (normalised) or null.
-RING_CENTRE_JS = """
-const c = document.getElementById('frame');
-const w = c.width, h = c.height;
-const d = c.getContext('2d').getImageData(0, 0, w / 2, h).data;
-let sx = 0, sy = 0, n = 0;
-for (let y = 0; y < h; y++) for (let x = 0; x < w / 2; x++) {
-  const i = 4 * (y * (w / 2) + x);
-  if (d[i + 1] > 150 && d[i + 1] - Math.max(d[i], d[i + 2]) > 60) { sx += x + 0.5; sy += y + 0.5; n++; }
-}
-return n < 4 ? null : [sx / n / (w / 2), sy / n / h, n];
-"""
-
-
-def _move_mouse(driver, canvas, eye_x, eye_y):
-    """Put the mouse at (eye_x, eye_y) of the left eye's display."""
-    from selenium.webdriver.common.action_chains import ActionChains
-
-    rect = driver.execute_script(
-        "const r = arguments[0].getBoundingClientRect(); return [r.width, r.height];", canvas
-    )
-    # Offsets from the element's centre (selenium 4).
-    dx = int(round(eye_x * rect[0] / 2 - rect[0] / 2))
-    dy = int(round(eye_y * rect[1] - rect[1] / 2))
-    ActionChains(driver).move_to_element_with_offset(canvas, dx, dy).perform()
-    return (dx + rect[0] / 2) / (rect[0] / 2), (dy + rect[1] / 2) / rect[1]
-
-
-def test_browser_shows_frames_and_the_fovea_follows_the_mouse(server, browser):
-    from selenium.webdriver.common.by import By
-
-    browser.get(server.url)
-    _wait(browser, "return window.fovjaxView && window.fovjaxView.displayed >= 1", what="a frame on the page")
-    print(f"first frame on the page {time.monotonic() - server.started:.1f} s after the server started")
-    pixels = browser.execute_script(
-        "const c = document.getElementById('frame'); const d = c.getContext('2d')"
-        ".getImageData(0, 0, c.width, c.height).data; let lo = 255, hi = 0;"
-        "for (let i = 0; i < d.length; i += 4) { lo = Math.min(lo, d[i + 1]); hi = Math.max(hi, d[i + 1]); }"
-        "return [c.width, c.height, lo, hi];"
-    )
-    assert pixels[:2] == [320, 128] and pixels[3] - pixels[2] > 50  # a rendered scene is on the canvas
-    assert "fps" in browser.find_element(By.ID, "overlay").text
-    canvas = browser.find_element(By.ID, "frame")
-
-    browser.find_element(By.TAG_NAME, "body").send_keys("v")  # the regions/samples view
-    _wait(browser, "return window.fovjaxView.stats.view === 'debug'", what="the debug view", timeout=120)
-    rings = []
-    for target in ((0.3, 0.5), (0.7, 0.35)):
-        x, y = _move_mouse(browser, canvas, *target)
-        stats = _wait(
-            browser,
-            f"const s = window.fovjaxView.stats; return s.view === 'debug' && "
-            f"Math.abs(s.gaze_left[0] - {x}) < 0.02 && Math.abs(s.gaze_left[1] - {y}) < 0.02 && s;",
-            timeout=60,
-            what=f"the reported gaze at {target}",
-        )
-        assert stats["tracking_state"] == "mouse (left eye)"
-        assert stats["fovea_centre"][0] == pytest.approx([x, y], abs=0.03)
-        # The next frame shown: its sharp region (the fovea ring drawn in the page) is at the mouse.
-        frame = stats["frame"]
-        _wait(browser, f"return window.fovjaxView.stats.frame > {frame}", timeout=60, what="the next frame")
-        ring = browser.execute_script(RING_CENTRE_JS)
-        assert ring is not None, "no fovea ring in the displayed frame"
-        assert ring[0] == pytest.approx(x, abs=0.04) and ring[1] == pytest.approx(y, abs=0.04)
-        rings.append(ring)
-    assert rings[1][0] - rings[0][0] > 0.3 and rings[0][1] - rings[1][1] > 0.1
-    latency = _wait(
-        browser,
-        "const s = window.fovjaxView.stats; return s.latency.count > 0 && s.latency;",
-        timeout=60,
-        what="a gaze-to-display latency",
-    )
-    assert latency["last_ms"] > 0
-    browser.find_element(By.TAG_NAME, "body").send_keys("v")
-    _wait(browser, "return window.fovjaxView.stats.view === 'image'", what="the image view", timeout=60)
-    assert server.alive()
 
 
 # ---- safety and life cycle -------------------------------------------------------------------------

@@ -155,6 +155,8 @@ def _run(args) -> int:
         head=None if args.head == "keys" else args.head,
         seed=args.seed,
     )
+    # Devices first: an unreachable tracker is an error now, before anything is served.
+    renderer.open()
     viewer = Viewer(renderer, host=args.host, port=args.port, save_dir=args.save_dir)
     try:
         code = asyncio.run(_serve(viewer, args.open))

@@ -73,6 +73,19 @@ def _fovea_centre(regions: np.ndarray) -> list:
     return out
 
 
+def _source_status(source) -> str:
+    """One line on a source's connection, for the overlay (a device that is unreachable says so)."""
+    from ..devices import ThreadedSource
+
+    st = source.status
+    text = f"{st.samples} samples"
+    if isinstance(source, ThreadedSource):  # a live device: is it there?
+        text = f"{'connected' if st.connected else 'not connected'}, {text}"
+    if st.errors:
+        text += f", {st.errors} errors (last: {st.last_error})"
+    return text
+
+
 class LiveRenderer:
     """The live state and the frame loop's body; see the module docstring.
 
@@ -172,10 +185,10 @@ class LiveRenderer:
     # ---- render thread --------------------------------------------------------------------------
 
     def open(self) -> None:
-        if self.gaze_source is not None:
-            self.gaze_source.open()
-        if self.head_source is not None:
-            self.head_source.open()
+        """Open the gaze and head sources (those not open yet); a device error says which."""
+        for source in (self.gaze_source, self.head_source):
+            if source is not None and not source.is_open:
+                source.open()
 
     def close(self) -> None:
         for source in (self.gaze_source, self.head_source):
@@ -244,6 +257,7 @@ class LiveRenderer:
             "widening": float(tf.widening),
             "gaze_age_ms": float(tf.sample_age * 1e3) if math.isfinite(tf.sample_age) else None,
             "rejected_samples": int(sum(tf.rejected.values())),
+            "source_status": _source_status(self.gaze_source),
         }
         return gaze, fovea, periphery, info, float(tf.sample_timestamp)
 

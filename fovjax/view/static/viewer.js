@@ -78,6 +78,7 @@ function showOverlay(s, clientMs) {
     `thresholds: ${thresholds}`,
     `tracking: ${s.tracking_state}  gaze ${s.gaze_source}: L (${fmt(s.gaze_left[0], 3)}, ` +
       `${fmt(s.gaze_left[1], 3)})  R (${fmt(s.gaze_right[0], 3)}, ${fmt(s.gaze_right[1], 3)})`,
+    ...(s.source_status ? [`gaze source: ${s.source_status}`] : []),
     `head ${s.head_source} (${s.head_state}): yaw ${fmt(s.head_pose[0])}°  pitch ${fmt(s.head_pose[1])}°  ` +
       `roll ${fmt(s.head_pose[2])}°`,
   ].join("\n");
