@@ -180,7 +180,8 @@ class LiveRenderer:
                 return "regions/samples view" if self.debug else "image view"
             else:
                 raise ValueError(f"LiveRenderer.apply_action: unknown action {action!r}")
-            return f"fovea {self.fovea_deg:g}°, periphery {self.periphery_deg:g}°"
+            # Thresholds fix the static ray budget: a pair not rendered before compiles once.
+            return f"fovea {self.fovea_deg:g}°, periphery {self.periphery_deg:g}° (a new pair compiles once)"
 
     # ---- render thread --------------------------------------------------------------------------
 
