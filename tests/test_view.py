@@ -370,17 +370,19 @@ def _wait(driver, script, timeout=START_TIMEOUT_S, what=""):
 
 
 # The left eye's fovea ring in the regions/samples view, from the canvas's pixels: green
-# (0.1, 1, 0.1) in linear RGB, after JPEG. Returns the ring's centre (normalised) or null.
+# (0.1, 1, 0.1) in linear RGB, after JPEG, searched within a box around the mouse (away from the
+# scene's green sphere). Returns the ring's centre (normalised) or null.
 RING_CENTRE_JS = """
+const [bx0, bx1, by0, by1] = arguments;
 const c = document.getElementById('frame');
-const w = c.width, h = c.height;
-const d = c.getContext('2d').getImageData(0, 0, w / 2, h).data;
+const w = c.width / 2, h = c.height;
+const d = c.getContext('2d').getImageData(0, 0, w, h).data;
 let sx = 0, sy = 0, n = 0;
-for (let y = 0; y < h; y++) for (let x = 0; x < w / 2; x++) {
-  const i = 4 * (y * (w / 2) + x);
+for (let y = Math.floor(by0 * h); y < by1 * h; y++) for (let x = Math.floor(bx0 * w); x < bx1 * w; x++) {
+  const i = 4 * (y * w + x);
   if (d[i + 1] > 150 && d[i + 1] - Math.max(d[i], d[i + 2]) > 60) { sx += x + 0.5; sy += y + 0.5; n++; }
 }
-return n < 4 ? null : [sx / n / (w / 2), sy / n / h, n];
+return n < 4 ? null : [sx / n / w, sy / n / h, n];
 """
 
 
@@ -425,7 +427,7 @@ def _browser_session(server, browser):
     browser.find_element(By.TAG_NAME, "body").send_keys("v")  # the regions/samples view
     _wait(browser, "return window.fovjaxView.stats.view === 'debug'", what="the debug view", timeout=120)
     rings = []
-    for target in ((0.3, 0.5), (0.7, 0.35)):
+    for target in ((0.3, 0.5), (0.75, 0.25)):
         x, y = _move_mouse(browser, canvas, *target)
         stats = _wait(
             browser,
@@ -439,7 +441,8 @@ def _browser_session(server, browser):
         # The next frame shown: its sharp region (the fovea ring drawn in the page) is at the mouse.
         frame = stats["frame"]
         _wait(browser, f"return window.fovjaxView.stats.frame > {frame}", timeout=60, what="the next frame")
-        ring = browser.execute_script(RING_CENTRE_JS)
+        box = (max(x - 0.15, 0), min(x + 0.15, 1), max(y - 0.15, 0), min(y + 0.15, 1))
+        ring = browser.execute_script(RING_CENTRE_JS, *box)
         assert ring is not None, "no fovea ring in the displayed frame"
         assert ring[0] == pytest.approx(x, abs=0.04) and ring[1] == pytest.approx(y, abs=0.04)
         rings.append(ring)
