@@ -194,8 +194,33 @@ def test_tracker_gaze_and_full_mode_in_process(tmp_path):
         assert full.stats["mode"] == "full" and full.stats["primary_rays"] == 2 * 48 * 32 > foveated_rays
         paths = r.save(tmp_path)
         assert json.loads(paths[-1].read_text())["mode"] == "full"
+        r.apply_action("toggle_full")
+        # Served (the programs are compiled now): the latency is measured on the source's clock,
+        # and mouse gaze from the page is ignored while a source drives the gaze.
+        run(_serve_tracker(r))
     finally:
         r.close()
+
+
+async def _serve_tracker(renderer):
+    from fovjax.view import Viewer
+
+    viewer = Viewer(renderer, port=0)
+    await viewer.start()
+    try:
+        client = await Client.connect(viewer.url.replace("http://", "ws://") + "ws")
+        try:
+            await client.send(json.dumps({"type": "gaze", "eye": "left", "x": 0.9, "y": 0.9, "t": 1.0}))
+            for _ in range(5):
+                stats, _ = await client.frame(timeout=120)
+            assert stats["mode"] == "foveated" and stats["tracking_state"] == "ok"
+            assert stats["gaze_left"] == pytest.approx([0.3, 0.4], abs=1e-6)
+            assert stats["latency"]["count"] >= 1 and stats["latency"]["last_ms"] > 0
+            assert stats["ignored_messages"] == 1
+        finally:
+            await client.close()
+    finally:
+        await viewer.stop()
 
 
 # ---- the server: one `fovjax view` process for the module ---------------------------------------------
