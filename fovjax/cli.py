@@ -32,6 +32,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax.eval._cli_failures",
     "fovjax.eval._cli_study",
     "fovjax.acuity._cli",
+    "fovjax.view._cli",
 ]
 
 # Exit status of an interrupted command (128 + SIGINT), as shells report Ctrl-C.
