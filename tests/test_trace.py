@@ -113,6 +113,25 @@ def test_bad_arguments(soup):
         closest_hit(bvh, np.zeros((5, 3)), np.ones((5, 3)), packet=(2, 2))
 
 
+def test_annotations_hold_for_numpy_and_broadcast_arguments(soup):
+    """closest_hit and occluded under jaxtyping's runtime checker: NumPy arrays, a direction
+    broadcast against many origins and scalar or per-ray bounds are what the annotations admit,
+    and the result has the broadcast batch shape; a trailing dimension other than 3 is refused."""
+    beartype = pytest.importorskip("beartype").beartype
+    from jaxtyping import TypeCheckError, jaxtyped
+
+    _, _, bvh = soup
+    checked_hit = jaxtyped(typechecker=beartype)(closest_hit)
+    checked_occ = jaxtyped(typechecker=beartype)(occluded)
+    o = np.zeros((4, 5, 3), np.float32)
+    d = np.array([0.0, 0.0, 1.0], np.float64)
+    hit = checked_hit(bvh, o, d, 0.0, np.full((4, 5), 10.0, np.float32))
+    assert hit.t.shape == hit.prim.shape == (4, 5)
+    assert checked_occ(bvh, o, d[None, None], np.float32(10.0)).shape == (4, 5)
+    with pytest.raises(TypeCheckError):
+        checked_hit(bvh, np.zeros((4, 2)), np.ones((4, 2)))
+
+
 def test_tile_packets_restore_image_order():
     scene = fovjax.scenes.spheres()
     bvh = build_bvh(scene, cache=False)

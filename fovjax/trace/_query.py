@@ -8,7 +8,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._bvh import BVH
 from ._packet import traverse_packets
@@ -176,21 +176,23 @@ def _query(
 
 def closest_hit(
     bvh: BVH,
-    origins: Float[Array, "*batch 3"],
-    directions: Float[Array, "*batch 3"],
-    tmin: float | Float[Array, "*batch"] = 0.0,
-    tmax: float | Float[Array, "*batch"] = jnp.inf,
+    origins: Float[ArrayLike, "*#batch 3"],
+    directions: Float[ArrayLike, "*#batch 3"],
+    tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
+    tmax: float | Float[ArrayLike, "*#batch"] = jnp.inf,
     *,
     backend: str = "jax",
     packet: Packet = None,
-    vertices: Float[Array, "V 3"] | None = None,
+    vertices: Float[ArrayLike, "V 3"] | None = None,
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
 ) -> Hit:
     """The nearest triangle hit by each ray with tmin < t < tmax.
 
-    Any batch shape; float32; jit-compatible (compiled once per batch shape, BVH and options).
+    Any batch shape: `origins`, `directions`, `tmin` and `tmax` are JAX or NumPy arrays (or
+    scalars for the bounds) that broadcast against each other, and the result has the broadcast
+    batch shape. float32; jit-compatible (compiled once per batch shape, BVH and options).
     Directions need not be normalised (t is in units of the direction's length). Rays with a
     NaN/inf component or a zero direction miss.
 
@@ -225,11 +227,11 @@ def closest_hit(
 
 def occluded(
     bvh: BVH,
-    origins: Float[Array, "*batch 3"],
-    directions: Float[Array, "*batch 3"],
-    tmax: float | Float[Array, "*batch"] = jnp.inf,
+    origins: Float[ArrayLike, "*#batch 3"],
+    directions: Float[ArrayLike, "*#batch 3"],
+    tmax: float | Float[ArrayLike, "*#batch"] = jnp.inf,
     *,
-    tmin: float | Float[Array, "*batch"] = 0.0,
+    tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
     backend: str = "jax",
     packet: Packet = None,
     lanes: int = DEFAULT_LANES,
