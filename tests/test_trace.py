@@ -8,6 +8,11 @@ than that tolerance further away).
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
+
 import numpy as np
 import pytest
 import trimesh
@@ -284,3 +289,40 @@ def test_embree_backend_under_jit(soup):
     d = rng.normal(size=(500, 3)).astype(np.float32)
     f = jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="embree"))
     assert_matches_brute_force(V, F, o, d, f(o, d))
+
+
+SPLIT_SCRIPT = textwrap.dedent(
+    """
+    import jax, numpy as np
+    assert jax.device_count() == 2, jax.devices()
+    from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, occluded
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-2, 2, (200, 1, 3))
+    V = (centres + rng.normal(0, 0.3, (200, 3, 3))).reshape(-1, 3).astype(np.float32)
+    F = np.arange(600).reshape(200, 3)
+    bvh = build_bvh(vertices=V, faces=F, cache=False)
+    o = rng.uniform(-3, 3, (999, 3)).astype(np.float32)  # odd: the parts are padded
+    d = rng.normal(size=(999, 3)).astype(np.float32)
+    t_ref, _, _ = brute_force_closest_hit(V, F, o, d)
+    for packet in (None, 16):
+        hit = jax.jit(lambda o, d: closest_hit(bvh, o, d, packet=packet))(o, d)
+        assert len(hit.t.sharding.device_set) == 2, hit.t.sharding  # both devices traced
+        t = np.asarray(hit.t)
+        assert np.mean(np.isfinite(t) == np.isfinite(t_ref)) >= 0.999
+        both = np.isfinite(t) & np.isfinite(t_ref)
+        assert np.allclose(t[both], t_ref[both], rtol=1e-4, atol=1e-5)
+        occ = np.asarray(occluded(bvh, o, d, packet=packet))
+        assert np.mean(occ == np.isfinite(t_ref)) >= 0.999
+    print("OK")
+    """
+)
+
+
+def test_rays_split_over_two_host_devices():
+    """With two CPU devices (JAX_NUM_CPU_DEVICES=2) the rays are traced in two parts, one per
+    device, with the same results as the brute-force reference."""
+    env = {**os.environ, "JAX_NUM_CPU_DEVICES": "2", "JAX_PLATFORMS": "cpu"}
+    result = subprocess.run(
+        [sys.executable, "-c", SPLIT_SCRIPT], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert result.returncode == 0 and result.stdout.strip().endswith("OK"), result.stderr[-3000:]
