@@ -2,6 +2,7 @@
 
     python benchmarks/trace_throughput.py              # atrium (262k triangles), 1280x1024
     python benchmarks/trace_throughput.py --quick      # 640x512 and 65k random rays
+    python benchmarks/trace_throughput.py --host-devices 2   # JAX on two CPU devices (both cores)
     python benchmarks/trace_throughput.py --width 64 --height 48 --random 4096 --repeats 1   # smoke
 
 For each ray set it prints rays per second (median of --repeats timed runs after a warm-up) of
@@ -241,7 +242,16 @@ def main(argv=None):
     ap.add_argument("--rows", nargs="+", default=None, help="subset of: primary random shadow shadow8x8")
     ap.add_argument("--lanes", type=int, default=None, help="JAX traversal lanes (default: library default)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--host-devices",
+        type=int,
+        default=None,
+        help="CPU devices for JAX (jax_num_cpu_devices; default: JAX's, 1): with 2, closest_hit and "
+        "occluded split the rays over both cores",
+    )
     args = ap.parse_args(argv)
+    if args.host_devices is not None:
+        jax.config.update("jax_num_cpu_devices", args.host_devices)
     if args.quick:
         args.width, args.height, args.random = 640, 512, 1 << 16
 
