@@ -4,6 +4,8 @@
     python benchmarks/foveation.py --full          # the thesis's 2 x 1280x1024
     python benchmarks/foveation.py --spp 1 4       # a subset of SPP values
     python benchmarks/foveation.py --backend embree
+    python benchmarks/foveation.py --profile       # per-stage ms and % of a foveated and a full frame
+    python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
 
 For every SPP and every thesis (fovea, periphery) pair plus full rendering, on the atrium, in
 stereo, gaze at each display's centre, head still: rays per frame (primary + shadow +
@@ -16,15 +18,18 @@ reported separately and is not in the frame times. The machine is noisy: read th
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
+import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import fovjax
 from fovjax.foveate import THESIS_PAIRS, Foveation, render_foveated
-from fovjax.render import RenderConfig, StereoRig, render_stereo
+from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays, scene_scale
 from fovjax.trace import build_bvh
 
 SPPS = (1, 4, 9, 16)
@@ -67,6 +72,220 @@ def pct(x):
     return f"{x:+7.1f}%"
 
 
+# ---- --profile: per-stage times -----------------------------------------------------------
+
+# An off-centre gaze (each eye looking up and to the left of its display centre).
+OFF_CENTRE = ((0.32, 0.38), (0.28, 0.38))
+
+
+def _timed(fn, *args, repeats):
+    """Compile `fn` alone, then the median ms of `repeats` calls (block_until_ready each)."""
+    jitted = fn if hasattr(fn, "lower") else jax.jit(fn)
+    out = jax.block_until_ready(jitted(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(jitted(*args))
+        times.append(time.perf_counter() - t0)
+    return out, 1000 * statistics.median(times)
+
+
+def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
+    """The integrator's stages on the given rays, each compiled and timed on its own: primary
+    traversal, shading (surfaces, shadow-ray setup, lights, reflection spawn), shadow rays, and
+    each reflection bounce. Appends (stage, ms) to `rows`; returns the traced contribution."""
+    from fovjax.render._integrator import (
+        _chunking,
+        _finish_shading,
+        _secondary_carry,
+        _secondary_level,
+        _surface_and_shadow_rays,
+        _trace_primary,
+        _trace_shadows,
+        _usable_packet,
+    )
+    from fovjax.render._vec import normalize
+
+    batch = active.shape
+    packet = _usable_packet(config.packet, len(batch))
+    kw = {"backend": config.backend}
+    offset = lambda a: config.ray_offset * scene_scale(a)  # noqa: E731
+    d = jax.jit(normalize)(d)
+    hit, t = _timed(
+        lambda a, b, o, d, act: _trace_primary(a, b, o, d, act, packet=packet, **kw),
+        arrays,
+        bvh,
+        o,
+        d,
+        active,
+        repeats=repeats,
+    )
+    rows.append(("primary traversal", t))
+    (surface, rays), t_setup = _timed(
+        lambda a, hit, d, act: _surface_and_shadow_rays(a, hit, d, act, offset(a)),
+        arrays,
+        hit,
+        d,
+        active,
+        repeats=repeats,
+    )
+    blocked, t = _timed(lambda b, r: _trace_shadows(b, r, packet, config.backend), bvh, rays, repeats=repeats)
+    (contribution, state), t_finish = _timed(
+        lambda a, s, d, act, r, bl: _finish_shading(
+            a,
+            s,
+            d,
+            act,
+            jnp.ones(batch + (3,), jnp.float32),
+            r,
+            bl,
+            offset=offset(a),
+            spawn=config.max_depth > 0,
+        ),
+        arrays,
+        surface,
+        d,
+        active,
+        rays,
+        blocked,
+        repeats=repeats,
+    )
+    rows.append(("shading (surfaces, lights, spawn)", t_setup + t_finish))
+    rows.append(("shadow rays (depth 0)", t))
+    if config.max_depth == 0:
+        return contribution
+    n = int(np.prod(batch))
+    size, _ = _chunking(n, config)
+    carry, t0 = _timed(lambda c, s: _secondary_carry(c, s, config), contribution, state, repeats=repeats)
+    bounce = jax.jit(
+        lambda a, b, c, k: _secondary_level(a, b, c, k, offset=offset(a), config=config, size=size)
+    )
+    for depth in range(1, config.max_depth + 1):
+        (carry, (n_live, _)), t = _timed(bounce, arrays, bvh, carry, jnp.int32(depth), repeats=repeats)
+        rows.append((f"reflection bounce {depth}", t + (t0 if depth == 1 else 0)))
+        rows.append((f"  (bounce {depth} rays)", int(n_live)))
+    return carry[0][:n].reshape(batch + (3,))
+
+
+def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats):
+    from fovjax.foveate._api import _budget_for
+    from fovjax.foveate._frame import eccentricities, reconstruct, select_samples, slot_rays
+
+    config = dataclasses.replace(config, packet=None)
+    h, w, spp = rig.eye_height, rig.eye_width, foveation.spp
+    budget = _budget_for(rig, angles, foveation)
+    rows = []
+    ecc, t = _timed(
+        lambda r, p, g, f: eccentricities(r.eye_cameras(p), g, f),
+        rig,
+        angles,
+        gaze,
+        foveation,
+        repeats=repeats,
+    )
+    rows.append(("region / eccentricity", t))
+
+    def sample(r, p, e, k, f):
+        sel = select_samples(e, k, foveation=f, budget=budget)
+        return sel, slot_rays(r.eye_cameras(p), sel.slots, k, spp=spp, jitter=True, h=h, w=w)
+
+    (sel, (o, d)), t = _timed(sample, rig, angles, ecc, key, foveation, repeats=repeats)
+    rows.append(("sampling + compaction (+ ray generation)", t))
+    rgb = _radiance_stages(arrays, bvh, o, d, sel.active, config, rows, repeats)
+    _, t = _timed(
+        lambda c, s, f: reconstruct(c, s, spp=spp, h=h, w=w, foveation=f),
+        rgb,
+        sel,
+        foveation,
+        repeats=repeats,
+    )
+    rows.append(("accumulate + fill / blur", t))
+    return rows
+
+
+def profile_full(arrays, bvh, rig, angles, key, spp, config, repeats):
+    from fovjax.render import resolve, side_by_side, stereo_sample_rays
+
+    rows = []
+    rays, t = _timed(lambda r, p, k: stereo_sample_rays(r, p, spp, k), rig, angles, key, repeats=repeats)
+    rows.append(("sampling + compaction (+ ray generation)", t))
+    active = jnp.ones(rays.directions.shape[:-1], bool)
+    rgb = _radiance_stages(arrays, bvh, rays.origins, rays.directions, active, config, rows, repeats)
+    _, t = _timed(lambda c: side_by_side(resolve(c)[0]), rgb, repeats=repeats)
+    rows.append(("accumulate + fill / blur", t))
+    return rows
+
+
+def _whole(render, repeats):
+    """Median of the compiled program's own time and of the host overhead around it (argument
+    conversion, transfers, statistics), over `repeats` frames after a warm-up."""
+    frame = render(jax.random.key(10_000))
+    programs, hosts = [], []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        frame = render(jax.random.key(i))
+        wall = time.perf_counter() - t0
+        programs.append(frame.stats.render_seconds)
+        hosts.append(wall - frame.stats.render_seconds)
+    return 1000 * statistics.median(programs), 1000 * statistics.median(hosts), frame
+
+
+def profile(scene, bvh, rig, config, spp, pair, repeats):
+    """Per-stage table of a foveated and a full frame (gaze off-centre, head still)."""
+    arrays = scene_arrays(scene, background=config.background)
+    angles = np.zeros(3, np.float32)
+    gaze = np.asarray(OFF_CENTRE, np.float32)
+    key = jax.random.key(1)
+    foveation = Foveation.thesis(pair, spp=spp)
+    fov_rows = profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats)
+    full_rows = profile_full(arrays, bvh, rig, angles, key, spp, config, repeats)
+    fov_prog, fov_host, fov_frame = _whole(
+        lambda k: fovjax.render_stereo(
+            scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=config, bvh=bvh
+        ),
+        repeats,
+    )
+    full_prog, full_host, full_frame = _whole(
+        lambda k: render_stereo(scene, rig, spp=spp, key=k, config=config, bvh=bvh), repeats
+    )
+    fov_rows.append(("host: arguments, transfers, stats", fov_host))
+    full_rows.append(("host: arguments, transfers, stats", full_host))
+    fd, ud = dict(fov_rows), dict(full_rows)
+    counts = {n: (fd.get(n), ud.get(n)) for n, _ in fov_rows + full_rows if "rays)" in n}
+    fov = {n: t for n, t in fov_rows if n not in counts}
+    full = {n: t for n, t in full_rows if n not in counts}
+    names = list(dict.fromkeys([n for n, _ in fov_rows] + [n for n, _ in full_rows]))
+    total_fov, total_full = sum(fov.values()), sum(full.values())
+    print(
+        f"\nPer-stage profile, 2 x {rig.eye_width}x{rig.eye_height}, SPP {spp}, "
+        f"foveated {pair[0]}°/{pair[1]}° "
+        f"vs full, gaze {OFF_CENTRE}; each stage compiled on its own and timed on the same inputs "
+        f"(median of {repeats}); the real frame is one fused program (its time below)."
+    )
+    print(f"{'stage':48s}{'foveated ms':>12s}{'%':>7s}{'full ms':>12s}{'%':>7s}")
+
+    def cell(table, total, name):
+        return (
+            f"{table[name]:12.1f}{100 * table[name] / total:7.1f}" if name in table else f"{'-':>12s}{'':>7s}"
+        )
+
+    for name in names:
+        if name in counts:
+            a, b = ("-" if x is None else f"{x:,}" for x in counts[name])
+            print(f"{name:48s}{a:>12s}{'':7s}{b:>12s}")
+        else:
+            print(f"{name:48s}{cell(fov, total_fov, name)}{cell(full, total_full, name)}")
+    print(f"{'sum of stages':48s}{total_fov:12.1f}{100.0:7.1f}{total_full:12.1f}{100.0:7.1f}")
+    print(f"{'the fused program (render_seconds)':48s}{fov_prog:12.1f}{'':7s}{full_prog:12.1f}")
+    fr, rr = fov_frame.stats.rays, full_frame.stats.rays
+    print(
+        f"rays traced: foveated {fr:,} ({fov_frame.stats.primary_rays:,} primary), full {rr:,} "
+        f"({full_frame.stats.primary_rays:,} primary): {fr / rr:.1%} of the rays in "
+        f"{fov_prog / full_prog:.1%} "
+        f"of the time; cost per ray foveated / full = {(fov_prog / fr) / (full_prog / rr):.2f}x"
+    )
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="2 x 1280x1024 (default: 2 x 640x512)")
@@ -74,12 +293,22 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--backend", choices=("jax", "embree"), default="jax")
     ap.add_argument("--max-depth", type=int, default=5)
+    ap.add_argument("--profile", action="store_true", help="per-stage table (first --spp, --pair)")
+    ap.add_argument("--pair", type=float, nargs=2, default=(5.0, 10.0), help="fovea, periphery (--profile)")
+    ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
     args = ap.parse_args(argv)
     w, h = (1280, 1024) if args.full else (640, 512)
+    if args.size:
+        w, h = args.size
     scene = fovjax.scenes.atrium()
     bvh = build_bvh(scene)
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    if args.profile:
+        print(
+            f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
+        )
+        return profile(scene, bvh, rig, config, args.spp[0], tuple(args.pair), args.repeats)
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "

@@ -49,27 +49,42 @@ class FoveatedOutputs(NamedTuple):
     prefill: Float[Array, "2 H W 3"]
 
 
-def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, *, spp, jitter, config, foveation, budget):
-    """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
-    arguments static. `gaze` (2, 2): per-eye normalised display coordinates.
+class Selection(NamedTuple):
+    """Which samples of a stereo frame are traced: per-eye eccentricity and regions, the class
+    of every sample (2, S, H, W), the count per class, and the `budget` slots (flat sample
+    indices into (2, S, H, W)) with which of them hold a wanted sample."""
 
-    Only the `budget` selected samples ever become rays: their sub-pixel positions are the full
-    render's (`pixel_sample_positions` from the same key) and their directions are computed
-    from their indices, so no screen-sized ray arrays exist."""
-    from .._camera import pixel_sample_positions
-    from ..render._integrator import radiance
+    eccentricity: Float[Array, "2 H W"]
+    region: Int[Array, "2 H W"]
+    classes: Int[Array, "2 S H W"]
+    counts: Int[Array, " 3"]
+    slots: Int[Array, " B"]
+    active: Bool[Array, " B"]
 
-    cameras = rig.eye_cameras(head_pose)
-    h, w = rig.eye_height, rig.eye_width
-    ecc = jnp.stack([eccentricity_map(cam, gaze[i], foveation) for i, cam in enumerate(cameras)])
+
+def eccentricities(cameras, gaze, foveation) -> Float[Array, "2 H W"]:
+    """Stage 1: each eye's eccentricity map from its gaze point."""
+    return jnp.stack([eccentricity_map(cam, gaze[i], foveation) for i, cam in enumerate(cameras)])
+
+
+def select_samples(ecc, key, *, foveation, budget) -> Selection:
+    """Stage 2: regions, sample classes from the sampling stream of `key`, and the compaction
+    of the traced samples into `budget` slots."""
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
     classes, region = zip(*(sample_classes(ecc[i], foveation, keys[i]) for i in range(2)), strict=True)
     classes, region = jnp.stack(classes), jnp.stack(region)  # (2, S, H, W), (2, H, W)
-
     order, counts = compaction_order(classes.reshape(-1))
     wanted = counts[MANDATORY] + counts[OPTIONAL]
     slots = order[:budget]
     active = jnp.arange(budget) < wanted
+    return Selection(ecc, region, classes, counts, slots, active)
+
+
+def slot_rays(cameras, slots, key, *, spp, jitter, h, w):
+    """Primary rays of the slots: the full render's sub-pixel positions (the same key gives the
+    same positions), directions computed from the indices (no screen-sized ray arrays)."""
+    from .._camera import pixel_sample_positions
+
     per_eye = spp * h * w
     eye = slots // per_eye
     in_eye = slots % per_eye  # index into (S, H, W)
@@ -78,19 +93,48 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, *, spp, jitter, confi
     is_left = (eye == 0)[:, None]
     directions = jnp.where(is_left, left.ray_directions(xy), right.ray_directions(xy))
     origins = jnp.where(is_left, left.position, right.position)
-    result = radiance(scene, bvh, origins, directions, active, config=config)
+    return origins, directions
 
-    pixel = eye * (h * w) + in_eye % (h * w)
-    rgb = jnp.where(active[:, None], result.rgb, 0.0)
+
+def reconstruct(rgb, selection: Selection, *, spp, h, w, foveation):
+    """Last stage: accumulate the traced samples into their pixels, fill and blur each eye.
+    Returns (side-by-side image, per-pixel traced counts (2, H, W), prefill (2, H, W, 3),
+    traced sample mask (2, S, H, W), primary rays per region (3,))."""
+    slots, active, region, ecc = selection.slots, selection.active, selection.region, selection.eccentricity
+    per_eye = spp * h * w
+    pixel = (slots // per_eye) * (h * w) + (slots % per_eye) % (h * w)
+    rgb = jnp.where(active[:, None], rgb, 0.0)
     sums = jnp.zeros((2 * h * w, 3), jnp.float32).at[pixel].add(rgb).reshape(2, h, w, 3)
     n_traced = jnp.zeros(2 * h * w, jnp.int32).at[pixel].add(active.astype(jnp.int32)).reshape(2, h, w)
     prefill = sums / jnp.maximum(n_traced, 1)[..., None]
     eyes = [fill_and_blur_pixels(prefill[i], n_traced[i], region[i], ecc[i], foveation)[0] for i in range(2)]
     image = jnp.concatenate(eyes, axis=1)
-    traced = jnp.zeros(classes.size, bool).at[slots].set(active).reshape(classes.shape)
-
+    traced = jnp.zeros(selection.classes.size, bool).at[slots].set(active).reshape(selection.classes.shape)
     # One scatter-add instead of three masked reductions (slow on XLA:CPU).
     by_region = jnp.zeros(3, jnp.int32).at[region.reshape(-1)].add(n_traced.reshape(-1))
+    return image, n_traced, prefill, traced, by_region
+
+
+def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, *, spp, jitter, config, foveation, budget):
+    """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
+    arguments static. `gaze` (2, 2): per-eye normalised display coordinates.
+
+    Only the `budget` selected samples ever become rays: their sub-pixel positions are the full
+    render's (`pixel_sample_positions` from the same key) and their directions are computed
+    from their indices, so no screen-sized ray arrays exist."""
+    from ..render._integrator import radiance
+
+    cameras = rig.eye_cameras(head_pose)
+    h, w = rig.eye_height, rig.eye_width
+    ecc = eccentricities(cameras, gaze, foveation)
+    sel = select_samples(ecc, key, foveation=foveation, budget=budget)
+    origins, directions = slot_rays(cameras, sel.slots, key, spp=spp, jitter=jitter, h=h, w=w)
+    result = radiance(scene, bvh, origins, directions, sel.active, config=config)
+    image, _, prefill, traced, by_region = reconstruct(
+        result.rgb, sel, spp=spp, h=h, w=w, foveation=foveation
+    )
+    counts = sel.counts
+    wanted = counts[MANDATORY] + counts[OPTIONAL]
     return FoveatedOutputs(
         image=image,
         counts=result.counts,
@@ -100,7 +144,7 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, *, spp, jitter, confi
         dropped=jnp.maximum(wanted - budget, 0),
         padding=jnp.maximum(budget - wanted, 0),
         traced=traced,
-        region=region,
+        region=sel.region,
         eccentricity=ecc,
         prefill=prefill,
     )
