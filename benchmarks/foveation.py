@@ -18,7 +18,6 @@ reported separately and is not in the frame times. The machine is noisy: read th
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import statistics
 import sys
 import time
@@ -167,13 +166,107 @@ def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
     return carry[0][:n].reshape(batch + (3,))
 
 
-def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats):
-    from fovjax.foveate._api import _budget_for
-    from fovjax.foveate._frame import eccentricities, reconstruct, select_samples, slot_rays
+def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats):
+    """The chunked integrator's stages (`radiance_in_chunks`), each compiled and timed on its
+    own over the live chunks: primary traversal, shadow rays of the primary hits, the rest of
+    the primary level (shading, reflection spawn and queueing), each reflection bounce."""
+    from fovjax.render import chunk_loop
+    from fovjax.render._integrator import (
+        _chunks,
+        _packet_of,
+        _primary_level,
+        _queue_level,
+        _surface_and_shadow_rays,
+        _trace_primary,
+        _trace_shadows,
+    )
+    from fovjax.render._vec import normalize
+    from fovjax.trace import Hit
 
-    config = dataclasses.replace(config, packet=None)
+    chunks = _chunks(n_slots, config)
+    size = chunks.size
+    packet = _packet_of(config)
+    offset = lambda a: config.ray_offset * scene_scale(a)  # noqa: E731
+    lanes = jnp.arange(size, dtype=jnp.int32)
+
+    def hits(a, b, n):
+        def body(buf, first):
+            o, d = rays_at(first, size)
+            hit = _trace_primary(
+                a, b, o, normalize(d), first + lanes < n, packet=packet, backend=config.backend
+            )
+            return tuple(
+                jax.lax.dynamic_update_slice_in_dim(x, y, first, 0) for x, y in zip(buf, hit, strict=True)
+            )
+
+        init = (
+            jnp.zeros(chunks.padded),
+            jnp.zeros(chunks.padded, jnp.int32),
+            jnp.zeros(chunks.padded),
+            jnp.zeros(chunks.padded),
+        )
+        return chunk_loop(chunks.count, size, n, body, init)
+
+    hit, t = _timed(hits, arrays, bvh, n_live, repeats=repeats)
+    rows.append(("primary traversal", t))
+
+    def shadow_stage(a, b, hit, n, trace):
+        def body(count, first):
+            o, d = rays_at(first, size)
+            h = Hit(*(jax.lax.dynamic_slice_in_dim(x, first, size) for x in hit))
+            _, rays = _surface_and_shadow_rays(a, h, normalize(d), first + lanes < n, offset(a))
+            if trace:
+                blocked = _trace_shadows(b, rays, packet, config.backend)
+                return count + jnp.sum(blocked)
+            return count + jnp.sum(rays.tmax)
+
+        return chunk_loop(chunks.count, size, n, body, jnp.float32(0))
+
+    _, t_setup = _timed(
+        lambda a, b, h, n: shadow_stage(a, b, h, n, False), arrays, bvh, hit, n_live, repeats=repeats
+    )
+    _, t_with = _timed(
+        lambda a, b, h, n: shadow_stage(a, b, h, n, True), arrays, bvh, hit, n_live, repeats=repeats
+    )
+    (total, queue, n_q, _, _), t_level = _timed(
+        lambda a, b, n: _primary_level(a, b, rays_at, n, chunks, offset=offset(a), config=config),
+        arrays,
+        bvh,
+        n_live,
+        repeats=repeats,
+    )
+    rows.append(("shading (surfaces, lights, spawn)", max(t_level - t - (t_with - t_setup), 0.0)))
+    rows.append(("shadow rays (depth 0)", max(t_with - t_setup, 0.0)))
+    bounce = jax.jit(
+        lambda a, b, tot, q, n, k: _queue_level(a, b, tot, q, n, k, chunks, offset=offset(a), config=config)
+    )
+    for depth in range(1, config.max_depth + 1):
+        n_rays = int(n_q)
+        (total, queue, n_q, _), t = _timed(
+            bounce, arrays, bvh, total, queue, n_q, jnp.int32(depth), repeats=repeats
+        )
+        rows.append((f"reflection bounce {depth}", t))
+        rows.append((f"  (bounce {depth} rays)", n_rays))
+    return total
+
+
+def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats):
+    from fovjax._camera import pixel_sample_positions
+    from fovjax.foveate._api import _budget_for
+    from fovjax.foveate._frame import (
+        accumulate,
+        eccentricities,
+        fill_and_blur_eyes,
+        select_samples,
+        slot_rays,
+        traced_count,
+        traced_mask,
+    )
+    from fovjax.render._integrator import _chunks
+
     h, w, spp = rig.eye_height, rig.eye_width, foveation.spp
     budget = _budget_for(rig, angles, foveation)
+    chunks = _chunks(budget, config)
     rows = []
     ecc, t = _timed(
         lambda r, p, g, f: eccentricities(r.eye_cameras(p), g, f),
@@ -185,20 +278,29 @@ def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, rep
     )
     rows.append(("region / eccentricity", t))
 
-    def sample(r, p, e, k, f):
+    def sample(e, k, f):
         sel = select_samples(e, k, foveation=f, budget=budget)
-        return sel, slot_rays(r.eye_cameras(p), sel.slots, k, spp=spp, jitter=True, h=h, w=w)
+        if chunks.padded > sel.order.shape[0]:
+            sel = sel._replace(order=jnp.pad(sel.order, (0, chunks.padded - sel.order.shape[0])))
+        return sel, pixel_sample_positions(w, h, spp, k)
 
-    (sel, (o, d)), t = _timed(sample, rig, angles, ecc, key, foveation, repeats=repeats)
+    (sel, positions), t = _timed(sample, ecc, key, foveation, repeats=repeats)
     rows.append(("sampling + compaction (+ ray generation)", t))
-    rgb = _radiance_stages(arrays, bvh, o, d, sel.active, config, rows, repeats)
-    _, t = _timed(
-        lambda c, s, f: reconstruct(c, s, spp=spp, h=h, w=w, foveation=f),
-        rgb,
-        sel,
-        foveation,
-        repeats=repeats,
-    )
+    cameras = rig.eye_cameras(angles)
+
+    def rays_at(first, size):
+        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
+        return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
+
+    total = _chunked_stages(arrays, bvh, rays_at, sel.n_traced, budget, config, rows, repeats)
+
+    def finish(tot, s, f):
+        mask = traced_mask(s, budget)
+        n = traced_count(mask, spp)
+        prefill, _, _ = accumulate(tot, s, n, spp=spp, h=h, w=w, size=chunks.size, bad_color=config.bad_color)
+        return fill_and_blur_eyes(prefill, n, s, f)
+
+    _, t = _timed(finish, total, sel, foveation, repeats=repeats)
     rows.append(("accumulate + fill / blur", t))
     return rows
 
@@ -220,6 +322,7 @@ def _whole(render, repeats):
     """Median of the compiled program's own time and of the host overhead around it (argument
     conversion, transfers, statistics), over `repeats` frames after a warm-up."""
     frame = render(jax.random.key(10_000))
+    print(f"    (compile {frame.stats.compile_seconds:.1f} s)", flush=True)
     programs, hosts = [], []
     for i in range(repeats):
         t0 = time.perf_counter()
@@ -286,6 +389,45 @@ def profile(scene, bvh, rig, config, spp, pair, repeats):
     )
 
 
+def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
+    """The done-when ratios of issue 12: foveated (off-centre gaze) against the full frame, the
+    medians of `repeats` frames each after a warm-up, both in this run; and recompiles when the
+    thresholds change within the maximum."""
+    f_of = lambda spp: Foveation.thesis(pair, spp=spp)  # noqa: E731
+    print(
+        f"\nSpeed-up, 2 x {rig.eye_width}x{rig.eye_height}, foveated {pair[0]}°/{pair[1]}° "
+        f"at gaze {OFF_CENTRE} "
+        f"vs full, median of {repeats} frames (fresh key each)"
+    )
+    for spp in spps:
+        fov_t, _, fov = _whole(
+            lambda k, spp=spp: fovjax.render_stereo(
+                scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh
+            ),
+            repeats,
+        )
+        full_t, _, full = _whole(
+            lambda k, spp=spp: render_stereo(scene, rig, spp=spp, key=k, config=config, bvh=bvh), repeats
+        )
+        first = fovjax.render_stereo(
+            scene,
+            rig,
+            gaze=OFF_CENTRE,
+            foveation=Foveation.thesis((7.5, 15.0), spp=spp),
+            key=jax.random.key(99),
+            config=config,
+            bvh=bvh,
+        )
+        per_ray = (fov_t / fov.stats.rays) / (full_t / full.stats.rays)
+        print(
+            f"  SPP {spp}: foveated {fov_t:8.1f} ms ({fov.stats.rays:,} rays)  full {full_t:8.1f} ms "
+            f"({full.stats.rays:,} rays)  speed-up {full_t / fov_t:5.2f}x  cost per traced ray "
+            f"foveated/full {per_ray:4.2f}x  ({fov.stats.rays / full.stats.rays:.1%} of the rays); "
+            f"7.5°/15° next: compile {first.stats.compile_seconds:.1f} s"
+        )
+        sys.stdout.flush()
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="2 x 1280x1024 (default: 2 x 640x512)")
@@ -296,6 +438,7 @@ def main(argv=None):
     ap.add_argument("--profile", action="store_true", help="per-stage table (first --spp, --pair)")
     ap.add_argument("--pair", type=float, nargs=2, default=(5.0, 10.0), help="fovea, periphery (--profile)")
     ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
+    ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
     args = ap.parse_args(argv)
     w, h = (1280, 1024) if args.full else (640, 512)
     if args.size:
@@ -309,6 +452,11 @@ def main(argv=None):
             f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
         )
         return profile(scene, bvh, rig, config, args.spp[0], tuple(args.pair), args.repeats)
+    if args.speedup:
+        print(
+            f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
+        )
+        return speedup_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats)
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "

@@ -128,7 +128,8 @@ def _run(args) -> int:
     import numpy as np
 
     import fovjax
-    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, render_stereo, scene_arrays
+    from fovjax import render_stereo
+    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, scene_arrays
     from fovjax.trace import build_bvh, last_build_info
 
     if args.width <= 0 or args.height <= 0:

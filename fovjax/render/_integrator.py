@@ -432,3 +432,170 @@ def radiance(
         bad=jnp.sum(bad, dtype=jnp.int32),
     )
     return Radiance(rgb, bad, counts)
+
+
+# ---- rays made chunk by chunk: a cost that follows the live rays, not the slots -------------
+
+
+class ChunkedRadiance(NamedTuple):
+    """`radiance_in_chunks`'s result: the radiance of every slot (padded to whole chunks; slots
+    beyond the live ones are 0) and the rays traced."""
+
+    total: Float[Array, "P 3"]
+    primary: Int[Array, ""]
+    shadow: Int[Array, ""]
+    reflection: Int[Array, ""]
+
+
+def chunk_loop(n_chunks: int, size: int, n_live, body, init):
+    """`body(carry, first)` for each chunk of `size` whose first index is below `n_live`; the
+    others are skipped by a `lax.cond` (a scan over the chunks: one copy of the body compiled)."""
+
+    def step(carry, c):
+        first = c * size
+        return jax.lax.cond(first < n_live, lambda cr: body(cr, first), lambda cr: cr, carry), None
+
+    return jax.lax.scan(step, init, jnp.arange(n_chunks, dtype=jnp.int32))[0]
+
+
+def _append(queue, n, rays, alive):
+    """Move the `alive` entries of a chunk's `rays` to the front and write the chunk into
+    `queue` at `n`: the first `n + alive.sum()` queue entries are then live. The queue must
+    have a chunk of room beyond its capacity (the chunk is written whole)."""
+    k, order = _live_first(alive)
+    queue = tuple(
+        jax.lax.dynamic_update_slice_in_dim(q, x[order], n, 0) for q, x in zip(queue, rays, strict=True)
+    )
+    return queue, n + k
+
+
+class _Chunks(NamedTuple):
+    size: int
+    count: int
+
+    @property
+    def padded(self) -> int:
+        return self.size * self.count
+
+
+def _chunks(n_slots: int, config) -> _Chunks:
+    size = min(config.chunk_size, n_slots)
+    return _Chunks(size, -(-n_slots // size))
+
+
+def _empty_queue(chunks: _Chunks):
+    """(origins, directions, weights, target slots) with a chunk of room beyond the slots."""
+    capacity = chunks.padded + chunks.size
+    return (
+        jnp.zeros((capacity, 3), jnp.float32),
+        jnp.ones((capacity, 3), jnp.float32),
+        jnp.zeros((capacity, 3), jnp.float32),
+        jnp.zeros((capacity,), jnp.int32),
+    )
+
+
+def _packet_of(config):
+    """A chunk is a flat list of rays: a tile packet becomes that many consecutive rays."""
+    packet = config.packet
+    return int(np.prod(packet)) if isinstance(packet, tuple) else packet
+
+
+def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config):
+    """Depth 0 of `radiance_in_chunks`: (total (padded, 3), queue, queued, primary, shadow)."""
+    size = chunks.size
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    spawn = config.max_depth > 0
+    packet = _packet_of(config)
+
+    def body(carry, first):
+        total, queue, n_q, n_primary, n_shadow = carry
+        o, d = rays_at(first, size)
+        o = jnp.asarray(o, jnp.float32)
+        d_raw = jnp.asarray(d, jnp.float32)
+        d = normalize(d_raw)
+        valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        active = first + lanes < n_live
+        weight = jnp.ones((size, 3), jnp.float32)
+        contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
+            scene,
+            bvh,
+            o,
+            d,
+            active,
+            weight,
+            packet=packet,
+            offset=offset,
+            backend=config.backend,
+            spawn=spawn,
+        )
+        total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
+        if spawn:
+            queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes), alive2)
+        n_primary = n_primary + jnp.sum(active & valid, dtype=jnp.int32)
+        return total, queue, n_q, n_primary, n_shadow + traced
+
+    zero = jnp.int32(0)
+    total = jnp.zeros((chunks.padded, 3), jnp.float32)
+    init = (total, _empty_queue(chunks), zero, zero, zero)
+    return chunk_loop(chunks.count, size, n_live, body, init)
+
+
+def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config):
+    """One reflection level over the queue's first `n_q` rays, in place: (total, queue, the
+    next level's queued rays, shadow rays traced)."""
+    size = chunks.size
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    spawn = depth < config.max_depth
+
+    def body(inner, first):
+        total, queue, n_next, n_shadow = inner
+        o, d, weight, target = (jax.lax.dynamic_slice_in_dim(q, first, size) for q in queue)
+        alive = first + lanes < n_q
+        contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
+            scene, bvh, o, d, alive, weight, packet=None, offset=offset, backend=config.backend, spawn=spawn
+        )
+        total = total.at[target].add(contribution)
+        queue, n_next = _append(queue, n_next, (o2, d2, w2, target), alive2)
+        return total, queue, n_next, n_shadow + traced
+
+    # Chunks past the queued rays are skipped; the writes of a chunk go to the queue's front,
+    # never past the chunk just read (a level appends at most as many rays as it reads).
+    zero = jnp.int32(0)
+    return chunk_loop(chunks.count, size, n_q, body, (total, queue, zero, zero))
+
+
+def radiance_in_chunks(
+    scene: SceneArrays, bvh: BVH, rays_at, n_live, *, n_slots: int, config: RenderConfig = DEFAULT_CONFIG
+) -> ChunkedRadiance:
+    """Whitted radiance of up to `n_slots` rays of which the first `n_live` are live, made and
+    traced chunk by chunk (`config.chunk_size`): `rays_at(first, size)` returns the
+    `(origins, directions)` of slots first..first+size. Chunks past `n_live` cost nothing.
+
+    Every depth level runs over chunks of a queue: a chunk's reflection rays are compacted
+    (O(chunk)) and appended to the queue in place, so no pass over all slots ever happens
+    after the primary rays, and reflection rays stay in the order of the slots that spawned
+    them (spatially coherent when the slots are). Primary rays and their shadow rays are traced
+    as `config.packet` (an int, or a tile's size as consecutive rays: a chunk is a flat list);
+    later levels one by one. Pure and jittable; differentiable as `radiance` (through shading).
+    """
+    scene = jax.tree.map(jnp.asarray, scene)
+    chunks = _chunks(n_slots, config)
+    offset = config.ray_offset * scene_scale(scene)
+    total, queue, n_q, n_primary, n_shadow = _primary_level(
+        scene, bvh, rays_at, n_live, chunks, offset=offset, config=config
+    )
+
+    def level(carry, depth):
+        total, queue, n_q, n_shadow = carry
+        total, queue, n_next, traced = _queue_level(
+            scene, bvh, total, queue, n_q, depth, chunks, offset=offset, config=config
+        )
+        return (total, queue, n_next, n_shadow + traced), n_q
+
+    n_reflection = jnp.int32(0)
+    if config.max_depth > 0:
+        (total, _, _, n_shadow), per_level = jax.lax.scan(
+            level, (total, queue, n_q, n_shadow), jnp.arange(1, config.max_depth + 1)
+        )
+        n_reflection = jnp.sum(per_level)
+    return ChunkedRadiance(total, n_primary, n_shadow, n_reflection)
