@@ -587,8 +587,8 @@ def radiance_in_chunks(
     after the primary rays, and reflection rays stay in the order of the slots that spawned
     them (spatially coherent when the slots are). Primary rays and their shadow rays are traced
     in packets of `config.packet` consecutive rays where that is an int, else one by one (a
-    chunk is a flat list, not an image); later levels one by one. Pure and jittable; the chunk loops are `lax.while_loop`s, so
-    forward-mode derivatives only (`radiance` takes `jax.grad`).
+    chunk is a flat list, not an image); later levels one by one. Pure and jittable; the chunk
+    loops are `lax.while_loop`s, so forward-mode derivatives only (`radiance` takes `jax.grad`).
     """
     scene = jax.tree.map(jnp.asarray, scene)
     chunks = _chunks(n_slots, config)
