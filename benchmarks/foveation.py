@@ -400,15 +400,27 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         f"vs full, median of {repeats} frames (fresh key each)"
     )
     for spp in spps:
-        fov_t, _, fov = _whole(
-            lambda k, spp=spp: fovjax.render_stereo(
-                scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh
-            ),
-            repeats,
+        fov_render = lambda k, spp=spp: fovjax.render_stereo(  # noqa: E731
+            scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh
         )
-        full_t, _, full = _whole(
-            lambda k, spp=spp: render_stereo(scene, rig, spp=spp, key=k, config=config, bvh=bvh), repeats
+        full_render = lambda k, spp=spp: render_stereo(  # noqa: E731
+            scene, rig, spp=spp, key=k, config=config, bvh=bvh
         )
+        # Warm-up (compile), then foveated and full frames alternately, so that the load of
+        # this shared machine falls on both alike.
+        warm = fov_render(jax.random.key(10_000)), full_render(jax.random.key(10_000))
+        print(
+            f"    SPP {spp}: compile foveated {warm[0].stats.compile_seconds:.1f} s, "
+            f"full {warm[1].stats.compile_seconds:.1f} s",
+            flush=True,
+        )
+        fov_ts, full_ts = [], []
+        for i in range(repeats):
+            fov = fov_render(jax.random.key(i))
+            full = full_render(jax.random.key(i))
+            fov_ts.append(fov.stats.render_seconds)
+            full_ts.append(full.stats.render_seconds)
+        fov_t, full_t = 1000 * statistics.median(fov_ts), 1000 * statistics.median(full_ts)
         first = fovjax.render_stereo(
             scene,
             rig,
@@ -423,7 +435,8 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             f"  SPP {spp}: foveated {fov_t:8.1f} ms ({fov.stats.rays:,} rays)  full {full_t:8.1f} ms "
             f"({full.stats.rays:,} rays)  speed-up {full_t / fov_t:5.2f}x  cost per traced ray "
             f"foveated/full {per_ray:4.2f}x  ({fov.stats.rays / full.stats.rays:.1%} of the rays); "
-            f"7.5°/15° next: compile {first.stats.compile_seconds:.1f} s"
+            f"7.5°/15° next: compile {first.stats.compile_seconds:.1f} s\n"
+            f"    frames ms: foveated {[round(1000 * t) for t in fov_ts]}, full {[round(1000 * t) for t in full_ts]}"
         )
         sys.stdout.flush()
 
