@@ -436,7 +436,8 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             f"({full.stats.rays:,} rays)  speed-up {full_t / fov_t:5.2f}x  cost per traced ray "
             f"foveated/full {per_ray:4.2f}x  ({fov.stats.rays / full.stats.rays:.1%} of the rays); "
             f"7.5°/15° next: compile {first.stats.compile_seconds:.1f} s\n"
-            f"    frames ms: foveated {[round(1000 * t) for t in fov_ts]}, full {[round(1000 * t) for t in full_ts]}"
+            f"    frames ms: foveated {[round(1000 * t) for t in fov_ts]}, "
+            f"full {[round(1000 * t) for t in full_ts]}"
         )
         sys.stdout.flush()
 
