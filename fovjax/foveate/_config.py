@@ -102,12 +102,29 @@ class Foveation(eqx.Module):
     max_periphery_deg: float | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
+        traced = isinstance(self.fovea_deg, jax.core.Tracer) or isinstance(
+            self.periphery_deg, jax.core.Tracer
+        )
+        if not traced:
+            self._check_thresholds()
+        self._check_options()
+
+    def _check_thresholds(self):
         if not (math.isfinite(self.fovea_deg) and self.fovea_deg >= 0):
             raise ValueError(f"Foveation.fovea_deg must be a finite angle >= 0, got {self.fovea_deg}")
         if not (math.isfinite(self.periphery_deg) and self.periphery_deg >= self.fovea_deg):
             raise ValueError(
                 f"Foveation.periphery_deg must be >= fovea_deg ({self.fovea_deg}), got {self.periphery_deg}"
             )
+        if self.max_periphery_deg is not None and not (
+            math.isfinite(self.max_periphery_deg) and self.max_periphery_deg >= self.periphery_deg
+        ):
+            raise ValueError(
+                f"Foveation.max_periphery_deg must be >= periphery_deg ({self.periphery_deg}), "
+                f"got {self.max_periphery_deg}"
+            )
+
+    def _check_options(self):
         n = int(round(self.spp**0.5))
         if self.spp < 1 or n * n != self.spp:
             raise ValueError(f"Foveation.spp must be a positive square (1, 4, 9, 16, ...), got {self.spp}")
@@ -127,13 +144,6 @@ class Foveation(eqx.Module):
             raise ValueError(f"Foveation.blur_sigma must be > 0, got {self.blur_sigma}")
         if not callable(self.acuity):
             raise ValueError(f"Foveation.acuity must be callable (ω -> probability), got {self.acuity!r}")
-        if self.max_periphery_deg is not None and not (
-            math.isfinite(self.max_periphery_deg) and self.max_periphery_deg >= self.periphery_deg
-        ):
-            raise ValueError(
-                f"Foveation.max_periphery_deg must be >= periphery_deg ({self.periphery_deg}), "
-                f"got {self.max_periphery_deg}"
-            )
         if self.ray_budget is not None and self.ray_budget < 1:
             raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")
 
