@@ -173,7 +173,8 @@ def _run(args, out: Path) -> int:
     import numpy as np
 
     import fovjax
-    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, render_stereo, scene_arrays
+    from fovjax import render_stereo
+    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, scene_arrays
     from fovjax.trace import build_bvh, last_build_info
 
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
