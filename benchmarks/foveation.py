@@ -4,6 +4,8 @@
     python benchmarks/foveation.py --full          # the thesis's 2 x 1280x1024
     python benchmarks/foveation.py --spp 1 4       # a subset of SPP values
     python benchmarks/foveation.py --backend embree
+    python benchmarks/foveation.py --profile       # per-stage ms and % of a foveated and a full frame
+    python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
 
 For every SPP and every thesis (fovea, periphery) pair plus full rendering, on the atrium, in
 stereo, gaze at each display's centre, head still: rays per frame (primary + shadow +
@@ -18,13 +20,15 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
+import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import fovjax
 from fovjax.foveate import THESIS_PAIRS, Foveation, render_foveated
-from fovjax.render import RenderConfig, StereoRig, render_stereo
+from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays, scene_scale
 from fovjax.trace import build_bvh
 
 SPPS = (1, 4, 9, 16)
@@ -67,6 +71,377 @@ def pct(x):
     return f"{x:+7.1f}%"
 
 
+# ---- --profile: per-stage times -----------------------------------------------------------
+
+# An off-centre gaze (each eye looking up and to the left of its display centre).
+OFF_CENTRE = ((0.32, 0.38), (0.28, 0.38))
+
+
+def _timed(fn, *args, repeats):
+    """Compile `fn` alone, then the median ms of `repeats` calls (block_until_ready each)."""
+    jitted = fn if hasattr(fn, "lower") else jax.jit(fn)
+    out = jax.block_until_ready(jitted(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(jitted(*args))
+        times.append(time.perf_counter() - t0)
+    return out, 1000 * statistics.median(times)
+
+
+def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
+    """The integrator's stages on the given rays, each compiled and timed on its own: primary
+    traversal, shading (surfaces, shadow-ray setup, lights, reflection spawn), shadow rays, and
+    each reflection bounce. Appends (stage, ms) to `rows`; returns the traced contribution."""
+    from fovjax.render._integrator import (
+        _chunking,
+        _finish_shading,
+        _secondary_carry,
+        _secondary_level,
+        _surface_and_shadow_rays,
+        _trace_primary,
+        _trace_shadows,
+        _usable_packet,
+    )
+    from fovjax.render._vec import normalize
+
+    batch = active.shape
+    packet = _usable_packet(config.packet, len(batch))
+    kw = {"backend": config.backend}
+    offset = lambda a: config.ray_offset * scene_scale(a)  # noqa: E731
+    d = jax.jit(normalize)(d)
+    hit, t = _timed(
+        lambda a, b, o, d, act: _trace_primary(a, b, o, d, act, packet=packet, **kw),
+        arrays,
+        bvh,
+        o,
+        d,
+        active,
+        repeats=repeats,
+    )
+    rows.append(("primary traversal", t))
+    (surface, rays), t_setup = _timed(
+        lambda a, hit, d, act: _surface_and_shadow_rays(a, hit, d, act, offset(a)),
+        arrays,
+        hit,
+        d,
+        active,
+        repeats=repeats,
+    )
+    blocked, t = _timed(lambda b, r: _trace_shadows(b, r, packet, config.backend), bvh, rays, repeats=repeats)
+    (contribution, state), t_finish = _timed(
+        lambda a, s, d, act, r, bl: _finish_shading(
+            a,
+            s,
+            d,
+            act,
+            jnp.ones(batch + (3,), jnp.float32),
+            r,
+            bl,
+            offset=offset(a),
+            spawn=config.max_depth > 0,
+        ),
+        arrays,
+        surface,
+        d,
+        active,
+        rays,
+        blocked,
+        repeats=repeats,
+    )
+    rows.append(("shading (surfaces, lights, spawn)", t_setup + t_finish))
+    rows.append(("shadow rays (depth 0)", t))
+    if config.max_depth == 0:
+        return contribution
+    n = int(np.prod(batch))
+    size, _ = _chunking(n, config)
+    carry, t0 = _timed(lambda c, s: _secondary_carry(c, s, config), contribution, state, repeats=repeats)
+    bounce = jax.jit(
+        lambda a, b, c, k: _secondary_level(a, b, c, k, offset=offset(a), config=config, size=size)
+    )
+    for depth in range(1, config.max_depth + 1):
+        (carry, (n_live, _)), t = _timed(bounce, arrays, bvh, carry, jnp.int32(depth), repeats=repeats)
+        rows.append((f"reflection bounce {depth}", t + (t0 if depth == 1 else 0)))
+        rows.append((f"  (bounce {depth} rays)", int(n_live)))
+    return carry[0][:n].reshape(batch + (3,))
+
+
+def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats):
+    """The chunked integrator's stages (`radiance_in_chunks`), each compiled and timed on its
+    own over the live chunks: primary traversal, shadow rays of the primary hits, the rest of
+    the primary level (shading, reflection spawn and queueing), each reflection bounce."""
+    from fovjax.render import chunk_loop
+    from fovjax.render._integrator import (
+        _chunks,
+        _packet_of,
+        _primary_level,
+        _queue_level,
+        _surface_and_shadow_rays,
+        _trace_primary,
+        _trace_shadows,
+    )
+    from fovjax.render._vec import normalize
+    from fovjax.trace import Hit
+
+    chunks = _chunks(n_slots, config)
+    size = chunks.size
+    packet = _packet_of(config)
+    offset = lambda a: config.ray_offset * scene_scale(a)  # noqa: E731
+    lanes = jnp.arange(size, dtype=jnp.int32)
+
+    def hits(a, b, n):
+        def body(buf, first):
+            o, d = rays_at(first, size)
+            hit = _trace_primary(
+                a, b, o, normalize(d), first + lanes < n, packet=packet, backend=config.backend
+            )
+            return tuple(
+                jax.lax.dynamic_update_slice_in_dim(x, y, first, 0) for x, y in zip(buf, hit, strict=True)
+            )
+
+        init = (
+            jnp.zeros(chunks.padded),
+            jnp.zeros(chunks.padded, jnp.int32),
+            jnp.zeros(chunks.padded),
+            jnp.zeros(chunks.padded),
+        )
+        return chunk_loop(chunks.count, size, n, body, init)
+
+    hit, t = _timed(hits, arrays, bvh, n_live, repeats=repeats)
+    rows.append(("primary traversal", t))
+
+    def shadow_stage(a, b, hit, n, trace):
+        def body(count, first):
+            o, d = rays_at(first, size)
+            h = Hit(*(jax.lax.dynamic_slice_in_dim(x, first, size) for x in hit))
+            _, rays = _surface_and_shadow_rays(a, h, normalize(d), first + lanes < n, offset(a))
+            if trace:
+                blocked = _trace_shadows(b, rays, packet, config.backend)
+                return count + jnp.sum(blocked)
+            return count + jnp.sum(rays.tmax)
+
+        return chunk_loop(chunks.count, size, n, body, jnp.float32(0))
+
+    _, t_setup = _timed(
+        lambda a, b, h, n: shadow_stage(a, b, h, n, False), arrays, bvh, hit, n_live, repeats=repeats
+    )
+    _, t_with = _timed(
+        lambda a, b, h, n: shadow_stage(a, b, h, n, True), arrays, bvh, hit, n_live, repeats=repeats
+    )
+    (total, queue, n_q, _, _), t_level = _timed(
+        lambda a, b, n: _primary_level(a, b, rays_at, n, chunks, offset=offset(a), config=config),
+        arrays,
+        bvh,
+        n_live,
+        repeats=repeats,
+    )
+    rows.append(("shading (surfaces, lights, spawn)", max(t_level - t - (t_with - t_setup), 0.0)))
+    rows.append(("shadow rays (depth 0)", max(t_with - t_setup, 0.0)))
+    bounce = jax.jit(
+        lambda a, b, tot, q, n, k: _queue_level(a, b, tot, q, n, k, chunks, offset=offset(a), config=config)
+    )
+    for depth in range(1, config.max_depth + 1):
+        n_rays = int(n_q)
+        (total, queue, n_q, _), t = _timed(
+            bounce, arrays, bvh, total, queue, n_q, jnp.int32(depth), repeats=repeats
+        )
+        rows.append((f"reflection bounce {depth}", t))
+        rows.append((f"  (bounce {depth} rays)", n_rays))
+    return total
+
+
+def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats):
+    from fovjax._camera import pixel_sample_positions
+    from fovjax.foveate._api import _budget_for
+    from fovjax.foveate._frame import (
+        accumulate,
+        eccentricities,
+        fill_and_blur_eyes,
+        select_samples,
+        slot_rays,
+        traced_count,
+        traced_mask,
+    )
+    from fovjax.render._integrator import _chunks
+
+    h, w, spp = rig.eye_height, rig.eye_width, foveation.spp
+    budget = _budget_for(rig, angles, foveation)
+    chunks = _chunks(budget, config)
+    rows = []
+    ecc, t = _timed(
+        lambda r, p, g, f: eccentricities(r.eye_cameras(p), g, f),
+        rig,
+        angles,
+        gaze,
+        foveation,
+        repeats=repeats,
+    )
+    rows.append(("region / eccentricity", t))
+
+    def sample(e, k, f):
+        sel = select_samples(e, k, foveation=f, budget=budget)
+        if chunks.padded > sel.order.shape[0]:
+            sel = sel._replace(order=jnp.pad(sel.order, (0, chunks.padded - sel.order.shape[0])))
+        return sel, pixel_sample_positions(w, h, spp, k)
+
+    (sel, positions), t = _timed(sample, ecc, key, foveation, repeats=repeats)
+    rows.append(("sampling + compaction (+ ray generation)", t))
+    cameras = rig.eye_cameras(angles)
+
+    def rays_at(first, size):
+        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
+        return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
+
+    total = _chunked_stages(arrays, bvh, rays_at, sel.n_traced, budget, config, rows, repeats)
+
+    def finish(tot, s, f):
+        mask = traced_mask(s, budget)
+        n = traced_count(mask, spp)
+        prefill, _, _ = accumulate(tot, s, n, spp=spp, h=h, w=w, size=chunks.size, bad_color=config.bad_color)
+        return fill_and_blur_eyes(prefill, n, s, f)
+
+    _, t = _timed(finish, total, sel, foveation, repeats=repeats)
+    rows.append(("accumulate + fill / blur", t))
+    return rows
+
+
+def profile_full(arrays, bvh, rig, angles, key, spp, config, repeats):
+    from fovjax.render import resolve, side_by_side, stereo_sample_rays
+
+    rows = []
+    rays, t = _timed(lambda r, p, k: stereo_sample_rays(r, p, spp, k), rig, angles, key, repeats=repeats)
+    rows.append(("sampling + compaction (+ ray generation)", t))
+    active = jnp.ones(rays.directions.shape[:-1], bool)
+    rgb = _radiance_stages(arrays, bvh, rays.origins, rays.directions, active, config, rows, repeats)
+    _, t = _timed(lambda c: side_by_side(resolve(c)[0]), rgb, repeats=repeats)
+    rows.append(("accumulate + fill / blur", t))
+    return rows
+
+
+def _whole(render, repeats):
+    """Median of the compiled program's own time and of the host overhead around it (argument
+    conversion, transfers, statistics), over `repeats` frames after a warm-up."""
+    frame = render(jax.random.key(10_000))
+    print(f"    (compile {frame.stats.compile_seconds:.1f} s)", flush=True)
+    programs, hosts = [], []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        frame = render(jax.random.key(i))
+        wall = time.perf_counter() - t0
+        programs.append(frame.stats.render_seconds)
+        hosts.append(wall - frame.stats.render_seconds)
+    return 1000 * statistics.median(programs), 1000 * statistics.median(hosts), frame
+
+
+def profile(scene, bvh, rig, config, spp, pair, repeats):
+    """Per-stage table of a foveated and a full frame (gaze off-centre, head still)."""
+    arrays = scene_arrays(scene, background=config.background)
+    angles = np.zeros(3, np.float32)
+    gaze = np.asarray(OFF_CENTRE, np.float32)
+    key = jax.random.key(1)
+    foveation = Foveation.thesis(pair, spp=spp)
+    fov_rows = profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats)
+    full_rows = profile_full(arrays, bvh, rig, angles, key, spp, config, repeats)
+    fov_prog, fov_host, fov_frame = _whole(
+        lambda k: fovjax.render_stereo(
+            scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=config, bvh=bvh
+        ),
+        repeats,
+    )
+    full_prog, full_host, full_frame = _whole(
+        lambda k: render_stereo(scene, rig, spp=spp, key=k, config=config, bvh=bvh), repeats
+    )
+    fov_rows.append(("host: arguments, transfers, stats", fov_host))
+    full_rows.append(("host: arguments, transfers, stats", full_host))
+    fd, ud = dict(fov_rows), dict(full_rows)
+    counts = {n: (fd.get(n), ud.get(n)) for n, _ in fov_rows + full_rows if "rays)" in n}
+    fov = {n: t for n, t in fov_rows if n not in counts}
+    full = {n: t for n, t in full_rows if n not in counts}
+    names = list(dict.fromkeys([n for n, _ in fov_rows] + [n for n, _ in full_rows]))
+    total_fov, total_full = sum(fov.values()), sum(full.values())
+    print(
+        f"\nPer-stage profile, 2 x {rig.eye_width}x{rig.eye_height}, SPP {spp}, "
+        f"foveated {pair[0]}°/{pair[1]}° "
+        f"vs full, gaze {OFF_CENTRE}; each stage compiled on its own and timed on the same inputs "
+        f"(median of {repeats}); the real frame is one fused program (its time below)."
+    )
+    print(f"{'stage':48s}{'foveated ms':>12s}{'%':>7s}{'full ms':>12s}{'%':>7s}")
+
+    def cell(table, total, name):
+        return (
+            f"{table[name]:12.1f}{100 * table[name] / total:7.1f}" if name in table else f"{'-':>12s}{'':>7s}"
+        )
+
+    for name in names:
+        if name in counts:
+            a, b = ("-" if x is None else f"{x:,}" for x in counts[name])
+            print(f"{name:48s}{a:>12s}{'':7s}{b:>12s}")
+        else:
+            print(f"{name:48s}{cell(fov, total_fov, name)}{cell(full, total_full, name)}")
+    print(f"{'sum of stages':48s}{total_fov:12.1f}{100.0:7.1f}{total_full:12.1f}{100.0:7.1f}")
+    print(f"{'the fused program (render_seconds)':48s}{fov_prog:12.1f}{'':7s}{full_prog:12.1f}")
+    fr, rr = fov_frame.stats.rays, full_frame.stats.rays
+    print(
+        f"rays traced: foveated {fr:,} ({fov_frame.stats.primary_rays:,} primary), full {rr:,} "
+        f"({full_frame.stats.primary_rays:,} primary): {fr / rr:.1%} of the rays in "
+        f"{fov_prog / full_prog:.1%} "
+        f"of the time; cost per ray foveated / full = {(fov_prog / fr) / (full_prog / rr):.2f}x"
+    )
+
+
+def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
+    """The done-when ratios of issue 12: foveated (off-centre gaze) against the full frame, the
+    medians of `repeats` frames each after a warm-up, both in this run; and recompiles when the
+    thresholds change within the maximum."""
+    f_of = lambda spp: Foveation.thesis(pair, spp=spp)  # noqa: E731
+    print(
+        f"\nSpeed-up, 2 x {rig.eye_width}x{rig.eye_height}, foveated {pair[0]}°/{pair[1]}° "
+        f"at gaze {OFF_CENTRE} "
+        f"vs full, median of {repeats} frames (fresh key each)"
+    )
+    for spp in spps:
+        fov_render = lambda k, spp=spp: fovjax.render_stereo(  # noqa: E731
+            scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh
+        )
+        full_render = lambda k, spp=spp: render_stereo(  # noqa: E731
+            scene, rig, spp=spp, key=k, config=config, bvh=bvh
+        )
+        # Warm-up (compile), then foveated and full frames alternately, so that the load of
+        # this shared machine falls on both alike.
+        warm = fov_render(jax.random.key(10_000)), full_render(jax.random.key(10_000))
+        print(
+            f"    SPP {spp}: compile foveated {warm[0].stats.compile_seconds:.1f} s, "
+            f"full {warm[1].stats.compile_seconds:.1f} s",
+            flush=True,
+        )
+        fov_ts, full_ts = [], []
+        for i in range(repeats):
+            fov = fov_render(jax.random.key(i))
+            full = full_render(jax.random.key(i))
+            fov_ts.append(fov.stats.render_seconds)
+            full_ts.append(full.stats.render_seconds)
+        fov_t, full_t = 1000 * statistics.median(fov_ts), 1000 * statistics.median(full_ts)
+        first = fovjax.render_stereo(
+            scene,
+            rig,
+            gaze=OFF_CENTRE,
+            foveation=Foveation.thesis((7.5, 15.0), spp=spp),
+            key=jax.random.key(99),
+            config=config,
+            bvh=bvh,
+        )
+        per_ray = (fov_t / fov.stats.rays) / (full_t / full.stats.rays)
+        print(
+            f"  SPP {spp}: foveated {fov_t:8.1f} ms ({fov.stats.rays:,} rays)  full {full_t:8.1f} ms "
+            f"({full.stats.rays:,} rays)  speed-up {full_t / fov_t:5.2f}x  cost per traced ray "
+            f"foveated/full {per_ray:4.2f}x  ({fov.stats.rays / full.stats.rays:.1%} of the rays); "
+            f"7.5°/15° next: compile {first.stats.compile_seconds:.1f} s\n"
+            f"    frames ms: foveated {[round(1000 * t) for t in fov_ts]}, "
+            f"full {[round(1000 * t) for t in full_ts]}"
+        )
+        sys.stdout.flush()
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="2 x 1280x1024 (default: 2 x 640x512)")
@@ -74,12 +449,28 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--backend", choices=("jax", "embree"), default="jax")
     ap.add_argument("--max-depth", type=int, default=5)
+    ap.add_argument("--profile", action="store_true", help="per-stage table (first --spp, --pair)")
+    ap.add_argument("--pair", type=float, nargs=2, default=(5.0, 10.0), help="fovea, periphery (--profile)")
+    ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
+    ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
     args = ap.parse_args(argv)
     w, h = (1280, 1024) if args.full else (640, 512)
+    if args.size:
+        w, h = args.size
     scene = fovjax.scenes.atrium()
     bvh = build_bvh(scene)
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    if args.profile:
+        print(
+            f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
+        )
+        return profile(scene, bvh, rig, config, args.spp[0], tuple(args.pair), args.repeats)
+    if args.speedup:
+        print(
+            f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
+        )
+        return speedup_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats)
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "

@@ -1,20 +1,28 @@
-"""Ray-query throughput: fovjax's JAX traversal against Embree, same rays, same process.
+"""Ray-query throughput: fovjax's JAX traversal against Embree and Mitsuba 3, same rays, one run.
 
-    python benchmarks/trace_throughput.py            # atrium (262k) and Cornell box, 1280x1024
-    python benchmarks/trace_throughput.py --quick    # smaller ray counts, for a quick check
+    python benchmarks/trace_throughput.py              # atrium (262k triangles), 1280x1024
+    python benchmarks/trace_throughput.py --quick      # 640x512 and 65k random rays
+    python benchmarks/trace_throughput.py --host-devices 2   # JAX on two CPU devices (both cores)
+    python benchmarks/trace_throughput.py --width 64 --height 48 --random 4096 --repeats 1   # smoke
 
-For each scene and ray type it prints rays per second (median of --repeats timed runs after a
-warm-up) of `closest_hit` and `occluded` on the JAX backend and on Embree (embreex, 1 thread;
-and the rays split over 2 threads), the ratios, compile time, BVH build time, table memory, and
-how far the two backends agree. Timings on shared machines are noisy: read the ratios.
+For each ray set it prints rays per second (median of --repeats timed runs after a warm-up) of
+the JAX backend and of the peers, timed on their own call alone, on arrays prepared beforehand:
+- Embree (embreex `EmbreeScene.run`, contiguous float32 arrays): embreex traces one ray at a time
+  with `rtcIntersect1`/`rtcOccluded1` on the calling thread and releases the GIL, so "1 thread" is
+  one call and "2 threads" is the rays split in two halves, one call per Python thread;
+- Mitsuba 3 (`llvm_ad_rgb`: `scene.ray_intersect_preliminary` / `scene.ray_test`, evaluated with
+  `dr.eval`), which uses every core; optional (`pip install 'fovjax[bench]'`; it also needs the
+  system's LLVM shared library, from Debian's package libllvm15).
+Then the ratios JAX / peer, compile time, and the hit/miss agreement with Embree (and Mitsuba).
 
-Ray sets:
-- "primary": one ray per pixel centre of the scene's default camera (coherent);
-- "random": origins uniform in the scene's bounding box, directions uniform on the sphere
-  (incoherent), seeded;
-- "shadow" (occluded only): from each primary hit point towards the scene's first light.
-Primary and shadow rays are traced as 8x8 packets (and primary rays also one by one); random
-rays one by one.
+Ray sets (seeded; the same arrays for every backend):
+- primary: one ray per pixel centre of the scene's default camera, traced as 8x8 packets;
+- random: origins uniform in the scene's bounding box, directions uniform on the sphere, one by one;
+- shadow: from each primary hit point towards the scene's first light (tmin 1e-4); "one by one"
+  traces only the rays of pixels that hit something (compacted), "8x8 packets" traces the whole
+  image in tiles with an empty interval (tmax = tmin) where the pixel saw nothing. Only live rays
+  are counted.
+Timings on shared machines are noisy: read the ratios of the same run.
 """
 
 from __future__ import annotations
@@ -32,7 +40,9 @@ import numpy as np
 import fovjax
 from fovjax._camera import Camera
 from fovjax.trace import build_bvh, closest_hit, last_build_info, occluded
-from fovjax.trace._embree import embree_scene, embree_trace_host
+
+MITSUBA_VARIANT = "llvm_ad_rgb"
+LLVM_PACKAGE = "libllvm15 (Debian: apt-get install libllvm15, or set DRJIT_LIBLLVM_PATH)"
 
 
 def timed(fn, repeats):
@@ -44,56 +54,209 @@ def timed(fn, repeats):
     return statistics.median(times)
 
 
-def embree_runner(scene, o, d, tmin, tmax, any_hit, threads):
-    if threads == 1:
-        return lambda: embree_trace_host(scene, o, d, tmin, tmax, any_hit)
-    parts = np.array_split(np.arange(len(o)), threads)
-    pool = ThreadPoolExecutor(threads)
+def prepared_for_peers(o, d, tmin, tmax):
+    """Rays as every peer takes them: start moved to tmin (peers start at t = 0), far distance
+    tmax - tmin, invalid or empty rays given far = 0. Contiguous float32."""
+    o, d = np.asarray(o, np.float32), np.asarray(d, np.float32)
+    tmin, tmax = np.asarray(tmin, np.float32), np.asarray(tmax, np.float32)
+    valid = np.isfinite(o).all(1) & np.isfinite(d).all(1) & (d != 0).any(1) & (tmax > tmin)
+    start = np.ascontiguousarray(np.where(valid[:, None], o + tmin[:, None] * d, 0.0), np.float32)
+    dirs = np.ascontiguousarray(np.where(valid[:, None], d, 1.0), np.float32)
+    far = np.ascontiguousarray(np.where(valid, np.minimum(tmax - tmin, 1e37), 0.0), np.float32)
+    return start, dirs, far, valid
 
-    def run():
-        futures = [
-            pool.submit(embree_trace_host, scene, o[p], d[p], tmin[p], tmax[p], any_hit) for p in parts
+
+class EmbreePeer:
+    """embreex on prepared arrays; `run` writes into `dists`, so each timed call gets a fresh
+    copy made before the clock starts."""
+
+    name = "Embree"
+
+    def __init__(self, vertices, faces):
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        self.scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self.scene, vertices=vertices, indices=faces)
+        one = np.zeros((1, 3), np.float32)
+        self.scene.run(one, one + 1, dists=np.ones(1, np.float32), output=1)  # commits (builds)
+        self.pool = ThreadPoolExecutor(2)
+
+    def runner(self, start, dirs, far, any_hit, threads, repeats):
+        parts = [
+            (np.ascontiguousarray(start[p]), np.ascontiguousarray(dirs[p]), far[p])
+            for p in np.array_split(np.arange(len(start)), threads)
         ]
-        return [f.result() for f in futures]
+        fresh = [[f.copy() for _, _, f in parts] for _ in range(repeats + 1)]
+        calls = iter(fresh)
+        scene = self.scene
 
-    return run
+        def one(s, dd, f):
+            if any_hit:
+                return scene.run(s, dd, dists=f, query="OCCLUDED")
+            return scene.run(s, dd, dists=f, output=1)
+
+        def run():
+            dists = next(calls)
+            if threads == 1:
+                return one(parts[0][0], parts[0][1], dists[0])
+            futures = [self.pool.submit(one, s, dd, f) for (s, dd, _), f in zip(parts, dists, strict=True)]
+            return [x.result() for x in futures]
+
+        return run
+
+    def hits(self, start, dirs, far, valid, any_hit):
+        if any_hit:
+            geom = np.asarray(self.scene.run(start, dirs, dists=far.copy(), query="OCCLUDED"))
+            return valid & (geom != -1)
+        res = self.scene.run(start, dirs, dists=far.copy(), output=1)
+        return valid & (res["geomID"] != -1)
+
+
+class MitsubaPeer:
+    name = "Mitsuba"
+
+    def __init__(self, vertices, faces):
+        import drjit as dr
+        import mitsuba as mi
+
+        mi.set_variant(MITSUBA_VARIANT)
+        self.mi, self.dr = mi, dr
+        mesh = mi.Mesh(
+            "mesh",
+            vertex_count=len(vertices),
+            face_count=len(faces),
+            has_vertex_normals=False,
+            has_vertex_texcoords=False,
+        )
+        params = mi.traverse(mesh)
+        params["vertex_positions"] = mi.Float(np.ascontiguousarray(vertices, np.float32).ravel())
+        params["faces"] = mi.UInt32(np.ascontiguousarray(faces, np.uint32).ravel())
+        params.update()
+        self.scene = mi.load_dict({"type": "scene", "mesh": mesh})
+        self.threads = dr.thread_count()
+
+    def _rays(self, start, dirs, far):
+        mi = self.mi
+        col = lambda x, i: mi.Float(np.ascontiguousarray(x[:, i]))  # noqa: E731
+        ray = mi.Ray3f(
+            mi.Point3f(*(col(start, i) for i in range(3))), mi.Vector3f(*(col(dirs, i) for i in range(3)))
+        )
+        ray.maxt = mi.Float(far)
+        self.dr.eval(ray)
+        return ray
+
+    def runner(self, start, dirs, far, any_hit, threads, repeats):
+        ray, dr, scene = self._rays(start, dirs, far), self.dr, self.scene
+
+        def run():
+            if any_hit:
+                out = scene.ray_test(ray)
+                dr.eval(out)
+            else:
+                pi = scene.ray_intersect_preliminary(ray)
+                dr.eval(pi.t, pi.prim_index)
+            dr.sync_thread()
+
+        return run
+
+    def hits(self, start, dirs, far, valid, any_hit):
+        ray = self._rays(start, dirs, far)
+        if any_hit:
+            return valid & np.asarray(self.scene.ray_test(ray), bool)
+        return valid & np.isfinite(np.asarray(self.scene.ray_intersect_preliminary(ray).t))
+
+
+def load_peers(vertices, faces, want):
+    peers = {}
+    if "embree" in want:
+        try:
+            peers["embree"] = EmbreePeer(vertices, faces)
+        except ImportError:
+            print("Embree: skipped (embreex is not installed: pip install 'fovjax[embree]')")
+    if "mitsuba" in want:
+        try:
+            import mitsuba  # noqa: F401
+        except ImportError:
+            print("Mitsuba: skipped (mitsuba is not installed: pip install 'fovjax[bench]')")
+        else:
+            try:
+                peers["mitsuba"] = MitsubaPeer(vertices, faces)
+            except Exception as exc:  # drjit found no LLVM: raised as ImportError by set_variant
+                print(
+                    f"Mitsuba: skipped, its {MITSUBA_VARIANT} variant needs the system's LLVM shared "
+                    f"library, install package {LLVM_PACKAGE} ({str(exc).strip().splitlines()[-1]})"
+                )
+    return peers
 
 
 def make_jax_query(bvh, any_hit, packet, kw):
     if any_hit:
         return jax.jit(lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet, **kw))
-    return jax.jit(lambda o, d, a, b: closest_hit(bvh, o, d, a, b, packet=packet, **kw).prim)
+
+    def query(o, d, a, b):
+        hit = closest_hit(bvh, o, d, a, b, packet=packet, **kw)
+        return hit.t, hit.prim
+
+    return jax.jit(query)
 
 
 def scene_rays(scene, width, height, n_random, seed):
     cam = Camera.from_pose(fovjax.scenes.default_camera(scene), width=width, height=height)
     o, d = cam.primary_rays()
-    o = np.asarray(o).reshape(-1, 3)
-    d = np.asarray(d).reshape(-1, 3)
+    o = np.asarray(o, np.float32).reshape(-1, 3)
+    d = np.asarray(d, np.float32).reshape(-1, 3)
     rng = np.random.default_rng(seed)
     lo, hi = scene.bounds
     centre, half = (lo + hi) / 2, (hi - lo) / 2 * 0.95
     ro = (centre + rng.uniform(-1, 1, (n_random, 3)) * half).astype(np.float32)
     rd = rng.normal(size=(n_random, 3))
     rd = (rd / np.linalg.norm(rd, axis=1, keepdims=True)).astype(np.float32)
-    return {"primary": (o, d), "random": (ro, rd)}
+    return (o, d), (ro, rd)
+
+
+def shadow_rays(scene, po, pd, bvh):
+    """Rays from every primary hit (found by the JAX backend) towards the first light."""
+    hit = closest_hit(bvh, po, pd)
+    t = np.asarray(hit.t)
+    seen = np.isfinite(t)
+    p = (po + pd * np.where(seen, t, 0.0)[:, None]).astype(np.float32)
+    light = np.asarray(scene.lights.position, np.float32)[0]
+    to_light = light - p
+    dist = np.linalg.norm(to_light, axis=1)
+    sd = (to_light / np.maximum(dist, 1e-12)[:, None]).astype(np.float32)
+    tmin = np.full(len(po), 1e-4, np.float32)
+    tmax = np.where(seen, dist * (1 - 1e-4), 1e-4).astype(np.float32)
+    return p, sd, tmin, tmax, seen
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="640x512 primary rays, 65k random rays")
-    ap.add_argument("--scenes", nargs="+", default=["atrium", "cornell_box"])
+    ap.add_argument("--scenes", nargs="+", default=["atrium"])
     ap.add_argument("--width", type=int, default=1280)
     ap.add_argument("--height", type=int, default=1024)
     ap.add_argument("--random", type=int, default=1 << 18, help="number of incoherent rays")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--peers", nargs="*", default=["embree", "mitsuba"], choices=["embree", "mitsuba"])
+    ap.add_argument("--rows", nargs="+", default=None, help="subset of: primary random shadow shadow8x8")
     ap.add_argument("--lanes", type=int, default=None, help="JAX traversal lanes (default: library default)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--host-devices",
+        type=int,
+        default=None,
+        help="CPU devices for JAX (jax_num_cpu_devices; default: JAX's, 1): with 2, closest_hit and "
+        "occluded split the rays over both cores",
+    )
     args = ap.parse_args(argv)
+    if args.host_devices is not None:
+        jax.config.update("jax_num_cpu_devices", args.host_devices)
     if args.quick:
         args.width, args.height, args.random = 640, 512, 1 << 16
 
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform}, {len(jax.devices())} device(s)")
+    dev = jax.devices()[0]
+    print(f"jax {jax.__version__} on {dev.platform} ({dev.device_kind}), {len(jax.devices())} device(s)")
     kw = {} if args.lanes is None else {"lanes": args.lanes}
     rows = []
     for name in args.scenes:
@@ -101,43 +264,39 @@ def main(argv=None):
         build_bvh(scene, cache=False)
         build = last_build_info()
         bvh = build_bvh(scene)
-        v, f = np.asarray(scene.vertices), np.asarray(scene.faces)
+        v, f = np.asarray(scene.vertices, np.float32), np.asarray(scene.faces, np.int32)
         t0 = time.perf_counter()
-        escene = embree_scene(bvh.key, v, f)
-        embree_trace_host(
-            escene, v[:1], np.ones((1, 3), np.float32), np.zeros(1, np.float32), np.ones(1, np.float32), False
-        )
-        embree_build = time.perf_counter() - t0
+        peers = load_peers(v, f, args.peers)
+        peer_build = time.perf_counter() - t0
         print(
             f"\n{name}: {scene.num_triangles:,} triangles; BVH build {build['seconds']:.2f} s "
-            f"(Embree {embree_build:.2f} s), {build['num_nodes']:,} 4-wide nodes, depth {build['depth']}, "
-            f"table {bvh.nbytes / 2**20:.1f} MiB"
+            f"(peers' scenes {peer_build:.2f} s), {build['num_nodes']:,} 4-wide nodes, depth "
+            f"{build['depth']}, table {bvh.nbytes / 2**20:.1f} MiB"
         )
-        rays = scene_rays(scene, args.width, args.height, args.random, args.seed)
+        if "mitsuba" in peers:
+            print(f"  Mitsuba {MITSUBA_VARIANT} on {peers['mitsuba'].threads} thread(s)")
+        (po, pd), (ro, rd) = scene_rays(scene, args.width, args.height, args.random, args.seed)
         h, w = args.height, args.width
-        # Shadow rays from every primary hit towards the first light; pixels that see nothing
-        # get an empty interval (tmax = tmin) and are not counted.
-        po, pd = rays["primary"]
-        zeros = np.zeros(len(po), np.float32)
-        ph_t, ph_prim = embree_trace_host(escene, po, pd, zeros, np.full(len(po), np.inf, np.float32), False)
-        hit = ph_prim >= 0
-        p = po + pd * np.where(hit, ph_t, 0.0)[:, None]
-        light = np.asarray(scene.lights.position)[0]
-        to_light = light - p
-        dist = np.linalg.norm(to_light, axis=1)
-        sd = (to_light / dist[:, None]).astype(np.float32)
-        s_tmin = np.full(len(po), 1e-4, np.float32)
-        s_tmax = np.where(hit, dist * (1 - 1e-4), 1e-4).astype(np.float32)
-        inf = np.full(len(po), np.inf, np.float32)
-        n_rand = len(rays["random"][0])
-        jobs = [
-            ("closest_hit", "primary", (8, 8), (h, w), po, pd, zeros, inf),
-            ("closest_hit", "primary", None, (h, w), po, pd, zeros, inf),
-            ("closest_hit", "random", None, (n_rand,), *rays["random"], zeros[:n_rand], inf[:n_rand]),
-            ("occluded", "shadow", (8, 8), (h, w), p.astype(np.float32), sd, s_tmin, s_tmax),
-            ("occluded", "random", None, (n_rand,), *rays["random"], zeros[:n_rand], inf[:n_rand]),
-        ]
-        for query, kind, packet, shape, o, d, tmin_h, tmax_h in jobs:
+        so, sd, s_tmin, s_tmax, seen = shadow_rays(scene, po, pd, bvh)
+        zeros = lambda n: np.zeros(n, np.float32)  # noqa: E731
+        infs = lambda n: np.full(n, np.inf, np.float32)  # noqa: E731
+        jobs = {
+            "primary": ("closest_hit", "primary", (8, 8), (h, w), po, pd, zeros(h * w), infs(h * w)),
+            "random": ("closest_hit", "random", None, (len(ro),), ro, rd, zeros(len(ro)), infs(len(ro))),
+            "shadow": (
+                "occluded",
+                "shadow",
+                None,
+                (int(seen.sum()),),
+                so[seen],
+                sd[seen],
+                s_tmin[seen],
+                s_tmax[seen],
+            ),
+            "shadow8x8": ("occluded", "shadow", (8, 8), (h, w), so, sd, s_tmin, s_tmax),
+        }
+        for key in args.rows or list(jobs):
+            query, kind, packet, shape, o, d, tmin_h, tmax_h = jobs[key]
             any_hit = query == "occluded"
             n = int(np.sum(tmax_h > tmin_h))
             arrays = [jnp.asarray(x).reshape(shape + x.shape[1:]) for x in (o, d, tmin_h, tmax_h)]
@@ -147,30 +306,38 @@ def main(argv=None):
             first = time.perf_counter() - t0
             t_jax = timed(lambda fn=fn, arrays=arrays: jax.block_until_ready(fn(*arrays)), args.repeats)
             compile_s = max(first - t_jax, 0.0)
-            t_e1 = timed(embree_runner(escene, o, d, tmin_h, tmax_h, any_hit, 1), args.repeats)
-            t_e2 = timed(embree_runner(escene, o, d, tmin_h, tmax_h, any_hit, 2), args.repeats)
-            _, e_prim = embree_trace_host(escene, o, d, tmin_h, tmax_h, any_hit)
-            out = np.asarray(out).reshape(-1)
-            agree = np.mean((out if any_hit else out >= 0) == (e_prim >= 0))
+            jax_hit = np.asarray(out if any_hit else out[1] >= 0).reshape(-1)
+            start, dirs, far, valid = prepared_for_peers(o, d, tmin_h, tmax_h)
             r = {
                 "scene": name,
                 "query": query,
                 "rays": kind,
-                "traversal": "packet 8x8" if packet else "single",
+                "traversal": "8x8 packets" if packet else "one by one",
                 "n": n,
                 "jax": n / t_jax / 1e6,
-                "e1": n / t_e1 / 1e6,
-                "e2": n / t_e2 / 1e6,
                 "compile": compile_s,
-                "agree": agree,
             }
+            for pname, peer in peers.items():
+                configs = [1, 2] if pname == "embree" else [peer.threads]
+                for threads in configs:
+                    label = f"{pname}{threads}" if pname == "embree" else pname
+                    fn_p = peer.runner(start, dirs, far, any_hit, threads, args.repeats)
+                    fn_p()  # warm-up (Mitsuba compiles its kernel here)
+                    r[label] = n / timed(fn_p, args.repeats) / 1e6
+                r[f"agree_{pname}"] = float(np.mean(peer.hits(start, dirs, far, valid, any_hit) == jax_hit))
             rows.append(r)
-            print(
-                f"  {query:11s} {kind:7s} {r['traversal']:10s} {n:>9,} rays  JAX {r['jax']:6.3f}  "
-                f"Embree-1 {r['e1']:6.3f}  Embree-2 {r['e2']:6.3f} Mrays/s  "
-                f"JAX/E1 {r['jax'] / r['e1']:5.3f}  JAX/E2 {r['jax'] / r['e2']:5.3f}  "
-                f"compile {compile_s:4.1f} s  hit/miss agree {agree:.5f}"
-            )
+            line = f"  {query:11s} {kind:7s} {r['traversal']:11s} {n:>9,} rays  JAX {r['jax']:6.3f}"
+            for label, title in (("embree1", "Embree-1"), ("embree2", "Embree-2"), ("mitsuba", "Mitsuba")):
+                if label in r:
+                    line += f"  {title} {r[label]:6.3f}"
+            line += " Mrays/s "
+            for label, title in (("embree1", "E1"), ("embree2", "E2"), ("mitsuba", "Mi")):
+                if label in r:
+                    line += f" JAX/{title} {r['jax'] / r[label]:5.3f}"
+            line += f"  compile {compile_s:4.1f} s"
+            for pname in peers:
+                line += f"  agree-{pname} {r[f'agree_{pname}']:.5f}"
+            print(line)
             sys.stdout.flush()
     return rows
 

@@ -20,6 +20,7 @@ from ._camera import (
 from ._camera import (
     vfov_from_hfov as vfov_from_hfov,
 )
+from ._dispatch import render_stereo as render_stereo
 from ._image import load_image as load_image
 from ._image import save_image as save_image
 from ._loaders import load_scene as load_scene
@@ -51,6 +52,5 @@ from ._session import run_session as run_session
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig
 from .render import StereoRig as StereoRig
-from .render import render_stereo as render_stereo
 
 __version__ = "0.1.0"

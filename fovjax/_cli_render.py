@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from fovjax import cli
+
 SCENE_ALIASES = {"cornell": "cornell_box"}
 
 
@@ -113,26 +115,68 @@ def _load_scene(args):
     return fovjax.load_scene(args.scene)
 
 
-def run(args) -> int:
-    try:
-        return _run(args)
-    except ValueError as err:
-        print(f"fovjax render: error: {err}", file=sys.stderr)
-        return 2
+def validate(args) -> Path:
+    """Every argument of `fovjax render`, before anything is built or compiled; returns the
+    output path."""
+    from fovjax._image import HDR_SUFFIXES
 
+    cli.scene(args.scene)
+    cli.squares(args.spp, "--spp")
+    cli.seed(args.seed)
+    cli.number(args.width, "--width", ge=1)
+    cli.number(args.height, "--height", ge=1)
+    cli.number(args.max_depth, "--max-depth", ge=0)
+    cli.number(args.triangles, "--triangles", ge=1)
+    cli.number(args.exposure, "--exposure", gt=0)
+    for name, value in zip(("yaw", "pitch", "roll"), args.head, strict=True):
+        cli.number(value, f"--head {name}")
+    cli.display_point(args.gaze[0], "--gaze (left eye)")
+    cli.display_point(args.gaze[1], "--gaze (right eye)")
+    cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+    args.envmap_image = None
+    if args.envmap is not None:
+        from fovjax.render import load_envmap
 
-def _run(args) -> int:
+        cli.input_file(args.envmap, "--envmap")
+        try:  # loaded here, once: a file that does not decode is refused before any work
+            args.envmap_image = load_envmap(args.envmap)
+        except (ValueError, OSError) as err:
+            raise cli.UsageError(f"--envmap {args.envmap}: {err}") from None
+    suffixes = (".png", *HDR_SUFFIXES)
     if args.preview:
-        return _run_preview(args)
+        out = Path(args.output or f"out/{_scene_name(args)}_preview.png")
+        return cli.output(out, "-o", suffixes=(".png",))
+    out = cli.output(args.output or f"out/{_scene_name(args)}.png", "-o", suffixes=suffixes)
+    if args.stereo and not args.full and not args.no_reference:
+        cli.output(out.with_name(out.stem + "_full" + out.suffix), "-o (the full render beside it)")
+    if args.show_samples:
+        cli.output(out.with_name(out.stem + "_samples.png"), "--show-samples")
+    return out
+
+
+def _scene_name(args) -> str:
+    import fovjax
+
+    name = SCENE_ALIASES.get(args.scene, args.scene)
+    return name if name in fovjax.scenes.BUILTIN else Path(args.scene).stem
+
+
+def run(args) -> int:
+    out = validate(args)
+    if args.preview:
+        return _run_preview(args, out)
+    return _run(args, out)
+
+
+def _run(args, out: Path) -> int:
     import jax
     import numpy as np
 
     import fovjax
-    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, render_stereo, scene_arrays
+    from fovjax import render_stereo
+    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, scene_arrays
     from fovjax.trace import build_bvh, last_build_info
 
-    if args.width <= 0 or args.height <= 0:
-        raise ValueError(f"--width/--height must be positive, got {args.width}x{args.height}")
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
     steps = 4
     t0 = time.perf_counter()
@@ -142,7 +186,7 @@ def _run(args) -> int:
     _progress(2, steps, f"BVH of {scene.num_triangles:,} triangles")
     bvh = build_bvh(scene)
     build = last_build_info()
-    arrays = scene_arrays(scene, envmap=args.envmap, background=config.background)
+    arrays = scene_arrays(scene, envmap=args.envmap_image, background=config.background)
     pose = fovjax.scenes.default_camera(scene)
     key = None if args.seed is None else jax.random.key(args.seed)
     _progress(3, steps, "compiling and rendering (compiling takes a while the first time)")
@@ -184,9 +228,10 @@ def _run(args) -> int:
                 height=camera.height,
             )
         frame = render(arrays, camera, spp=args.spp, key=key, config=config, bvh=bvh)
-    out = Path(args.output or f"out/{scene.name}.png")
     _progress(4, steps, f"writing {out}")
-    frame.save(out, exposure=args.exposure, tonemap_curve=args.tonemap)
+    with cli.deferred_interrupt():
+        frame.save(out, exposure=args.exposure, tonemap_curve=args.tonemap)
+        cli.wrote(out)
     cached = ", BVH from cache" if build["from_cache"] else f", BVH built in {build['seconds']:.2f} s"
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
     platform = jax.devices()[0].platform
@@ -202,11 +247,15 @@ def _run(args) -> int:
         )
         if args.show_samples:
             samples = out.with_name(out.stem + "_samples.png")
-            fovjax.save_image(samples, frame.debug_view)
+            with cli.deferred_interrupt():
+                fovjax.save_image(samples, frame.debug_view)
+                cli.wrote(samples)
             print(f"  regions and samples -> {samples.resolve()}")
         if reference is not None:
             full_out = out.with_name(out.stem + "_full" + out.suffix)
-            reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
+            with cli.deferred_interrupt():
+                reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
+                cli.wrote(full_out)
             r, s = reference.stats, frame.stats
             print(f"full     {r.summary()} -> {full_out.resolve()}")
             print(
@@ -220,7 +269,7 @@ def _run(args) -> int:
     return 0
 
 
-def _run_preview(args) -> int:
+def _run_preview(args, out: Path) -> int:
     import jax
     import numpy as np
 
@@ -245,8 +294,9 @@ def _run_preview(args) -> int:
     image = jax.block_until_ready(normal_depth_image_jit(bvh, camera))
     trace_s = time.perf_counter() - t0
 
-    out = Path(args.output or f"out/{scene.name}_preview.png")
-    save_image(out, np.asarray(image))
+    with cli.deferred_interrupt():
+        save_image(out, np.asarray(image))
+        cli.wrote(out)
     rays = args.width * args.height
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (built in {t_scene:.2f} s)")
     cached = " (from cache)" if build["from_cache"] else ""

@@ -53,34 +53,67 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--video", action="store_true", help="also write session.mp4 (needs imageio-ffmpeg)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="how long a live device may take to connect before the session fails (default 3)",
+    )
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.set_defaults(func=run)
 
 
+def validate(args) -> None:
+    """Every argument of `fovjax session`, before a scene is built or a device opened."""
+    import importlib.util
+
+    from fovjax import cli
+
+    cli.source_spec(args.gaze, "gaze", "--gaze")
+    if args.head is not None:
+        cli.source_spec(args.head, "head", "--head")
+    cli.number(args.fps, "--fps", gt=0)
+    if args.frames is not None:
+        cli.number(args.frames, "--frames", ge=1)
+    else:
+        cli.number(args.seconds, "--seconds", gt=0)
+        if round(args.seconds * args.fps) < 1:
+            raise cli.UsageError(f"--seconds {args.seconds:g}: shorter than one frame at --fps {args.fps:g}")
+    cli.scene(args.scene)
+    cli.number(args.triangles, "--triangles", ge=1)
+    cli.number(args.width, "--width", ge=1)
+    cli.number(args.height, "--height", ge=1)
+    cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+    cli.squares(args.spp, "--spp")
+    cli.seed(args.seed)
+    cli.number(args.max_depth, "--max-depth", ge=0)
+    if args.hold_for is not None:
+        cli.number(args.hold_for, "--hold-for", ge=0)
+    if args.widen_every is not None:
+        cli.number(args.widen_every, "--widen-every", gt=0)
+    if args.widen_steps is not None:
+        cli.number(args.widen_steps, "--widen-steps", ge=1)
+    if args.wait is not None:
+        cli.number(args.wait, "--wait", gt=0)
+    if args.video and importlib.util.find_spec("imageio_ffmpeg") is None:
+        raise cli.UsageError("--video: needs imageio-ffmpeg (pip install 'fovjax[video]')")
+    cli.output(args.output, "-o", directory=True)
+
+
 def run(args) -> int:
-    from fovjax.devices import DeviceError
-
-    try:
-        return _run(args)
-    except (ValueError, OSError, ImportError, DeviceError) as err:
-        # Bad arguments, a missing recording, an unusable device or the video extra missing.
-        print(f"fovjax session: error: {err}", file=sys.stderr)
-        return 2
-
-
-def _run(args) -> int:
     import dataclasses
 
     import jax
 
     import fovjax
+    from fovjax import cli
     from fovjax._cli_render import _load_scene
-    from fovjax.devices import FallbackPolicy, GazeTracker
+    from fovjax.devices import DEFAULT_CONNECT_TIMEOUT, ConnectTimeoutError, FallbackPolicy, GazeTracker
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
 
-    if args.width <= 0 or args.height <= 0:
-        raise ValueError(f"--width/--height must be positive, got {args.width}x{args.height}")
+    validate(args)
     policy = FallbackPolicy()
     changes = {
         name: value
@@ -99,29 +132,37 @@ def _run(args) -> int:
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
-    result = fovjax.run_session(
-        scene,
-        rig,
-        gaze=args.gaze,
-        head=args.head,
-        foveation=Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp),
-        frames=args.frames,
-        seconds=args.seconds,
-        fps=args.fps,
-        out=args.output,
-        key=jax.random.key(args.seed),
-        fresh_key_per_frame=not args.fixed_key,
-        clock=None if args.clock == "auto" else args.clock,
-        tracker=tracker,
-        config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
-        video=args.video,
-        debug=args.show_samples,
-        progress=not args.no_progress,
-    )
+    try:
+        result = fovjax.run_session(
+            scene,
+            rig,
+            gaze=args.gaze,
+            head=args.head,
+            foveation=Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp),
+            frames=args.frames,
+            seconds=args.seconds,
+            fps=args.fps,
+            out=args.output,
+            key=jax.random.key(args.seed),
+            fresh_key_per_frame=not args.fixed_key,
+            clock=None if args.clock == "auto" else args.clock,
+            tracker=tracker,
+            config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
+            video=args.video,
+            debug=args.show_samples,
+            progress=not args.no_progress,
+            wait=DEFAULT_CONNECT_TIMEOUT if args.wait is None else args.wait,
+        )
+    except ConnectTimeoutError as err:
+        raise ConnectTimeoutError(f"{err} (--wait SECONDS keeps trying longer)") from None
     s = result.summary
+    written = _written(result, args)
+    cli.wrote(*written)
+    for warning in s["warnings"]:
+        print(f"fovjax session: warning: {warning}", file=sys.stderr)
     if not result.frames:
         print("no frames rendered (interrupted)")
-        return 1
+        raise KeyboardInterrupt
     states = ", ".join(f"{state} {count}" for state, count in s["tracking_states"].items())
     latency = "" if s["ok_latency_s_mean"] is None else f", ok latency {s['ok_latency_s_mean'] * 1e3:.1f} ms"
     print(
@@ -129,8 +170,32 @@ def _run(args) -> int:
         f"{s['render_s_mean']:.3f} s per frame, compile {s['compile_s_total']:.1f} s; tracking {states}"
         f"{latency}{' (interrupted)' if s['interrupted'] else ''}"
     )
-    written = "frame_*.png, " + ("debug_*.png, " if args.show_samples else "") + "session.csv, session.json"
+    for role, status in s["sources"].items():
+        age = status["last_sample_age_s"]
+        print(
+            f"{role} {status['spec']}: {status['samples']} samples, {status['reconnects']} reconnect(s), "
+            f"{status['errors']} error(s), last sample "
+            + ("never" if age is None else f"{age * 1e3:.0f} ms before the last frame")
+            + (f"; last error: {status['last_error']}" if status["last_error"] else "")
+        )
+    kinds = "frame_*.png, " + ("debug_*.png, " if args.show_samples else "") + "session.csv, session.json"
     if result.video is not None:
-        written += ", session.mp4"
-    print(f"wrote {result.out.resolve()}/ ({written})")
-    return 0
+        kinds += ", session.mp4"
+    print(f"wrote {result.out.resolve()}/ ({kinds})")
+    if s["interrupted"]:
+        raise KeyboardInterrupt
+    return 1 if s["warnings"] else 0
+
+
+def _written(result, args) -> list:
+    """The files the session finished: its frames, its log and its video."""
+    out = result.out
+    if out is None:
+        return []
+    files = [f.path for f in result.frames if f.path]
+    if args.show_samples:
+        files += [str(out / f"debug_{f.frame:05d}.png") for f in result.frames]
+    files += [p for p in (out / "session.csv", out / "session.json") if p.exists()]
+    if result.video is not None and result.video.exists():
+        files.append(result.video)
+    return files

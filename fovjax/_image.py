@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._atomic import atomic_path
+
 # OpenCV reads and writes OpenEXR only when this is set before cv2 is imported.
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
 
@@ -71,13 +73,15 @@ def save_image(path, image, *, exposure: float = 1.0, tonemap_curve: str = "clip
     if suffix not in (".png", *HDR_SUFFIXES):
         raise ValueError(f"save_image: unknown image format {suffix!r} for {path} (use .png, .exr or .hdr)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    if suffix == ".png":
-        display = tonemap(image[..., :3], exposure=exposure, curve=tonemap_curve)
-        rgb8 = np.round(linear_to_srgb(display) * 255).astype(np.uint8)
-        iio.imwrite(path, rgb8)
-    else:
-        _opencv_plugin(path, "save_image:")
-        iio.imwrite(path, np.ascontiguousarray(image[..., :3]), plugin="opencv")
+    # Written under a temporary name and renamed: the file is complete or absent.
+    with atomic_path(path) as tmp:
+        if suffix == ".png":
+            display = tonemap(image[..., :3], exposure=exposure, curve=tonemap_curve)
+            rgb8 = np.round(linear_to_srgb(display) * 255).astype(np.uint8)
+            iio.imwrite(tmp, rgb8)
+        else:
+            _opencv_plugin(path, "save_image:")
+            iio.imwrite(tmp, np.ascontiguousarray(image[..., :3]), plugin="opencv")
     return path
 
 

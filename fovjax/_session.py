@@ -66,7 +66,13 @@ class SessionFrame:
     when the frame started; `gaze_*`: the gaze rendered from (normalised display coordinates
     per eye); `fovea_pixels`: foveal pixels of both eyes; `rejected_samples`: bad samples so far
     (cumulative); `render_s`/`compile_s`: the compiled program's run time and the compile time
-    this frame paid (0 when the program was cached)."""
+    this frame paid (0 when the program was cached).
+
+    The sources' state when the frame started (`head_*` None without a head source):
+    `*_connected` (a device's link is up; a recording or synthetic source: open),
+    `*_samples` (samples it delivered so far, of any quality), `*_reconnects` (connections
+    after the first), `*_errors` (connection and read errors so far) and `*_sample_age_s` (the
+    age of its newest sample; inf before the first)."""
 
     frame: int
     time_s: float
@@ -91,6 +97,16 @@ class SessionFrame:
     compile_s: float
     rejected_samples: int
     path: str
+    gaze_connected: bool = False
+    gaze_samples: int = 0
+    gaze_reconnects: int = 0
+    gaze_errors: int = 0
+    gaze_sample_age_s: float = math.inf
+    head_connected: bool | None = None
+    head_samples: int | None = None
+    head_reconnects: int | None = None
+    head_errors: int | None = None
+    head_sample_age_s: float | None = None
 
     @property
     def rays(self) -> int:
@@ -125,15 +141,16 @@ def _is_live(spec_or_source) -> bool:
     return isinstance(spec_or_source, ThreadedSource)
 
 
-def _source(spec_or_source, kind, clock, duration, name):
-    """A source for `spec_or_source` on `clock`: specs are built on it, source objects that are
-    not open yet are re-clocked onto it (an open one must already use it)."""
+def _source(spec_or_source, kind, clock, duration, name, wait=None):
+    """A source for `spec_or_source` on `clock`: specs are built on it (a live device given
+    `wait` seconds to connect), source objects that are not open yet are re-clocked onto it (an
+    open one must already use it)."""
     if spec_or_source is None:
         return None
     if isinstance(spec_or_source, str):
         from .devices import source_from_spec
 
-        return source_from_spec(spec_or_source, kind, duration=duration, clock=clock)
+        return source_from_spec(spec_or_source, kind, duration=duration, clock=clock, connect_timeout=wait)
     from .devices import Source
 
     source = spec_or_source
@@ -224,6 +241,7 @@ def run_session(
     warmup: bool | None = None,
     progress: bool = True,
     bvh=None,
+    wait: float | None = None,
 ) -> SessionResult:
     """Render `frames` (or `seconds` × `fps`) foveated stereo frames of `scene` following the
     `gaze` source and optionally a `head` source (a spec such as "synthetic:scanpath:0",
@@ -241,8 +259,16 @@ def run_session(
     `out/session.json` (``{"summary": ..., "frames": [...]}``), with `debug=True` the regions /
     samples view `out/debug_00000.png`..., with `video=True` `out/session.mp4` (needs the
     `video` extra, imageio-ffmpeg). Ctrl-C ends the session early; the frames so far are kept
-    and logged (``summary["interrupted"]``)."""
-    from .devices import GazeTracker, HeadTracker, widen_thresholds
+    and logged (``summary["interrupted"]``); every file written is complete (frames are not
+    cut by an interrupt, the log is written to a temporary name and renamed).
+
+    Sources are opened before anything is compiled: a live device given as a spec that does
+    not connect within `wait` seconds (default `fovjax.devices.DEFAULT_CONNECT_TIMEOUT`) raises
+    a `DeviceError` naming the spec, the device and the reason. Each frame logs its sources'
+    state (`SessionFrame`); ``summary["sources"]`` has each source's final state and
+    ``summary["warnings"]`` says when a source never delivered a sample."""
+    from ._atomic import deferred_interrupt, interrupt_flag
+    from .devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from .foveate import Foveation, render_foveated
     from .render import StereoRig
     from .render._arrays import SceneArrays, scene_arrays
@@ -287,8 +313,9 @@ def run_session(
     # Synthetic sources end after `duration`; on the wall clock rendering may be slower than the
     # timeline, so there they never end.
     duration = n_frames / rate + 1.0 if vclock is not None else None
-    gaze_source = _source(gaze, "gaze", now, duration, "gaze")
-    head_source = _source(head, "head", now, duration, "head")
+    wait = DEFAULT_CONNECT_TIMEOUT if wait is None else wait
+    gaze_source = _source(gaze, "gaze", now, duration, "gaze", wait)
+    head_source = _source(head, "head", now, duration, "head", wait)
     key = jax.random.key(0) if key is None else key
     out = Path(out) if out is not None else None
     if out is not None:
@@ -307,26 +334,32 @@ def run_session(
 
     warmup = clock == "wall" if warmup is None else warmup
     warmup_s = 0.0
-    if warmup:
-        t0 = time.perf_counter()
-        steps = tracker.policy.widen_steps
-        for step in range(steps + 1):
-            render(((0.5, 0.5), (0.5, 0.5)), foveation_at(step / steps), (0.0, 0.0, 0.0), key)
-        warmup_s = time.perf_counter() - t0
-
     rows: list[SessionFrame] = []
+    last_sample = {"gaze": -math.inf, "head": -math.inf}
     writer = None
     bar = None
     interrupted = False
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=n_frames, unit="frame", desc="session")
     started = time.perf_counter()
+    # Ctrl-C sets `stop` (checked every frame) as well as raising KeyboardInterrupt.
+    interrupt = interrupt_flag()
+    stop = interrupt.__enter__()
     try:
+        # Open before compiling: a device that cannot connect says so at once.
         gaze_source.open()
         if head_source is not None:
             head_source.open()
+        if warmup:
+            t0 = time.perf_counter()
+            steps = tracker.policy.widen_steps
+            for step in range(steps + 1):
+                if stop.is_set():
+                    raise KeyboardInterrupt
+                render(((0.5, 0.5), (0.5, 0.5)), foveation_at(step / steps), (0.0, 0.0, 0.0), key)
+            warmup_s = time.perf_counter() - t0
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n_frames, unit="frame", desc="session")
         if video:
             import imageio.v2 as iio
 
@@ -336,13 +369,21 @@ def run_session(
                 )
         last_frame_s = 0.0
         for k in range(n_frames):
+            if stop.is_set():
+                raise KeyboardInterrupt
             if vclock is not None:
                 vclock.set(k / rate)  # not a running sum: no drift over long sessions
             t = now()
             # Wall clock: the frame is shown about one frame's rendering time from now.
             display_time = t if vclock is not None else t + last_frame_s
-            tf = tracker.step(t, gaze_source.drain(), display_time=display_time)
-            hf = head_tracker.step(t, head_source.drain()) if head_source is not None else None
+            gaze_samples = gaze_source.drain()
+            head_samples = head_source.drain() if head_source is not None else []
+            for role, got in (("gaze", gaze_samples), ("head", head_samples)):
+                if got:
+                    last_sample[role] = max(last_sample[role], got[-1].timestamp)
+            states = _source_states(gaze_source, head_source, last_sample, t)
+            tf = tracker.step(t, gaze_samples, display_time=display_time)
+            hf = head_tracker.step(t, head_samples) if head_source is not None else None
             pose = (hf.yaw, hf.pitch, hf.roll) if hf is not None else (0.0, 0.0, 0.0)
             frame_fov = foveation_at(tf.widening)
             gaze_xy = np.clip(np.array([tf.left, tf.right], np.float32), 0.0, 1.0)
@@ -350,45 +391,47 @@ def run_session(
             frame = render(gaze_xy, frame_fov, pose, frame_key)
             shown = now() if vclock is None else display_time
             last_frame_s = max(shown - t, 0.0)
-            path = ""
-            if out is not None:
-                path = str(frame.save(out / f"frame_{k:05d}.png"))
-                if debug:
-                    from ._image import save_image
+            with deferred_interrupt():  # a frame's files and its row: whole or not at all
+                path = ""
+                if out is not None:
+                    path = str(frame.save(out / f"frame_{k:05d}.png"))
+                    if debug:
+                        from ._image import save_image
 
-                    save_image(out / f"debug_{k:05d}.png", frame.debug_view)
-                if writer is not None:
-                    with _forking_ffmpeg():
-                        writer.append_data(_video_frame(frame.image))
-            rows.append(
-                SessionFrame(
-                    frame=k,
-                    time_s=float(t),
-                    tracking_state=str(tf.state),
-                    widening=float(tf.widening),
-                    widening_step=int(tf.widening_step),
-                    saccade=bool(tf.saccade),
-                    gaze_age_s=float(tf.sample_age),
-                    latency_s=float(shown - tf.sample_timestamp)
-                    if math.isfinite(tf.sample_timestamp)
-                    else math.inf,
-                    gaze_left=tuple(float(x) for x in gaze_xy[0]),
-                    gaze_right=tuple(float(x) for x in gaze_xy[1]),
-                    head_state=str(hf.state) if hf is not None else "none",
-                    head_pose=tuple(float(x) for x in pose),
-                    fovea_deg=float(frame_fov.fovea_deg),
-                    periphery_deg=float(frame_fov.periphery_deg),
-                    fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
-                    primary_rays=frame.stats.primary_rays,
-                    shadow_rays=frame.stats.shadow_rays,
-                    reflection_rays=frame.stats.reflection_rays,
-                    dropped=frame.foveation.dropped,
-                    render_s=frame.stats.render_seconds,
-                    compile_s=frame.stats.compile_seconds,
-                    rejected_samples=int(sum(tf.rejected.values())),
-                    path=path,
+                        save_image(out / f"debug_{k:05d}.png", frame.debug_view)
+                    if writer is not None:
+                        with _forking_ffmpeg():
+                            writer.append_data(_video_frame(frame.image))
+                rows.append(
+                    SessionFrame(
+                        frame=k,
+                        time_s=float(t),
+                        tracking_state=str(tf.state),
+                        widening=float(tf.widening),
+                        widening_step=int(tf.widening_step),
+                        saccade=bool(tf.saccade),
+                        gaze_age_s=float(tf.sample_age),
+                        latency_s=float(shown - tf.sample_timestamp)
+                        if math.isfinite(tf.sample_timestamp)
+                        else math.inf,
+                        gaze_left=tuple(float(x) for x in gaze_xy[0]),
+                        gaze_right=tuple(float(x) for x in gaze_xy[1]),
+                        head_state=str(hf.state) if hf is not None else "none",
+                        head_pose=tuple(float(x) for x in pose),
+                        fovea_deg=float(frame_fov.fovea_deg),
+                        periphery_deg=float(frame_fov.periphery_deg),
+                        fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
+                        primary_rays=frame.stats.primary_rays,
+                        shadow_rays=frame.stats.shadow_rays,
+                        reflection_rays=frame.stats.reflection_rays,
+                        dropped=frame.foveation.dropped,
+                        render_s=frame.stats.render_seconds,
+                        compile_s=frame.stats.compile_seconds,
+                        rejected_samples=int(sum(tf.rejected.values())),
+                        path=path,
+                        **states,
+                    )
                 )
-            )
             if bar is not None:
                 bar.set_postfix_str(
                     f"{tf.state} {frame_fov.fovea_deg:.0f}°/{frame_fov.periphery_deg:.0f}° "
@@ -398,6 +441,8 @@ def run_session(
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        interrupt.__exit__(None, None, None)
+        interrupted = interrupted or stop.is_set()
         gaze_source.close()
         if head_source is not None:
             head_source.close()
@@ -421,14 +466,67 @@ def run_session(
         wall_s=time.perf_counter() - started,
         interrupted=interrupted,
     )
+    summary["sources"], summary["warnings"] = _source_report(
+        {"gaze": gaze_source, "head": head_source}, last_sample, now(), rows, interrupted
+    )
     if out is not None:
-        _write_log(out, rows, summary)
+        with deferred_interrupt():
+            _write_log(out, rows, summary)
     return SessionResult(
         frames=rows,
         summary=summary,
         out=out,
         video=(out / "session.mp4") if video else None,
     )
+
+
+def _source_states(gaze_source, head_source, last_sample: dict, t: float) -> dict:
+    """The `SessionFrame` fields describing the sources at time `t`."""
+    from .devices import ThreadedSource
+
+    states = {}
+    for role, source in (("gaze", gaze_source), ("head", head_source)):
+        if source is None:
+            continue
+        st = source.status
+        live = isinstance(source, ThreadedSource)
+        states[f"{role}_connected"] = bool(st.connected) if live else source.is_open
+        states[f"{role}_samples"] = int(st.samples)
+        states[f"{role}_reconnects"] = max(int(st.connects) - 1, 0)
+        states[f"{role}_errors"] = int(st.errors)
+        states[f"{role}_sample_age_s"] = float(t - last_sample[role])
+    return states
+
+
+def _source_report(sources: dict, last_sample: dict, t: float, rows, interrupted: bool):
+    """Each source's final state for the summary, and a warning per source that never
+    delivered a sample over a session that rendered frames."""
+    report, warnings_ = {}, []
+    for role, source in sources.items():
+        if source is None:
+            continue
+        st = source.status
+        age = t - last_sample[role]
+        report[role] = {
+            "spec": source.spec if source.spec is not None else type(source).__name__,
+            "device": source.describe(),
+            "connected": bool(st.connected),
+            "samples": int(st.samples),
+            "reconnects": max(int(st.connects) - 1, 0),
+            "errors": int(st.errors),
+            "last_error": st.last_error,
+            "last_sample_age_s": float(age) if math.isfinite(age) else None,
+        }
+        if rows and st.samples == 0:
+            fallback = "every frame used the fallback (the fovea widened)"
+            why = f"; last error: {st.last_error}" if st.last_error else ""
+            warnings_.append(
+                f"the {role} source {report[role]['spec']} ({report[role]['device']}) never delivered "
+                f"a sample in {len(rows)} frame(s){' (interrupted)' if interrupted else ''}, "
+                f"connected {st.connects} time(s), {st.errors} error(s){why}; "
+                + (fallback if role == "gaze" else "the head stayed still")
+            )
+    return report, warnings_
 
 
 @contextlib.contextmanager
@@ -487,15 +585,17 @@ def _jsonable(value):
 
 
 def _write_log(out: Path, rows: list[SessionFrame], summary: dict) -> None:
+    from ._atomic import atomic_path
+
     fields = [f.name for f in dataclasses.fields(SessionFrame)]
-    with open(out / "session.csv", "w", newline="") as fh:
+    with atomic_path(out / "session.csv") as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields)
         w.writeheader()
         for r in rows:
             w.writerow(
                 {k: (json.dumps(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(r).items()}
             )
-    with open(out / "session.json", "w") as fh:
+    with atomic_path(out / "session.json") as tmp, open(tmp, "w") as fh:
         json.dump(
             _jsonable({"summary": summary, "frames": [dataclasses.asdict(r) for r in rows]}),
             fh,

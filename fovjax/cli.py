@@ -1,11 +1,26 @@
 """`fovjax` command line. Each subcommand lives next to the code it drives and registers itself
-through a `register(subparsers)` function listed in `_SUBCOMMAND_MODULES`."""
+through a `register(subparsers)` function listed in `_SUBCOMMAND_MODULES`.
+
+Errors: every command checks its arguments first, in one `validate(args)` step, with the checkers
+below, which raise `UsageError`. `main` turns any error into one line on stderr naming the
+command and a non-zero exit status (2: a bad argument or input file; 1: a device, a missing
+extra, or anything else); `fovjax --debug COMMAND ...` shows the Python traceback instead.
+Ctrl-C ends any command with status 130 after saying which files it wrote (commands note them
+with `wrote`).
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import math
+import os
+import signal
 import sys
+from pathlib import Path
+
+from ._atomic import atomic_path as atomic_path
+from ._atomic import deferred_interrupt as deferred_interrupt
 
 # Modules that define `register(subparsers)`. The first one's command is the default
 # when `fovjax` is run with no arguments.
@@ -17,11 +32,18 @@ _SUBCOMMAND_MODULES = [
     "fovjax.eval._cli_failures",
     "fovjax.eval._cli_study",
     "fovjax.acuity._cli",
+    "fovjax.view._cli",
 ]
+
+# Exit status of an interrupted command (128 + SIGINT), as shells report Ctrl-C.
+INTERRUPTED = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fovjax", description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--debug", action="store_true", help="show the Python traceback of an error (for bug reports)"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _SUBCOMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -29,16 +51,261 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run `fovjax` with `argv` (default: the process's arguments) and return the exit status.
+
+    Called as the program (no `argv`), an interrupted command ends the process at once with
+    `os._exit(130)` once its message is out: a normal exit would run Python's finalisation while
+    XLA may still be compiling on its own threads, which ends in a segmentation fault."""
+    program = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
+    if program:
+        _on_interrupt_exit("fovjax")
     parser = build_parser()
+    # --debug is taken anywhere on the line (`fovjax render --debug ...` too).
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
     if not argv and _SUBCOMMAND_MODULES:
-        argv = [next(iter(parser._subparsers._group_actions[0].choices))]
+        argv.append(next(iter(parser._subparsers._group_actions[0].choices)))
     args = parser.parse_args(argv)
+    args.debug = debug
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
-    return int(args.func(args) or 0)
+    name = f"fovjax {args.command}"
+    _WRITTEN.clear()
+    if program:
+        _on_interrupt_exit(name)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        if program:
+            _exit_interrupted(name)
+        print(f"{name}: interrupted; {_written_text()}", file=sys.stderr, flush=True)
+        return INTERRUPTED
+    except Exception as err:
+        if args.debug:
+            raise
+        status, text = _explain(err)
+        print(f"{name}: error: {text}", file=sys.stderr, flush=True)
+        return status
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def _exit_interrupted(name: str) -> None:
+    """Say what was written and end the process now, without Python's finalisation."""
+    try:
+        sys.stdout.flush()
+        print(f"{name}: interrupted; {_written_text()}", file=sys.stderr, flush=True)
+    finally:
+        os._exit(INTERRUPTED)
+
+
+def _on_interrupt_exit(name: str) -> None:
+    """Ctrl-C ends the program at once with `_exit_interrupted`, wherever the main thread is.
+
+    Raising KeyboardInterrupt instead is not enough: raised inside a garbage-collection callback
+    it is printed and ignored, and after one raised inside an XLA compile the interpreter's
+    exit can crash. Blocks that must finish (writing a file, a session's frame, a recording)
+    install their own handler for their duration (`fovjax._atomic`, `fovjax.devices.record`)
+    and end with KeyboardInterrupt, which `main` answers the same way."""
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, lambda signum, frame: _exit_interrupted(name))
+
+
+def _explain(err: Exception) -> tuple[int, str]:
+    """Exit status and one line for an error that ended a command."""
+    from .devices import DeviceError
+
+    if isinstance(err, UsageError):
+        return 2, str(err)
+    if isinstance(err, DeviceError):
+        return 1, str(err)
+    if isinstance(err, ImportError) and "pip install" in str(err):  # an optional extra is missing
+        return 1, str(err)
+    if isinstance(err, UnicodeDecodeError):
+        return 2, f"a file is not UTF-8 text ({err.reason} at byte {err.start})"
+    if isinstance(err, ValueError | OSError):
+        return 2, str(err) or type(err).__name__
+    return 1, (
+        f"internal error, {type(err).__name__}: {err} "
+        "(please report it; `fovjax --debug ...` shows the traceback)"
+    )
+
+
+# -- what a command wrote, for the message on Ctrl-C --------------------------------------------
+_WRITTEN: list[str] = []
+
+
+def wrote(*paths) -> None:
+    """Note files (or folders) a command has finished writing."""
+    _WRITTEN.extend(str(p) for p in paths if p is not None)
+
+
+def _written_text() -> str:
+    if not _WRITTEN:
+        return "nothing was written"
+    shown = _WRITTEN[:6]
+    more = f" and {len(_WRITTEN) - len(shown)} more" if len(_WRITTEN) > len(shown) else ""
+    return f"wrote {', '.join(shown)}{more} (complete); nothing else"
+
+
+# -- argument checks ----------------------------------------------------------------------------
+class UsageError(ValueError):
+    """A bad argument or input file of a `fovjax` command: one line on stderr, exit status 2."""
+
+
+def _show(value) -> str:
+    return repr(value) if isinstance(value, str) else f"{value}"
+
+
+def number(value, option: str, *, gt=None, ge=None, lt=None, le=None, integer: bool = False):
+    """`value` is a finite number (an integer with `integer`) within the bounds given."""
+    bounds = [(gt, ">", lambda v, b: v > b), (ge, ">=", lambda v, b: v >= b)]
+    bounds += [(lt, "<", lambda v, b: v < b), (le, "<=", lambda v, b: v <= b)]
+    is_number = isinstance(value, int | float) and not isinstance(value, bool)
+    ok = is_number and math.isfinite(value) and (not integer or float(value).is_integer())
+    parts = []
+    for bound, sign, holds in bounds:
+        if bound is not None:
+            parts.append(f"{sign} {bound:g}")
+            ok = ok and holds(value, bound)
+    if not ok:
+        what = "a whole number" if integer or isinstance(value, int) else "a finite number"
+        raise UsageError(f"{option} {_show(value)}: expected {what} {' and '.join(parts)}".rstrip())
+    return value
+
+
+def seed(value, option: str = "--seed"):
+    """A PRNG seed: a whole number 0 .. 2**32 - 1 (what JAX keys and NumPy generators share)."""
+    if value is not None:
+        number(value, option, ge=0, le=2**32 - 1, integer=True)
+    return value
+
+
+def squares(values, option: str):
+    """Samples per pixel: each a perfect square 1, 4, 9, 16, ..."""
+    for v in [values] if isinstance(values, int) else values:
+        if not (isinstance(v, int) and v >= 1 and math.isqrt(v) ** 2 == v):
+            raise UsageError(f"{option} {v}: expected a perfect square (1, 4, 9, 16, ...) samples per pixel")
+    return values
+
+
+def choice(value, option: str, choices) -> str:
+    if value not in choices:
+        raise UsageError(f"{option} {_show(value)}: expected one of {', '.join(map(str, choices))}")
+    return value
+
+
+def fovea_periphery(fovea, periphery, where: str) -> None:
+    """Fovea and periphery eccentricities (degrees): 0 <= fovea <= periphery <= 180."""
+    number(fovea, f"{where} fovea", ge=0, le=180)
+    number(periphery, f"{where} periphery", ge=0, le=180)
+    if periphery < fovea:
+        raise UsageError(
+            f"{where} {fovea:g},{periphery:g}: the periphery ({periphery:g}°) must not be smaller than "
+            f"the fovea ({fovea:g}°)"
+        )
+
+
+def display_point(xy, option: str) -> None:
+    """A point in normalised display coordinates: both in [0, 1]."""
+    if not all(isinstance(v, int | float) and math.isfinite(v) and 0 <= v <= 1 for v in xy):
+        raise UsageError(
+            f"{option} {','.join(f'{v:g}' for v in xy)}: expected normalised display coordinates in [0, 1]"
+        )
+
+
+def _existing_ancestor(path: Path) -> Path:
+    path = path.absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def output(path, option: str, *, suffixes=None, directory: bool = False) -> Path:
+    """An output file (of a type in `suffixes`) or folder that can be created or overwritten."""
+    p = Path(path)
+    what = "folder" if directory else "file"
+    if not directory and p.is_dir():
+        raise UsageError(f"{option} {path}: is a folder; expected a file name")
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise UsageError(
+            f"{option} {path}: unknown output type {p.suffix or '(no suffix)'!r} "
+            f"(expected {', '.join(suffixes)})"
+        )
+    if p.exists():
+        if directory and not p.is_dir():
+            raise UsageError(f"{option} {path}: exists and is not a folder")
+        if not directory and p.is_dir():
+            raise UsageError(f"{option} {path}: is a folder; expected a file name")
+        if not os.access(p, os.W_OK):
+            raise UsageError(f"{option} {path}: cannot write the {what} (permission denied)")
+        return p
+    base = _existing_ancestor(p)
+    if not base.is_dir():
+        raise UsageError(f"{option} {path}: cannot create the {what}: {base} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: cannot create the {what}: no write permission in {base}")
+    return p
+
+
+def input_file(path, option: str, *, suffixes=None, text: bool = False) -> Path:
+    """An existing readable file (of a type in `suffixes`); with `text`, UTF-8 text (a bad byte
+    is reported as FILE:LINE)."""
+    p = Path(path)
+    if not p.exists():
+        raise UsageError(f"{option} {path}: no such file")
+    if p.is_dir():
+        raise UsageError(f"{option} {path}: is a folder; expected a file")
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise UsageError(
+            f"{option} {path}: unknown file type {p.suffix or '(no suffix)'!r} "
+            f"(expected {', '.join(suffixes)})"
+        )
+    try:
+        raw = p.read_bytes() if text else b""
+        if not text and not os.access(p, os.R_OK):
+            raise PermissionError("permission denied")
+    except OSError as err:
+        raise UsageError(f"{option} {path}: cannot read ({err.strerror or err})") from None
+    if text:
+        bad = raw.find(b"\x00")
+        try:
+            raw.decode("utf-8-sig")
+        except UnicodeDecodeError as err:
+            bad = err.start if bad < 0 else min(bad, err.start)
+        if bad >= 0:
+            line = raw[:bad].count(b"\n") + 1
+            raise UsageError(
+                f"{path}:{line}: not a text file (byte 0x{raw[bad]:02x} at offset {bad}); "
+                f"{option} expects UTF-8 text"
+            )
+    return p
+
+
+def scene(name: str, option: str = "--scene") -> None:
+    """A built-in scene name (or alias) or an existing scene file of a supported format."""
+    from ._loaders import SUPPORTED_FORMATS
+    from .scenes import BUILTIN
+
+    if name in BUILTIN or name == "cornell":
+        return
+    formats = ", ".join(SUPPORTED_FORMATS)
+    if Path(name).suffix.lower() not in SUPPORTED_FORMATS:
+        raise UsageError(
+            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor a scene file ({formats})"
+        )
+    if not Path(name).is_file():
+        raise UsageError(
+            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor an existing file"
+        )
+    input_file(name, option)
+
+
+def source_spec(spec: str, kind: str, option: str) -> None:
+    """A gaze/head source spec that parses and names an existing recording (nothing is opened)."""
+    from .devices import source_from_spec
+
+    try:
+        source_from_spec(spec, kind)
+    except (ValueError, OSError) as err:
+        raise UsageError(f"{option} {spec}: {err}") from None

@@ -3,6 +3,8 @@ on the recording with a silent second."""
 
 import json
 import math
+import socket
+import time
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +12,15 @@ import pytest
 from fakes.clock import FakeClock
 
 from fovjax.cli import main
-from fovjax.devices import FallbackPolicy, GazeTracker, ReplaySource, TrackingState, load_recording
+from fovjax.devices import (
+    DeviceError,
+    FallbackPolicy,
+    GazeTracker,
+    ReplaySource,
+    TrackingState,
+    load_recording,
+    source_from_spec,
+)
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "data" / "recordings"
 
@@ -62,10 +72,69 @@ def test_record_cli_stops_at_sample_count_and_rejects_bad_options(tmp_path):
     assert len(rec) == 7 and rec.samples[0].left.xy == (0.2, 0.3)
     header = json.loads(out.read_text().splitlines()[0])
     assert header["kind"] == "gaze" and header["source"] == "synthetic:fixed:0.2,0.3"
-    with pytest.raises(SystemExit):
-        main(["record", "--gaze", "synthetic:scanpath", "--dropout", "soon", "-o", str(out)])
+    assert main(["record", "--gaze", "synthetic:scanpath", "--dropout", "soon", "-o", str(out)]) == 2
     with pytest.raises(SystemExit):
         main(["record", "-o", str(out)])  # neither --gaze nor --head
+
+
+# --- devices fail loudly --------------------------------------------------------------------
+
+
+def _closed_port() -> int:
+    """A loopback TCP port nothing listens on."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    ("spec", "names"),
+    [
+        ("serial:/dev/ttyNOPE", ["serial:/dev/ttyNOPE", "serial port /dev/ttyNOPE", "No such file"]),
+        ("pupil:127.0.0.1:{port}", ["Pupil Remote at 127.0.0.1:{port}", "did not answer"]),
+        ("pupil:no-such-host.invalid", ["no-such-host.invalid", "cannot resolve the host name"]),
+    ],
+)
+def test_unreachable_device_fails_within_its_connect_timeout(spec, names, monkeypatch):
+    if spec.startswith("pupil"):
+        pytest.importorskip("zmq")
+    if "invalid" in spec:  # the resolver's answer, without depending on this machine's DNS
+
+        def no_such_host(host, *args, **kwargs):
+            raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+        monkeypatch.setattr(socket, "getaddrinfo", no_such_host)
+    port = _closed_port()
+    source = source_from_spec(spec.format(port=port), "gaze", connect_timeout=0.5)
+    t0 = time.monotonic()
+    with pytest.raises(DeviceError) as err:
+        source.open()
+    assert time.monotonic() - t0 < 5.0  # 0.5 s and the reader stopping; generous for a busy machine
+    message = str(err.value)
+    assert "could not connect within 0.5 s" in message
+    for name in names:
+        assert name.format(port=port) in message, message
+    assert not source.is_open and source.exhausted
+
+
+def test_record_from_a_silent_device_stops_on_wall_time_and_says_so(tmp_path, capsys):
+    # pyserial's loop:// opens at once and never delivers a line.
+    out = tmp_path / "silent.jsonl"
+    t0 = time.monotonic()
+    assert main(["record", "--gaze", "serial:loop://", "--seconds", "0.5", "-o", str(out)]) == 1
+    assert time.monotonic() - t0 < 10.0
+    captured = capsys.readouterr()
+    assert "wrote 0 gaze samples" in captured.out
+    assert "serial:loop:// (serial port loop://) delivered no samples" in captured.err
+    assert len(load_recording(out)) == 0
+
+
+def test_record_unreachable_device_names_it_and_the_wait_option(tmp_path, capsys):
+    out = tmp_path / "none.jsonl"
+    assert main(["record", "--gaze", "serial:/dev/ttyNOPE", "--wait", "0.3", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("fovjax record: error: serial:/dev/ttyNOPE (serial port /dev/ttyNOPE)")
+    assert "--wait SECONDS" in err and not out.exists()
 
 
 def test_fallback_on_the_dropout_recording_widens_then_recovers():

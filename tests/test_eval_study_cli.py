@@ -138,6 +138,14 @@ def test_study_majority_of_the_slider_is_the_median_choice():
     assert fe.study_majorities(responses) == {"slider": 12.5}
 
 
+def assert_refused(argv, message, capsys):
+    """`fovjax study` ends with status 2 and one error line matching `message`, no traceback."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fovjax study: error: ") and re.search(message, err), err
+    assert "Traceback" not in err
+
+
 def majority_lines(text):
     return [
         line.split() for line in text.splitlines() if re.match(r"\s*(pair|ramp up|ramp down|slider)\s", line)
@@ -230,12 +238,11 @@ def test_cli_responses_reproduces_the_report(tmp_path, capsys):
 # --- errors ---------------------------------------------------------------------------------
 
 
-def test_missing_level_names_it_and_what_the_table_has(tmp_path):
+def test_missing_level_names_it_and_what_the_table_has(tmp_path, capsys):
     rows = [r for r in make_table("jod") if not (r["fovea_deg"] == 12.5 and r["spp"] == 4)]
     csv_path = write_table(tmp_path, rows)
     message = r"study level 12\.5/25 .*no rows at spp 4.*\[5/10, 7\.5/15, 10/20, 15/30\].*spp values \[1, 4\]"
-    with pytest.raises(ValueError, match=message):
-        main(["study", "--comparison", str(csv_path), "-o", str(tmp_path / "out")])
+    assert_refused(["study", "--comparison", str(csv_path), "-o", str(tmp_path / "out")], message, capsys)
     with pytest.raises(ValueError, match=r"no rows at spp 9 \(spp values: \[1, 4\]\)"):
         fe.difference_from_comparison(make_table("jod"), spp=9)
 
@@ -247,25 +254,23 @@ def test_missing_level_names_it_and_what_the_table_has(tmp_path):
         (None, None, r"neither a 'jod' nor a 'flip' column \(columns: \[.*'psnr'"),
     ],
 )
-def test_missing_metric_column_names_the_columns(tmp_path, metric, table_metric, message):
+def test_missing_metric_column_names_the_columns(tmp_path, capsys, metric, table_metric, message):
     rows = make_table(table_metric or "flip")
     if table_metric is None:
         rows = [{k: v for k, v in r.items() if k != "flip"} for r in rows]
     csv_path = write_table(tmp_path, rows)
     argv = ["study", "--comparison", str(csv_path), "-o", str(tmp_path / "out")]
-    with pytest.raises(ValueError, match=message):
-        main(argv + ([] if metric is None else ["--metric", metric]))
+    assert_refused(argv + ([] if metric is None else ["--metric", metric]), message, capsys)
 
 
 @pytest.mark.parametrize("bad", [None, math.nan, math.inf, "n/a"])
-def test_non_finite_metric_value_names_the_row(tmp_path, bad):
+def test_non_finite_metric_value_names_the_row(tmp_path, capsys, bad):
     rows = make_table("jod")
     index = next(i for i, r in enumerate(rows) if r["fovea_deg"] == 12.5 and r["spp"] == 4)
     rows[index]["jod"] = bad
     csv_path = write_table(tmp_path, rows)
     message = rf"{re.escape(str(csv_path))}: row {index + 1} \(config '12\.5/25 spp4'\): jod is"
-    with pytest.raises(ValueError, match=message):
-        main(["study", "--comparison", str(csv_path), "-o", str(tmp_path / "out")])
+    assert_refused(["study", "--comparison", str(csv_path), "-o", str(tmp_path / "out")], message, capsys)
     # A bad value in a row the study does not use (spp 1) is no error.
     rows[index]["jod"] = 9.3
     rows[index + 2]["jod"] = bad

@@ -66,9 +66,14 @@ def test_full_fovea_reproduces_the_full_render(atrium_small):
     assert fov.stats.primary_rays == full.stats.primary_rays == 2 * 4 * EYE_W * EYE_H
     assert fov.stats.shadow_rays == full.stats.shadow_rays
     assert fov.stats.reflection_rays == full.stats.reflection_rays
-    # Same rays, same shading; the two programs are compiled separately, so allow float32
-    # rounding of the shading arithmetic (a few ulps), nothing more.
-    np.testing.assert_allclose(fov.image, full.image, rtol=1e-5, atol=1e-6)
+    # Same rays, same shading; the two programs are compiled separately (the foveated one
+    # shades chunks of a flat slot list, the full one the image), so allow float32 rounding
+    # of the shading arithmetic: a few ulps, except that the specular term (n·h)^Ns multiplies
+    # the relative rounding of n·h by Ns (up to 300 in the atrium), so the few highlight
+    # pixels may differ by ~Ns ulps. Nearly every value agrees to 1e-6.
+    np.testing.assert_allclose(fov.image, full.image, rtol=1e-3, atol=1e-5)
+    close = np.isclose(fov.image, full.image, rtol=1e-5, atol=1e-6)
+    assert close.mean() > 0.99, close.mean()
 
 
 def test_ray_counts_on_a_wall_are_hand_countable():
@@ -113,14 +118,94 @@ class _Tabulated(eqx.Module):
 
 
 def test_budget_of_an_array_valued_acuity_model(atrium_small):
-    # The static budget is cached by the acuity's parameters; a table must key it like scalars do.
+    # A capped maximum plans the static budget, cached by the acuity's parameters; a table must
+    # key it like scalars do.
     _, rig = atrium_small
     head = (0.0, 0.0, 0.0)
     flat = _Tabulated(jnp.array([0.0, 90.0]), jnp.array([0.25, 0.25]))
     steep = _Tabulated(jnp.array([0.0, 90.0]), jnp.array([1.0, 0.0]))
     budget = {
-        name: fov_api._budget_for(rig, head, Foveation(fovea_deg=5, periphery_deg=10, acuity=acuity))
+        name: fov_api._budget_for(
+            rig, head, Foveation(fovea_deg=5, periphery_deg=10, max_periphery_deg=10, acuity=acuity)
+        )
         for name, acuity in [("flat", flat), ("steep", steep), ("constant", Constant(0.25))]
     }
     assert budget["flat"] == budget["constant"]  # same P(ω) everywhere, same plan
     assert budget["steep"] != budget["flat"]  # a different table is not served from the cache
+
+
+def _wall(materials):
+    """A wall of two triangles (left and right halves of the view) filling a small rig's view,
+    lit from in front."""
+    v = np.array([[-50, -50, -5], [50, -50, -5], [50, 50, -5], [-50, 50, -5]], np.float32)
+    scene = fovjax.make_scene(
+        v,
+        [[0, 1, 2], [0, 2, 3]],
+        face_material=[0, 1],
+        materials=fovjax.make_materials(materials),
+        lights=fovjax.make_lights([[0, 0, 2]], [[1, 1, 1]]),
+        name="wall2",
+    )
+    rig = StereoRig.look_at((0, 0, 0), (0, 0, -1), eye_width=48, eye_height=32)
+    return scene, rig
+
+
+def test_a_nan_pixel_of_a_foveated_frame_is_counted():
+    """A material whose colour is NaN makes every sample that sees it bad: the foveated frame
+    counts them (samples and pixels) and paints the pixels the bad colour, exactly where the
+    full render does."""
+    scene, rig = _wall([{"kd": (0.7, 0.7, 0.7)}, {"kd": (0.5, 0.5, 0.5)}])
+    arrays = fovjax.render.scene_arrays(scene)
+    arrays = eqx.tree_at(lambda a: a.kd, arrays, jnp.asarray(arrays.kd).at[1].set(jnp.nan))
+    bvh = fovjax.trace.build_bvh(scene)
+    key = jax.random.key(5)
+    full = render_stereo(arrays, rig, spp=1, key=key, config=CONFIG, bvh=bvh)
+    assert full.stats.bad_pixels > 0
+    everything = Foveation(fovea_deg=180.0, periphery_deg=180.0, spp=1)
+    fov_all = render_foveated(arrays, rig, foveation=everything, key=key, config=CONFIG, bvh=bvh)
+    assert fov_all.stats.bad_pixels == full.stats.bad_pixels
+    assert fov_all.stats.bad_samples == full.stats.bad_samples
+    fov = render_foveated(arrays, rig, foveation=Foveation.thesis(0), key=key, config=CONFIG, bvh=bvh)
+    traced_pixels = fov.sample_mask.any(axis=1)  # (2, H, W)
+    bad = np.all(np.asarray(fov.outputs.prefill) == np.asarray(CONFIG.bad_color, np.float32), axis=-1)
+    assert 0 < fov.stats.bad_pixels == int((bad & traced_pixels).sum())
+    assert fov.stats.bad_samples == fov.stats.bad_pixels  # one sample per pixel at SPP 1
+
+
+def test_budget_overflow_drops_samples_fills_them_and_warns():
+    """A ray budget smaller than the samples wanted: the last samples are dropped and counted,
+    the user is warned, exactly `budget` samples are traced, and every pixel of the image is
+    still filled (pull-push from the traced ones): no blank pixel, traced fovea untouched."""
+    import warnings
+
+    scene, rig = _wall([{"kd": (0.7, 0.7, 0.7)}, {"kd": (0.3, 0.6, 0.9)}])
+    key = jax.random.key(6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # within budget: nothing dropped, no warning
+        roomy = render_foveated(scene, rig, foveation=Foveation.thesis(1), key=key, config=CONFIG)
+    assert roomy.foveation.dropped == 0
+    wanted = roomy.foveation.mandatory + roomy.foveation.optional
+    # Room for 80% of the mandatory samples: some blocks lose their top-left too.
+    capped = Foveation.thesis(1, ray_budget=int(0.4 * roomy.foveation.mandatory))
+    with pytest.warns(RuntimeWarning, match="dropped"):
+        frame = render_foveated(scene, rig, foveation=capped, key=key, config=CONFIG)
+    s = frame.foveation
+    assert s.budget == 2 * capped.ray_budget
+    assert s.mandatory + s.optional == wanted  # the same plan, the same draws
+    assert s.dropped == wanted - s.budget > 0
+    assert frame.stats.primary_rays == int(frame.sample_mask.sum()) == s.budget
+    assert frame.sample_mask.sum() < roomy.sample_mask.sum()
+    assert not (frame.sample_mask & ~roomy.sample_mask).any()  # a subset of the plan
+    image = frame.image
+    assert np.isfinite(image).all() and (image.max(axis=-1) > 0).all()  # lit wall: no blank pixel
+    # Some blocks had no traced sample at all (pull-push filled them).
+    _, _, top_left = fovjax.foveate.top_left(jnp.asarray(frame.regions[1]), capped)
+    untraced_top_left = np.asarray(top_left) & ~frame.sample_mask[1].any(axis=0)
+    assert untraced_top_left.any()
+    # Traced foveal pixels keep their traced colour (the fill and blur leave the fovea alone).
+    traced = frame.sample_mask.any(axis=1)
+    eyes = np.stack(frame.eyes())
+    prefill = np.asarray(frame.outputs.prefill)
+    inner = traced & (frame.eccentricity < capped.fovea_deg - 0.01)
+    assert inner.any()
+    np.testing.assert_allclose(eyes[inner], prefill[inner], rtol=1e-6, atol=1e-7)

@@ -229,6 +229,50 @@ def test_outputs_written(scan):
     assert not (out / "session.mp4").exists()
 
 
+def test_sources_status_is_logged_per_frame_and_in_the_summary(scan):
+    result, out, _ = scan
+    frames = result.frames
+    # A replay is "connected" while open; its sample count grows with the timeline.
+    assert all(f.gaze_connected and f.gaze_reconnects == 0 and f.gaze_errors == 0 for f in frames)
+    counts = [f.gaze_samples for f in frames]
+    assert counts == sorted(counts) and counts[-1] > counts[0] > 0
+    assert all(0 <= f.gaze_sample_age_s < 0.1 for f in frames)  # the recording is 120 Hz
+    assert all(f.head_connected is None and f.head_samples is None for f in frames)  # no head source
+    with open(out / "session.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["gaze_samples"]) for r in rows] == counts and rows[0]["head_samples"] == ""
+    gaze = json.loads((out / "session.json").read_text())["summary"]["sources"]["gaze"]
+    assert gaze["spec"] == f"replay:{SCANPATH}" and gaze["device"] == f"recording {SCANPATH}"
+    assert gaze["samples"] >= counts[-1] and gaze["errors"] == 0 and gaze["last_sample_age_s"] >= 0
+    assert result.summary["warnings"] == []
+
+
+def test_silent_device_is_named_in_a_warning(scene, rig, tmp_path, capsys):
+    # pyserial's loop:// connects at once and never delivers a line: every frame falls back.
+    result = session(scene, rig, gaze="serial:loop://", frames=3, fps=10, clock="virtual", out=tmp_path)
+    assert result.states() == ["lost"] * 3
+    assert all(f.gaze_connected and f.gaze_samples == 0 for f in result.frames)
+    assert all(math.isinf(f.gaze_sample_age_s) for f in result.frames)
+    (warning,) = result.summary["warnings"]
+    assert "serial:loop:// (serial port loop://) never delivered a sample in 3 frame(s)" in warning
+    assert result.summary["sources"]["gaze"]["last_sample_age_s"] is None
+    # The command line says so on stderr and ends with status 1.
+    from fovjax.cli import main
+
+    args = ["session", "--gaze", "serial:loop://", "--frames", "2", "--clock", "virtual", "--scene"]
+    args += ["cornell", "--width", str(EYE_W), "--height", str(EYE_H), "--fovea", "10", "--periphery"]
+    args += ["20", "--max-depth", "1", "--no-progress", "-o", str(tmp_path / "cli")]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "fovjax session: warning: the gaze source serial:loop:// (serial port loop://)" in err
+
+
+def test_unreachable_device_fails_before_compiling(scene, rig, monkeypatch):
+    monkeypatch.setattr(foveate, "render_foveated", lambda *a, **k: pytest.fail("rendered"))
+    with pytest.raises(fovjax.devices.DeviceError, match=r"serial:/dev/ttyNOPE .*within 0\.3 s"):
+        session(scene, rig, gaze="serial:/dev/ttyNOPE", frames=2, wait=0.3)
+
+
 def test_video(scene, rig, tmp_path):
     pytest.importorskip("imageio_ffmpeg", reason="the 'video' extra (imageio-ffmpeg) is not installed")
     result = session(scene, rig, gaze=f"replay:{SCANPATH}", frames=3, out=tmp_path, video=True)
@@ -321,10 +365,10 @@ def test_cli_session(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--frames", "0"], "at least one frame"),
+        (["--frames", "0"], "--frames 0: expected a whole number >= 1"),
         (["--frames", "2", "--gaze", "bogus:thing"], "unknown scheme 'bogus'"),
         (["--frames", "2", "--gaze", "replay:/no/such/file.csv"], "/no/such/file.csv"),
-        (["--frames", "2", "--width", "0"], "--width/--height must be positive"),
+        (["--frames", "2", "--width", "0"], "--width 0: expected a whole number >= 1"),
     ],
 )
 def test_cli_errors(tmp_path, capsys, extra, message):

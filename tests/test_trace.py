@@ -8,6 +8,11 @@ than that tolerance further away).
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
+
 import numpy as np
 import pytest
 import trimesh
@@ -112,6 +117,25 @@ def test_bad_arguments(soup):
         closest_hit(bvh, np.zeros((1, 3)), np.ones((1, 3)), packet=0)
     with pytest.raises(ValueError, match="2 batch dimensions"):
         closest_hit(bvh, np.zeros((5, 3)), np.ones((5, 3)), packet=(2, 2))
+
+
+def test_annotations_hold_for_numpy_and_broadcast_arguments(soup):
+    """closest_hit and occluded under jaxtyping's runtime checker: NumPy arrays, a direction
+    broadcast against many origins and scalar or per-ray bounds are what the annotations admit,
+    and the result has the broadcast batch shape; a trailing dimension other than 3 is refused."""
+    beartype = pytest.importorskip("beartype").beartype
+    from jaxtyping import TypeCheckError, jaxtyped
+
+    _, _, bvh = soup
+    checked_hit = jaxtyped(typechecker=beartype)(closest_hit)
+    checked_occ = jaxtyped(typechecker=beartype)(occluded)
+    o = np.zeros((4, 5, 3), np.float32)
+    d = np.array([0.0, 0.0, 1.0], np.float64)
+    hit = checked_hit(bvh, o, d, 0.0, np.full((4, 5), 10.0, np.float32))
+    assert hit.t.shape == hit.prim.shape == (4, 5)
+    assert checked_occ(bvh, o, d[None, None], np.float32(10.0)).shape == (4, 5)
+    with pytest.raises(TypeCheckError):
+        checked_hit(bvh, np.zeros((4, 2)), np.ones((4, 2)))
 
 
 def test_tile_packets_restore_image_order():
@@ -266,3 +290,40 @@ def test_embree_backend_under_jit(soup):
     d = rng.normal(size=(500, 3)).astype(np.float32)
     f = jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="embree"))
     assert_matches_brute_force(V, F, o, d, f(o, d))
+
+
+SPLIT_SCRIPT = textwrap.dedent(
+    """
+    import jax, numpy as np
+    assert jax.device_count() == 2, jax.devices()
+    from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, occluded
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-2, 2, (200, 1, 3))
+    V = (centres + rng.normal(0, 0.3, (200, 3, 3))).reshape(-1, 3).astype(np.float32)
+    F = np.arange(600).reshape(200, 3)
+    bvh = build_bvh(vertices=V, faces=F, cache=False)
+    o = rng.uniform(-3, 3, (999, 3)).astype(np.float32)  # odd: the parts are padded
+    d = rng.normal(size=(999, 3)).astype(np.float32)
+    t_ref, _, _ = brute_force_closest_hit(V, F, o, d)
+    for packet in (None, 16):
+        hit = jax.jit(lambda o, d: closest_hit(bvh, o, d, packet=packet))(o, d)
+        assert len(hit.t.sharding.device_set) == 2, hit.t.sharding  # both devices traced
+        t = np.asarray(hit.t)
+        assert np.mean(np.isfinite(t) == np.isfinite(t_ref)) >= 0.999
+        both = np.isfinite(t) & np.isfinite(t_ref)
+        assert np.allclose(t[both], t_ref[both], rtol=1e-4, atol=1e-5)
+        occ = np.asarray(occluded(bvh, o, d, packet=packet))
+        assert np.mean(occ == np.isfinite(t_ref)) >= 0.999
+    print("OK")
+    """
+)
+
+
+def test_rays_split_over_two_host_devices():
+    """With two CPU devices (JAX_NUM_CPU_DEVICES=2) the rays are traced in two parts, one per
+    device, with the same results as the brute-force reference."""
+    env = {**os.environ, "JAX_NUM_CPU_DEVICES": "2", "JAX_PLATFORMS": "cpu"}
+    result = subprocess.run(
+        [sys.executable, "-c", SPLIT_SCRIPT], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert result.returncode == 0 and result.stdout.strip().endswith("OK"), result.stderr[-3000:]

@@ -97,7 +97,49 @@ def _command(args) -> str:
     return shlex.join(parts)
 
 
+def validate_fit(args) -> None:
+    """Every argument of `fovjax fit`, before the data are fitted."""
+    import math
+
+    from fovjax import cli
+
+    from ._models import MODEL_FAMILIES
+
+    cli.input_file(args.data, "data", suffixes=(".csv",), text=True)
+    family = MODEL_FAMILIES[args.model]
+    for name, value in args.fix:
+        if name not in family.param_names:
+            raise cli.UsageError(
+                f"--fix {name}={value:g}: {args.model} has no parameter {name!r} "
+                f"(parameters: {', '.join(family.param_names)})"
+            )
+        cli.number(value, f"--fix {name}")
+    if len(dict(args.fix)) == len(family.param_names):
+        raise cli.UsageError(f"--fix: every parameter of {args.model} is fixed; nothing is left to fit")
+    if args.mar_reference != "fovea":
+        try:
+            reference = float(args.mar_reference)
+        except ValueError:
+            reference = math.nan
+        if not (math.isfinite(reference) and reference > 0):
+            raise cli.UsageError(
+                f"--mar-reference {args.mar_reference!r}: expected a MAR in arcmin > 0 or 'fovea'"
+            )
+    free = len(family.param_names) - len(dict(args.fix))
+    cli.number(args.nsteps, "--nsteps", ge=1)
+    cli.number(args.nwalkers, f"--nwalkers (2 per free parameter, {free} free)", ge=2 * free)
+    cli.number(args.n_boot, "--n-boot", ge=2)
+    cli.seed(args.seed)
+    if args.plot_max is not None:
+        cli.number(args.plot_max, "--plot-max", gt=0)
+    stem = Path(args.output)
+    for suffix in (".json", ".png", "_corner.png"):
+        cli.output(stem.with_name(stem.name + suffix), "-o")
+
+
 def run_fit(args) -> int:
+    from fovjax import cli
+
     from ._compare import compare
     from ._data import AcuityDataError, load_csv
     from ._fit import FitError, fit
@@ -107,10 +149,25 @@ def run_fit(args) -> int:
 
     if args.output is None:
         args.output = str(Path("fits") / Path(args.data).stem)
+    validate_fit(args)
     fixed = dict(args.fix)
     ref = args.mar_reference if args.mar_reference == "fovea" else float(args.mar_reference)
     try:
         data = load_csv(args.data, mar_reference_arcmin=ref)
+    except AcuityDataError as err:
+        print(f"fovjax fit: {err}", file=sys.stderr)
+        return 1
+    if args.condition is not None and args.condition not in data.conditions:
+        raise cli.UsageError(
+            f"--condition {args.condition!r}: {args.data} has no such condition "
+            f"(conditions: {', '.join(map(repr, data.conditions))})"
+        )
+    if args.condition is None and len(data.conditions) > 1:
+        raise cli.UsageError(
+            f"{args.data} has {len(data.conditions)} conditions "
+            f"({', '.join(map(repr, data.conditions))}); choose one with --condition"
+        )
+    try:
         result = fit(data, args.model, solver=args.solver, fixed=fixed, condition=args.condition)
     except (AcuityDataError, FitError) as err:
         print(f"fovjax fit: {err}", file=sys.stderr)
@@ -147,19 +204,31 @@ def run_fit(args) -> int:
         comparison = cmp.to_dict()
     stem = Path(args.output)
     record = fit_record(result, samples, comparison, command=_command(args))
-    json_path = save_fit(stem.with_name(stem.name + ".json"), record)
-    png = plot_fit(result, stem.with_name(stem.name + ".png"), samples=samples, omega_max=args.plot_max)
+    with cli.deferred_interrupt():
+        json_path = save_fit(stem.with_name(stem.name + ".json"), record)
+        cli.wrote(json_path)
+    with cli.deferred_interrupt():
+        png = plot_fit(result, stem.with_name(stem.name + ".png"), samples=samples, omega_max=args.plot_max)
+        cli.wrote(png)
     written = [json_path, png]
     if samples is not None and len(samples.names) > 1:
-        written.append(plot_corner(samples, stem.with_name(stem.name + "_corner.png"), laplace=result))
+        with cli.deferred_interrupt():
+            written.append(plot_corner(samples, stem.with_name(stem.name + "_corner.png"), laplace=result))
+            cli.wrote(written[-1])
     print("wrote " + ", ".join(map(str, written)))
     return 0
 
 
 def run_stability(args) -> int:
+    from fovjax import cli
+
     from ._stability import SweepConfig, write_sweep
 
-    out = write_sweep(args.output, SweepConfig(seed=args.seed), write_runs=args.runs)
+    cli.output(args.output, "-o", directory=True)
+    cli.seed(args.seed)
+    with cli.deferred_interrupt():
+        out = write_sweep(args.output, SweepConfig(seed=args.seed), write_runs=args.runs)
+        cli.wrote(args.output)
     print(
         f"{out['runs']} fits in {out['seconds']:.1f} s; wrote {args.output}/summary.csv, "
         "by_solver_range.csv, "

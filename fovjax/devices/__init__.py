@@ -92,6 +92,12 @@ from ._samples import (
 )
 from ._serial import SerialSource as SerialSource
 from ._source import (
+    DEFAULT_CONNECT_TIMEOUT as DEFAULT_CONNECT_TIMEOUT,
+)
+from ._source import (
+    ConnectTimeoutError as ConnectTimeoutError,
+)
+from ._source import (
     DeviceError as DeviceError,
 )
 from ._source import (

@@ -110,8 +110,14 @@ class InterSenseSource(ThreadedSource):
         clock: Clock = time.monotonic,
         backoff_initial: float = 0.1,
         backoff_max: float = 2.0,
+        connect_timeout: float | None = None,
     ):
-        super().__init__(clock=clock, backoff_initial=backoff_initial, backoff_max=backoff_max)
+        super().__init__(
+            clock=clock,
+            backoff_initial=backoff_initial,
+            backoff_max=backoff_max,
+            connect_timeout=connect_timeout,
+        )
         if not 1 <= station <= ISD_MAX_STATIONS:
             raise ValueError(f"InterSenseSource: station must be in 1..{ISD_MAX_STATIONS}, got {station}")
         if not poll_interval > 0:
@@ -146,6 +152,9 @@ class InterSenseSource(ThreadedSource):
             raise DeviceError(f"InterSense SDK library {path!r} lacks a required function: {exc}") from exc
         self._lib = lib
         super()._open()
+
+    def describe(self) -> str:
+        return f"InterSense tracker on port {self.port}"
 
     def _connect(self) -> None:
         handle = self._lib.ISD_OpenTracker(None, self.port, False, False)

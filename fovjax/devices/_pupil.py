@@ -21,6 +21,7 @@ else is remapped.
 from __future__ import annotations
 
 import math
+import socket
 import time
 
 from ._samples import MISSING_EYE, EyeGaze, GazeSample
@@ -94,8 +95,14 @@ class PupilSource(ThreadedSource):
         clock: Clock = time.monotonic,
         backoff_initial: float = 0.1,
         backoff_max: float = 2.0,
+        connect_timeout: float | None = None,
     ):
-        super().__init__(clock=clock, backoff_initial=backoff_initial, backoff_max=backoff_max)
+        super().__init__(
+            clock=clock,
+            backoff_initial=backoff_initial,
+            backoff_max=backoff_max,
+            connect_timeout=connect_timeout,
+        )
         if monocular not in ("both", "own"):
             raise ValueError(f"PupilSource: monocular must be 'both' or 'own', got {monocular!r}")
         self.host = host
@@ -114,8 +121,15 @@ class PupilSource(ThreadedSource):
         self.sub_port: int | None = None
         self.status.extra["bad_messages"] = 0
 
+    def describe(self) -> str:
+        return f"Pupil Remote at {self.host}:{self.port}"
+
     def _connect(self) -> None:
         zmq = self._zmq
+        try:
+            socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)
+        except OSError as exc:
+            raise DeviceError(f"cannot resolve the host name {self.host!r} ({exc})") from None
         if self._ctx is None:
             self._ctx = zmq.Context()
         req = self._ctx.socket(zmq.REQ)

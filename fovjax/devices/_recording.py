@@ -31,7 +31,7 @@ from pathlib import Path
 
 from ._paced import PacedSource
 from ._samples import GazeSample, HeadPose
-from ._source import Clock, Source
+from ._source import Clock, Source, ThreadedSource
 
 FORMAT_VERSION = 1
 FIELDS = {
@@ -154,7 +154,9 @@ def record(
     on_sample: Callable[[GazeSample | HeadPose], None] | None = None,
 ) -> RecordingSummary:
     """Write every sample of `source` to `path` until `seconds` of sample time have passed,
-    `max_samples` were written, the source ends, or the user interrupts.
+    `max_samples` were written, the source ends, or the user interrupts. A source fed by a
+    device (a `ThreadedSource`) is also stopped after `seconds` of wall time since the start,
+    even when nothing arrives.
 
     Interrupts lose nothing. Called from the main thread, SIGINT (Ctrl-C) is turned into a stop
     request for the duration of the call, so the sample being written is finished and no sample is
@@ -164,6 +166,9 @@ def record(
     ``interrupted=True`` (with `reraise`, KeyboardInterrupt is raised again afterwards).
     """
     source.open()
+    wall_deadline = None
+    if seconds is not None and isinstance(source, ThreadedSource):
+        wall_deadline = time.monotonic() + seconds
     stop = threading.Event()
     previous_handler = None
     if threading.current_thread() is threading.main_thread():
@@ -174,6 +179,8 @@ def record(
         with Recorder(path, source.kind, metadata=metadata) as recorder:
             try:
                 while not stop.is_set():
+                    if wall_deadline is not None and time.monotonic() >= wall_deadline:
+                        break
                     sample = source.read(timeout=0.1)
                     if sample is None:
                         if source.exhausted:
@@ -239,7 +246,14 @@ def load_recording(path: str | os.PathLike) -> Recording:
     """Read a ``.jsonl`` or ``.csv`` recording. Errors name the file, line and field."""
     path = Path(path)
     fmt = _format_of(path)
-    text = path.read_text(encoding="utf-8")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ValueError(
+            f"{path}:{line}: not a text recording (byte 0x{raw[exc.start]:02x} is not UTF-8)"
+        ) from None
     metadata: dict = {}
     rows: list[tuple[int, dict]] = []
     if fmt == "jsonl":
@@ -314,6 +328,7 @@ class ReplaySource(PacedSource):
         clock: Clock = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ):
+        self.path = None if isinstance(recording, Recording) else Path(recording)
         if not isinstance(recording, Recording):
             recording = load_recording(recording)
         if not recording.samples:
@@ -331,6 +346,9 @@ class ReplaySource(PacedSource):
         else:
             step = 0.0
         self._period = self._offsets[-1] + (step if step > 0 else 1e-3)
+
+    def describe(self) -> str:
+        return "a recording" if self.path is None else f"recording {self.path}"
 
     def _count(self) -> int | None:
         return None if self.loop else len(self._offsets)

@@ -36,8 +36,14 @@ class SerialSource(ThreadedSource):
         backoff_initial: float = 0.05,
         backoff_max: float = 2.0,
         serial_options: dict | None = None,
+        connect_timeout: float | None = None,
     ):
-        super().__init__(clock=clock, backoff_initial=backoff_initial, backoff_max=backoff_max)
+        super().__init__(
+            clock=clock,
+            backoff_initial=backoff_initial,
+            backoff_max=backoff_max,
+            connect_timeout=connect_timeout,
+        )
         if kind not in ("gaze", "head"):
             raise ValueError(f"SerialSource: kind must be 'gaze' or 'head', got {kind!r}")
         if baudrate <= 0:
@@ -54,6 +60,9 @@ class SerialSource(ThreadedSource):
         self._serial = None
         self._want = GazeSample if kind == "gaze" else HeadPose
         self.status.extra["other_kind"] = 0
+
+    def describe(self) -> str:
+        return f"serial port {self.port}"
 
     def _connect(self) -> None:
         import serial  # pyserial, a core dependency

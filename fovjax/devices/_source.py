@@ -32,6 +32,14 @@ class DeviceError(RuntimeError):
     """A tracking device or its library could not be used."""
 
 
+# Seconds `source_from_spec` gives a live device to connect before `open()` fails.
+DEFAULT_CONNECT_TIMEOUT = 3.0
+
+
+class ConnectTimeoutError(DeviceError):
+    """A live device did not connect within its connect timeout."""
+
+
 class LibraryNotFoundError(DeviceError, FileNotFoundError):
     """A vendor SDK library (ViewPoint, InterSense) is not present where it was looked for."""
 
@@ -58,6 +66,8 @@ class Source(Generic[S]):
     def __init__(self, *, clock: Clock = time.monotonic):
         self.clock = clock
         self.status = SourceStatus()
+        # The spec this source was built from (`source_from_spec`), for messages; None otherwise.
+        self.spec: str | None = None
         self._opened = False
         self._closed = False
 
@@ -85,6 +95,15 @@ class Source(Generic[S]):
     @property
     def is_open(self) -> bool:
         return self._opened and not self._closed
+
+    def describe(self) -> str:
+        """The device (or file) this source reads, for messages: e.g. "serial port /dev/ttyUSB0"."""
+        return type(self).__name__
+
+    def _name(self) -> str:
+        """Spec and device, for messages."""
+        device = self.describe()
+        return device if self.spec is None else f"{self.spec} ({device})"
 
     def _require_open(self) -> None:
         if not self._opened:
@@ -126,6 +145,11 @@ class ThreadedSource(Source[S]):
     Subclasses implement `_connect()` (raise on failure), `_read_some()` (return a possibly empty
     list of samples, block at most about `poll_interval`; raise on a broken connection) and
     `_disconnect()` (must not raise).
+
+    `connect_timeout` (seconds): `open()` waits that long for the first connection and, when
+    none is made, stops the reader and raises a `DeviceError` naming the source and the last
+    reason the connection failed. None (the default for source objects; `source_from_spec` uses
+    `DEFAULT_CONNECT_TIMEOUT`): `open()` returns at once and the reader keeps trying forever.
     """
 
     def __init__(
@@ -136,8 +160,12 @@ class ThreadedSource(Source[S]):
         backoff_max: float = 2.0,
         backoff_factor: float = 2.0,
         buffer_size: int = 1 << 17,
+        connect_timeout: float | None = None,
     ):
         super().__init__(clock=clock)
+        if connect_timeout is not None and not connect_timeout > 0:
+            raise ValueError(f"{type(self).__name__}: connect_timeout must be > 0 s, got {connect_timeout}")
+        self.connect_timeout = connect_timeout
         if not (backoff_initial > 0 and backoff_max >= backoff_initial and backoff_factor >= 1):
             raise ValueError(
                 f"{type(self).__name__}: back-off needs 0 < initial <= max and factor >= 1, got "
@@ -167,6 +195,15 @@ class ThreadedSource(Source[S]):
     def _open(self) -> None:
         self._thread = threading.Thread(target=self._loop, name=f"fovjax-{type(self).__name__}", daemon=True)
         self._thread.start()
+        timeout = self.connect_timeout
+        if timeout is not None and not self._connected_event.wait(timeout):
+            self._close()  # joins the reader: its last attempt's error is in the status now
+            self._closed = True
+            reason = self.status.last_error or "no answer"
+            raise ConnectTimeoutError(
+                f"{self._name()}: could not connect within {timeout:g} s "
+                f"({self.status.errors} attempt(s) failed); last error: {reason}"
+            )
 
     def _close(self) -> None:
         self._stop.set()

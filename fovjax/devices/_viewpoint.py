@@ -151,6 +151,9 @@ class ViewPointSource(Source[GazeSample]):
         self._last_times: tuple[float, float] | None = None
         self.status.extra["rejected_quality"] = 0
 
+    def describe(self) -> str:
+        return "ViewPoint SDK" + ("" if self.library_path is None else f" {self.library_path}")
+
     def _open(self) -> None:
         path = find_library(self.library_path, env=LIBRARY_ENV, names=("VPX_InterApp",), what="ViewPoint SDK")
         try:

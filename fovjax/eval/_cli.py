@@ -73,7 +73,41 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+# Metrics a criterion can name, and the range of each one's values.
+METRIC_RANGES = {"flip": (0.0, 1.0), "ssim": (-1.0, 1.0), "psnr": (0.0, None), "jod": (None, 10.0)}
+
+
+def validate(args) -> None:
+    """Every argument of `fovjax compare`, before anything is rendered."""
+    import importlib.util
+
+    from fovjax import cli
+
+    cli.scene(args.scene)
+    for fovea, periphery in args.thresholds:
+        cli.fovea_periphery(fovea, periphery, "--thresholds")
+    cli.squares(args.spp, "--spp")
+    for key in args.keys:
+        cli.seed(key, "--keys")
+    cli.number(args.width, "--width", ge=1)
+    cli.number(args.height, "--height", ge=1)
+    for gaze in args.gazes:
+        cli.display_point(gaze, "--gazes")
+    cli.number(args.max_depth, "--max-depth", ge=0)
+    cli.choice(args.criterion, "--criterion", tuple(METRIC_RANGES))
+    lo, hi = METRIC_RANGES[args.criterion]
+    cli.number(args.threshold, f"--threshold (of {args.criterion})", ge=lo, le=hi)
+    cli.output(args.output, "-o", directory=True)
+    # Installed extras last: every row of tests/test_bad_inputs.py answers the same without them.
+    if args.criterion == "flip" and importlib.util.find_spec("flip_evaluator") is None:
+        raise cli.UsageError("--criterion flip: needs flip-evaluator (pip install 'fovjax[flip]')")
+    if args.criterion == "jod" and (args.no_perceptual or importlib.util.find_spec("pyfvvdp") is None):
+        why = "--no-perceptual skips it" if args.no_perceptual else "pip install 'fovjax[fvvdp]'"
+        raise cli.UsageError(f"--criterion jod: needs FovVideoVDP ({why})")
+
+
 def run(args) -> int:
+    validate(args)
     if args.distributed is not None:
         import jax
 
@@ -86,15 +120,13 @@ def run(args) -> int:
     import jax
 
     import fovjax
+    from fovjax import cli
     from fovjax.eval import compare_thresholds
     from fovjax.eval._compare import HIGHER_IS_BETTER
     from fovjax.render import RenderConfig, StereoRig
 
-    scene = (
-        fovjax.scenes.BUILTIN[args.scene]()
-        if args.scene in fovjax.scenes.BUILTIN
-        else fovjax.load_scene(args.scene)
-    )
+    name = {"cornell": "cornell_box"}.get(args.scene, args.scene)  # the alias `render` takes
+    scene = fovjax.scenes.BUILTIN[name]() if name in fovjax.scenes.BUILTIN else fovjax.load_scene(name)
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
@@ -112,7 +144,9 @@ def run(args) -> int:
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them
         return 0
-    paths = result.write(args.output)
+    with cli.deferred_interrupt():
+        paths = result.write(args.output)
+        cli.wrote(*paths.values())
     cols = ["config", "rays_per_frame", "ms_per_frame", "speedup", "psnr", "ssim", "flip", "jod", "pareto"]
     cols = [c for c in cols if c in result.records[0]]
     print("  ".join(f"{c:>14s}" for c in cols))

@@ -58,16 +58,42 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_stability)
 
 
+def _validate_common(args) -> None:
+    from fovjax import cli
+
+    cli.scene(args.scene)
+    cli.number(args.width, "--width", ge=1)
+    cli.number(args.height, "--height", ge=1)
+    cli.number(args.max_depth, "--max-depth", ge=0)
+    cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+    cli.output(args.output, "-o", directory=True)
+
+
+def validate_failures(args) -> None:
+    """Every argument of `fovjax failures`, before anything is rendered."""
+    from fovjax import cli
+
+    _validate_common(args)
+    cli.squares(args.spp, "--spp")
+
+
+def validate_stability(args) -> None:
+    """Every argument of `fovjax stability`, before anything is rendered."""
+    from fovjax import cli
+
+    _validate_common(args)
+    cli.number(args.frames, "--frames", ge=2)
+    cli.seed(args.seed)
+    cli.number(args.fps, "--fps", gt=0)
+
+
 def _setup(args):
     import fovjax
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
 
-    scene = (
-        fovjax.scenes.BUILTIN[args.scene]()
-        if args.scene in fovjax.scenes.BUILTIN
-        else fovjax.load_scene(args.scene)
-    )
+    name = {"cornell": "cornell_box"}.get(args.scene, args.scene)  # the alias `render` takes
+    scene = fovjax.scenes.BUILTIN[name]() if name in fovjax.scenes.BUILTIN else fovjax.load_scene(name)
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
@@ -76,8 +102,10 @@ def _setup(args):
 
 
 def run_failures(args) -> int:
+    from fovjax import cli
     from fovjax.eval import failure_cases
 
+    validate_failures(args)
     scene, rig, foveation, config = _setup(args)
     report = failure_cases(
         scene,
@@ -89,7 +117,9 @@ def run_failures(args) -> int:
         high_spp_values=args.spp,
         progress=not args.no_progress,
     )
-    paths = report.write(args.output)
+    with cli.deferred_interrupt():
+        paths = report.write(args.output)
+        cli.wrote(*paths.values())
     for case in report.cases.values():
         print(f"{case.name} ({case.seconds:.0f} s): {case.finding}")
     print(f"wrote {paths['findings'].parent.resolve()}/")
@@ -97,9 +127,11 @@ def run_failures(args) -> int:
 
 
 def run_stability(args) -> int:
+    from fovjax import cli
     from fovjax.devices import Scanpath, SmoothPursuit
     from fovjax.eval import HmdDisplay, temporal_stability
 
+    validate_stability(args)
     scene, rig, foveation, config = _setup(args)
     if args.gaze == "scanpath":
         cam = rig.eye_cameras()[0]
@@ -131,7 +163,9 @@ def run_stability(args) -> int:
     )
     if bar is not None:
         bar.close()
-    paths = result.write(args.output)
+    with cli.deferred_interrupt():
+        paths = result.write(args.output)
+        cli.wrote(*paths.values())
     for row in result.summary:
         print(
             f"{row['key_mode']:>5s} key: flicker beyond the fovea {row['flicker_beyond_fovea']:.4f} "

@@ -104,12 +104,29 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _comparison_csv(text: str, parser: argparse.ArgumentParser) -> Path:
+    from fovjax import cli
+
     path = Path(text)
     if path.is_dir():
         path = path / "comparison.csv"
     if not path.is_file():
         parser.error(f"--comparison {text}: no such file ({path})")
-    return path
+    return cli.input_file(path, "--comparison", text=True)
+
+
+def validate(args) -> None:
+    """The arguments of `fovjax study` that argparse does not check, before anything is read."""
+    from fovjax import cli
+
+    cli.seed(args.seed)
+    if args.threshold is not None:
+        cli.number(args.threshold, "--threshold", ge=0)
+    if args.spp is not None:
+        cli.squares(args.spp, "--spp")
+    for name in args.responses or ():
+        if Path(name).is_file():
+            cli.input_file(name, "--responses", suffixes=(".csv", ".jsonl"), text=True)
+    cli.output(args.output, "-o", directory=True)
 
 
 def _level_text(fovea: float | None, levels) -> str:
@@ -120,6 +137,7 @@ def _level_text(fovea: float | None, levels) -> str:
 
 
 def run(args) -> int:
+    from fovjax import cli
     from fovjax.eval import read_csv, read_responses, run_study, write_csv, write_responses
     from fovjax.eval import write_study_report as report
     from fovjax.eval._protocols import APPENDIX_LEVELS
@@ -132,6 +150,7 @@ def run(args) -> int:
         study_majorities,
     )
 
+    validate(args)
     parser = args._parser
     levels = APPENDIX_LEVELS
     out = Path(args.output)
@@ -198,10 +217,15 @@ def run(args) -> int:
             )
         print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
         responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)
-        paths["responses"] = write_responses(responses, out / "responses.csv")
+        with cli.deferred_interrupt():
+            paths["responses"] = write_responses(responses, out / "responses.csv")
+            cli.wrote(paths["responses"])
 
     majorities = study_majorities(responses, levels)
-    paths.update(report(responses, out, levels=levels))
+    with cli.deferred_interrupt():
+        written = report(responses, out, levels=levels)
+        paths.update(written)
+        cli.wrote(*written.values())
     thesis = _level_text(THESIS_LEVEL[0], levels)
     rows = []
     print(f"{'test':>10s}  {'majority accepts':<32s}  thesis")
@@ -221,6 +245,8 @@ def run(args) -> int:
             }
         )
     if rows:
-        paths["majority"] = write_csv(rows, out / "majority.csv")
+        with cli.deferred_interrupt():
+            paths["majority"] = write_csv(rows, out / "majority.csv")
+            cli.wrote(paths["majority"])
     print(f"wrote {out.resolve()}/: {', '.join(sorted(p.name for p in paths.values()))}")
     return 0

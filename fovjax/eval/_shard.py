@@ -1,11 +1,12 @@
 """Batches of stereo frames in one compiled program, sharded over `jax.devices()`.
 
 A batch (gaze points × keys × head poses, one frame each) becomes one jitted program: the pure
-frame function (`fovjax.foveate._frame.foveated_stereo`, or the full render's
-`fovjax.render._frame._stereo_program`) is `jax.vmap`ped over the frames, and the frame axis is
+frame function (the full render's `fovjax.render._frame._stereo_program`, `jax.vmap`ped over
+the frames; or `fovjax.foveate._frame.foveated_stereo`, `lax.map`ped: one frame after another,
+so each frame's chunk `lax.cond`s still skip what it does not trace), and the frame axis is
 laid out over a one-axis mesh `Mesh(devices, ("frames",))` with `NamedSharding(mesh,
 P("frames"))`; the scene, BVH, rig and foveation are replicated. `jax.shard_map` gives each
-device its slice of frames, vmapped there; there is no scheduler of ours. (Left to jit's own
+device its slice of frames; there is no scheduler of ours. (Left to jit's own
 partitioner, `partition="auto"`, the vmapped loops' conditions become all-reduces over the
 devices: each traversal step waits for every device, and all run until the batch's slowest
 frame.) The batch is padded to a multiple
@@ -15,13 +16,14 @@ Under `jax.distributed` (several processes, possibly on several hosts) `jax.devi
 every process's devices, every process runs the same call with the same batch, each computes its
 own frames, and the results are gathered back to every process.
 
-Costs of batching with `vmap`, the price of one program for many frames:
+Costs of batching full frames with `vmap`, the price of one program for many frames:
 - a `lax.while_loop` (BVH traversal) runs until the slowest frame of the device's slice is done,
   the finished frames idling along (with `partition="auto"`, of the whole batch);
 - a `lax.cond` whose predicate differs per frame (the integrator skips reflection chunks with no
   live rays) becomes a `select`: every chunk of every frame is shaded;
 - memory grows with the frames per device (every frame's buffers live at once).
-So a sharded batch pays off when devices are really parallel (several GPUs, hosts, or CPU
+Compiled through `fovjax.render.run_compiled` (the package's one compile path and cache). So a
+sharded batch pays off when devices are really parallel (several GPUs, hosts, or CPU
 devices with cores to spare); on one small CPU it can be slower than frames one by one
 (`benchmarks/shard.py` measures it).
 """
@@ -29,8 +31,6 @@ devices with cores to spare); on one small CPU it can be slower than frames one 
 from __future__ import annotations
 
 import dataclasses
-import functools
-import time
 from collections.abc import Sequence
 
 import jax
@@ -39,14 +39,14 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
+from ..render import run_compiled
+
 FRAME_AXIS = "frames"
 # "shard_map": each device runs the vmapped frames of its own slice (its loops end with its own
 # slowest frame); "auto": jit's partitioner splits the one vmapped program, and every batched
 # loop condition becomes an all-reduce over the devices (each iteration synchronises them and
 # all run until the slowest frame of the whole batch).
 PARTITIONS = ("shard_map", "auto")
-
-_COMPILED: dict = {}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,20 +155,18 @@ def _to_host(tree):
     return multihost_utils.process_allgather(tree, tiled=True)
 
 
-def _signature(args) -> tuple:
-    leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((np.shape(x), np.asarray(x).dtype) for x in leaves)
-
-
 def _foveated_program(scene, bvh, rig, foveation, head_poses, gazes, key_data, **static):
     from ..foveate._frame import foveated_stereo
 
-    def frame(head_pose, gaze, key):
+    def frame(xs):
+        head_pose, gaze, key = xs
         return foveated_stereo(
-            scene, bvh, rig, head_pose, gaze, jax.random.wrap_key_data(key), foveation=foveation, **static
+            scene, bvh, rig, head_pose, gaze, jax.random.wrap_key_data(key), foveation, **static
         )
 
-    return jax.vmap(frame)(head_poses, gazes, key_data)
+    # One frame after another (lax.map), not vmap: a foveated frame skips the chunks of slots it
+    # does not trace with lax.cond, which vmap would turn into a select that runs every chunk.
+    return jax.lax.map(frame, (head_poses, gazes, key_data))
 
 
 def _full_program(scene, bvh, rig, head_poses, key_data, **static):
@@ -197,37 +195,30 @@ def _run_sharded(
     replicated = jax.tree.map(lambda x: np.asarray(jnp.asarray(x)), replicated)
     if partition not in PARTITIONS:
         raise ValueError(f"render batch: partition must be one of {PARTITIONS}, got {partition!r}")
-    cache_key = (
-        kind,
-        partition,
-        tuple(static.items()),
-        tuple(d.id for d in mesh.devices.flat),
-        _signature(replicated),
-        _signature(batched),
-    )
     args = (*_global(replicated, whole), *_global(batched, sharded))
-    compiled = _COMPILED.get(cache_key)
-    compile_s = 0.0
-    if compiled is None:
-        t0 = time.perf_counter()
-        shardings = (*(whole,) * len(replicated), *(sharded,) * len(batched))
-        # The static settings are bound (jit takes no keyword arguments with in_shardings).
-        frames = functools.partial(_PROGRAMS[kind], **static)
+    shardings = (*(whole,) * len(replicated), *(sharded,) * len(batched))
+
+    def jit(program):
         if partition == "shard_map":
             specs = (*(P(),) * len(replicated), *(P(FRAME_AXIS),) * len(batched))
             # No collectives inside, every output is per frame: the varying-axis type check
             # (which the renderer's loop carries, begun from replicated constants, would fail)
             # has nothing to protect.
-            frames = jax.shard_map(
-                frames, mesh=mesh, in_specs=specs, out_specs=P(FRAME_AXIS), check_vma=False
+            program = jax.shard_map(
+                program, mesh=mesh, in_specs=specs, out_specs=P(FRAME_AXIS), check_vma=False
             )
-        program = jax.jit(frames, in_shardings=shardings, out_shardings=sharded)
-        compiled = program.lower(*args).compile()
-        compile_s = time.perf_counter() - t0
-        _COMPILED[cache_key] = compiled
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(compiled(*args))
-    render_s = time.perf_counter() - t0
+        return jax.jit(program, in_shardings=shardings, out_shardings=sharded)
+
+    # The one compile path of every entry point (`fovjax.render.run_compiled`); the static
+    # settings are bound to the program (jit takes no keyword arguments with in_shardings).
+    out, compile_s, render_s = run_compiled(
+        f"batch:{kind}",
+        _PROGRAMS[kind],
+        args,
+        static,
+        jit=jit,
+        key=(partition, tuple(d.id for d in mesh.devices.flat)),
+    )
     out_sharding = jax.tree.leaves(out)[0].sharding
     host = jax.tree.map(lambda x: x[:n], _to_host(out))
     return host, padded, compile_s, render_s, out_sharding
@@ -288,7 +279,7 @@ def render_foveated_batch(
     from ..render._config import DEFAULT_CONFIG
 
     foveation = foveation or Foveation()
-    config = dataclasses.replace(config or DEFAULT_CONFIG, packet=None)  # as render_foveated
+    config = config or DEFAULT_CONFIG
     n = _batch_size({"gazes": gazes, "keys": keys, "head_poses": head_poses})
 
     def gaze_of(g):

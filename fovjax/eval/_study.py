@@ -43,6 +43,9 @@ STUDY_METRICS: dict[str, tuple[str, float]] = {
     "jod": ("d = 10 - mean FovVideoVDP JOD", JND_JOD),
     "flip": ("d = mean FLIP", float(DEFAULT_CRITERION[1])),
 }
+# The scale of each study metric's values: FLIP is an error in [0, 1]; FovVideoVDP's JOD is 10
+# for an image identical to the reference and less the more visible the difference.
+METRIC_SCALES: dict[str, tuple[float, float]] = {"flip": (0.0, 1.0), "jod": (-math.inf, 10.0)}
 THESIS_LEVEL = (12.5, 25.0)
 """The level the thesis's participants chose (fovea, periphery in degrees, chapter 5.2)."""
 MAJORITY_TESTS = ("pair", "ramp up", "ramp down", "slider")
@@ -140,8 +143,8 @@ def difference_from_comparison(
     if metric not in STUDY_METRICS:
         raise ValueError(f"{where}: metric must be one of {sorted(STUDY_METRICS)}, got {metric!r}")
     threshold = STUDY_METRICS[metric][1] if threshold is None else float(threshold)
-    if not math.isfinite(threshold):
-        raise ValueError(f"{where}: threshold must be finite, got {threshold}")
+    if not (math.isfinite(threshold) and threshold >= 0):
+        raise ValueError(f"{where}: threshold must be a finite number >= 0, got {threshold}")
     for needed in ("fovea_deg", "periphery_deg", "spp", metric):
         if needed not in columns:
             raise ValueError(f"{where}: no column {needed!r} (columns: {columns})")
@@ -184,10 +187,17 @@ def difference_from_comparison(
                 x = math.nan if v is None else float(v)
             except (TypeError, ValueError):
                 x = math.nan
+            label = f" (config {r['config']!r})" if "config" in r else ""
             if not math.isfinite(x):
-                label = f" (config {r['config']!r})" if "config" in r else ""
                 raise ValueError(
                     f"{where}: row {i + 1}{label}: {metric} is {v!r}, not a finite number "
+                    f"(level {_level_label(*level)}, {which})"
+                )
+            lo, hi = METRIC_SCALES[metric]
+            if not lo - 1e-6 <= x <= hi + 1e-6:
+                scale = f"[{lo:g}, {hi:g}]" if math.isfinite(lo) else f"at most {hi:g}"
+                raise ValueError(
+                    f"{where}: row {i + 1}{label}: {metric} is {v!r}, outside its scale {scale} "
                     f"(level {_level_label(*level)}, {which})"
                 )
             values.append(x)

@@ -1,44 +1,37 @@
-"""Host-side entry point of foveated rendering: compiled once per configuration."""
+"""Host-side entry point of foveated rendering: one compiled program per rig, SPP, render
+config and scene shapes; gaze, head pose, key and the fovea/periphery thresholds are traced."""
 
 from __future__ import annotations
 
-import collections
 import dataclasses
-import time
+import warnings
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..render import TRACE_COUNTS as TRACE_COUNTS  # shared by every entry point
 from ._budget import plan_budget
 from ._config import Foveation, check_gaze
 from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
 
-_COMPILED: dict = {}
-TRACE_COUNTS: collections.Counter = collections.Counter()
 _BUDGETS: dict = {}
 
 
-def _program(scene, bvh, rig, head_pose, gaze, key, foveation, **static):
-    TRACE_COUNTS["foveated"] += 1
-    return foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation=foveation, **static)
-
-
-def _signature(args) -> tuple:
-    leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in leaves)
-
-
 def _budget_for(rig, head_pose, foveation: Foveation) -> int:
-    """Static budget of both eyes (cached per rig intrinsics and configuration)."""
+    """Static slot count of both eyes (cached per rig intrinsics and configuration): every
+    sample when `max_periphery_deg` is None (any thresholds fit), else `plan_budget` at the
+    maximum thresholds (or the configured `ray_budget`)."""
+    full = 2 * foveation.spp * rig.eye_width * rig.eye_height
+    if foveation.ray_budget is None and foveation.max_periphery_deg is None:
+        return full
     key = (
         rig.eye_width,
         rig.eye_height,
         float(rig.fov_deg),
         rig.fov_axis,
         tuple(np.asarray(rig.offsets).reshape(-1).tolist()),
-        foveation.fovea_deg,
-        foveation.periphery_deg,
+        foveation.max_periphery_deg,
         foveation.spp,
         foveation.blocks,
         foveation.rule,
@@ -55,7 +48,10 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
     )
     budget = _BUDGETS.get(key)
     if budget is None:
-        budget = _BUDGETS[key] = sum(plan_budget(cam, foveation) for cam in rig.eye_cameras(head_pose))
+        # The worst case of any thresholds up to the maximum: everything within it is foveal.
+        m = foveation.max_periphery_deg
+        widest = foveation if m is None else dataclasses.replace(foveation, fovea_deg=m, periphery_deg=m)
+        budget = _BUDGETS[key] = sum(plan_budget(cam, widest) for cam in rig.eye_cameras(head_pose))
     return budget
 
 
@@ -105,24 +101,35 @@ def render_foveated(
     normalised display coordinates, (0, 0) the top-left of each eye's display; NaN or
     off-screen gaze is rejected here (the tracking layer decides fallbacks). `key`: the frame's
     PRNG key (sub-pixel jitter and sampling draws); None renders pixel-cell centres and a fixed
-    sampling pattern. Compiled once per configuration (resolution, spp, foveation thresholds,
-    render config, scene array shapes); a new gaze, head pose or key reuses it."""
-    from ..render import RayCounts, StereoRig
-    from ..render._arrays import SceneArrays, scene_arrays
-    from ..render._config import DEFAULT_CONFIG
-    from ..render._frame import FrameStats, _bvh_for
-    from ..render._stereo import head_pose_angles
+    sampling pattern. Compiled once per configuration (resolution, spp, render config, scene
+    array shapes, the foveation's static options); a new gaze, head pose, key, or fovea and
+    periphery thresholds within `foveation.max_periphery_deg` reuse it. A frame whose samples
+    overflow a capped budget warns (the dropped blocks are filled by pull-push)."""
+    from ..render import (
+        RenderConfig,
+        SceneArrays,
+        StereoRig,
+        bvh_for,
+        frame_stats,
+        head_pose_angles,
+        run_compiled,
+        scene_arrays,
+    )
 
     foveation = foveation or Foveation()
-    config = config or DEFAULT_CONFIG
-    # Compacted rays are scattered over the screen: one-by-one traversal beats packets there.
-    config = dataclasses.replace(config, packet=None)
+    config = config or RenderConfig()
     gaze = check_gaze(gaze)
     if rig is None:
         from ..scenes import default_camera
 
         rig = StereoRig.from_pose(default_camera(scene))
-    bvh = _bvh_for(scene, bvh)
+    m = foveation.max_periphery_deg
+    if m is not None and not foveation.periphery_deg <= m:
+        raise ValueError(
+            f"render_foveated: periphery_deg {foveation.periphery_deg} exceeds max_periphery_deg {m} "
+            "(the maximum the compiled program serves)"
+        )
+    bvh = bvh_for(scene, bvh)
     arrays = (
         scene
         if isinstance(scene, SceneArrays)
@@ -132,33 +139,18 @@ def render_foveated(
     key = key if jitter else jax.random.key(0)
     angles = np.asarray(head_pose_angles(head_pose), np.float32)
     budget = _budget_for(rig, angles, foveation)
-    # The foveation config is an argument: its thresholds and options are static fields (part of
-    # the tree structure), its acuity model's parameters arrays (a refitted model recompiles
-    # nothing).
+    # The foveation config is an argument: its options are static fields (part of the tree
+    # structure), its thresholds and acuity model's parameters arrays (new thresholds or a
+    # refitted model recompile nothing).
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget}
     args = jax.tree.map(jnp.asarray, (arrays, bvh, rig, angles, gaze, key, foveation))
-    cache_key = (tuple(static.items()), _signature(args))
-    compiled = _COMPILED.get(cache_key)
-    compile_s = 0.0
-    if compiled is None:
-        t0 = time.perf_counter()
-        compiled = jax.jit(_program, static_argnames=tuple(static)).lower(*args, **static).compile()
-        compile_s = time.perf_counter() - t0
-        _COMPILED[cache_key] = compiled
-    t0 = time.perf_counter()
-    out: FoveatedOutputs = jax.block_until_ready(compiled(*args))
-    render_s = time.perf_counter() - t0
-
-    counts = RayCounts(*(int(c) for c in out.counts))
+    out, compile_s, render_s = run_compiled("foveated", foveated_stereo, args, static)
     image = np.asarray(out.image)
-    stats = FrameStats(
-        primary_rays=counts.primary,
-        shadow_rays=counts.shadow,
-        reflection_rays=counts.reflection,
-        bad_samples=counts.bad,
-        bad_pixels=0,
-        compile_seconds=compile_s,
-        render_seconds=render_s,
+    stats = frame_stats(
+        out.counts,
+        out.bad_pixels,
+        compile_s,
+        render_s,
         width=image.shape[1],
         height=image.shape[0],
         spp=foveation.spp,
@@ -171,9 +163,16 @@ def render_foveated(
         budget=budget,
         padding=int(out.padding),
         dropped=int(out.dropped),
-        fovea_deg=foveation.fovea_deg,
-        periphery_deg=foveation.periphery_deg,
+        fovea_deg=float(foveation.fovea_deg),
+        periphery_deg=float(foveation.periphery_deg),
     )
+    if fstats.dropped:
+        warnings.warn(
+            f"render_foveated: {fstats.dropped:,} samples dropped (the ray budget of {budget:,} "
+            f"slots was exceeded); blocks left without a traced sample were filled by pull-push",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return FoveatedFrame(
         image=image,
         stats=stats,

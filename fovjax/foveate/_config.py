@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -49,6 +50,11 @@ class Constant(eqx.Module):
         return jnp.broadcast_to(jnp.asarray(self.p, jnp.float32), jnp.shape(omega))
 
 
+def _angle(x):
+    """Thresholds are traced floats: one dtype whatever the caller passed (5, 5.0, np.float64)."""
+    return x if isinstance(x, jax.core.Tracer) else float(x)
+
+
 def _thesis_model():
     from ..acuity import THESIS_MODEL
 
@@ -73,11 +79,16 @@ class Foveation(eqx.Module):
     - `eye_display_mm` (D, thesis: 24 mm) and `pixel_pitch_mm` (default: derived from the
       display width and field of view) for the planar mode;
     - `ray_budget`: static number of samples traced per eye (None: derived by `plan_budget` from
-      the configuration so that it is exceeded with negligible probability).
+      the configuration so that it is exceeded with negligible probability);
+    - `max_periphery_deg`: the largest thresholds the compiled program serves (None: the
+      display's full eccentricity, so any thresholds, including a tracking-loss widening to
+      full rendering, reuse it). `fovea_deg` and `periphery_deg` are traced values: a new pair
+      within the maximum compiles nothing. A smaller maximum lets `plan_budget` cap the
+      number of slots (samples beyond it are dropped and counted, see `FoveationStats`).
     """
 
-    fovea_deg: float = eqx.field(static=True, default=5.0)
-    periphery_deg: float = eqx.field(static=True, default=10.0)
+    fovea_deg: float = eqx.field(converter=_angle, default=5.0)
+    periphery_deg: float = eqx.field(converter=_angle, default=10.0)
     spp: int = eqx.field(static=True, default=1)
     acuity: object = eqx.field(default_factory=_thesis_model)
     blocks: tuple[int, int] = eqx.field(static=True, default=(2, 4))
@@ -88,14 +99,32 @@ class Foveation(eqx.Module):
     eye_display_mm: float = eqx.field(static=True, default=24.0)
     pixel_pitch_mm: float | None = eqx.field(static=True, default=None)
     ray_budget: int | None = eqx.field(static=True, default=None)
+    max_periphery_deg: float | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
+        traced = isinstance(self.fovea_deg, jax.core.Tracer) or isinstance(
+            self.periphery_deg, jax.core.Tracer
+        )
+        if not traced:
+            self._check_thresholds()
+        self._check_options()
+
+    def _check_thresholds(self):
         if not (math.isfinite(self.fovea_deg) and self.fovea_deg >= 0):
             raise ValueError(f"Foveation.fovea_deg must be a finite angle >= 0, got {self.fovea_deg}")
         if not (math.isfinite(self.periphery_deg) and self.periphery_deg >= self.fovea_deg):
             raise ValueError(
                 f"Foveation.periphery_deg must be >= fovea_deg ({self.fovea_deg}), got {self.periphery_deg}"
             )
+        if self.max_periphery_deg is not None and not (
+            math.isfinite(self.max_periphery_deg) and self.max_periphery_deg >= self.periphery_deg
+        ):
+            raise ValueError(
+                f"Foveation.max_periphery_deg must be >= periphery_deg ({self.periphery_deg}), "
+                f"got {self.max_periphery_deg}"
+            )
+
+    def _check_options(self):
         n = int(round(self.spp**0.5))
         if self.spp < 1 or n * n != self.spp:
             raise ValueError(f"Foveation.spp must be a positive square (1, 4, 9, 16, ...), got {self.spp}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -88,7 +89,14 @@ def fill_and_blur_pixels(
     # A block whose top-left was not traced (the "strict" rule, or samples dropped beyond the
     # ray budget) is still empty: fill it from the nearest traced pixels by pull-push.
     have = ~blank | (n[ty, tx] > 0)
-    filled = jnp.where(have[..., None], filled, pull_push(filled, have))
+    # Only when some block is empty (rare: the strict rule, or a budget overflow): the pyramid
+    # is a dozen screen-sized passes.
+    filled = jax.lax.cond(
+        jnp.all(have),
+        lambda f: f,
+        lambda f: jnp.where(have[..., None], f, pull_push(f, have)),
+        filled,
+    )
     blurred = _separable(filled, gaussian_taps(foveation.blur_sigma))
     if foveation.blur_fovea:
         return blurred, blank

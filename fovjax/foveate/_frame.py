@@ -2,34 +2,43 @@
 
 Data flow inside one jitted program (static shapes throughout):
 
-1. the frame's sub-sample positions (spp × H × W per eye), exactly as a full render makes them
-   (the same key gives the same sub-pixel positions);
-2. each eye's eccentricity map from its gaze point, regions, and the sample classes
+1. each eye's eccentricity map from its gaze point, regions, and the sample classes
    (mandatory / probabilistic / skipped) drawn from a stream of the frame key;
-3. compaction: a stable O(N) partition puts traced samples first; the first `budget` slots (a
-   static number fixed per configuration by `plan_budget`) become a dense batch of rays,
-   computed from the slots' indices;
-4. the Whitted integrator runs on that batch only — primary rays, then shadow and reflection
-   rays spawned by them — so the cost follows the traced samples, not the screen;
-5. results are accumulated into their pixels, and each eye is filled and blurred in one pass
-   (`fill_and_blur_pixels`).
+2. compaction in locality order: the samples are listed pixel by pixel along a Z-order
+   (Morton) curve over each eye's image, a pixel's sub-samples together, and a stable O(N)
+   partition puts the traced samples first (mandatory, then probabilistic). The first
+   `budget` slots (a static number: every sample unless the configuration caps it) are the
+   frame's rays. Along the Z curve consecutive fovea samples fill 8×8 tiles and consecutive
+   block top-lefts of the periphery fill 16×16 tiles at stride 2, so a chunk of slots is a
+   spatially coherent batch that packet traversal pays off on;
+3. `radiance_in_chunks` makes the rays of a chunk of slots from their indices (the full
+   render's sub-pixel positions: the same key gives the same rays) and traces and shades them
+   with all their shadow and reflection rays; chunks past the traced samples are skipped by a
+   `lax.cond`, so the cost follows the samples traced, never the budget or the screen;
+4. the samples are accumulated into their pixels chunk by chunk (again only chunks that hold
+   samples), and each eye is filled and blurred (`fill_and_blur_pixels`; the pull-push fill
+   runs only when a block has no traced sample).
 
-Ray counts are rays actually traced; the padding (budget slots left empty) and any samples
-dropped beyond the budget are reported separately.
+The fovea and periphery thresholds are traced values: a new pair (within the configuration's
+`max_periphery_deg`) reuses the compiled program. Ray counts are rays actually traced; the
+padding (budget slots left empty) and any samples dropped beyond the budget are reported
+separately.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._eccentricity import eccentricity_map
 from ._fill import fill_and_blur_pixels
-from ._sampling import MANDATORY, OPTIONAL, compaction_order, sample_classes
+from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
 
 # fold_in constant that separates the sampling draws from the sub-pixel jitter of the same key.
 SAMPLING_STREAM = 0x5A3
@@ -47,62 +56,202 @@ class FoveatedOutputs(NamedTuple):
     region: Int[Array, "2 H W"]
     eccentricity: Float[Array, "2 H W"]
     prefill: Float[Array, "2 H W 3"]
+    bad_pixels: Int[Array, ""]
 
 
-def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, *, spp, jitter, config, foveation, budget):
-    """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
-    arguments static. `gaze` (2, 2): per-eye normalised display coordinates.
+@functools.lru_cache(maxsize=16)
+def locality_order(h: int, w: int) -> np.ndarray:
+    """The pixels of an h × w image (flat indices) along a Z-order (Morton) curve."""
+    y, x = np.divmod(np.arange(h * w, dtype=np.int64), w)
+    code = np.zeros(h * w, np.int64)
+    for bit in range(int(max(h, w) - 1).bit_length()):
+        code |= ((x >> bit) & 1) << (2 * bit) | ((y >> bit) & 1) << (2 * bit + 1)
+    return np.argsort(code, kind="stable").astype(np.int32)
 
-    Only the `budget` selected samples ever become rays: their sub-pixel positions are the full
-    render's (`pixel_sample_positions` from the same key) and their directions are computed
-    from their indices, so no screen-sized ray arrays exist."""
-    from .._camera import pixel_sample_positions
-    from ..render._integrator import radiance
 
-    cameras = rig.eye_cameras(head_pose)
-    h, w = rig.eye_height, rig.eye_width
-    ecc = jnp.stack([eccentricity_map(cam, gaze[i], foveation) for i, cam in enumerate(cameras)])
+class Selection(NamedTuple):
+    """Which samples of a stereo frame are traced: per-eye eccentricity and regions, the class
+    of every sample (2, S, H, W), the count per class, the compacted slot list (flat indices
+    into the locality-ordered samples (2, H·W, S), padded) and the number of slots traced."""
+
+    eccentricity: Float[Array, "2 H W"]
+    region: Int[Array, "2 H W"]
+    classes: Int[Array, "2 S H W"]
+    counts: Int[Array, " 3"]
+    order: Int[Array, " N"]
+    rank: Int[Array, " N"]
+    n_traced: Int[Array, ""]
+
+
+def eccentricities(cameras, gaze, foveation) -> Float[Array, "2 H W"]:
+    """Stage 1: each eye's eccentricity map from its gaze point."""
+    return jnp.stack([eccentricity_map(cam, gaze[i], foveation) for i, cam in enumerate(cameras)])
+
+
+def select_samples(ecc, key, *, foveation, budget) -> Selection:
+    """Stage 2: regions, sample classes from the sampling stream of `key`, and their compaction
+    in locality order (see the module docstring)."""
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
     classes, region = zip(*(sample_classes(ecc[i], foveation, keys[i]) for i in range(2)), strict=True)
     classes, region = jnp.stack(classes), jnp.stack(region)  # (2, S, H, W), (2, H, W)
-
-    order, counts = compaction_order(classes.reshape(-1))
+    _, spp, h, w = classes.shape
+    perm = jnp.asarray(locality_order(h, w))
+    local = classes.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
+    order, counts, rank = compaction_order(local, with_rank=True)
     wanted = counts[MANDATORY] + counts[OPTIONAL]
-    slots = order[:budget]
-    active = jnp.arange(budget) < wanted
+    return Selection(ecc, region, classes, counts, order, rank, jnp.minimum(wanted, budget))
+
+
+def _slot_samples(slots, *, spp, h, w):
+    """(eye, sample, pixel) of locality-ordered slot indices."""
     per_eye = spp * h * w
     eye = slots // per_eye
-    in_eye = slots % per_eye  # index into (S, H, W)
-    xy = pixel_sample_positions(w, h, spp, key if jitter else None).reshape(-1, 2)[in_eye]
+    within = slots % per_eye
+    pixel = jnp.asarray(locality_order(h, w))[within // spp]
+    return eye, within % spp, pixel
+
+
+def slot_rays(cameras, positions, slots, *, spp, h, w):
+    """Primary rays of the slots: the full render's sub-pixel `positions` (spp, H, W, 2),
+    directions computed from the indices (no screen-sized ray arrays)."""
+    eye, sample, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
+    xy = positions.reshape(spp, h * w, 2)[sample, pixel]
     left, right = cameras
     is_left = (eye == 0)[:, None]
     directions = jnp.where(is_left, left.ray_directions(xy), right.ray_directions(xy))
     origins = jnp.where(is_left, left.position, right.position)
-    result = radiance(scene, bvh, origins, directions, active, config=config)
+    return origins, directions
 
-    pixel = eye * (h * w) + in_eye % (h * w)
-    rgb = jnp.where(active[:, None], result.rgb, 0.0)
-    sums = jnp.zeros((2 * h * w, 3), jnp.float32).at[pixel].add(rgb).reshape(2, h, w, 3)
-    n_traced = jnp.zeros(2 * h * w, jnp.int32).at[pixel].add(active.astype(jnp.int32)).reshape(2, h, w)
-    prefill = sums / jnp.maximum(n_traced, 1)[..., None]
-    eyes = [fill_and_blur_pixels(prefill[i], n_traced[i], region[i], ecc[i], foveation)[0] for i in range(2)]
-    image = jnp.concatenate(eyes, axis=1)
-    traced = jnp.zeros(classes.size, bool).at[slots].set(active).reshape(classes.shape)
 
+def trace_selection(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget):
+    """Stage 3: trace and shade the selected samples (`radiance_in_chunks`). Returns the
+    per-slot radiance (padded to whole chunks) and the ray counts."""
+    from ..render._integrator import radiance_in_chunks
+
+    def rays_at(first, size):
+        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
+        return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
+
+    return radiance_in_chunks(scene, bvh, rays_at, sel.n_traced, n_slots=budget, config=config)
+
+
+def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color):
+    """Stage 4a: add each traced sample's radiance to its pixel, chunk by chunk (only chunks
+    that hold samples). A sample whose radiance is not finite is bad: its pixel is painted
+    `bad_color` outright, as in the full render. Returns (per-pixel mean of the traced samples
+    (2, H, W, 3), bad samples, bad pixels (2, H, W))."""
+    from ..render._integrator import chunk_loop
+
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    n_pixels = 2 * h * w
+
+    def body(carry, first):
+        sums, bad_pixel, n_bad = carry
+        rgb = jax.lax.dynamic_slice_in_dim(total, first, size)
+        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
+        active = first + lanes < sel.n_traced
+        eye, _, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
+        target = jnp.where(active, eye * (h * w) + pixel, n_pixels)  # inactive: dropped
+        bad = active & ~jnp.all(jnp.isfinite(rgb), axis=-1)
+        rgb = jnp.where(active[:, None] & ~bad[:, None], rgb, 0.0)
+        sums = sums.at[target].add(rgb, mode="drop")
+        bad_pixel = bad_pixel.at[target].max(bad, mode="drop")
+        return sums, bad_pixel, n_bad + jnp.sum(bad, dtype=jnp.int32)
+
+    n_chunks = total.shape[0] // size
+    init = (jnp.zeros((n_pixels, 3), jnp.float32), jnp.zeros(n_pixels, bool), jnp.int32(0))
+    sums, bad_pixel, n_bad = chunk_loop(n_chunks, size, sel.n_traced, body, init)
+    mean = sums.reshape(2, h, w, 3) / jnp.maximum(n, 1)[..., None]
+    bad_pixel = bad_pixel.reshape(2, h, w)
+    mean = jnp.where(bad_pixel[..., None], jnp.asarray(bad_color, jnp.float32), mean)
+    return mean, n_bad, bad_pixel
+
+
+def traced_mask(sel: Selection, budget: int) -> Bool[Array, "2 S H W"]:
+    """Which samples were traced: every sample the plan asked for, unless the budget dropped
+    some (then from the compaction's ranks, mapped back from locality order)."""
+    wanted = sel.classes != SKIPPED
+    _, spp, h, w = sel.classes.shape
+
+    def with_drops(_):
+        kept = (sel.rank < budget).reshape(2, h * w, spp).transpose(0, 2, 1)
+        perm = jnp.asarray(locality_order(h, w))
+        grid = jnp.zeros((2, spp, h * w), bool).at[:, :, perm].set(kept).reshape(wanted.shape)
+        return wanted & grid
+
+    dropped = sel.counts[MANDATORY] + sel.counts[OPTIONAL] > budget
+    return jax.lax.cond(dropped, with_drops, lambda _: wanted, None)
+
+
+def traced_count(mask, spp) -> Int[Array, "2 H W"]:
+    """Traced samples per pixel."""
+    n = mask[:, 0].astype(jnp.int32)
+    for s in range(1, spp):
+        n = n + mask[:, s]
+    return n
+
+
+def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H W2 3"]:
+    """Stage 4b: each eye filled and blurred, side by side."""
+    eyes = [
+        fill_and_blur_pixels(prefill[i], n[i], sel.region[i], sel.eccentricity[i], foveation)[0]
+        for i in range(2)
+    ]
+    return jnp.concatenate(eyes, axis=1)
+
+
+def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget):
+    """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
+    arguments static. `gaze` (2, 2): per-eye normalised display coordinates.
+
+    Only the selected samples ever become rays: their sub-pixel positions are the full
+    render's (`pixel_sample_positions` from the same key) and their directions are computed
+    from their indices, chunk by chunk, so no screen-sized ray arrays exist."""
+    from .._camera import pixel_sample_positions
+    from ..render._integrator import RayCounts
+
+    cameras = rig.eye_cameras(head_pose)
+    h, w = rig.eye_height, rig.eye_width
+    ecc = eccentricities(cameras, gaze, foveation)
+    sel = select_samples(ecc, key, foveation=foveation, budget=budget)
+    positions = pixel_sample_positions(w, h, spp, key if jitter else None)
+    size = min(config.chunk_size, budget)
+    padded = -(-budget // size) * size
+    if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
+        sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
+    traced = trace_selection(
+        scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, budget=budget
+    )
+    mask = traced_mask(sel, budget)
+    n = traced_count(mask, spp)
+    prefill, n_bad, bad_pixel = accumulate(
+        traced.total,
+        sel,
+        n,
+        spp=spp,
+        h=h,
+        w=w,
+        size=min(config.chunk_size, budget),
+        bad_color=config.bad_color,
+    )
+    image = fill_and_blur_eyes(prefill, n, sel, foveation)
+    counts = sel.counts
+    wanted = counts[MANDATORY] + counts[OPTIONAL]
     # One scatter-add instead of three masked reductions (slow on XLA:CPU).
-    by_region = jnp.zeros(3, jnp.int32).at[region.reshape(-1)].add(n_traced.reshape(-1))
+    by_region = jnp.zeros(3, jnp.int32).at[sel.region.reshape(-1)].add(n.reshape(-1))
     return FoveatedOutputs(
         image=image,
-        counts=result.counts,
-        primary_by_region=by_region.astype(jnp.int32),
+        counts=RayCounts(traced.primary, traced.shadow, traced.reflection, n_bad),
+        primary_by_region=by_region,
         mandatory=counts[MANDATORY],
         optional=counts[OPTIONAL],
         dropped=jnp.maximum(wanted - budget, 0),
         padding=jnp.maximum(budget - wanted, 0),
-        traced=traced,
-        region=region,
+        traced=mask,
+        region=sel.region,
         eccentricity=ecc,
         prefill=prefill,
+        bad_pixels=jnp.sum(bad_pixel, dtype=jnp.int32),
     )
 
 

@@ -63,10 +63,11 @@ def sample_classes(
     return cls, region
 
 
-def compaction_order(classes: Int[Array, " N"]) -> tuple[Int[Array, " N"], Int[Array, " 3"]]:
+def compaction_order(classes: Int[Array, " N"], *, with_rank: bool = False):
     """A stable permutation listing MANDATORY samples first, then OPTIONAL, then SKIPPED (each
     in its original, spatially coherent order), and the count of each class. O(N), no sort;
-    the counts are the running sums' last entries (no separate reductions)."""
+    the counts are the running sums' last entries (no separate reductions). `with_rank`: also
+    each sample's position in that order (the inverse permutation)."""
     running = [jnp.cumsum((classes == c).astype(jnp.int32)) for c in (MANDATORY, OPTIONAL, SKIPPED)]
     counts = jnp.stack([r[-1] for r in running])
     offsets = (jnp.int32(0), counts[0], counts[0] + counts[1])
@@ -74,4 +75,4 @@ def compaction_order(classes: Int[Array, " N"]) -> tuple[Int[Array, " N"], Int[A
     for c in (MANDATORY, OPTIONAL, SKIPPED):
         rank = jnp.where(classes == c, offsets[c] + running[c] - 1, rank)
     order = jnp.zeros_like(classes).at[rank].set(jnp.arange(classes.shape[0], dtype=classes.dtype))
-    return order, counts
+    return (order, counts, rank) if with_rank else (order, counts)

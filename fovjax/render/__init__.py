@@ -7,10 +7,15 @@ The frame is three steps, each usable on its own (the foveation layer reuses the
   (2, spp, H, W, 3) and `pixel_xy` (spp, H, W, 2) (or `Camera.sample_rays` for one camera);
 - `radiance(scene_arrays, bvh, origins, directions, active, config=)` →
   `Radiance(rgb (..., 3), bad (...), counts: RayCounts)`, tracing only the `active` rays;
-- `resolve(rgb, bad)` → the box-filtered pixels (and which are bad); `side_by_side` for stereo.
+- `resolve(rgb, bad)` → the box-filtered pixels (and which are bad); `side_by_side` for stereo;
+- `radiance_in_chunks(scene_arrays, bvh, rays_at, n_live, n_slots=)`: rays made and traced chunk
+  by chunk, a cost that follows the live rays (the foveated frame).
 
 `render` / `render_stereo` put them together and return a `Frame`; `render_image` /
-`render_stereo_image` are the pure, differentiable versions.
+`render_stereo_image` are the pure, differentiable versions. `run_compiled` is the one compile
+path of every host entry point (this package's, `fovjax.foveate`'s, `fovjax.eval`'s batches):
+`clear_compile_cache` and `compile_cache_info` cover them all; `frame_stats` the one builder of
+their `FrameStats`.
 
 `fovjax.render` is both this subpackage and, when called, `render`: `fovjax.render(scene,
 camera, spp=4)` renders a frame while `fovjax.render.radiance` etc. stay reachable.
@@ -28,21 +33,28 @@ from ._envmap import constant_envmap as constant_envmap
 from ._envmap import envmap_lookup as envmap_lookup
 from ._envmap import latlong_uv as latlong_uv
 from ._envmap import load_envmap as load_envmap
+from ._frame import TRACE_COUNTS as TRACE_COUNTS
 from ._frame import Frame as Frame
 from ._frame import FrameStats as FrameStats
+from ._frame import bvh_for as bvh_for
 from ._frame import clear_compile_cache as clear_compile_cache
 from ._frame import compile_cache_info as compile_cache_info
+from ._frame import frame_stats as frame_stats
 from ._frame import render as render
 from ._frame import render_image as render_image
 from ._frame import render_stereo as render_stereo
 from ._frame import render_stereo_image as render_stereo_image
 from ._frame import resolve as resolve
+from ._frame import run_compiled as run_compiled
 from ._frame import side_by_side as side_by_side
+from ._integrator import ChunkedRadiance as ChunkedRadiance
 from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
 from ._integrator import Surface as Surface
 from ._integrator import bilinear_wrap as bilinear_wrap
+from ._integrator import chunk_loop as chunk_loop
 from ._integrator import radiance as radiance
+from ._integrator import radiance_in_chunks as radiance_in_chunks
 from ._integrator import scene_scale as scene_scale
 from ._integrator import surface_at as surface_at
 from ._stereo import SampleRays as SampleRays

@@ -42,6 +42,9 @@ class RenderConfig:
     - `chunk_size`: reflection levels trace and shade their live rays in chunks of this many
       (dead chunks are skipped); larger chunks keep more traversal lanes busy, smaller ones
       waste less on the last, partly filled chunk.
+    - `queue_chunk_size`: the chunk of the reflection levels of `radiance_in_chunks` (the
+      foveated frame's integrator), whose queues hold few rays: a level with 2 live rays
+      shades one chunk of this size.
     """
 
     max_depth: int = 5
@@ -51,6 +54,7 @@ class RenderConfig:
     packet: int | tuple[int, int] | None = (8, 8)
     backend: str = "jax"
     chunk_size: int = 32768
+    queue_chunk_size: int = 4096
 
     def __post_init__(self):
         if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
@@ -77,6 +81,11 @@ class RenderConfig:
         if not isinstance(self.chunk_size, int | np.integer) or self.chunk_size < 1:
             raise ValueError(f"RenderConfig.chunk_size must be a positive integer, got {self.chunk_size!r}")
         object.__setattr__(self, "chunk_size", int(self.chunk_size))
+        if not isinstance(self.queue_chunk_size, int | np.integer) or self.queue_chunk_size < 1:
+            raise ValueError(
+                f"RenderConfig.queue_chunk_size must be a positive integer, got {self.queue_chunk_size!r}"
+            )
+        object.__setattr__(self, "queue_chunk_size", int(self.queue_chunk_size))
         if self.backend not in BACKENDS:
             raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
 

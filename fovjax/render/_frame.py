@@ -96,25 +96,63 @@ def render_stereo_image(
 
 # ---- host side: compiled programs, frames --------------------------------------------------
 
-# Compiled programs by (entry, static arguments, argument structure and shapes); and how many
-# times each entry has been traced (a retrace means a recompile).
+# Every compiled program of the package (frames, foveated frames, eval's batches) by (entry,
+# static arguments, extra key, argument structure and shapes); and how many times each entry
+# has been traced (a retrace means a recompile).
 _COMPILED: dict = {}
 TRACE_COUNTS: collections.Counter = collections.Counter()
 
 
 def compile_cache_info() -> dict[str, int]:
-    """Compiled programs held per entry point ("mono", "stereo")."""
+    """Compiled programs held per entry point ("mono", "stereo", "foveated", "batch:...")."""
     counts = collections.Counter(key[0] for key in _COMPILED)
     return dict(counts)
 
 
 def clear_compile_cache() -> None:
+    """Forget every compiled program (all entry points) and the trace counts."""
     _COMPILED.clear()
     TRACE_COUNTS.clear()
 
 
+def _signature(args) -> tuple:
+    leaves, treedef = jax.tree.flatten(args)
+    return treedef, tuple((np.shape(x), _dtype(x), getattr(x, "weak_type", False)) for x in leaves)
+
+
+def _dtype(x):
+    dtype = getattr(x, "dtype", None)
+    return np.asarray(x).dtype if dtype is None else dtype
+
+
+def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *, jit=None, key=()):
+    """Run `program(*args, **static)`, compiling it first if this configuration is new: the one
+    compile path of every host entry point. The cache key is the entry, the static arguments,
+    `key` (anything else the program depends on, e.g. devices) and the structure, shapes and
+    dtypes of `args`, so new values of the same shapes (gaze, pose, key, thresholds) reuse it.
+    `jit`: how to jit the program with its static arguments bound (default `jax.jit`; eval's
+    batches pass their shardings). Returns (outputs, compile seconds (0 when reused), run
+    seconds)."""
+    static = dict(static or {})
+    cache_key = (entry, tuple(sorted(static.items(), key=lambda kv: kv[0])), key, _signature(args))
+    compiled = _COMPILED.get(cache_key)
+    compile_seconds = 0.0
+    if compiled is None:
+
+        def counted(*a):
+            TRACE_COUNTS[entry] += 1
+            return program(*a, **static)
+
+        start = time.perf_counter()
+        compiled = (jit or jax.jit)(counted).lower(*args).compile()
+        compile_seconds = time.perf_counter() - start
+        _COMPILED[cache_key] = compiled
+    start = time.perf_counter()
+    outputs = jax.block_until_ready(compiled(*args))
+    return outputs, compile_seconds, time.perf_counter() - start
+
+
 def _mono_program(scene, bvh, camera, key, *, spp, jitter, config):
-    TRACE_COUNTS["mono"] += 1
     o, d, _ = camera.sample_rays(spp, key if jitter else None)
     result = radiance(scene, bvh, o, d, config=config)
     image, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
@@ -122,7 +160,6 @@ def _mono_program(scene, bvh, camera, key, *, spp, jitter, config):
 
 
 def _stereo_program(scene, bvh, rig, head_pose, key, *, spp, jitter, config):
-    TRACE_COUNTS["stereo"] += 1
     rays = stereo_sample_rays(rig, head_pose, spp, key if jitter else None)
     result = radiance(scene, bvh, rays.origins, rays.directions, config=config)
     eyes, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
@@ -132,27 +169,9 @@ def _stereo_program(scene, bvh, rig, head_pose, key, *, spp, jitter, config):
 _PROGRAMS = {"mono": _mono_program, "stereo": _stereo_program}
 
 
-def _signature(args) -> tuple:
-    leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in leaves)
-
-
 def _run(entry: str, args: tuple, static: dict):
-    """Run `entry` on `args`, compiling it first if this configuration is new. Returns
-    (outputs, compile seconds, render seconds)."""
-    args = jax.tree.map(jnp.asarray, args)
-    cache_key = (entry, tuple(sorted(static.items())), _signature(args))
-    compiled = _COMPILED.get(cache_key)
-    compile_seconds = 0.0
-    if compiled is None:
-        start = time.perf_counter()
-        program = jax.jit(_PROGRAMS[entry], static_argnames=tuple(static))
-        compiled = program.lower(*args, **static).compile()
-        compile_seconds = time.perf_counter() - start
-        _COMPILED[cache_key] = compiled
-    start = time.perf_counter()
-    outputs = jax.block_until_ready(compiled(*args))
-    return outputs, compile_seconds, time.perf_counter() - start
+    """`run_compiled` of a frame program on host arguments."""
+    return run_compiled(entry, _PROGRAMS[entry], jax.tree.map(jnp.asarray, args), static)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,7 +232,8 @@ class Frame:
 _BVH_MEMO: collections.OrderedDict = collections.OrderedDict()
 
 
-def _bvh_for(scene: Scene | SceneArrays, bvh: BVH | None) -> BVH:
+def bvh_for(scene: Scene | SceneArrays, bvh: BVH | None) -> BVH:
+    """`bvh` checked against the scene, or the scene's BVH (built once, memoised by content)."""
     if bvh is None:
         if not isinstance(scene, Scene) or not scene.content_hash:
             raise ValueError("render: pass bvh= when the scene is not a fovjax.Scene with a content hash")
@@ -239,26 +259,41 @@ def _key_args(key, spp: int):
     return (key if jitter else jax.random.key(0)), jitter
 
 
+def frame_stats(
+    counts, bad_pixels, compile_s: float, render_s: float, *, width, height, spp, stereo
+) -> FrameStats:
+    """The `FrameStats` of a frame program's outputs (ray counts and bad pixels as arrays or
+    ints): the one stats builder of every entry point."""
+    counts = RayCounts(*(int(c) for c in counts))
+    return FrameStats(
+        primary_rays=counts.primary,
+        shadow_rays=counts.shadow,
+        reflection_rays=counts.reflection,
+        bad_samples=counts.bad,
+        bad_pixels=int(bad_pixels),
+        compile_seconds=compile_s,
+        render_seconds=render_s,
+        width=int(width),
+        height=int(height),
+        spp=int(spp),
+        stereo=bool(stereo),
+    )
+
+
 def _frame(outputs, compile_s, render_s, *, spp, stereo) -> Frame:
     image, counts, bad_pixels = outputs
-    counts = RayCounts(*(int(c) for c in counts))
     image = np.asarray(image)
-    return Frame(
-        image=image,
-        stats=FrameStats(
-            primary_rays=counts.primary,
-            shadow_rays=counts.shadow,
-            reflection_rays=counts.reflection,
-            bad_samples=counts.bad,
-            bad_pixels=int(bad_pixels),
-            compile_seconds=compile_s,
-            render_seconds=render_s,
-            width=image.shape[1],
-            height=image.shape[0],
-            spp=spp,
-            stereo=stereo,
-        ),
+    stats = frame_stats(
+        counts,
+        bad_pixels,
+        compile_s,
+        render_s,
+        width=image.shape[1],
+        height=image.shape[0],
+        spp=spp,
+        stereo=stereo,
     )
+    return Frame(image=image, stats=stats)
 
 
 def render(
@@ -278,7 +313,7 @@ def render(
     lat-long image path or array seen by missing rays (else `config.background`). `bvh`:
     reused if given, else built (and cached) from the scene.
     """
-    bvh = _bvh_for(scene, bvh)
+    bvh = bvh_for(scene, bvh)
     arrays = (
         scene
         if isinstance(scene, SceneArrays)
@@ -295,50 +330,24 @@ def render_stereo(
     scene: Scene | SceneArrays,
     rig: StereoRig | None = None,
     *,
-    gaze=None,
-    foveation=None,
     head_pose=None,
-    spp: int | None = None,
+    spp: int = 1,
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
     envmap=None,
     bvh: BVH | None = None,
-) -> Frame | FoveatedFrame:
+) -> Frame:
     """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
     side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`).
-    Other arguments as `render`.
-
-    Foveated: with `foveation=` (a `fovjax.foveate.Foveation`; its `spp` is the frame's) and/or
-    `gaze=((lx, ly), (rx, ry))` (normalised display coordinates; default the centres), the frame
-    traces only the samples the foveation selects and returns a `fovjax.foveate.FoveatedFrame`
-    (image, stats, per-region counts, sample mask, debug view); see
-    `fovjax.foveate.render_foveated`."""
-    if foveation is not None or gaze is not None:
-        from ..foveate import Foveation, render_foveated
-
-        if foveation is None:
-            foveation = Foveation(spp=spp or 1)
-        elif spp is not None and spp != foveation.spp:
-            raise ValueError(f"render_stereo: spp={spp} disagrees with foveation.spp={foveation.spp}")
-        return render_foveated(
-            scene,
-            rig,
-            gaze=((0.5, 0.5), (0.5, 0.5)) if gaze is None else gaze,
-            foveation=foveation,
-            head_pose=head_pose,
-            key=key,
-            config=config,
-            envmap=envmap,
-            bvh=bvh,
-        )
-    spp = 1 if spp is None else spp
+    Other arguments as `render`. (Foveated frames: `fovjax.render_stereo(..., foveation=,
+    gaze=)`, the package's entry point above this one and `fovjax.foveate`.)"""
     if rig is None:
         from ..scenes import default_camera
 
         if not isinstance(scene, Scene):
             raise ValueError("render_stereo: pass a rig when the scene is not a fovjax.Scene")
         rig = StereoRig.from_pose(default_camera(scene))
-    bvh = _bvh_for(scene, bvh)
+    bvh = bvh_for(scene, bvh)
     arrays = (
         scene
         if isinstance(scene, SceneArrays)
@@ -352,6 +361,4 @@ def render_stereo(
     return _frame(outputs, compile_s, render_s, spp=int(spp), stereo=True)
 
 
-# For render_stereo's return annotation (resolved when called): fovjax.foveate imports this
-# package only inside its functions, so importing it last here makes no cycle.
-from ..foveate import FoveatedFrame  # noqa: E402
+_bvh_for = bvh_for  # the name other modules of this session used

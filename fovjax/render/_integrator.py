@@ -159,13 +159,21 @@ def _usable_packet(packet, batch_ndim: int):
     return packet
 
 
-def _direct_light(scene, bvh, surface, d, lit, kd, ks, ns, offset, packet, backend):
-    """Σ over lights of visible · (Kd·(n·l) + Ks·(n·h)^Ns) · colour; and shadow rays traced."""
+class ShadowRays(NamedTuple):
+    """The shadow rays of a batch of surface points, one per light: (lights, *batch)."""
+
+    origin: jax.Array  # (lights, *batch, 3)
+    direction: jax.Array  # (lights, *batch, 3), unit
+    tmax: jax.Array  # (lights, *batch); 0 where no ray is wanted
+    wanted: jax.Array  # (lights, *batch) bool
+    n_dot_l: jax.Array  # (lights, *batch)
+
+
+def _shadow_rays(scene, surface, lit, offset) -> ShadowRays:
+    """Towards every light, from every lit surface point where the light is above both normals."""
     batch = surface.found.shape
-    lights = scene.num_lights
-    shape = (lights,) + (1,) * len(batch) + (3,)
+    shape = (scene.num_lights,) + (1,) * len(batch) + (3,)
     position = jnp.reshape(scene.light_position, shape)
-    color = jnp.reshape(scene.light_color, shape)
     is_point = jnp.reshape(scene.light_kind == POINT_LIGHT, shape[:-1])
     p, n_geo, n = surface.point[None], surface.geometric_normal[None], surface.shading_normal[None]
     to_light = jnp.where(is_point[..., None], position - p, position)
@@ -174,36 +182,47 @@ def _direct_light(scene, bvh, surface, d, lit, kd, ks, ns, offset, packet, backe
     n_dot_l = dot(n, l_dir)
     wanted = lit[None] & (n_dot_l > 0) & (dot(n_geo, l_dir) > 0)
     origin = jnp.broadcast_to(p + offset * n_geo, wanted.shape + (3,))
-    # Visibility is not differentiated; keep tangents out of the traversal's while loop.
-    tmax = jax.lax.stop_gradient(jnp.where(is_point, distance, jnp.inf))
-    blocked = occluded(
+    tmax = jnp.where(is_point, distance, jnp.inf)
+    return ShadowRays(
+        origin, jnp.broadcast_to(l_dir, origin.shape), jnp.where(wanted, tmax, 0.0), wanted, n_dot_l
+    )
+
+
+def _trace_shadows(bvh, rays: ShadowRays, packet, backend):
+    """Which shadow rays are blocked. Visibility is not differentiated: tangents stay out of
+    the traversal's while loop."""
+    return occluded(
         bvh,
-        jax.lax.stop_gradient(origin),
-        jax.lax.stop_gradient(jnp.broadcast_to(l_dir, origin.shape)),
-        jnp.where(wanted, tmax, 0.0),
+        jax.lax.stop_gradient(rays.origin),
+        jax.lax.stop_gradient(rays.direction),
+        jax.lax.stop_gradient(rays.tmax),
         tmin=0.0,
-        packet=_usable_packet(packet, len(batch) + 1),
+        packet=_usable_packet(packet, rays.wanted.ndim),
         backend=backend,
     )
-    visible = wanted & ~blocked
-    half = normalize(l_dir - d[None])
+
+
+def _light_sum(scene, surface, d, rays: ShadowRays, blocked, kd, ks, ns):
+    """Σ over lights of visible · (Kd·(n·l) + Ks·(n·h)^Ns) · colour."""
+    batch = surface.found.shape
+    color = jnp.reshape(scene.light_color, (scene.num_lights,) + (1,) * len(batch) + (3,))
+    n = surface.shading_normal[None]
+    visible = rays.wanted & ~blocked
+    half = normalize(rays.direction - d[None])
     n_dot_h = dot(n, half)
     specular = jnp.where(n_dot_h > 0, jnp.power(jnp.where(n_dot_h > 0, n_dot_h, 1.0), ns[None]), 0.0)
     contribution = (
-        kd[None] * jnp.where(wanted, n_dot_l, 0.0)[..., None] + ks[None] * specular[..., None]
+        kd[None] * jnp.where(rays.wanted, rays.n_dot_l, 0.0)[..., None] + ks[None] * specular[..., None]
     ) * color
     lit_terms = jnp.where(visible[..., None], contribution, 0.0)
     shaded = lit_terms[0]
-    for i in range(1, lights):
+    for i in range(1, scene.num_lights):
         shaded = shaded + lit_terms[i]
-    return shaded, jnp.sum(wanted, dtype=jnp.int32)
+    return shaded
 
 
-def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn):
-    """One depth level: trace `alive` rays (unit directions `d`), add what they see (weighted),
-    and the reflection rays they spawn where `spawn`. Returns (contribution, (o, d, weight,
-    alive) of the next level, shadow rays traced)."""
-    hit = closest_hit(
+def _trace_primary(scene, bvh, o, d, alive, *, packet, backend) -> Hit:
+    return closest_hit(
         bvh,
         o,
         d,
@@ -213,18 +232,26 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
         vertices=scene.vertices,
         backend=backend,
     )
+
+
+def _surface_and_shadow_rays(scene, hit, d, alive, offset):
+    """The surfaces the rays hit and the shadow rays they need (None without lights)."""
     surface = surface_at(scene, hit, d)
+    lit = alive & surface.found
+    rays = _shadow_rays(scene, surface, lit, offset) if scene.num_lights else None
+    return surface, rays
+
+
+def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, spawn):
+    """What the rays see (weighted) given the shadow rays' visibility, and the reflection rays
+    they spawn where `spawn`: (contribution, (o, d, weight, alive) of the next level)."""
     lit = alive & surface.found
     missed = alive & ~surface.found
     m = surface.material
     local = scene.ka[m] * jnp.asarray(scene.ambient, jnp.float32) + scene.ke[m]
-    n_shadow = jnp.int32(0)
-    if scene.num_lights:
+    if rays is not None:
         kd = diffuse_color(scene, m, surface.uv)
-        shaded, n_shadow = _direct_light(
-            scene, bvh, surface, d, lit, kd, scene.ks[m], scene.ns[m], offset, packet, backend
-        )
-        local = local + shaded
+        local = local + _light_sum(scene, surface, d, rays, blocked, kd, scene.ks[m], scene.ns[m])
     contribution = jnp.where(missed[..., None], weight * envmap_lookup(scene.environment, d), 0.0)
     contribution = contribution + jnp.where(lit[..., None], weight * local, 0.0)
 
@@ -236,7 +263,23 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
     # geometric normal there instead.
     into = dot(reflected, n_g) <= 0
     reflected = jnp.where(into[..., None], d - 2.0 * dot(d, n_g)[..., None] * n_g, reflected)
-    return contribution, (surface.point + offset * n_g, normalize(reflected), weight, alive), n_shadow
+    return contribution, (surface.point + offset * n_g, normalize(reflected), weight, alive)
+
+
+def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn):
+    """One depth level: trace `alive` rays (unit directions `d`), add what they see (weighted),
+    and the reflection rays they spawn where `spawn`. Returns (contribution, (o, d, weight,
+    alive) of the next level, shadow rays traced)."""
+    hit = _trace_primary(scene, bvh, o, d, alive, packet=packet, backend=backend)
+    surface, rays = _surface_and_shadow_rays(scene, hit, d, alive, offset)
+    blocked, n_shadow = None, jnp.int32(0)
+    if rays is not None:
+        blocked = _trace_shadows(bvh, rays, packet, backend)
+        n_shadow = jnp.sum(rays.wanted, dtype=jnp.int32)
+    contribution, nxt = _finish_shading(
+        scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn
+    )
+    return contribution, nxt, n_shadow
 
 
 def _live_first(alive):
@@ -247,15 +290,18 @@ def _live_first(alive):
     return n_live, jnp.zeros_like(rank).at[rank].set(jnp.arange(live.shape[0], dtype=rank.dtype))
 
 
-def _secondary_levels(scene, bvh, total, state, *, offset, config):
-    """Depth levels 1..max_depth on compacted chunks: each level moves its alive rays to the
-    front and shades only the chunks of `config.chunk_size` rays that hold any (a `lax.cond`
-    skips the rest), so the cost follows the reflection rays, not the screen. The levels are
-    one `lax.scan`, so the program (and its compile time) does not grow with max_depth."""
+def _chunking(n: int, config) -> tuple[int, int]:
+    """(chunk size, padded length) of the reflection levels for n rays."""
+    size = min(config.chunk_size, n)
+    return size, -(-n // size) * size
+
+
+def _secondary_carry(total, state, config):
+    """The reflection levels' carry: (total, o, d, weight, alive, pixel), flat and padded to
+    whole chunks."""
     batch = total.shape[:-1]
     n = int(np.prod(batch))
-    size = min(config.chunk_size, n)
-    padded = -(-n // size) * size
+    _, padded = _chunking(n, config)
 
     def flat(x, fill):
         x = x.reshape((n,) + x.shape[len(batch) :])
@@ -263,45 +309,63 @@ def _secondary_levels(scene, bvh, total, state, *, offset, config):
 
     o, d, weight, alive = state
     carry = (flat(total, 0.0), flat(o, 0.0), flat(d, 1.0), flat(weight, 0.0), flat(alive, False))
-    carry = carry + (jnp.arange(padded, dtype=jnp.int32),)
+    return carry + (jnp.arange(padded, dtype=jnp.int32),)
+
+
+def _secondary_level(scene, bvh, carry, depth, *, offset, config, size):
+    """One reflection level on the carry: compact the alive rays to the front, trace and shade
+    the chunks that hold any. Returns (carry, (reflection rays, shadow rays))."""
+    total, o, d, weight, alive, pixel = carry
+    padded = o.shape[0]
+    n_live, order = _live_first(alive)
+    o, d, weight, alive, pixel = (x[order] for x in (o, d, weight, alive, pixel))
+    spawn = depth < config.max_depth
+
+    def chunk(inner, c):
+        first = c * size
+
+        def work(inner):
+            total, o_next, d_next, w_next, alive_next, n_shadow = inner
+            part = lambda x: jax.lax.dynamic_slice_in_dim(x, first, size)  # noqa: E731
+            contribution, nxt, traced = _trace_and_shade(
+                scene,
+                bvh,
+                part(o),
+                part(d),
+                part(alive),
+                part(weight),
+                packet=None,
+                offset=offset,
+                backend=config.backend,
+                spawn=spawn,
+            )
+            # Only chunks with live rays write anything: no full-size scatter per level.
+            total = total.at[part(pixel)].add(contribution)
+            put = lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, first, 0)  # noqa: E731
+            o_next, d_next, w_next, alive_next = (
+                put(x, y) for x, y in zip((o_next, d_next, w_next, alive_next), nxt, strict=True)
+            )
+            return total, o_next, d_next, w_next, alive_next, n_shadow + traced
+
+        return jax.lax.cond(first < n_live, work, lambda inner: inner, inner), None
+
+    inner = (total, o, d, weight, jnp.zeros_like(alive), jnp.int32(0))
+    (total, o, d, weight, alive, n_shadow), _ = jax.lax.scan(chunk, inner, jnp.arange(padded // size))
+    return (total, o, d, weight, alive, pixel), (n_live, n_shadow)
+
+
+def _secondary_levels(scene, bvh, total, state, *, offset, config):
+    """Depth levels 1..max_depth on compacted chunks: each level moves its alive rays to the
+    front and shades only the chunks of `config.chunk_size` rays that hold any (a `lax.cond`
+    skips the rest), so the cost follows the reflection rays, not the screen. The levels are
+    one `lax.scan`, so the program (and its compile time) does not grow with max_depth."""
+    batch = total.shape[:-1]
+    n = int(np.prod(batch))
+    size, _ = _chunking(n, config)
+    carry = _secondary_carry(total, state, config)
 
     def level(carry, depth):
-        total, o, d, weight, alive, pixel = carry
-        n_live, order = _live_first(alive)
-        o, d, weight, alive, pixel = (x[order] for x in (o, d, weight, alive, pixel))
-        spawn = depth < config.max_depth
-
-        def chunk(inner, c):
-            first = c * size
-
-            def work(inner):
-                total, o_next, d_next, w_next, alive_next, n_shadow = inner
-                part = lambda x: jax.lax.dynamic_slice_in_dim(x, first, size)  # noqa: E731
-                contribution, nxt, traced = _trace_and_shade(
-                    scene,
-                    bvh,
-                    part(o),
-                    part(d),
-                    part(alive),
-                    part(weight),
-                    packet=None,
-                    offset=offset,
-                    backend=config.backend,
-                    spawn=spawn,
-                )
-                # Only chunks with live rays write anything: no full-size scatter per level.
-                total = total.at[part(pixel)].add(contribution)
-                put = lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, first, 0)  # noqa: E731
-                o_next, d_next, w_next, alive_next = (
-                    put(x, y) for x, y in zip((o_next, d_next, w_next, alive_next), nxt, strict=True)
-                )
-                return total, o_next, d_next, w_next, alive_next, n_shadow + traced
-
-            return jax.lax.cond(first < n_live, work, lambda inner: inner, inner), None
-
-        inner = (total, o, d, weight, jnp.zeros_like(alive), jnp.int32(0))
-        (total, o, d, weight, alive, n_shadow), _ = jax.lax.scan(chunk, inner, jnp.arange(padded // size))
-        return (total, o, d, weight, alive, pixel), (n_live, n_shadow)
+        return _secondary_level(scene, bvh, carry, depth, offset=offset, config=config, size=size)
 
     carry, (n_reflection, n_shadow) = jax.lax.scan(level, carry, jnp.arange(1, config.max_depth + 1))
     return carry[0][:n].reshape(batch + (3,)), jnp.sum(n_reflection), jnp.sum(n_shadow)
@@ -368,3 +432,182 @@ def radiance(
         bad=jnp.sum(bad, dtype=jnp.int32),
     )
     return Radiance(rgb, bad, counts)
+
+
+# ---- rays made chunk by chunk: a cost that follows the live rays, not the slots -------------
+
+
+class ChunkedRadiance(NamedTuple):
+    """`radiance_in_chunks`'s result: the radiance of every slot (padded to whole chunks; slots
+    beyond the live ones are 0) and the rays traced."""
+
+    total: Float[Array, "P 3"]
+    primary: Int[Array, ""]
+    shadow: Int[Array, ""]
+    reflection: Int[Array, ""]
+
+
+def chunk_loop(n_chunks: int, size: int, n_live, body, init):
+    """`body(carry, first)` for the chunks of `size` whose first index is below `n_live` (at
+    most `n_chunks`), one after another: a `lax.while_loop` whose trip count is the number of
+    live chunks, so the others cost nothing (no skipped iterations carrying the buffers)."""
+    live = jnp.minimum((jnp.asarray(n_live, jnp.int32) + size - 1) // size, n_chunks)
+
+    def step(state):
+        c, carry = state
+        return c + 1, body(carry, c * size)
+
+    return jax.lax.while_loop(lambda state: state[0] < live, step, (jnp.int32(0), init))[1]
+
+
+def _append(queue, n, rays, alive):
+    """Move the `alive` entries of a chunk's `rays` to the front and write the chunk into
+    `queue` at `n`: the first `n + alive.sum()` queue entries are then live. The queue must
+    have a chunk of room beyond its capacity (the chunk is written whole)."""
+    k, order = _live_first(alive)
+    queue = tuple(
+        jax.lax.dynamic_update_slice_in_dim(q, x[order], n, 0) for q, x in zip(queue, rays, strict=True)
+    )
+    return queue, n + k
+
+
+class _Chunks(NamedTuple):
+    size: int
+    count: int
+
+    @property
+    def padded(self) -> int:
+        return self.size * self.count
+
+
+def _chunks(n_slots: int, config) -> _Chunks:
+    size = min(config.chunk_size, n_slots)
+    return _Chunks(size, -(-n_slots // size))
+
+
+def _empty_queue(chunks: _Chunks):
+    """(origins, directions, weights, target slots) with a chunk of room beyond the slots."""
+    capacity = chunks.padded + chunks.size
+    return (
+        jnp.zeros((capacity, 3), jnp.float32),
+        jnp.ones((capacity, 3), jnp.float32),
+        jnp.zeros((capacity, 3), jnp.float32),
+        jnp.zeros((capacity,), jnp.int32),
+    )
+
+
+def _packet_of(config):
+    """Packets of consecutive slots where `config.packet` is an int; a tile (the default, made
+    for image-shaped batches) means one by one here: over the foveated frame's
+    locality-ordered slots (mostly block top-lefts at stride 2 and 4), 64-ray packets measured
+    1.7x slower than one by one at SPP 1 and no faster at SPP 4 (benchmarks/foveation.py)."""
+    return config.packet if isinstance(config.packet, int) else None
+
+
+def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config):
+    """Depth 0 of `radiance_in_chunks`: (total (padded, 3), queue, queued, primary, shadow)."""
+    size = chunks.size
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    spawn = config.max_depth > 0
+    packet = _packet_of(config)
+
+    def body(carry, first):
+        total, queue, n_q, n_primary, n_shadow = carry
+        o, d = rays_at(first, size)
+        o = jnp.asarray(o, jnp.float32)
+        d_raw = jnp.asarray(d, jnp.float32)
+        d = normalize(d_raw)
+        valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        active = first + lanes < n_live
+        weight = jnp.ones((size, 3), jnp.float32)
+        contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
+            scene,
+            bvh,
+            o,
+            d,
+            active,
+            weight,
+            packet=packet,
+            offset=offset,
+            backend=config.backend,
+            spawn=spawn,
+        )
+        total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
+        if spawn:
+            queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes), alive2)
+        n_primary = n_primary + jnp.sum(active & valid, dtype=jnp.int32)
+        return total, queue, n_q, n_primary, n_shadow + traced
+
+    zero = jnp.int32(0)
+    total = jnp.zeros((chunks.padded, 3), jnp.float32)
+    init = (total, _empty_queue(chunks), zero, zero, zero)
+    return chunk_loop(chunks.count, size, n_live, body, init)
+
+
+def _queue_chunks(chunks: _Chunks, config) -> _Chunks:
+    """The reflection levels' chunks over the queue (capacity: the slots plus one chunk)."""
+    size = min(config.queue_chunk_size, chunks.size)
+    return _Chunks(size, (chunks.padded + chunks.size) // size)
+
+
+def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config):
+    """One reflection level over the queue's first `n_q` rays, in place, in chunks of
+    `_queue_chunks`: (total, queue, the next level's queued rays, shadow rays traced)."""
+    chunks = _queue_chunks(chunks, config)
+    size = chunks.size
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    spawn = depth < config.max_depth
+
+    def body(inner, first):
+        total, queue, n_next, n_shadow = inner
+        o, d, weight, target = (jax.lax.dynamic_slice_in_dim(q, first, size) for q in queue)
+        alive = first + lanes < n_q
+        contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
+            scene, bvh, o, d, alive, weight, packet=None, offset=offset, backend=config.backend, spawn=spawn
+        )
+        total = total.at[target].add(contribution)
+        queue, n_next = _append(queue, n_next, (o2, d2, w2, target), alive2)
+        return total, queue, n_next, n_shadow + traced
+
+    # Chunks past the queued rays are skipped; the writes of a chunk go to the queue's front,
+    # never past the chunk just read (a level appends at most as many rays as it reads).
+    zero = jnp.int32(0)
+    return chunk_loop(chunks.count, size, n_q, body, (total, queue, zero, zero))
+
+
+def radiance_in_chunks(
+    scene: SceneArrays, bvh: BVH, rays_at, n_live, *, n_slots: int, config: RenderConfig = DEFAULT_CONFIG
+) -> ChunkedRadiance:
+    """Whitted radiance of up to `n_slots` rays of which the first `n_live` are live, made and
+    traced chunk by chunk (`config.chunk_size`): `rays_at(first, size)` returns the
+    `(origins, directions)` of slots first..first+size. Chunks past `n_live` cost nothing.
+
+    Every depth level runs over chunks of a queue: a chunk's reflection rays are compacted
+    (O(chunk)) and appended to the queue in place, so no pass over all slots ever happens
+    after the primary rays, and reflection rays stay in the order of the slots that spawned
+    them (spatially coherent when the slots are). Primary rays and their shadow rays are traced
+    in packets of `config.packet` consecutive rays where that is an int, else one by one (a
+    chunk is a flat list, not an image); later levels one by one. Pure and jittable; the chunk
+    loops are `lax.while_loop`s, so forward-mode derivatives only (`radiance` takes `jax.grad`).
+    """
+    scene = jax.tree.map(jnp.asarray, scene)
+    chunks = _chunks(n_slots, config)
+    offset = config.ray_offset * scene_scale(scene)
+    total, queue, n_q, n_primary, n_shadow = _primary_level(
+        scene, bvh, rays_at, n_live, chunks, offset=offset, config=config
+    )
+
+    def level(carry, depth):
+        total, queue, n_q, n_shadow = carry
+        total, queue, n_next, traced = _queue_level(
+            scene, bvh, total, queue, n_q, depth, chunks, offset=offset, config=config
+        )
+        return (total, queue, n_next, n_shadow + traced), n_q
+
+    n_reflection = jnp.int32(0)
+    if config.max_depth > 0:
+        (total, _, _, n_shadow), per_level = jax.lax.scan(
+            level, (total, queue, n_q, n_shadow), jnp.arange(1, config.max_depth + 1)
+        )
+        n_reflection = jnp.sum(per_level)
+    return ChunkedRadiance(total, n_primary, n_shadow, n_reflection)

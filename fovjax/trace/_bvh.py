@@ -1,15 +1,11 @@
 """The flattened BVH pytree, its packing for traversal, and the on-disk cache.
 
-Layout: one int32 table of 16-word rows, indexed by a single "item" id.
-- rows [0, num_nodes) are inner nodes, depth-first:
-  words 0-5 left child box (lo xyz, hi xyz, float32 bits), 6-11 right child box,
-  12 left child item, 13 right child item.
-- rows [num_nodes, num_nodes + F) are triangles in leaf order:
-  words 0-8 the three corners (float32 bits), 9 the original face index, 10 = 1 if it is
-  the last triangle of its leaf.
-A child item >= num_nodes is a leaf: traversal walks its triangles row by row until the
-"last" flag. One row is 64 bytes, one cache line: a traversal step gathers exactly one row,
-whether the ray is at a node or at a triangle (perf-notes: gathers dominate on XLA CPU).
+Layout: one int32 table of 16-word (64-byte) rows, indexed by a single "item" id: rows
+[0, num_nodes) are 4-wide inner nodes with quantised child boxes, depth-first; rows
+[num_nodes, num_nodes + F) are triangles in leaf order (`_wide.py` gives the words of each). A
+child item >= num_nodes is a leaf: traversal walks its triangles row by row until the "last"
+flag. A node and a triangle are both one row, one cache line: a traversal step gathers exactly
+one row, whether the ray is at a node or at a triangle (perf-notes: gathers dominate on XLA CPU).
 """
 
 from __future__ import annotations

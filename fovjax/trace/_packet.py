@@ -67,8 +67,10 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     )
     n_hit = jnp.sum(jnp.isfinite(jnp.stack(keys, 1)), axis=1).astype(jnp.int32)
 
-    found = t_tri < jnp.inf
-    t_best = jnp.where(found, t_tri, t_best)
+    # Materialised once (see _traverse._step): the consumers read whether the best improved.
+    t_new = barrier(jnp.minimum(t_tri, t_best))
+    found = t_new < t_best
+    t_best = t_new
     prim = jnp.where(found, row[:, None, 9], prim)
     if any_hit:
         done = done | found

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._bvh import BVH
 from ._packet import traverse_packets
@@ -115,6 +115,49 @@ def hit_geometry(vertices, faces, prim, origins, directions):
     return jnp.where(ok, t, jnp.inf), jnp.where(ok, u, 0.0), jnp.where(ok, v, 0.0)
 
 
+def _host_devices() -> list | None:
+    """The CPU devices to split a ray batch over, or None to trace it in one program.
+
+    XLA:CPU runs a program's traversal loop on one thread (measured: every fusion of the loop on
+    one thread of its pool, and two independent loops in one program run one after the other), so
+    the only way to a second core is a second device: with `JAX_NUM_CPU_DEVICES=2` (or
+    `jax.config.update("jax_num_cpu_devices", 2)` before JAX starts) the rays are split over the
+    host devices with `shard_map`, one traversal per device and core. A GPU's one program already
+    fills the device, so nothing is split there.
+    """
+    devices = jax.devices()
+    if len(devices) < 2 or devices[0].platform != "cpu":
+        return None
+    if not jax.sharding.get_abstract_mesh().empty:
+        return None  # already inside a sharded program (e.g. frames over devices): its part stays whole
+    return devices
+
+
+def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int):
+    """`run(table, num_nodes, o, d, tmin, tmax)` on equal parts of the rays, one per device.
+    Each part is a multiple of `granule` rays (a packet), padded with empty rays."""
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as P
+
+    k = len(devices)
+    n = o.shape[0]
+    pad = (-n) % (k * granule)
+
+    def padded(x, fill):
+        return jnp.concatenate([x, jnp.full((pad,) + x.shape[1:], fill, x.dtype)]) if pad else x
+
+    mesh = Mesh(np.array(devices), ("rays",))
+    split = jax.shard_map(
+        run,
+        mesh=mesh,
+        in_specs=(P(), P(), P("rays"), P("rays"), P("rays"), P("rays")),
+        out_specs=(P("rays"), P("rays")),
+        check_vma=False,
+    )
+    t, prim = split(table, num_nodes, padded(o, 0.0), padded(d, 0.0), padded(tmin, 0.0), padded(tmax, 0.0))
+    return t[:n], prim[:n]
+
+
 @functools.partial(
     jax.jit, static_argnames=("backend", "any_hit", "packet_size", "lanes", "packets", "steps_per_refill")
 )
@@ -124,32 +167,40 @@ def _raw_query(bvh, o, d, tmin, tmax, *, backend, any_hit, packet_size, lanes, p
         from ._embree import embree_query
 
         return embree_query(bvh, o, d, tmin, tmax, any_hit=any_hit)
-    if packet_size is None:
-        return traverse(
-            bvh.table,
-            bvh.num_nodes,
-            bvh.stack_size,
+    stack_size = bvh.stack_size
+
+    def run(table, num_nodes, o, d, tmin, tmax):
+        if packet_size is None:
+            return traverse(
+                table,
+                num_nodes,
+                stack_size,
+                o,
+                d,
+                tmin,
+                tmax,
+                any_hit=any_hit,
+                lanes=lanes,
+                steps_per_refill=steps_per_refill,
+            )
+        return traverse_packets(
+            table,
+            num_nodes,
+            stack_size,
             o,
             d,
             tmin,
             tmax,
             any_hit=any_hit,
-            lanes=lanes,
+            packet_size=packet_size,
+            packets=packets,
             steps_per_refill=steps_per_refill,
         )
-    return traverse_packets(
-        bvh.table,
-        bvh.num_nodes,
-        bvh.stack_size,
-        o,
-        d,
-        tmin,
-        tmax,
-        any_hit=any_hit,
-        packet_size=packet_size,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
-    )
+
+    devices = _host_devices()
+    if devices is None:
+        return run(bvh.table, bvh.num_nodes, o, d, tmin, tmax)
+    return _split_over(devices, run, bvh.table, bvh.num_nodes, o, d, tmin, tmax, packet_size or 1)
 
 
 def _query(
@@ -176,21 +227,23 @@ def _query(
 
 def closest_hit(
     bvh: BVH,
-    origins: Float[np.ndarray | Array, "*#batch 3"],
-    directions: Float[np.ndarray | Array, "*#batch 3"],
-    tmin: float | Float[np.ndarray | Array, "*#batch"] = 0.0,
-    tmax: float | Float[np.ndarray | Array, "*#batch"] = jnp.inf,
+    origins: Float[ArrayLike, "*#batch 3"],
+    directions: Float[ArrayLike, "*#batch 3"],
+    tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
+    tmax: float | Float[ArrayLike, "*#batch"] = jnp.inf,
     *,
     backend: str = "jax",
     packet: Packet = None,
-    vertices: Float[np.ndarray | Array, "V 3"] | None = None,
+    vertices: Float[ArrayLike, "V 3"] | None = None,
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
 ) -> Hit:
     """The nearest triangle hit by each ray with tmin < t < tmax.
 
-    Any batch shape; float32; jit-compatible (compiled once per batch shape, BVH and options).
+    Any batch shape: `origins`, `directions`, `tmin` and `tmax` are JAX or NumPy arrays (or
+    scalars for the bounds) that broadcast against each other, and the result has the broadcast
+    batch shape. float32; jit-compatible (compiled once per batch shape, BVH and options).
     Directions need not be normalised (t is in units of the direction's length). Rays with a
     NaN/inf component or a zero direction miss.
 
@@ -225,11 +278,11 @@ def closest_hit(
 
 def occluded(
     bvh: BVH,
-    origins: Float[np.ndarray | Array, "*#batch 3"],
-    directions: Float[np.ndarray | Array, "*#batch 3"],
-    tmax: float | Float[np.ndarray | Array, "*#batch"] = jnp.inf,
+    origins: Float[ArrayLike, "*#batch 3"],
+    directions: Float[ArrayLike, "*#batch 3"],
+    tmax: float | Float[ArrayLike, "*#batch"] = jnp.inf,
     *,
-    tmin: float | Float[np.ndarray | Array, "*#batch"] = 0.0,
+    tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
     backend: str = "jax",
     packet: Packet = None,
     lanes: int = DEFAULT_LANES,

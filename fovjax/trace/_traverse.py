@@ -174,8 +174,11 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     )
     n_hit = jnp.sum(jnp.isfinite(jnp.stack(keys, 1)), axis=1).astype(jnp.int32)
 
-    found = t_tri < jnp.inf
-    t_best = jnp.where(found, t_tri, t_best)
+    # The triangle test is materialised once, as the new best distance; its other consumers
+    # read whether it improved (t_tri < t_best by construction) instead of recomputing it.
+    t_new = barrier(jnp.minimum(t_tri, t_best))
+    found = t_new < t_best
+    t_best = t_new
     prim = jnp.where(found, row[:, 9], prim)
     node_next = jnp.where(n_hit > 0, sorted_kv[:, 0, 0], ITEM_POP)
     tri_next = jnp.where(row[:, 10] != 0, ITEM_POP, cur + 1)

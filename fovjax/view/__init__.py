@@ -1,0 +1,21 @@
+"""The live foveated viewer (`fovjax view`): a local web server renders foveated stereo frames
+for the newest gaze -- the mouse over either eye, or any gaze source -- and streams them to a
+page in the browser over a WebSocket, with an overlay of frame rate, stage times, rays and the
+gaze-to-display latency. Needs the 'view' extra (aiohttp).
+
+- `LiveRenderer`: the live state and one frame at a time (`render_next`);
+- `Viewer`: the aiohttp server around it (`start`, `stop`, `url`);
+- `binocular_gaze`: both eyes' gaze from one eye's, through the rig's geometry;
+- `parse_message`, `MessageError`, `ACTIONS`: the page protocol and its validation.
+"""
+
+from ._gaze import binocular_gaze as binocular_gaze
+from ._protocol import ACTIONS as ACTIONS
+from ._protocol import MAX_MESSAGE_BYTES as MAX_MESSAGE_BYTES
+from ._protocol import MessageError as MessageError
+from ._protocol import parse_message as parse_message
+from ._renderer import LiveRenderer as LiveRenderer
+from ._renderer import RenderedFrame as RenderedFrame
+from ._renderer import encode_jpeg as encode_jpeg
+from ._server import Viewer as Viewer
+from ._server import is_loopback as is_loopback

@@ -1,0 +1,413 @@
+"""Bad inputs to every `fovjax` command, one row each: the command line, the exit status, a piece
+of the one-line message (the bad value), and no traceback. Rows run in-process through
+`fovjax.cli.main`; the expensive entry points (BVH build, rendering, sessions, fits, sweeps) are
+replaced by a trap, so a row passes only if its input is refused before any of that starts. A
+few rows go through the real entry point (`python -m fovjax`), and Ctrl-C is sent to real
+processes at the end."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import fovjax
+import fovjax.acuity._fit
+import fovjax.acuity._stability
+import fovjax.eval
+import fovjax.trace
+from fovjax.cli import main
+from fovjax.eval import APPENDIX_LEVELS
+
+REPO = Path(__file__).resolve().parents[1]
+CURVE = REPO / "data" / "mandelbaum" / "curve_samples.csv"
+SCANPATH = REPO / "data" / "recordings" / "synthetic_scanpath_seed0.jsonl"
+HEAD = REPO / "data" / "recordings" / "synthetic_head_sway.csv"
+TINY = ["--scene", "cornell", "--width", "8", "--height", "8"]
+
+
+class ExpensiveWork(BaseException):
+    """Raised by the trapped entry points: `main` does not catch it, so the test fails loudly."""
+
+
+def _trap(*args, **kwargs):
+    raise ExpensiveWork("the command started expensive work before refusing its input")
+
+
+@pytest.fixture(autouse=True)
+def _traps(monkeypatch):
+    for module, name in [
+        (fovjax.trace, "build_bvh"),
+        (fovjax, "run_session"),
+        (fovjax.eval, "compare_thresholds"),
+        (fovjax.eval, "failure_cases"),
+        (fovjax.eval, "temporal_stability"),
+        (fovjax.acuity._fit, "fit"),
+        (fovjax.acuity._stability, "write_sweep"),
+    ]:
+        monkeypatch.setattr(module, name, _trap)
+
+
+@pytest.fixture
+def files(tmp_path):
+    """Bad (and good) input files, by the {name} used in the rows."""
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(b"eccentricity_deg,acuity\n0,1\n\x89PNG\r\n\x1a\n\x00\x00")
+    table = tmp_path / "comparison.csv"
+    rows = ["config,fovea_deg,periphery_deg,spp,flip"]
+    for fovea, periphery in APPENDIX_LEVELS:
+        flip = -0.2 if fovea == 12.5 else 0.01
+        rows.append(f"{fovea:g}/{periphery:g} spp4,{fovea},{periphery},4,{flip}")
+    table.write_text("\n".join(rows) + "\n")
+    jod = tmp_path / "jod.csv"
+    jod.write_text(table.read_text().replace("flip", "jod").replace("-0.2", "10.5").replace("0.01", "9.5"))
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder")
+    recording_bin = tmp_path / "bin.jsonl"
+    recording_bin.write_bytes(b'{"fovjax_recording": 1, "kind": "gaze"}\n\xff\xfe\n')
+    scene_txt = tmp_path / "scene.txt"
+    scene_txt.write_text("v 0 0 0\n")
+    bad_hdr = tmp_path / "sky.hdr"
+    bad_hdr.write_text("not an image")
+    not_recording = tmp_path / "table.csv"
+    not_recording.write_text("a,b\n1,2\n")
+    return {
+        "curve": str(CURVE),
+        "scanpath": str(SCANPATH),
+        "head_rec": str(HEAD),
+        "binary": str(binary),
+        "table": str(table),
+        "jod": str(jod),
+        "a_file": str(a_file),
+        "unwritable": str(a_file / "out.png"),
+        "unwritable_dir": str(a_file / "out"),
+        "recording_bin": str(recording_bin),
+        "scene_txt": str(scene_txt),
+        "bad_hdr": str(bad_hdr),
+        "not_recording": str(not_recording),
+        "tmp": str(tmp_path),
+    }
+
+
+# (command line, exit status, a piece of the message); {name} is a file of the `files` fixture.
+ROWS = [
+    # -- render ------------------------------------------------------------------------------
+    ("render --exposure nan", 2, "--exposure nan"),
+    ("render --exposure -1", 2, "--exposure -1"),
+    ("render --exposure 0", 2, "expected a finite number > 0"),
+    ("render --spp 3", 2, "--spp 3: expected a perfect square"),
+    ("render --spp 0", 2, "--spp 0"),
+    ("render --width 0", 2, "--width 0"),
+    ("render --height -5", 2, "--height -5"),
+    ("render --max-depth -1", 2, "--max-depth -1"),
+    ("render --triangles 0", 2, "--triangles 0"),
+    ("render --fovea 10 --periphery 5", 2, "must not be smaller than the fovea"),
+    ("render --fovea -1", 2, "fovea -1"),
+    ("render --fovea nan", 2, "fovea nan"),
+    ("render --periphery inf", 2, "periphery inf"),
+    ("render --gaze 0.5,0.5,1.5,0.5", 2, "1.5"),
+    ("render --gaze nan,0.5,0.5,0.5", 2, "nan"),
+    ("render --head 0,nan,0", 2, "--head pitch nan"),
+    ("render --head 1,2", 2, "YAW,PITCH,ROLL"),
+    ("render --scene nowhere", 2, "'nowhere'"),
+    ("render --scene nowhere.obj", 2, "'nowhere.obj': not a built-in scene"),
+    ("render --scene {scene_txt}", 2, "scene.txt"),
+    ("render --scene {tmp}", 2, "not a built-in scene"),
+    ("render --envmap /no/such/sky.hdr", 2, "/no/such/sky.hdr: no such file"),
+    ("render --envmap {bad_hdr}", 2, "--envmap {bad_hdr}: load_image"),
+    ("render -o out.jpg", 2, "unknown output type '.jpg'"),
+    ("render -o out", 2, "'(no suffix)'"),
+    ("render -o {unwritable}", 2, "is a file, not a folder"),
+    ("render -o {tmp}", 2, "is a folder"),
+    ("render --preview -o x.exr", 2, "'.exr'"),
+    ("render --backend optix", 2, "invalid choice: 'optix'"),
+    ("render --tonemap aces", 2, "invalid choice: 'aces'"),
+    ("render --spp two", 2, "invalid int value: 'two'"),
+    ("render --seed -1", 2, "--seed -1"),
+    ("render --seed 99999999999999999999", 2, "--seed 99999999999999999999"),
+    ("bogus-command", 2, "invalid choice: 'bogus-command'"),
+    # -- session -----------------------------------------------------------------------------
+    ("session --gaze bogus:thing --frames 2 -o {tmp}/s", 2, "unknown scheme 'bogus'"),
+    ("session --gaze synthetic:spiral --frames 2 -o {tmp}/s", 2, "'spiral'"),
+    ("session --gaze replay:/no/such.jsonl --frames 2 -o {tmp}/s", 2, "/no/such.jsonl"),
+    ("session --gaze replay:{recording_bin} --frames 2 -o {tmp}/s", 2, "bin.jsonl:2"),
+    ("session --gaze replay:{scanpath}@-2 --frames 2 -o {tmp}/s", 2, "'-2'"),
+    ("session --gaze replay:{head_rec} --frames 2 -o {tmp}/s", 2, "is a head recording, not gaze"),
+    ("session --gaze synthetic:fixed:0.5,nan --frames 2 -o {tmp}/s", 2, "0.5,nan"),
+    ("session --gaze serial:/dev/ttyS0@fast --frames 2 -o {tmp}/s", 2, "baud rate 'fast'"),
+    ("session --gaze pupil:host:99999 --frames 2 -o {tmp}/s", 2, "'99999'"),
+    ("session --gaze pupil:bad_host! --frames 2 -o {tmp}/s", 2, "'bad_host!'"),
+    ("session --gaze synthetic:scanpath --head pupil:x:1 --frames 2 -o {tmp}/s", 2, "Pupil gives gaze"),
+    ("session --gaze synthetic:scanpath --frames 0 -o {tmp}/s", 2, "--frames 0"),
+    ("session --gaze synthetic:scanpath --seconds nan -o {tmp}/s", 2, "--seconds nan"),
+    ("session --gaze synthetic:scanpath --seconds 0.001 -o {tmp}/s", 2, "shorter than one frame"),
+    ("session --gaze synthetic:scanpath --frames 2 --fps 0 -o {tmp}/s", 2, "--fps 0"),
+    ("session --gaze synthetic:scanpath --frames 2 --fps inf -o {tmp}/s", 2, "--fps inf"),
+    ("session --gaze synthetic:scanpath --frames 2 --spp 2 -o {tmp}/s", 2, "--spp 2"),
+    ("session --gaze synthetic:scanpath --frames 2 --width 0 -o {tmp}/s", 2, "--width 0"),
+    ("session --gaze synthetic:scanpath --frames 2 --fovea 20 --periphery 10 -o {tmp}/s", 2, "20,10"),
+    ("session --gaze synthetic:scanpath --frames 2 --hold-for -1 -o {tmp}/s", 2, "--hold-for -1"),
+    ("session --gaze synthetic:scanpath --frames 2 --widen-every 0 -o {tmp}/s", 2, "--widen-every 0"),
+    ("session --gaze synthetic:scanpath --frames 2 --widen-steps 0 -o {tmp}/s", 2, "--widen-steps 0"),
+    ("session --gaze synthetic:scanpath --frames 2 --wait 0 -o {tmp}/s", 2, "--wait 0"),
+    ("session --gaze synthetic:scanpath --frames 2 --scene nowhere -o {tmp}/s", 2, "'nowhere'"),
+    ("session --gaze synthetic:scanpath --frames 2 -o {a_file}", 2, "not a folder"),
+    ("session --gaze synthetic:scanpath --frames 2 -o {unwritable_dir}", 2, "is a file, not a folder"),
+    ("session --gaze synthetic:scanpath --frames 2 --seconds 1 -o {tmp}/s", 2, "not allowed with"),
+    # -- record ------------------------------------------------------------------------------
+    ("record --gaze serial:/dev/ttyNOPE --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "/dev/ttyNOPE"),
+    ("record --gaze pupil:127.0.0.1:9 --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "127.0.0.1:9"),
+    ("record --gaze pupil:notaport.invalid --wait 0.3 -o {tmp}/r.jsonl", 1, "pupil:notaport.invalid"),
+    ("record --head intersense:/no/libisense.so -o {tmp}/r.csv", 1, "/no/libisense.so"),
+    ("record --gaze viewpoint:/no/libvpx.so -o {tmp}/r.csv", 1, "/no/libvpx.so"),
+    ("record --gaze synthetic:scanpath --seconds -1 -o {tmp}/r.jsonl", 2, "--seconds -1"),
+    ("record --gaze synthetic:scanpath --seconds nan -o {tmp}/r.jsonl", 2, "--seconds nan"),
+    ("record --gaze synthetic:scanpath --samples 0 -o {tmp}/r.jsonl", 2, "--samples 0"),
+    ("record --gaze synthetic:scanpath --rate 0 -o {tmp}/r.jsonl", 2, "--rate 0"),
+    ("record --gaze synthetic:scanpath --wait -3 -o {tmp}/r.jsonl", 2, "--wait -3"),
+    ("record --gaze synthetic:scanpath --dropout soon -o {tmp}/r.jsonl", 2, "'soon'"),
+    ("record --gaze synthetic:scanpath --dropout 3:1 -o {tmp}/r.jsonl", 2, "'3:1'"),
+    ("record --gaze replay:{scanpath} --dropout 1:2 -o {tmp}/r.jsonl", 2, "synthetic gaze sources only"),
+    ("record --gaze synthetic:scanpath -o {tmp}/r.txt", 2, "'.txt'"),
+    ("record --gaze synthetic:scanpath -o {unwritable}.csv", 2, "is a file, not a folder"),
+    ("record --head synthetic:nod -o {tmp}/r.jsonl", 2, "must be 'sway'"),
+    ("record --gaze synthetic:scanpath:x -o {tmp}/r.jsonl", 2, "'x' is not an integer"),
+    ("record --gaze synthetic:scanpath:-3 -o {tmp}/r.jsonl", 2, "seed '-3' must be >= 0"),
+    ("record --gaze replay: -o {tmp}/r.jsonl", 2, "replay needs a file"),
+    ("record --gaze replay:{binary} -o {tmp}/r.jsonl", 2, "binary.csv:3: not a text recording"),
+    ("record --gaze replay:{not_recording} -o {tmp}/r.jsonl", 2, "gaze or a head recording"),
+    ("record --gaze replay:{scanpath}@0 -o {tmp}/r.jsonl", 2, "replay speed '0'"),
+    ("record --gaze serial: -o {tmp}/r.jsonl", 2, "serial needs a port"),
+    ("record --gaze serial:/dev/x@-9600 -o {tmp}/r.jsonl", 2, "'-9600'"),
+    ("record -o {tmp}/r.jsonl", 2, "one of the arguments --gaze --head is required"),
+    # -- fit ---------------------------------------------------------------------------------
+    ("fit {binary} -o {tmp}/f", 2, "binary.csv:3: not a text file"),
+    ("fit /no/such.csv -o {tmp}/f", 2, "/no/such.csv: no such file"),
+    ("fit {tmp} -o {tmp}/f", 2, "is a folder"),
+    ("fit {scene_txt} -o {tmp}/f", 2, "'.txt'"),
+    ("fit {curve} --fix zz=1 -o {tmp}/f", 2, "--fix zz=1"),
+    ("fit {curve} --fix a=nan -o {tmp}/f", 2, "--fix a nan"),
+    ("fit {curve} --fix a=1 --fix b=1 --fix c=1 -o {tmp}/f", 2, "every parameter"),
+    ("fit {curve} --fix a -o {tmp}/f", 2, "NAME=VALUE"),
+    ("fit {curve} --plot-max -5 -o {tmp}/f", 2, "--plot-max -5"),
+    ("fit {curve} --plot-max 0 -o {tmp}/f", 2, "--plot-max 0"),
+    ("fit {curve} --mar-reference -1 -o {tmp}/f", 2, "--mar-reference '-1'"),
+    ("fit {curve} --mar-reference arcmin -o {tmp}/f", 2, "'arcmin'"),
+    ("fit {curve} --posterior --nsteps 0 -o {tmp}/f", 2, "--nsteps 0"),
+    ("fit {curve} --posterior --nwalkers 2 -o {tmp}/f", 2, "--nwalkers"),
+    ("fit {curve} --posterior bootstrap --n-boot 0 -o {tmp}/f", 2, "--n-boot 0"),
+    ("fit {curve} --nsteps -5 -o {tmp}/f", 2, "--nsteps -5"),
+    ("fit {curve} --seed -2 -o {tmp}/f", 2, "--seed -2"),
+    ("fit-stability --seed -1 -o {tmp}/fs", 2, "--seed -1"),
+    ("fit {curve} --model gauss -o {tmp}/f", 2, "invalid choice: 'gauss'"),
+    ("fit {curve} --condition scotopic -o {tmp}/f", 2, "--condition 'scotopic'"),
+    ("fit {curve} -o {unwritable_dir}", 2, "is a file, not a folder"),
+    ("fit-stability -o {a_file}", 2, "not a folder"),
+    # -- compare -----------------------------------------------------------------------------
+    ("compare --criterion bogus -o {tmp}/c", 2, "--criterion 'bogus'"),
+    ("compare --thresholds 10,5 -o {tmp}/c", 2, "--thresholds 10,5"),
+    ("compare --thresholds 5,10 nan,20 -o {tmp}/c", 2, "fovea nan"),
+    ("compare --thresholds 5 -o {tmp}/c", 2, "FOVEA,PERIPHERY"),
+    ("compare --spp 3 -o {tmp}/c", 2, "--spp 3"),
+    ("compare --spp 1 8 -o {tmp}/c", 2, "--spp 8"),
+    ("compare --gazes 0.5,1.2 -o {tmp}/c", 2, "1.2"),
+    ("compare --width 0 -o {tmp}/c", 2, "--width 0"),
+    ("compare --threshold nan -o {tmp}/c", 2, "nan"),
+    ("compare --criterion flip --threshold 2 -o {tmp}/c", 2, "--threshold (of flip) 2"),
+    ("compare --criterion ssim --threshold -3 -o {tmp}/c", 2, "-3"),
+    ("compare --criterion jod --no-perceptual -o {tmp}/c", 2, "--criterion jod"),
+    ("compare --max-depth -2 -o {tmp}/c", 2, "--max-depth -2"),
+    ("compare --keys 0 -4 -o {tmp}/c", 2, "--keys -4"),
+    ("compare --scene nowhere -o {tmp}/c", 2, "'nowhere'"),
+    ("compare -o {a_file}", 2, "not a folder"),
+    ("compare --distributed nohost,2,5 -o {tmp}/c", 2, "nohost,2,5"),
+    # -- study -------------------------------------------------------------------------------
+    ("study --comparison {table} --metric flip -o {tmp}/st", 2, "flip is -0.2, outside its scale [0, 1]"),
+    ("study --comparison {jod} --metric jod -o {tmp}/st", 2, "jod is 10.5, outside its scale"),
+    ("study --comparison {binary} -o {tmp}/st", 2, "binary.csv:3: not a text file"),
+    ("study --comparison /no/such.csv -o {tmp}/st", 2, "/no/such.csv: no such file"),
+    ("study --comparison {table} --threshold -1 -o {tmp}/st", 2, "--threshold -1"),
+    ("study --comparison {table} --spp 3 -o {tmp}/st", 2, "--spp 3"),
+    ("study --comparison {table} --spp 9 -o {tmp}/st", 2, "no rows at spp 9"),
+    ("study --comparison {table} --observers 0 -o {tmp}/st", 2, "--observers: must be >= 1"),
+    ("study --comparison {table} --noise-sd nan -o {tmp}/st", 2, "'nan'"),
+    ("study --comparison {table} --metric psnr -o {tmp}/st", 2, "invalid choice: 'psnr'"),
+    ("study --comparison {table} --seed -7 -o {tmp}/st", 2, "--seed -7"),
+    ("study --comparison {table} -o {a_file}", 2, "not a folder"),
+    ("study --responses {binary} -o {tmp}/st", 2, "binary.csv:3: not a text file"),
+    ("study --responses {scene_txt} -o {tmp}/st", 2, "'.txt'"),
+    # -- failures / stability ----------------------------------------------------------------
+    ("failures --cases nothing", 2, "invalid choice: 'nothing'"),
+    ("failures --spp 1 5 -o {tmp}/fl", 2, "--spp 5"),
+    ("failures --width -1 -o {tmp}/fl", 2, "--width -1"),
+    ("failures --fovea 30 --periphery 20 -o {tmp}/fl", 2, "30,20"),
+    ("failures --small 0x10 -o {tmp}/fl", 2, "'0x10'"),
+    ("failures -o {a_file}", 2, "not a folder"),
+    ("stability --frames 1 -o {tmp}/sb", 2, "--frames 1"),
+    ("stability --fps -90 -o {tmp}/sb", 2, "--fps -90"),
+    ("stability --scene nowhere -o {tmp}/sb", 2, "'nowhere'"),
+    ("stability --max-depth -1 -o {tmp}/sb", 2, "--max-depth -1"),
+    ("stability --seed -1 -o {tmp}/sb", 2, "--seed -1"),
+]
+
+
+def _argv(row: str, files: dict) -> list[str]:
+    return [part.format(**files) for part in row.split()]
+
+
+@pytest.mark.parametrize(("row", "status", "message"), ROWS, ids=[r[0] for r in ROWS])
+def test_bad_input_is_refused_with_one_line(row, status, message, files, capsys, monkeypatch):
+    monkeypatch.chdir(files["tmp"])
+    t0 = time.monotonic()
+    try:
+        got = main(_argv(row, files))
+    except SystemExit as exit_:  # argparse's own errors
+        got = exit_.code
+    seconds = time.monotonic() - t0
+    out, err = capsys.readouterr()
+    assert got == status, (out, err)
+    message = message.format(**files)
+    assert message in err, err
+    assert "Traceback" not in out + err
+    # One line of error (argparse adds its usage lines before its own).
+    assert len([line for line in err.splitlines() if "error:" in line]) == 1, err
+    assert seconds < 60, "a refused input must not wait on anything"  # generous: only catches hangs
+
+
+def test_every_command_has_rows():
+    from fovjax.cli import build_parser
+
+    commands = set(build_parser()._subparsers._group_actions[0].choices)
+    covered = {row.split()[0] for row, _, _ in ROWS}
+    assert commands - {"bogus-command"} <= covered | {"view"}, commands - covered
+
+
+@pytest.mark.parametrize("where", [0, -1])
+def test_debug_shows_the_traceback(where):
+    argv = ["render", "--exposure", "nan"]
+    argv.insert(where if where == 0 else len(argv), "--debug")
+    with pytest.raises(ValueError, match="--exposure nan"):
+        main(argv)
+
+
+# -- the real entry point --------------------------------------------------------------------
+def _env():
+    return dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+@pytest.mark.parametrize(
+    ("argv", "status", "message"),
+    [
+        (["render", "--exposure", "nan"], 2, "fovjax render: error: --exposure nan"),
+        (["record", "--gaze", "serial:/dev/ttyNOPE", "--seconds", "2", "--wait", "0.5"], 1, "/dev/ttyNOPE"),
+    ],
+)
+def test_program_exits_with_status_and_one_line(argv, status, message, tmp_path):
+    argv = [*argv, "-o", str(tmp_path / ("x.jsonl" if argv[0] == "record" else "x.png"))]
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-m", "fovjax", *argv], capture_output=True, text=True, env=_env(), timeout=120
+    )
+    assert proc.returncode == status, proc.stderr
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not list(tmp_path.iterdir())
+    assert time.monotonic() - t0 < 120
+
+
+# -- Ctrl-C ----------------------------------------------------------------------------------
+def _interrupt(cmd, ready, tmp_path, timeout=120.0):
+    """Start `cmd`, wait until `ready()` (or its stderr says so), send SIGINT, return the result."""
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=_env())
+        try:
+            deadline = time.monotonic() + timeout
+            while not ready(log.read_text()) and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert proc.poll() is None, f"finished before the interrupt: {log.read_text()}"
+            proc.send_signal(signal.SIGINT)
+            out, _ = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    return proc.returncode, out, log.read_text()
+
+
+def test_ctrl_c_while_render_compiles_exits_130_without_a_crash(tmp_path):
+    out = tmp_path / "img.png"
+    # Five bounces (the default): a program that takes seconds to compile on any machine.
+    cmd = [sys.executable, "-m", "fovjax", "render", *TINY, "--mono", "-o", str(out)]
+    status, stdout, stderr = _interrupt(cmd, lambda text: "[3/4] compiling" in text, tmp_path)
+    assert status == 130, stderr  # not -11 (segmentation fault) or 1
+    assert "fovjax render: interrupted; nothing was written" in stderr
+    assert "Traceback" not in stderr
+    assert not out.exists() and not list(tmp_path.glob(".*part*"))
+
+
+def test_ctrl_c_during_a_session_exits_130_and_keeps_a_complete_log(tmp_path):
+    out = tmp_path / "session"
+    cmd = [sys.executable, "-m", "fovjax", "session", "--gaze", "synthetic:fixed", "--frames", "100000"]
+    cmd += [*TINY, "--max-depth", "1", "--no-progress", "-o", str(out)]
+    # Interrupted after the first frame, while the next one (tracking now ok) compiles.
+    status, stdout, stderr = _interrupt(cmd, lambda text: (out / "frame_00000.png").exists(), tmp_path)
+    assert status == 130, stderr
+    assert "fovjax session: interrupted; wrote" in stderr and "Traceback" not in stderr
+    log = json.loads((out / "session.json").read_text())
+    assert log["summary"]["interrupted"] is True
+    frames = sorted(out.glob("frame_*.png"))
+    assert len(frames) == log["summary"]["frames"] == len(log["frames"]) >= 1
+    assert not list(out.glob(".*part*"))  # no half-written file left behind
+
+
+@pytest.fixture
+def default_sigint():
+    """Python's own Ctrl-C handler while the test runs (a test runner may have another)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_a_write_is_not_cut_by_ctrl_c(default_sigint):
+    from fovjax.cli import deferred_interrupt
+
+    finished = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the signal is taken here and held
+            finished.append(True)
+    assert finished == [True]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+def test_interrupt_flag_is_set_even_when_the_exception_is_lost(default_sigint):
+    from fovjax._atomic import interrupt_flag
+
+    with interrupt_flag() as stop:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+        except KeyboardInterrupt:
+            pass  # as if swallowed (e.g. raised inside a gc callback)
+        assert stop.is_set()
+
+
+def test_atomic_path_leaves_the_old_file_or_the_new_one(tmp_path):
+    from fovjax.cli import atomic_path
+
+    path = tmp_path / "a.txt"
+    path.write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_path(path) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("stopped while writing")
+    assert path.read_text() == "old" and list(tmp_path.iterdir()) == [path]
+    with atomic_path(path) as tmp:
+        tmp.write_text("new")
+    assert path.read_text() == "new" and list(tmp_path.iterdir()) == [path]
