@@ -169,6 +169,22 @@ def test_key_actions_change_the_live_state():
     assert r.full and r.debug
 
 
+def test_view_imports_only_public_names_of_other_packages():
+    import ast
+
+    private = []
+    for path in sorted((ROOT / "fovjax" / "view").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level == 1 or (node.level == 0 and not (node.module or "").startswith("fovjax")):
+                continue  # the view package itself, or another distribution
+            parts = (node.module or "").split(".") + [alias.name for alias in node.names]
+            if any(part.startswith("_") for part in parts if part not in ("", "__future__")):
+                private.append(f"{path.name}:{node.lineno}")
+    assert not private, private
+
+
 def test_binocular_gaze_points_both_eyes_at_one_scene_point():
     """Oracle: the right eye's gaze, traced back, lands where the left eye's came from."""
     import fovjax
