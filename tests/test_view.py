@@ -136,6 +136,21 @@ def test_a_missing_extra_is_exit_status_1(args, missing, named, capsys, monkeypa
     assert err.startswith("fovjax view: error:") and named in err and "Traceback" not in err
 
 
+def test_rendering_that_cannot_start_is_one_error_line(capsys, monkeypatch, tmp_path):
+    from fovjax.view import LiveRenderer
+
+    def fail(self):
+        raise RuntimeError("out of device memory")
+
+    monkeypatch.setattr(LiveRenderer, "warmup", fail)
+    monkeypatch.chdir(tmp_path)
+    assert main(["view", "--port", "0", "--width", "8", "--height", "8"]) == 1
+    out, err = capsys.readouterr()
+    assert "serving http://127.0.0.1:" in out
+    assert err.startswith("fovjax view: error:") and err.count("\n") == 1, err
+    assert "rendering failed: RuntimeError: out of device memory" in err and "Traceback" not in err
+
+
 def test_key_actions_change_the_live_state():
     import fovjax
     from fovjax.foveate import THESIS_PAIRS, Foveation

@@ -317,7 +317,7 @@ class Viewer:
             seconds = await loop.run_in_executor(self._executor, self.renderer.warmup)
         except Exception as err:  # the page must hear why nothing will come
             self.state = "error"
-            log.error("could not start rendering: %s", err)
+            log.info("could not start rendering: %s", err)  # raised to whoever awaits `frame_loop`
             for client in self.clients:
                 await self._send_json(client, {"type": "status", "state": "error", "message": str(err)})
             raise
