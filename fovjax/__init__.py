@@ -21,8 +21,10 @@ from ._camera import (
     vfov_from_hfov as vfov_from_hfov,
 )
 from ._dispatch import render_stereo as render_stereo
+from ._image import linear_to_srgb as linear_to_srgb
 from ._image import load_image as load_image
 from ._image import save_image as save_image
+from ._image import tonemap as tonemap
 from ._loaders import load_scene as load_scene
 from ._scene import (
     DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT,
@@ -48,6 +50,7 @@ from ._scene import (
 from ._scene import (
     make_scene as make_scene,
 )
+from ._session import full_eccentricity as full_eccentricity
 from ._session import run_session as run_session
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig

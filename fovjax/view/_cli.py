@@ -1,5 +1,7 @@
-"""`fovjax view`: the live viewer's command line. Every argument is checked before anything is
-built; a mistake is one line on stderr and exit status 2."""
+"""`fovjax view`: the live viewer's command line. Every argument is checked first (`validate`,
+with `fovjax.cli`'s checkers); errors and Ctrl-C are answered by `fovjax.cli.main` as for every
+command (a bad argument: one line, exit status 2; a device or a missing extra: 1; Ctrl-C: 130,
+naming the frames the page saved)."""
 
 from __future__ import annotations
 
@@ -7,11 +9,9 @@ import argparse
 import asyncio
 import importlib.util
 import logging
-import math
-import os
+import signal
 import socket
-import sys
-from pathlib import Path
+import threading
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
 MAX_EYE_PIXELS = 8192
@@ -48,64 +48,61 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def check_args(args) -> None:
-    """Raise ValueError naming the first bad argument."""
-    for name in ("width", "height"):
-        value = getattr(args, name)
-        if not 1 <= value <= MAX_EYE_PIXELS:
-            raise ValueError(f"--{name} must be between 1 and {MAX_EYE_PIXELS} pixels per eye, got {value}")
-    if args.spp < 1 or math.isqrt(args.spp) ** 2 != args.spp:
-        raise ValueError(f"--spp must be a positive square (1, 4, 9, ...), got {args.spp}")
-    for name in ("fovea", "periphery"):
-        value = getattr(args, name)
-        if not (math.isfinite(value) and 0 < value <= 90):
-            raise ValueError(f"--{name} must be in (0, 90] degrees, got {value}")
+def validate(args) -> None:
+    """Every argument of `fovjax view`, before a scene is built, a device opened or a port
+    served: `fovjax.cli`'s checkers (`UsageError`, exit status 2), then the extras it needs
+    (ImportError naming the `pip install`, exit status 1)."""
+    from fovjax import cli
+
+    from ._renderer import MAX_THRESHOLD_DEG
+
+    cli.number(args.width, "--width", ge=1, le=MAX_EYE_PIXELS, integer=True)
+    cli.number(args.height, "--height", ge=1, le=MAX_EYE_PIXELS, integer=True)
+    cli.squares(args.spp, "--spp")
+    # The page's keys move the thresholds within (0, 90] and keep the fovea inside the periphery.
+    cli.number(args.fovea, "--fovea", gt=0, le=MAX_THRESHOLD_DEG)
+    cli.number(args.periphery, "--periphery", gt=0, le=MAX_THRESHOLD_DEG)
     if not args.fovea < args.periphery:
-        raise ValueError(f"--fovea must be smaller than --periphery, got {args.fovea} and {args.periphery}")
-    if args.max_depth < 0:
-        raise ValueError(f"--max-depth must be >= 0, got {args.max_depth}")
-    if args.triangles < 1:
-        raise ValueError(f"--triangles must be positive, got {args.triangles}")
-    if not 0 <= args.port <= 65535:
-        raise ValueError(f"--port must be in 0..65535 (0: any free port), got {args.port}")
+        raise cli.UsageError(
+            f"--fovea/--periphery {args.fovea:g},{args.periphery:g}: the fovea must be smaller than "
+            "the periphery"
+        )
+    cli.number(args.max_depth, "--max-depth", ge=0, integer=True)
+    cli.number(args.triangles, "--triangles", ge=1, integer=True)
+    cli.seed(args.seed)
+    cli.scene(args.scene)
+    if args.gaze != "mouse":
+        cli.source_spec(args.gaze, "gaze", "--gaze")
+    if args.head != "keys":
+        cli.source_spec(args.head, "head", "--head")
+    cli.output(args.save_dir, "--save-dir", directory=True)
+    if not args.host.strip():
+        raise cli.UsageError(f"--host {args.host!r}: expected an address to listen on (e.g. 127.0.0.1)")
+    cli.number(args.port, "--port", ge=0, le=65535, integer=True)
+    _check_listen(args.host, args.port)
     if args.backend == "embree" and importlib.util.find_spec("embreex") is None:
         raise ImportError("--backend embree needs embreex: pip install 'fovjax[embree]'")
-    if Path(args.save_dir).exists() and not Path(args.save_dir).is_dir():
-        raise ValueError(f"--save-dir {args.save_dir!r} is a file, not a directory")
-    if not args.host.strip():
-        raise ValueError("--host must not be empty")
-    name = SCENE_ALIASES.get(args.scene, args.scene)
-    from fovjax.scenes import BUILTIN
-
-    if name not in BUILTIN and not Path(args.scene).is_file():
-        raise ValueError(
-            f"--scene {args.scene!r}: not a built-in scene ({', '.join(['cornell', *BUILTIN])}) "
-            "nor an existing file"
-        )
-    from fovjax.devices import source_from_spec
-
-    if args.gaze != "mouse":
-        source_from_spec(args.gaze, "gaze")  # ValueError names the bad part of the spec
-    if args.head != "keys":
-        source_from_spec(args.head, "head")
     if importlib.util.find_spec("aiohttp") is None:
         raise ImportError("fovjax view needs aiohttp: pip install 'fovjax[view]'")
-    _check_listen(args.host, args.port)
 
 
 def _check_listen(host: str, port: int) -> None:
     """Fail now, not after the scene is built, when the address cannot be listened on."""
+    from fovjax.cli import UsageError
+
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except socket.gaierror as err:
-        raise ValueError(f"--host {host!r}: not an address of this machine ({err.strerror})") from None
+        raise UsageError(f"--host {host!r}: not an address of this machine ({err.strerror})") from None
     family, kind, proto, _, address = infos[0]
     with socket.socket(family, kind, proto) as probe:
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as aiohttp does
         try:
             probe.bind(address)
         except OSError as err:
-            raise OSError(f"cannot listen on {host}:{port}: {err.strerror or err}") from None
+            raise UsageError(
+                f"--host/--port: cannot listen on {host}:{port}: {err.strerror or err}"
+            ) from None
 
 
 def _load_scene(args):
@@ -119,21 +116,13 @@ def _load_scene(args):
 
 
 def run(args) -> int:
-    from fovjax.devices import DeviceError
-
-    try:
-        check_args(args)
-        return _run(args)
-    except (ValueError, OSError, ImportError, DeviceError) as err:
-        print(f"fovjax view: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("fovjax view: stopped", file=sys.stderr)
-        return 0
+    validate(args)
+    return _run(args)
 
 
 def _run(args) -> int:
     import fovjax
+    from fovjax import cli
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
 
@@ -157,46 +146,84 @@ def _run(args) -> int:
     )
     # Devices first: an unreachable tracker is an error now, before anything is served.
     renderer.open()
-    viewer = Viewer(renderer, host=args.host, port=args.port, save_dir=args.save_dir)
+    viewer = Viewer(
+        renderer,
+        host=args.host,
+        port=args.port,
+        save_dir=args.save_dir,
+        on_save=lambda paths: cli.wrote(*paths),  # for the message on Ctrl-C
+    )
+    interrupted = threading.Event()
     try:
-        code = asyncio.run(_serve(viewer, args.open))
-    except KeyboardInterrupt:
-        print("fovjax view: stopped", file=sys.stderr)
-        code = 0
-    if viewer.render_busy:
-        # The render thread is inside XLA (a compile or a frame), which cannot be interrupted,
-        # and finalising the interpreter around it aborts the process: leave at once.
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    return code
-
-
-async def _serve(viewer, open_browser: bool) -> int:
-    try:
-        url = await viewer.start()
-    except OSError as err:
-        raise OSError(f"cannot listen on {viewer.host}:{viewer.port}: {err.strerror or err}") from None
-    print(f"fovjax view: serving {url}  (Ctrl-C to stop; the first frame compiles for a while)", flush=True)
-    if viewer.token is not None:
-        print(
-            f"fovjax view: listening on {viewer.host}, not loopback: the page needs the token in this URL"
-            + (
-                " (put this machine's address in place of 0.0.0.0)"
-                if viewer.host in ("0.0.0.0", "::")
-                else ""
-            ),
-            flush=True,
-        )
-    if open_browser:
-        import webbrowser
-
-        webbrowser.open(url)
-    try:
-        await viewer.frame_loop
-    except Exception as err:
-        print(f"fovjax view: error: rendering failed: {type(err).__name__}: {err}", file=sys.stderr)
-        return 1
-    finally:
-        await viewer.stop()
+        asyncio.run(_serve(viewer, args.open, interrupted))
+    except BaseException:
+        if viewer.render_busy and not interrupted.is_set():
+            # An error while the render thread is inside XLA (a compile or a frame), which
+            # cannot be interrupted: finalising the interpreter around it aborts the process,
+            # so the thread finishes its task first (Ctrl-C still ends the program at once).
+            viewer.join_render_thread()
+        raise
+    if interrupted.is_set():
+        # `fovjax.cli.main` says which frames were saved and exits with status 130; run as the
+        # program it leaves at once (`os._exit`), safe while the render thread is inside XLA.
+        raise KeyboardInterrupt
     return 0
+
+
+async def _serve(viewer, open_browser: bool, interrupted: threading.Event) -> None:
+    """Serve until Ctrl-C (sets `interrupted`) or until rendering cannot start (raised)."""
+    from fovjax.devices import DeviceError
+
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    previous = None
+
+    def on_ctrl_c(signum, frame):
+        # The first Ctrl-C stops serving cleanly (clients told, sources closed, a save in
+        # progress finished); the handler before (`fovjax.cli`'s: leave at once) takes the next.
+        interrupted.set()
+        signal.signal(signal.SIGINT, previous)
+        loop.call_soon_threadsafe(stop.set)
+
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.getsignal(signal.SIGINT)
+        if previous is not signal.SIG_IGN:
+            signal.signal(signal.SIGINT, on_ctrl_c)
+    try:
+        try:
+            url = await viewer.start()
+        except OSError as err:
+            raise OSError(f"cannot listen on {viewer.host}:{viewer.port}: {err.strerror or err}") from None
+        try:
+            print(
+                f"fovjax view: serving {url}  (Ctrl-C to stop; the first frame compiles for a while)",
+                flush=True,
+            )
+            if viewer.token is not None:
+                print(
+                    f"fovjax view: listening on {viewer.host}, not loopback: the page needs the token in "
+                    "this URL"
+                    + (
+                        " (put this machine's address in place of 0.0.0.0)"
+                        if viewer.host in ("0.0.0.0", "::")
+                        else ""
+                    ),
+                    flush=True,
+                )
+            if open_browser:
+                import webbrowser
+
+                webbrowser.open(url)
+            stopped = asyncio.ensure_future(stop.wait())
+            await asyncio.wait({viewer.frame_loop, stopped}, return_when=asyncio.FIRST_COMPLETED)
+            stopped.cancel()
+            if viewer.frame_loop.done() and not interrupted.is_set():
+                err = viewer.frame_loop.exception()
+                if err is None or isinstance(err, DeviceError):
+                    raise err or RuntimeError("rendering stopped")
+                raise RuntimeError(f"rendering failed: {type(err).__name__}: {err}") from err
+        finally:
+            await viewer.stop()
+    finally:
+        if previous is not None and signal.getsignal(signal.SIGINT) is on_ctrl_c:
+            signal.signal(signal.SIGINT, previous)

@@ -51,7 +51,7 @@ def encode_jpeg(image: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     """Linear RGB (H, W, 3) -> JPEG bytes, tone-mapped and sRGB-encoded as `save_image` does PNGs."""
     from PIL import Image
 
-    from .._image import linear_to_srgb, tonemap
+    from .. import linear_to_srgb, tonemap
 
     rgb8 = np.round(linear_to_srgb(tonemap(np.asarray(image, np.float32))) * 255).astype(np.uint8)
     buf = io.BytesIO()
@@ -240,7 +240,7 @@ class LiveRenderer:
 
     def _tracked_gaze(self, now: float):
         """Gaze, thresholds and tracking state from the gaze source (tracker with fallback)."""
-        from .._session import full_eccentricity
+        from .. import full_eccentricity
         from ..devices import widen_thresholds
 
         tf = self.tracker.step(now, self.gaze_source.drain(), display_time=now + self._last_frame_s)
@@ -371,6 +371,7 @@ class LiveRenderer:
         """Write the newest frame (PNG), its regions/samples view when shown, and its statistics
         (JSON) to `directory`; returns the paths."""
         from .. import save_image
+        from ..cli import atomic_path
 
         frame = self.last
         if frame is None:
@@ -382,6 +383,7 @@ class LiveRenderer:
         if frame.debug_image is not None:
             paths.append(save_image(stem.parent / (stem.name + "_debug.png"), frame.debug_image))
         stats_path = stem.with_suffix(".json")
-        stats_path.write_text(json.dumps({**frame.stats, **(extra or {})}, indent=1) + "\n")
+        with atomic_path(stats_path) as tmp:  # complete or absent, as the images are
+            tmp.write_text(json.dumps({**frame.stats, **(extra or {})}, indent=1) + "\n")
         paths.append(stats_path)
         return paths

@@ -114,9 +114,12 @@ class Viewer:
     """The server around a `LiveRenderer`. `host`/`port`: where to listen (port 0: any free
     port; `url` says which after `start`); `token`: required in every URL (None: none, allowed
     on a loopback address only; default: a random one off loopback); `save_dir`: where "save"
-    writes."""
+    writes; `on_save`: called with the paths of each completed save (on the render thread).
+    `saved`: the paths saved so far. `stop` lets a save in progress finish."""
 
-    def __init__(self, renderer, *, host="127.0.0.1", port=8000, token="auto", save_dir="fovjax-view"):
+    def __init__(
+        self, renderer, *, host="127.0.0.1", port=8000, token="auto", save_dir="fovjax-view", on_save=None
+    ):
         if token == "auto":
             token = None if is_loopback(host) else secrets.token_urlsafe(16)
         if token is None and not is_loopback(host):
@@ -124,6 +127,9 @@ class Viewer:
         self.renderer = renderer
         self.host, self.port, self.token = host, port, token
         self.save_dir = Path(save_dir)
+        self.on_save = on_save
+        self.saved: list[Path] = []
+        self._saving: concurrent.futures.Future | None = None
         self.clients: list[_Client] = []
         self.latencies_ms: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self.displayed = 0
@@ -254,12 +260,18 @@ class Viewer:
             clock = self.renderer.gaze_source.clock
             self.latencies_ms.append((clock() - frame.gaze_timestamp) * 1e3)
 
+    def _save_now(self, extra: dict) -> list[Path]:
+        """On the render thread: save, and note the paths once every file is complete."""
+        paths = self.renderer.save(self.save_dir, extra)
+        self.saved.extend(paths)
+        if self.on_save is not None:
+            self.on_save(paths)
+        return paths
+
     async def _save(self, client) -> None:
-        loop = asyncio.get_running_loop()
+        self._saving = self._executor.submit(self._save_now, {"latency": self.latency_summary()})
         try:
-            paths = await loop.run_in_executor(
-                self._executor, self.renderer.save, self.save_dir, {"latency": self.latency_summary()}
-            )
+            paths = await asyncio.wrap_future(self._saving)
         except (ValueError, OSError) as err:
             log.warning("save failed: %s", err)
             await self._send_json(
@@ -305,7 +317,7 @@ class Viewer:
             seconds = await loop.run_in_executor(self._executor, self.renderer.warmup)
         except Exception as err:  # the page must hear why nothing will come
             self.state = "error"
-            log.error("could not start rendering: %s", err)
+            log.info("could not start rendering: %s", err)  # raised to whoever awaits `frame_loop`
             for client in self.clients:
                 await self._send_json(client, {"type": "status", "state": "error", "message": str(err)})
             raise
@@ -412,10 +424,19 @@ class Viewer:
                 await client.ws.close()
         if self._runner is not None:
             await self._runner.cleanup()
+        saving = self._saving
+        if saving is not None and not saving.cancel():
+            # A save already running (quick: one PNG and its statistics) is finished, never cut.
+            with contextlib.suppress(Exception):
+                await asyncio.wrap_future(saving)
         # Not through the render thread: it may be in the middle of a compile.
         with contextlib.suppress(Exception):
             self.renderer.close()
         self._executor.shutdown(wait=False)
+
+    def join_render_thread(self) -> None:
+        """After `stop`: wait until the render thread has finished its task and ended."""
+        self._executor.shutdown(wait=True)
 
     @property
     def render_busy(self) -> bool:
