@@ -169,3 +169,16 @@ def test_rendered_frame_traces_the_planned_samples():
 def test_unknown_rule_names_the_choices():
     with pytest.raises(ValueError, match="thesis-measured"):
         Foveation(rule="thesis")
+
+
+def test_acuity_comparisons_refuse_the_rule():
+    """Equal-budget acuity comparisons need a rule that draws from the curve: a clear error
+    before any work, naming the rule."""
+    from fovjax.acuity import THESIS_MODEL
+    from fovjax.eval import equal_budget_foveations
+
+    rig = StereoRig.from_pose(
+        fovjax.scenes.default_camera(fovjax.scenes.cornell_box()), eye_width=8, eye_height=8
+    )
+    with pytest.raises(ValueError, match="thesis-measured"):
+        equal_budget_foveations(rig, Foveation(rule="thesis-measured"), {"thesis": THESIS_MODEL})
