@@ -6,6 +6,13 @@
     python benchmarks/foveation.py --backend embree
     python benchmarks/foveation.py --profile       # per-stage ms and % of a foveated and a full frame
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
+    python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
+    python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
+    python benchmarks/foveation.py --regions       # region shares under each reading (issue 17)
+
+`--rule thesis-measured` uses `Foveation.thesis_measured` (that rule, and the planar eccentricity
+at the SX111's 16 pixels per degree); `--count-only` prints Tables 2-3 from the samples each
+frame traces (primary rays, no shading), foveated against full, without rendering.
 
 For every SPP and every thesis (fovea, periphery) pair plus full rendering, on the atrium, in
 stereo, gaze at each display's centre, head still: rays per frame (primary + shadow +
@@ -442,6 +449,51 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         sys.stdout.flush()
 
 
+def foveation_for(pair, spp, rule, eye_height):
+    if rule == "thesis-measured":
+        return Foveation.thesis_measured(pair, spp=spp, eye_height=eye_height)
+    return Foveation.thesis(pair, spp=spp, rule=rule)
+
+
+def count_samples(rig, gaze, foveation):
+    """Samples a foveated frame traces (both eyes), from the sample classes alone."""
+    from fovjax.foveate._frame import eccentricities, select_samples
+
+    ecc = eccentricities(rig.eye_cameras(), jnp.asarray(gaze, jnp.float32), foveation)
+    full = 2 * foveation.spp * rig.eye_width * rig.eye_height
+    sel = select_samples(ecc, jax.random.key(0), foveation=foveation, budget=full)
+    return int(sel.n_traced)
+
+
+def region_shares(w=1280, h=1024):
+    """Issue 17's clue: the share of an eye's pixels within ω1 = 10-30° of the display centre
+    under each candidate reading of the thesis's regions, beside Table 2's b / b_full."""
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    r = np.hypot(x - w / 2, y - h / 2)  # pixels from the gaze point
+    deg = np.degrees
+    readings = {
+        "the thesis's b / b_full": None,
+        "exact angle, 90° horizontal (fovjax default)": deg(np.arctan(r / (w / 2))),
+        "planar eq. 4-5, D 24 mm, pitch from the 90° width": deg(2 * np.arctan(r * 48 / w / 48)),
+        "exact angle, SX111 64° vertical per eye": deg(np.arctan(r / (h / 2 / np.tan(np.radians(32))))),
+        "planar, 2560 px spanning the 90°": deg(2 * np.arctan(r * 48 / (2 * w) / 48)),
+        "threshold as a diameter (angle / 2, 90°)": deg(np.arctan(r / (w / 2))) / 2,
+        "planar, pitch D tan(64°/1024) (thesis_pixel_pitch_mm)": deg(
+            2 * np.arctan(r * 24 * np.tan(np.radians(64 / h)) / 48)
+        ),
+        "constant 16 px per degree (1024 / 64)": r / (h / 64),
+    }
+    b = {p: (THESIS_RPF[p][1] - THESIS_RPF[p][0]) / 3 for p in THESIS_PAIRS}  # slope from SPP 1, 4
+    b_full = (THESIS_RPF["full"][1] - THESIS_RPF["full"][0]) / 3
+    print(f"\nShare of a {w}x{h} eye's pixels within ω1 of the gaze (display centre), %")
+    print(f"{'reading':56s}" + "".join(f"{p[1]:7.0f}°" for p in THESIS_PAIRS))
+    for name, ecc in readings.items():
+        cells = [
+            100 * b[p] / b_full if ecc is None else 100 * float(np.mean(ecc <= p[1])) for p in THESIS_PAIRS
+        ]
+        print(f"{name:56s}" + "".join(f"{c:8.1f}" for c in cells))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="2 x 1280x1024 (default: 2 x 640x512)")
@@ -453,7 +505,12 @@ def main(argv=None):
     ap.add_argument("--pair", type=float, nargs=2, default=(5.0, 10.0), help="fovea, periphery (--profile)")
     ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
     ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
+    ap.add_argument("--rule", choices=("either", "strict", "thesis-measured"), default="either")
+    ap.add_argument("--count-only", action="store_true", help="tables 2-3 from traced samples, no render")
+    ap.add_argument("--regions", action="store_true", help="region shares under each reading (issue 17)")
     args = ap.parse_args(argv)
+    if args.regions:
+        return region_shares()
     w, h = (1280, 1024) if args.full else (640, 512)
     if args.size:
         w, h = args.size
@@ -477,8 +534,15 @@ def main(argv=None):
         f"backend {args.backend}, max depth {args.max_depth}, "
         f"jax {jax.__version__} on {jax.devices()[0].platform}"
     )
+    print(f"sampling rule {args.rule}" + (" (samples traced, no render)" if args.count_only else ""))
     results = {}
     for spp in args.spp:
+        if args.count_only:
+            results["full", spp] = (2 * spp * w * h, float("nan"))
+            for pair in THESIS_PAIRS:
+                n = count_samples(rig, gaze, foveation_for(pair, spp, args.rule, h))
+                results[pair, spp] = (n, float("nan"))
+            continue
         rays, t, c, _ = measure(
             lambda k, spp=spp: render_stereo(scene, rig, spp=spp, key=k, config=config, bvh=bvh), args.repeats
         )
@@ -488,7 +552,7 @@ def main(argv=None):
         )
         sys.stdout.flush()
         for pair in THESIS_PAIRS:
-            f = Foveation.thesis(pair, spp=spp)
+            f = foveation_for(pair, spp, args.rule, h)
             rays, t, c, frame = measure(
                 lambda k, f=f: render_foveated(
                     scene, rig, gaze=gaze, foveation=f, key=k, config=config, bvh=bvh
@@ -524,7 +588,9 @@ def main(argv=None):
 
     idx = {s: SPPS.index(s) for s in args.spp}
     table(
-        "Table 2: rays per frame (x 10^6)",
+        "Table 2: samples traced per frame (x 10^6; the thesis's: all rays, about 2 per sample)"
+        if args.count_only
+        else "Table 2: rays per frame (x 10^6)",
         lambda p, s: f"{results[p, s][0] / 1e6:.3f}",
         lambda p, s: f"{THESIS_RPF[p][idx[s]]:.2f}",
     )
@@ -533,6 +599,8 @@ def main(argv=None):
         lambda p, s: pct((results[p, s][0] / results["full", s][0] - 1) * 100),
         lambda p, s: pct((THESIS_RPF[p][idx[s]] / THESIS_RPF["full"][idx[s]] - 1) * 100),
     )
+    if args.count_only:
+        return results
     table(
         "Table 4: frames per second (median)",
         lambda p, s: f"{1 / results[p, s][1]:.3f}",

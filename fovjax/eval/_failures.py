@@ -400,6 +400,11 @@ def equal_budget_foveations(
         raise ValueError("equal_budget_foveations: need at least one model")
     if not (0 < rtol < 0.1):
         raise ValueError(f"equal_budget_foveations: rtol must be in (0, 0.1), got {rtol}")
+    if foveation.rule not in ("either", "strict"):
+        raise ValueError(
+            f"equal_budget_foveations: rule {foveation.rule!r} draws no samples from the acuity curve; "
+            "use 'either' or 'strict'"
+        )
     gazes = list(gazes)
     if not gazes:
         raise ValueError("equal_budget_foveations: need at least one gaze")
@@ -1020,8 +1025,9 @@ def acuity_models(
     ]
     if not gazes or not keys:
         raise ValueError("acuity_models: need at least one gaze and one key")
-    if not rules or any(r not in SAMPLING_RULES for r in rules):
-        raise ValueError(f"acuity_models: rules must be among {SAMPLING_RULES}, got {rules!r}")
+    drawn = tuple(r for r in SAMPLING_RULES if r != "thesis-measured")  # rules that use the curve
+    if not rules or any(r not in drawn for r in rules):
+        raise ValueError(f"acuity_models: rules must be among {drawn}, got {rules!r}")
     budgets = dict(budgets or {})
     models = models or default_models()
     for rule in rules:

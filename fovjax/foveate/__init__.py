@@ -37,6 +37,9 @@ from ._eccentricity import (
 from ._eccentricity import (
     eccentricity_planar as eccentricity_planar,
 )
+from ._eccentricity import (
+    thesis_pixel_pitch_mm as thesis_pixel_pitch_mm,
+)
 from ._fill import fill_and_blur as fill_and_blur
 from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
 from ._fill import resolve as resolve

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._eccentricity import eccentricity_map
-from ._sampling import FOVEA, regions, top_left
+from ._sampling import FOVEA, regions, thesis_measured_mandatory, top_left
 
 BUDGET_SIGMAS = 6.0
 BUDGET_GRID = 7  # gaze positions per axis examined (corners, edges and centre included)
@@ -15,27 +15,34 @@ PACKET = 64
 
 
 def _gaze_counts(camera, gaze, foveation):
-    """Per sub-sample layer: (mandatory pixels, expected and variance of probabilistic ones)."""
+    """Per frame (all sub-samples): (mandatory samples, expected and variance of probabilistic
+    ones). The rules other than "thesis-measured" treat every sub-sample layer alike."""
     ecc = eccentricity_map(camera, gaze, foveation)
     region = regions(ecc, foveation)
     ty, tx, _ = top_left(region, foveation)
     is_tl = jnp.zeros(region.shape, bool).at[ty, tx].set(True)
     p = foveation.probability(ecc)
     fovea = region == FOVEA
+    spp = foveation.spp
+    if foveation.rule == "thesis-measured":
+        m = jnp.sum(thesis_measured_mandatory(region, spp)).astype(jnp.float32)
+        return jnp.stack([m, jnp.float32(0), jnp.float32(0)])
     if foveation.rule == "either":
         mandatory = fovea | is_tl
         chance = jnp.where(mandatory, 0.0, p)
     else:
         mandatory = fovea
         chance = jnp.where(~fovea & is_tl, p, 0.0)
-    return jnp.stack([jnp.sum(mandatory), jnp.sum(chance), jnp.sum(chance * (1 - chance))])
+    counts = jnp.stack([jnp.sum(mandatory), jnp.sum(chance), jnp.sum(chance * (1 - chance))])
+    return spp * counts.astype(jnp.float32)
 
 
 def plan_budget(camera, foveation) -> int:
     """Sample slots per eye so that the traced samples fit for any gaze on the screen.
 
     For gaze positions on a 7×7 grid over the display (corners included) it counts the samples
-    that must be traced (fovea; block top-lefts under the "either" rule) and the expected number
+    that must be traced (fovea; block top-lefts under the "either" rule; all of them under
+    "thesis-measured", which draws nothing) and the expected number
     of probabilistic ones with their variance, and keeps the worst case of
     mandatory + expected + 6σ, plus 2% and one packet of headroom for gaze between grid points;
     rounded up to whole 64-ray packets, at most the full sample count. Frames that still exceed
@@ -46,7 +53,7 @@ def plan_budget(camera, foveation) -> int:
     grid = np.linspace(0.0, 1.0, BUDGET_GRID, dtype=np.float32)
     gazes = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
     stats = np.asarray(jax.jit(jax.vmap(_gaze_counts, in_axes=(None, 0, None)))(camera, gazes, foveation))
-    m, mean, var = (foveation.spp * stats[:, i] for i in range(3))
+    m, mean, var = (stats[:, i] for i in range(3))
     worst = float(np.max(m + mean + BUDGET_SIGMAS * np.sqrt(var)))
     budget = int(np.ceil(worst * 1.02)) + PACKET
     budget = -(-budget // PACKET) * PACKET

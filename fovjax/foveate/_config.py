@@ -20,7 +20,7 @@ THESIS_PAIRS: tuple[tuple[float, float], ...] = (
 )
 
 ECCENTRICITY_MODES = ("angle", "planar")
-SAMPLING_RULES = ("either", "strict")
+SAMPLING_RULES = ("either", "strict", "thesis-measured")
 
 
 class LinearFalloff(eqx.Module):
@@ -71,7 +71,10 @@ class Foveation(eqx.Module):
     - `blocks`: block edge in pixels for the periphery and the outside zone (thesis: 2, 4);
     - `rule`: "either" (default) — a block's top-left pixel is always traced and any other
       pixel's sub-sample with probability P(ω), the thesis's "either condition"; "strict" — only
-      top-left pixels, each sub-sample kept with probability P(ω);
+      top-left pixels, each sub-sample kept with probability P(ω); "thesis-measured" — the
+      sampling the thesis's Table 2 implies (not its text): every sub-sample of the pixels
+      within `periphery_deg`, one sample per pixel beyond it at any SPP, no draws (see
+      `Foveation.thesis_measured` and the README section "Thesis fidelity: Table 2");
     - `blur_sigma`: σ of the 5×5 Gaussian of the fill pass (pixels); `blur_fovea`: blur every
       pixel (the all-pixel reading of thesis 4.5) instead of keeping the fovea sharp;
     - `eccentricity`: "angle" (default; the angle between the pixel's ray and the gaze ray) or
@@ -152,6 +155,23 @@ class Foveation(eqx.Module):
         """One of the thesis's pairs: an index into `THESIS_PAIRS` or a (fovea, periphery) pair."""
         fovea, periphery = THESIS_PAIRS[pair] if isinstance(pair, int) else pair
         return cls(fovea_deg=float(fovea), periphery_deg=float(periphery), **kwargs)
+
+    @classmethod
+    def thesis_measured(
+        cls, pair: int | tuple[float, float] = 0, *, eye_height: int = 1024, **kwargs
+    ) -> Foveation:
+        """A thesis pair as the thesis measured it (Table 2): rule "thesis-measured" with the
+        planar eccentricity (eq. 4-5, D = 24 mm) at the pitch `thesis_pixel_pitch_mm` gives
+        for `eye_height` rows (the SX111's 64° spread over them: 16 pixels per degree at
+        1024 rows)."""
+        from ._eccentricity import thesis_pixel_pitch_mm
+
+        kwargs.setdefault("rule", "thesis-measured")
+        kwargs.setdefault("eccentricity", "planar")
+        kwargs.setdefault("eye_display_mm", 24.0)
+        pitch = thesis_pixel_pitch_mm(eye_height, eye_display_mm=kwargs["eye_display_mm"])
+        kwargs.setdefault("pixel_pitch_mm", pitch)
+        return cls.thesis(pair, **kwargs)
 
     def probability(self, omega):
         """P(ω): 1 in the fovea, the acuity model beyond (thesis eq. 7), clipped to [0, 1]."""

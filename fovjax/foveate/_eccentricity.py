@@ -32,6 +32,25 @@ def display_pixel_pitch_mm(camera: Camera, eye_display_mm: float) -> Float[Array
     return 2 * eye_display_mm * tan_half_h / camera.width
 
 
+# The thesis's HMD, the NVIS SX111 (thesis 2.1.3): 1280 x 1024 per display, 64° vertical.
+SX111_VFOV_DEG = 64.0
+SX111_ROWS = 1024
+
+
+def thesis_pixel_pitch_mm(
+    rows: int = SX111_ROWS, display_vfov_deg: float = SX111_VFOV_DEG, eye_display_mm: float = 24.0
+) -> float:
+    """The pixel pitch under which the planar formula (thesis eq. 4-5, D = `eye_display_mm`)
+    reproduces the region sizes behind the thesis's Table 2: each pixel subtends the display's
+    mean angular pixel size, `display_vfov_deg / rows` (the SX111: 64° / 1024 = 1/16°, i.e.
+    16 pixels per degree), at D: pitch = D·tan(vfov / rows) (0.02618 mm for the SX111).
+
+    A flat display at D spanning the same 64° would have a pitch of 2·D·tan(32°)/1024 =
+    0.0293 mm, i.e. 14.3 pixels per degree at its centre; the thesis's regions are larger,
+    see the README section "Thesis fidelity: Table 2"."""
+    return float(eye_display_mm * np.tan(np.deg2rad(display_vfov_deg / rows)))
+
+
 def eccentricity_planar(camera: Camera, gaze_xy, pixel_xy, eye_display_mm=24.0, pixel_pitch_mm=None):
     """The thesis's eq. 4-5: S = Euclidean distance on the display (mm), V = 2·atan(S / 2D)."""
     pitch = display_pixel_pitch_mm(camera, eye_display_mm) if pixel_pitch_mm is None else pixel_pitch_mm

@@ -33,11 +33,25 @@ def top_left(region, foveation) -> tuple[Int[Array, "H W"], Int[Array, "H W"], B
     return ty, tx, (ty == y) & (tx == x)
 
 
+def thesis_measured_mandatory(region: Int[Array, "H W"], spp: int) -> Bool[Array, "S H W"]:
+    """The samples the thesis's measured ray counts imply (rule "thesis-measured"): every
+    sub-sample of a pixel within the periphery threshold (fovea and periphery regions), and
+    one sample (sub-sample 0) of every pixel beyond it, whatever the SPP; nothing is drawn.
+
+    Why: the thesis's Table 2 is exactly linear in SPP, rays = a + b·SPP, with b / b_full the
+    share of pixels within ω1 and a the pixels beyond ω1 at about one sample each; see the
+    README section "Thesis fidelity: Table 2"."""
+    inside = (region != OUTSIDE)[None]
+    first = (jnp.arange(spp) == 0)[:, None, None]
+    return inside | first
+
+
 def sample_classes(
     ecc: Float[Array, "H W"], foveation, key: jax.Array
 ) -> tuple[Int[Array, "S H W"], Int[Array, "H W"]]:
     """Class of every sub-sample (spp, H, W): MANDATORY (traced: fovea, and block top-lefts under
-    the "either" rule), OPTIONAL (traced: kept by its P(ω) draw), SKIPPED; and the pixel regions.
+    the "either" rule; under "thesis-measured" see `thesis_measured_mandatory`), OPTIONAL
+    (traced: kept by its P(ω) draw), SKIPPED; and the pixel regions.
     Blocks are aligned to the eye's pixel grid; a pixel's block size is its own region's.
 
     One uniform draw per sub-sample from `key`: a fixed key gives the same pattern frame after
@@ -56,9 +70,12 @@ def sample_classes(
     if foveation.rule == "either":
         mandatory = fovea | is_tl[None]
         optional = ~mandatory & kept
-    else:  # strict: only top-left pixels, each sub-sample kept with P(ω)
+    elif foveation.rule == "strict":  # only top-left pixels, each sub-sample kept with P(ω)
         mandatory = jnp.broadcast_to(fovea, kept.shape)
         optional = ~mandatory & is_tl[None] & kept
+    else:  # thesis-measured: see `thesis_measured_mandatory`
+        mandatory = jnp.broadcast_to(thesis_measured_mandatory(region, foveation.spp), kept.shape)
+        optional = jnp.zeros_like(mandatory)
     cls = jnp.where(mandatory, MANDATORY, jnp.where(optional, OPTIONAL, SKIPPED)).astype(jnp.int32)
     return cls, region
 
