@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 FOVEA, PERIPHERY, OUTSIDE = 0, 1, 2
 # Compaction order: samples that must be traced, then the probabilistic extras, then the rest.
@@ -18,7 +18,7 @@ def regions(ecc: Float[Array, "H W"], foveation) -> Int[Array, "H W"]:
     )
 
 
-def block_size(region: Int[Array, "H W"], foveation) -> Int[Array, "H W"]:
+def block_size(region: Int[ArrayLike, "H W"], foveation) -> Int[Array, "H W"]:
     b_peri, b_out = foveation.blocks
     return jnp.where(region == FOVEA, 1, jnp.where(region == PERIPHERY, b_peri, b_out)).astype(jnp.int32)
 
@@ -33,7 +33,7 @@ def top_left(region, foveation) -> tuple[Int[Array, "H W"], Int[Array, "H W"], B
     return ty, tx, (ty == y) & (tx == x)
 
 
-def thesis_measured_mandatory(region: Int[Array, "H W"], spp: int) -> Bool[Array, "S H W"]:
+def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[Array, "S H W"]:
     """The samples the thesis's measured ray counts imply (rule "thesis-measured"): every
     sub-sample of a pixel within the periphery threshold (fovea and periphery regions), and
     one sample (sub-sample 0) of every pixel beyond it, whatever the SPP; nothing is drawn.
