@@ -435,3 +435,33 @@ def test_atomic_path_leaves_the_old_file_or_the_new_one(tmp_path):
     with atomic_path(path) as tmp:
         tmp.write_text("new")
     assert path.read_text() == "new" and list(tmp_path.iterdir()) == [path]
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads /proc/PID/maps (Linux)")
+def test_ctrl_c_while_the_program_starts_exits_130(tmp_path):
+    """Interrupted while JAX is still being imported (its library just mapped), before `main`."""
+    cmd = [sys.executable, "-m", "fovjax", "render", *TINY, "--mono", "-o", str(tmp_path / "img.png")]
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=_env())
+        maps = Path(f"/proc/{proc.pid}/maps")
+        try:
+            deadline = time.monotonic() + 60
+            while proc.poll() is None and time.monotonic() < deadline:
+                try:
+                    if "jaxlib" in maps.read_text():
+                        break
+                except OSError:
+                    pass
+                time.sleep(0.005)
+            assert proc.poll() is None, log.read_text()
+            proc.send_signal(signal.SIGINT)
+            proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    stderr = log.read_text()
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stderr and "nothing was written" in stderr
+    assert "Traceback" not in stderr
+    assert not (tmp_path / "img.png").exists()
