@@ -19,8 +19,8 @@ def eccentricity_angle(camera: Camera, gaze_xy, pixel_xy) -> Float[Array, "..."]
     and dot products stays accurate near 0, where acos loses ~0.03° in float32."""
     g = camera.ray_directions(gaze_pixel(camera, gaze_xy))
     d = camera.ray_directions(pixel_xy)
-    # Written out per component: jnp.cross, norm and a sum over the length-3 axis run ~4x
-    # slower on XLA:CPU (benchmarks/foveation.py --profile, region / eccentricity).
+    # Written out per component: jnp.cross, norm and a sum over the length-3 axis run several
+    # times slower on XLA:CPU over a screen of pixels (as in Camera.ray_directions).
     d0, d1, d2 = d[..., 0], d[..., 1], d[..., 2]
     c0 = d1 * g[2] - d2 * g[1]
     c1 = d2 * g[0] - d0 * g[2]
