@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._sampling import top_left
+from ._sampling import FOVEA, PERIPHERY
 
 # Width of the band outside the fovea over which the image blends from sharp to blurred.
 FOVEA_BLEND_DEG = 1.0
@@ -74,6 +74,32 @@ def fill_and_blur(
     return fill_and_blur_pixels(pix, n, region, ecc, foveation)
 
 
+def _block_broadcast(x, b: int):
+    """Each pixel takes the value of the top-left pixel of its aligned b × b block."""
+    if b == 1:
+        return x
+    h, w = x.shape[:2]
+    top = x[::b, ::b]
+    up = jnp.repeat(jnp.repeat(top, b, axis=0), b, axis=1)
+    return up[:h, :w]
+
+
+def top_left_values(pix, n, region, foveation):
+    """`pix` and `n` at each pixel's block's top-left pixel (`top_left`), from strided slices
+    and repeats per block size (the block sizes are static): no per-pixel gather, which
+    XLA:CPU runs several times slower over a screen."""
+    sizes = (1, *foveation.blocks)
+    by_region = [
+        _block_broadcast(jnp.concatenate([pix, n[..., None].astype(pix.dtype)], -1), b) for b in sizes
+    ]
+    out = jnp.where(
+        (region == FOVEA)[..., None],
+        by_region[0],
+        jnp.where((region == PERIPHERY)[..., None], by_region[1], by_region[2]),
+    )
+    return out[..., :-1], out[..., -1]
+
+
 def fill_and_blur_pixels(
     pix: Float[Array, "H W 3"],
     n: Int[Array, "H W"],
@@ -84,11 +110,11 @@ def fill_and_blur_pixels(
     """`fill_and_blur` from resolved pixels: the mean of each pixel's traced samples and how
     many there were."""
     blank = n == 0
-    ty, tx, _ = top_left(region, foveation)
-    filled = jnp.where(blank[..., None], pix[ty, tx], pix)
+    tl_pix, tl_n = top_left_values(pix, n, region, foveation)
+    filled = jnp.where(blank[..., None], tl_pix, pix)
     # A block whose top-left was not traced (the "strict" rule, or samples dropped beyond the
     # ray budget) is still empty: fill it from the nearest traced pixels by pull-push.
-    have = ~blank | (n[ty, tx] > 0)
+    have = ~blank | (tl_n > 0)
     # Only when some block is empty (rare: the strict rule, or a budget overflow): the pyramid
     # is a dozen screen-sized passes.
     filled = jax.lax.cond(

@@ -80,16 +80,35 @@ def sample_classes(
     return cls, region
 
 
+def _prefix_sum(x: Int[Array, " N"], block: int = 1024) -> Int[Array, " N"]:
+    """Inclusive running sum, in blocks: each block's own running sum plus the sum of the
+    blocks before it. The same integers as jnp.cumsum, several times faster over millions of
+    entries on XLA:CPU, where a flat cumsum of one long axis is slow."""
+    n = x.shape[0]
+    if n <= block:
+        return jnp.cumsum(x)
+    padded = -(-n // block) * block
+    within = jnp.cumsum(jnp.pad(x, (0, padded - n)).reshape(-1, block), axis=1)
+    before = jnp.cumsum(within[:, -1]) - within[:, -1]
+    return (within + before[:, None]).reshape(-1)[:n]
+
+
 def compaction_order(classes: Int[Array, " N"], *, with_rank: bool = False):
     """A stable permutation listing MANDATORY samples first, then OPTIONAL, then SKIPPED (each
     in its original, spatially coherent order), and the count of each class. O(N), no sort;
     the counts are the running sums' last entries (no separate reductions). `with_rank`: also
     each sample's position in that order (the inverse permutation)."""
-    running = [jnp.cumsum((classes == c).astype(jnp.int32)) for c in (MANDATORY, OPTIONAL, SKIPPED)]
+    ones = [_prefix_sum((classes == c).astype(jnp.int32)) for c in (MANDATORY, OPTIONAL)]
+    index = jnp.arange(1, classes.shape[0] + 1, dtype=jnp.int32)
+    running = [*ones, index - ones[0] - ones[1]]  # the skipped ones: the rest
     counts = jnp.stack([r[-1] for r in running])
     offsets = (jnp.int32(0), counts[0], counts[0] + counts[1])
     rank = jnp.zeros_like(classes)
     for c in (MANDATORY, OPTIONAL, SKIPPED):
         rank = jnp.where(classes == c, offsets[c] + running[c] - 1, rank)
-    order = jnp.zeros_like(classes).at[rank].set(jnp.arange(classes.shape[0], dtype=classes.dtype))
+    order = (
+        jnp.zeros_like(classes)
+        .at[rank]
+        .set(jnp.arange(classes.shape[0], dtype=classes.dtype), unique_indices=True)
+    )
     return (order, counts, rank) if with_rank else (order, counts)
