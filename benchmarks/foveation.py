@@ -258,7 +258,6 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
 
 
 def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats):
-    from fovjax._camera import pixel_sample_positions
     from fovjax.foveate._api import _budget_for
     from fovjax.foveate._frame import (
         accumulate,
@@ -270,6 +269,7 @@ def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, rep
         traced_mask,
     )
     from fovjax.render._integrator import _chunks
+    from fovjax.scene import pixel_sample_positions
 
     h, w, spp = rig.eye_height, rig.eye_width, foveation.spp
     budget = _budget_for(rig, angles, foveation)

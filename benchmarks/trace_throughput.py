@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import fovjax
-from fovjax._camera import Camera
+from fovjax.scene import Camera
 from fovjax.trace import build_bvh, closest_hit, last_build_info, occluded
 
 MITSUBA_VARIANT = "llvm_ad_rgb"

@@ -118,7 +118,7 @@ def _load_scene(args):
 def validate(args) -> Path:
     """Every argument of `fovjax render`, before anything is built or compiled; returns the
     output path."""
-    from fovjax._image import HDR_SUFFIXES
+    from fovjax.files import HDR_SUFFIXES
 
     cli.scene(args.scene)
     cli.squares(args.spp, "--spp")
@@ -274,8 +274,8 @@ def _run_preview(args, out: Path) -> int:
     import numpy as np
 
     import fovjax
-    from fovjax._image import save_image
     from fovjax._preview import normal_depth_image_jit
+    from fovjax.files import save_image
     from fovjax.trace import build_bvh, last_build_info
 
     t0 = time.perf_counter()

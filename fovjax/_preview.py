@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._camera import Camera
+from .scene import Camera
 from .trace import BVH, closest_hit
 
 

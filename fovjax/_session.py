@@ -267,8 +267,8 @@ def run_session(
     a `DeviceError` naming the spec, the device and the reason. Each frame logs its sources'
     state (`SessionFrame`); ``summary["sources"]`` has each source's final state and
     ``summary["warnings"]`` says when a source never delivered a sample."""
-    from ._atomic import deferred_interrupt, interrupt_flag
     from .devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
+    from .files import deferred_interrupt, interrupt_flag
     from .foveate import Foveation, render_foveated
     from .render import StereoRig
     from .render._arrays import SceneArrays, scene_arrays
@@ -294,7 +294,7 @@ def run_session(
     tracker = tracker or GazeTracker(policy=policy)
     head_tracker = HeadTracker()
     if rig is None:
-        from .scenes import default_camera
+        from .scene import default_camera
 
         rig = StereoRig.from_pose(default_camera(scene))
     # The scene's arrays and BVH once, not per frame.
@@ -396,7 +396,7 @@ def run_session(
                 if out is not None:
                     path = str(frame.save(out / f"frame_{k:05d}.png"))
                     if debug:
-                        from ._image import save_image
+                        from .files import save_image
 
                         save_image(out / f"debug_{k:05d}.png", frame.debug_view)
                     if writer is not None:
@@ -540,7 +540,7 @@ def _forking_ffmpeg():
 
 def _video_frame(image: np.ndarray) -> np.ndarray:
     """8-bit sRGB as the PNGs, padded to even sides (H.264 in yuv420p needs them)."""
-    from ._image import linear_to_srgb, tonemap
+    from .files import linear_to_srgb, tonemap
 
     rgb8 = np.round(linear_to_srgb(tonemap(image)) * 255).astype(np.uint8)
     h, w = rgb8.shape[:2]
@@ -585,7 +585,7 @@ def _jsonable(value):
 
 
 def _write_log(out: Path, rows: list[SessionFrame], summary: dict) -> None:
-    from ._atomic import atomic_path
+    from .files import atomic_path
 
     fields = [f.name for f in dataclasses.fields(SessionFrame)]
     with atomic_path(out / "session.csv") as tmp, open(tmp, "w", newline="") as fh:

@@ -19,8 +19,8 @@ import signal
 import sys
 from pathlib import Path
 
-from ._atomic import atomic_path as atomic_path
-from ._atomic import deferred_interrupt as deferred_interrupt
+from .files import atomic_path as atomic_path
+from .files import deferred_interrupt as deferred_interrupt
 
 # Modules that define `register(subparsers)`. The first one's command is the default
 # when `fovjax` is run with no arguments.
@@ -105,7 +105,7 @@ def _on_interrupt_exit(name: str) -> None:
     Raising KeyboardInterrupt instead is not enough: raised inside a garbage-collection callback
     it is printed and ignored, and after one raised inside an XLA compile the interpreter's
     exit can crash. Blocks that must finish (writing a file, a session's frame, a recording)
-    install their own handler for their duration (`fovjax._atomic`, `fovjax.devices.record`)
+    install their own handler for their duration (`fovjax.files`, `fovjax.devices.record`)
     and end with KeyboardInterrupt, which `main` answers the same way."""
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, lambda signum, frame: _exit_interrupted(name))
@@ -284,8 +284,7 @@ def input_file(path, option: str, *, suffixes=None, text: bool = False) -> Path:
 
 def scene(name: str, option: str = "--scene") -> None:
     """A built-in scene name (or alias) or an existing scene file of a supported format."""
-    from ._loaders import SUPPORTED_FORMATS
-    from .scenes import BUILTIN
+    from .scene import BUILTIN, SUPPORTED_FORMATS
 
     if name in BUILTIN or name == "cornell":
         return

@@ -411,7 +411,7 @@ def test_a_write_is_not_cut_by_ctrl_c(default_sigint):
 
 
 def test_interrupt_flag_is_set_even_when_the_exception_is_lost(default_sigint):
-    from fovjax._atomic import interrupt_flag
+    from fovjax.files import interrupt_flag
 
     with interrupt_flag() as stop:
         try:

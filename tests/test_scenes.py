@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from fovjax import scenes
-from fovjax.scenes import _atrium, _geometry
-from fovjax.scenes._cornell import LIGHT, TALL_BLOCK
+from fovjax.scene import _atrium, _geometry
+from fovjax.scene._cornell import LIGHT, TALL_BLOCK
 
 
 def _build_quietly(builder, **kwargs):

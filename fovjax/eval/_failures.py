@@ -862,8 +862,7 @@ def checkerboard_scene(
     periphery — or, with `smooth`, the same wall in the checkerboard's mean albedo (same arrays'
     shapes, so both share compiled programs). Lit by one point light above and behind the
     viewer. Returns (scene, `fovjax.scenes.CameraPose`)."""
-    from .._scene import make_lights, make_materials, make_scene
-    from ..scenes import CameraPose
+    from ..scene import CameraPose, make_lights, make_materials, make_scene
 
     for name, value in (("check_size", check_size), ("distance", distance)):
         if not (math.isfinite(value) and value > 0):

@@ -2,7 +2,7 @@
 
 Inputs are linear-RGB float images (H, W, 3): one eye, or both eyes side by side (H, 2W, 3).
 The HMD is an SDR display: what reaches the eye is the linear value clipped to [0, 1] and
-sRGB-encoded (the same transform `fovjax._image.save_image` applies for PNG). So the metrics work
+sRGB-encoded (the same transform `fovjax.files.save_image` applies for PNG). So the metrics work
 on display-referred values by default:
 
 - PSNR on the sRGB-encoded values (`transfer="srgb"`). Encoded values are roughly perceptually
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from .._image import linear_to_srgb
+from ..files import linear_to_srgb
 
 TRANSFERS = ("srgb", "linear")
 LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)  # Rec. 709 / sRGB primaries

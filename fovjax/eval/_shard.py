@@ -230,7 +230,7 @@ def _scene_inputs(scene, rig, config, envmap, bvh):
 
     if rig is None:
         from ..render import StereoRig
-        from ..scenes import default_camera
+        from ..scene import default_camera
 
         rig = StereoRig.from_pose(default_camera(scene))
     bvh = _bvh_for(scene, bvh)

@@ -76,7 +76,7 @@ class FoveatedFrame:
         return np.asarray(region_view(self.outputs))
 
     def save(self, path, **kwargs):
-        from .._image import save_image
+        from ..files import save_image
 
         return save_image(path, self.image, **kwargs)
 
@@ -120,7 +120,7 @@ def render_foveated(
     config = config or RenderConfig()
     gaze = check_gaze(gaze)
     if rig is None:
-        from ..scenes import default_camera
+        from ..scene import default_camera
 
         rig = StereoRig.from_pose(default_camera(scene))
     m = foveation.max_periphery_deg

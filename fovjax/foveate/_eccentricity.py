@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._camera import Camera
+from ..scene import Camera
 
 
 def gaze_pixel(camera: Camera, gaze_xy: Float[np.ndarray | Array, " 2"]) -> Float[Array, " 2"]:

@@ -207,8 +207,8 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, ji
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
     from their indices, chunk by chunk, so no screen-sized ray arrays exist."""
-    from .._camera import pixel_sample_positions
     from ..render._integrator import RayCounts
+    from ..scene import pixel_sample_positions
 
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width

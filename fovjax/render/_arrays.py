@@ -12,7 +12,7 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._scene import Scene
+from ..scene import Scene
 from ._envmap import constant_envmap, load_envmap
 
 

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._image import load_image
+from ..files import load_image
 from ._vec import dot
 
 

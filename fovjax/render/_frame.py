@@ -21,8 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._camera import Camera
-from .._scene import Scene
+from ..scene import Camera, Scene
 from ..trace import BVH, build_bvh
 from ._arrays import SceneArrays, scene_arrays
 from ._config import DEFAULT_CONFIG, RenderConfig
@@ -224,7 +223,7 @@ class Frame:
 
     def save(self, path, **kwargs) -> Path:
         """Save the image (see `fovjax.save_image`: PNG tone-mapped sRGB, EXR/HDR linear)."""
-        from .._image import save_image
+        from ..files import save_image
 
         return save_image(path, self.image, **kwargs)
 
@@ -342,7 +341,7 @@ def render_stereo(
     Other arguments as `render`. (Foveated frames: `fovjax.render_stereo(..., foveation=,
     gaze=)`, the package's entry point above this one and `fovjax.foveate`.)"""
     if rig is None:
-        from ..scenes import default_camera
+        from ..scene import default_camera
 
         if not isinstance(scene, Scene):
             raise ValueError("render_stereo: pass a rig when the scene is not a fovjax.Scene")

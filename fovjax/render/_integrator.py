@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._scene import POINT_LIGHT
+from ..scene import POINT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
 from ._arrays import SceneArrays
 from ._config import DEFAULT_CONFIG, RenderConfig

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._camera import Camera, look_at_rotation, pixel_sample_positions, vfov_from_hfov
+from ..scene import Camera, look_at_rotation, pixel_sample_positions, vfov_from_hfov
 
 # Thesis / NVIS SX111 defaults.
 EYE_WIDTH = 1280

@@ -6,8 +6,8 @@ import functools
 
 import numpy as np
 
-from .._scene import Scene, make_lights, make_materials, make_scene
 from . import _geometry as g
+from ._scene import Scene, make_lights, make_materials, make_scene
 
 # Layout, in metres, y up, the court's long axis along x (Sponza-like extent: 30 x 13 x 15 m).
 HALF_LENGTH = 15.0  # outer walls at x = +-15

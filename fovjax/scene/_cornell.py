@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._scene import Scene, make_lights, make_materials, make_scene
 from . import _geometry as g
+from ._scene import Scene, make_lights, make_materials, make_scene
 
 # Quads exactly as published, in millimetres (x, y, z); y is up, the open side faces -z.
 # The real box is not a perfect cube, so neither are these.

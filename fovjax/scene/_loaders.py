@@ -784,7 +784,7 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
         where=str(path),
     )
     if headlight:
-        from .scenes import default_camera  # here: fovjax.scenes imports this module's package
+        from ._poses import default_camera
 
         eye = default_camera(scene).position
         scene = eqx.tree_at(lambda s: s.lights, scene, make_lights([eye], [[1.0, 1.0, 1.0]]))

@@ -8,8 +8,8 @@ from typing import SupportsFloat
 
 import numpy as np
 
-from .._scene import Scene
 from ._cornell import CAMERA_FOV_DEG, CAMERA_POSITION_MM
+from ._scene import Scene
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._scene import Scene, make_lights, make_materials, make_scene
 from . import _geometry as g
+from ._scene import Scene, make_lights, make_materials, make_scene
 
 # (centre, radius, material name); they rest on the ground plane y = 0
 SPHERES = (

@@ -137,7 +137,7 @@ def build_bvh(
     do not match its recorded checksum or key is rebuilt. `fovjax.trace.last_build_info()`
     reports the time taken and whether the cache was used.
     """
-    from .._scene import geometry_hash, validate_geometry
+    from ..scene import geometry_hash, validate_geometry
 
     params = params or BuildParams()
     if scene is not None:
