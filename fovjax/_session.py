@@ -270,10 +270,7 @@ def run_session(
     from .devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from .files import deferred_interrupt, interrupt_flag
     from .foveate import Foveation, render_foveated
-    from .render import StereoRig
-    from .render._arrays import SceneArrays, scene_arrays
-    from .render._config import DEFAULT_CONFIG
-    from .render._frame import _bvh_for
+    from .render import DEFAULT_CONFIG, SceneArrays, StereoRig, bvh_for, scene_arrays
 
     n_frames = _check_count(frames, seconds, fps)
     rate = float(fps)
@@ -298,7 +295,7 @@ def run_session(
 
         rig = StereoRig.from_pose(default_camera(scene))
     # The scene's arrays and BVH once, not per frame.
-    bvh = _bvh_for(scene, bvh)
+    bvh = bvh_for(scene, bvh)
     arrays = (
         scene
         if isinstance(scene, SceneArrays)

@@ -156,7 +156,7 @@ def _to_host(tree):
 
 
 def _foveated_program(scene, bvh, rig, foveation, head_poses, gazes, key_data, **static):
-    from ..foveate._frame import foveated_stereo
+    from ..foveate import foveated_stereo
 
     def frame(xs):
         head_pose, gaze, key = xs
@@ -170,10 +170,10 @@ def _foveated_program(scene, bvh, rig, foveation, head_poses, gazes, key_data, *
 
 
 def _full_program(scene, bvh, rig, head_poses, key_data, **static):
-    from ..render._frame import _stereo_program
+    from ..render import stereo_program
 
     def frame(head_pose, key):
-        return _stereo_program(scene, bvh, rig, head_pose, jax.random.wrap_key_data(key), **static)
+        return stereo_program(scene, bvh, rig, head_pose, jax.random.wrap_key_data(key), **static)
 
     return jax.vmap(frame)(head_poses, key_data)
 
@@ -225,15 +225,14 @@ def _run_sharded(
 
 
 def _scene_inputs(scene, rig, config, envmap, bvh):
-    from ..render._arrays import SceneArrays, scene_arrays
-    from ..render._frame import _bvh_for
+    from ..render import SceneArrays, bvh_for, scene_arrays
 
     if rig is None:
         from ..render import StereoRig
         from ..scene import default_camera
 
         rig = StereoRig.from_pose(default_camera(scene))
-    bvh = _bvh_for(scene, bvh)
+    bvh = bvh_for(scene, bvh)
     arrays = (
         scene
         if isinstance(scene, SceneArrays)
@@ -243,7 +242,7 @@ def _scene_inputs(scene, rig, config, envmap, bvh):
 
 
 def _head_poses(head_poses, n: int) -> np.ndarray:
-    from ..render._stereo import head_pose_angles
+    from ..render import head_pose_angles
 
     if head_poses is None:
         return np.zeros((n, 3), np.float32)
@@ -273,10 +272,8 @@ def render_foveated_batch(
     `render_foveated` of the same gaze, key and head pose (ray budget included). `partition`:
     "shard_map" (default; each device loops over its own frames) or "auto" (see
     `PARTITIONS`)."""
-    from ..foveate import Foveation
-    from ..foveate._api import _budget_for
-    from ..foveate._config import check_gaze
-    from ..render._config import DEFAULT_CONFIG
+    from ..foveate import Foveation, budget_for, check_gaze
+    from ..render import DEFAULT_CONFIG
 
     foveation = foveation or Foveation()
     config = config or DEFAULT_CONFIG
@@ -291,7 +288,7 @@ def render_foveated_batch(
     poses = _head_poses(head_poses, n)
     arrays, bvh, rig = _scene_inputs(scene, rig, config, envmap, bvh)
     # The static ray budget of render_foveated (cached per rig and configuration).
-    budget = _budget_for(rig, poses[0], foveation)
+    budget = budget_for(rig, poses[0], foveation)
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget}
     out, padded, compile_s, render_s, sharding = _run_sharded(
         "foveated",
@@ -336,11 +333,10 @@ def render_stereo_batch(
     """Full stereo frames for a batch of `keys` and/or `head_poses` (as
     `render_foveated_batch`), `vmap`ped and sharded over `devices`. Each frame equals
     `fovjax.render.render_stereo` of the same key and head pose."""
-    from ..render._config import DEFAULT_CONFIG
-    from ..render._frame import _key_args
+    from ..render import DEFAULT_CONFIG, key_args
 
     config = config or DEFAULT_CONFIG
-    _key_args(None, spp)  # validates spp
+    key_args(None, spp)  # validates spp
     n = _batch_size({"keys": keys, "head_poses": head_poses})
     key_data, jitter = _key_data(keys, n)
     poses = _head_poses(head_poses, n)

@@ -118,7 +118,7 @@ class FullRenders:
     of None renders pixel-cell centres (no jitter)."""
 
     def __init__(self, scene, rig, config=None, bvh=None):
-        from ..render._config import DEFAULT_CONFIG
+        from ..render import DEFAULT_CONFIG
 
         self.scene, self.rig, self.bvh = scene, rig, bvh
         self.config = config or DEFAULT_CONFIG

@@ -1,7 +1,13 @@
 """Foveated sampling: eccentricity, regions, acuity-driven sample selection, the static ray
-budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, sections 4.4.1, 4.5)."""
+budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, sections 4.4.1, 4.5).
+
+`render_foveated` renders one frame. For batches (`fovjax.eval`): `foveated_stereo(scene_arrays,
+bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget)` is the pure frame it
+compiles, `budget_for(rig, head_pose, foveation)` its static ray budget (slots for both eyes),
+`check_gaze(gaze)` the per-eye gaze check."""
 
 from ._api import FoveatedFrame as FoveatedFrame
+from ._api import _budget_for
 from ._api import render_foveated as render_foveated
 from ._budget import plan_budget as plan_budget
 from ._config import (
@@ -43,6 +49,7 @@ from ._eccentricity import (
 from ._fill import fill_and_blur as fill_and_blur
 from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
 from ._fill import resolve as resolve
+from ._frame import foveated_stereo as foveated_stereo
 from ._sampling import (
     FOVEA as FOVEA,
 )
@@ -73,3 +80,5 @@ from ._sampling import (
 from ._sampling import (
     top_left as top_left,
 )
+
+budget_for = _budget_for  # public: the batches of fovjax.eval plan the same budget

@@ -126,7 +126,7 @@ def slot_rays(cameras, positions, slots, *, spp, h, w):
 def trace_selection(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget):
     """Stage 3: trace and shade the selected samples (`radiance_in_chunks`). Returns the
     per-slot radiance (padded to whole chunks) and the ray counts."""
-    from ..render._integrator import radiance_in_chunks
+    from ..render import radiance_in_chunks
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
@@ -140,7 +140,7 @@ def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color):
     that hold samples). A sample whose radiance is not finite is bad: its pixel is painted
     `bad_color` outright, as in the full render. Returns (per-pixel mean of the traced samples
     (2, H, W, 3), bad samples, bad pixels (2, H, W))."""
-    from ..render._integrator import chunk_loop
+    from ..render import chunk_loop
 
     lanes = jnp.arange(size, dtype=jnp.int32)
     n_pixels = 2 * h * w
@@ -207,7 +207,7 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, ji
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
     from their indices, chunk by chunk, so no screen-sized ray arrays exist."""
-    from ..render._integrator import RayCounts
+    from ..render import RayCounts
     from ..scene import pixel_sample_positions
 
     cameras = rig.eye_cameras(head_pose)

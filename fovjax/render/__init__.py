@@ -17,6 +17,13 @@ path of every host entry point (this package's, `fovjax.foveate`'s, `fovjax.eval
 `clear_compile_cache` and `compile_cache_info` cover them all; `frame_stats` the one builder of
 their `FrameStats`.
 
+For the packages that build frames of their own on this one (`fovjax.foveate`, `fovjax.eval`'s
+sharded batches, the session loop): `stereo_program(scene_arrays, bvh, rig, head_pose, key, *,
+spp, jitter, config)` is the pure full stereo frame (image, `RayCounts`, bad pixels) that
+`render_stereo` compiles; `key_args(key, spp)` checks `spp` (a positive square) and returns
+(key, jitter) as every entry point reads an optional PRNG key; `bvh_for(scene, bvh)` the BVH a
+frame traces (the one given, else the cached build); `DEFAULT_CONFIG` is `RenderConfig()`.
+
 `fovjax.render` is both this subpackage and, when called, `render`: `fovjax.render(scene,
 camera, spp=4)` renders a frame while `fovjax.render.radiance` etc. stay reachable.
 """
@@ -26,6 +33,7 @@ import types
 
 from ._arrays import SceneArrays as SceneArrays
 from ._arrays import scene_arrays as scene_arrays
+from ._config import DEFAULT_CONFIG as DEFAULT_CONFIG
 from ._config import MAGENTA as MAGENTA
 from ._config import THESIS_BACKGROUND as THESIS_BACKGROUND
 from ._config import RenderConfig as RenderConfig
@@ -36,6 +44,7 @@ from ._envmap import load_envmap as load_envmap
 from ._frame import TRACE_COUNTS as TRACE_COUNTS
 from ._frame import Frame as Frame
 from ._frame import FrameStats as FrameStats
+from ._frame import _key_args, _stereo_program
 from ._frame import bvh_for as bvh_for
 from ._frame import clear_compile_cache as clear_compile_cache
 from ._frame import compile_cache_info as compile_cache_info
@@ -62,6 +71,10 @@ from ._stereo import StereoRig as StereoRig
 from ._stereo import head_pose_angles as head_pose_angles
 from ._stereo import head_rotation as head_rotation
 from ._stereo import stereo_sample_rays as stereo_sample_rays
+
+# Public names for the frame's parts other packages build on (see the docstring).
+key_args = _key_args
+stereo_program = _stereo_program
 
 
 class _CallableModule(types.ModuleType):

@@ -1,0 +1,178 @@
+"""The layout's rules, read from the source with `ast` (README, "Architecture").
+
+Every `import` and `from ... import` in every module of `fovjax` is resolved to the package it
+reaches (`fovjax.<package>`; the top-level modules belong to the package `fovjax` itself), then:
+
+(a) a package never imports another package's private module (`fovjax.render._frame`) or a
+    private name (`from fovjax.render import _bvh_for`): what is shared is exported;
+(b) the core packages never import the application layer (the CLI, the session loop, eval, the
+    viewer, or the `fovjax` top level that re-exports all of them);
+(c) `render` never imports `foveate` (foveation is built on the full renderer, not inside it);
+(d) every import between packages is one the table `MAY_IMPORT` allows (README's table).
+
+Imports inside functions count as much as those at the top of a file.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "fovjax"
+ROOT = "fovjax"  # the top level: fovjax/__init__.py and fovjax/_*.py
+
+CORE = ("files", "scene", "trace", "render", "foveate", "acuity", "devices")
+APPLICATION = ("eval", "session", "view", "cli", ROOT)
+
+# Which package may import which (besides itself). Core first, bottom-up.
+MAY_IMPORT = {
+    "files": set(),
+    "scene": set(),
+    "trace": {"scene"},
+    "acuity": set(),
+    "devices": set(),
+    "render": {"files", "scene", "trace"},
+    "foveate": {"files", "scene", "trace", "render", "acuity"},
+    "eval": {"files", "scene", "trace", "render", "foveate", "acuity", "devices"},
+    "session": {"files", "scene", "trace", "render", "foveate", "acuity", "devices"},
+    "view": {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session"},
+    "cli": {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "eval", "session", "view"},
+    ROOT: {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session", "cli"},
+}
+
+
+def _private(part: str) -> bool:
+    return part.startswith("_") and not (part.startswith("__") and part.endswith("__"))
+
+
+def package_of(module: str) -> str:
+    """`fovjax.render._frame` -> "render"; `fovjax`, `fovjax._dispatch` -> the top level."""
+    parts = module.split(".")
+    if len(parts) == 1 or (PACKAGE / parts[1]).is_dir() is False:
+        return ROOT
+    return parts[1]
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports(path: Path, tree: ast.AST | None = None):
+    """(line, target module, imported names) for each import of a `fovjax` module in `path`;
+    relative imports are resolved. `from fovjax import scene` targets `fovjax.scene`."""
+    tree = tree or ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    me = module_name(path).split(".")
+    here = me if path.name == "__init__.py" else me[:-1]  # the package a relative import starts in
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == ROOT:
+                    yield node.lineno, alias.name, ()
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = here[: len(here) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != ROOT:
+                continue
+            names = tuple(a.name for a in node.names)
+            if target == ROOT:  # `from fovjax import render, tonemap`: a subpackage or a name
+                for name in names:
+                    if (PACKAGE / name).is_dir() or (PACKAGE / f"{name}.py").is_file():
+                        yield node.lineno, f"{ROOT}.{name}", ()
+                    else:
+                        yield node.lineno, ROOT, (name,)
+            else:
+                yield node.lineno, target, names
+
+
+def _sources():
+    return sorted(p for p in PACKAGE.rglob("*.py") if "static" not in p.parts)
+
+
+def check(path: Path, tree: ast.AST | None = None) -> dict[str, list[str]]:
+    """Every rule `path` breaks, by rule letter, as `file:line: what`."""
+    found = {"a": [], "b": [], "c": [], "d": []}
+    mine = package_of(module_name(path))
+    where = path.relative_to(PACKAGE.parent)
+    for line, target, names in imports(path, tree):
+        theirs = package_of(target)
+        if theirs == mine:
+            continue
+        at = f"{where}:{line}"
+        if any(_private(p) for p in target.split(".")[1:]):
+            found["a"].append(f"{at}: imports the private module {target}")
+        hidden = [n for n in names if _private(n)]
+        if hidden:
+            found["a"].append(f"{at}: imports the private name(s) {', '.join(hidden)} from {target}")
+        if mine in CORE and theirs in APPLICATION:
+            found["b"].append(f"{at}: core package {mine!r} imports {target} (application layer)")
+        if mine == "render" and theirs == "foveate":
+            found["c"].append(f"{at}: render imports {target}")
+        if theirs not in MAY_IMPORT.get(mine, set()):
+            found["d"].append(f"{at}: {mine!r} imports {theirs!r} ({target}), not in MAY_IMPORT")
+    return found
+
+
+def violations() -> dict[str, list[str]]:
+    found = {"a": [], "b": [], "c": [], "d": []}
+    for path in _sources():
+        for rule, hits in check(path).items():
+            found[rule] += hits
+    return found
+
+
+def test_every_package_has_a_place_in_the_table():
+    packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
+    assert packages == set(MAY_IMPORT) - {ROOT}, "a new package needs a row in MAY_IMPORT and README"
+    assert set(CORE) | set(APPLICATION) == set(MAY_IMPORT)
+    for core in CORE:  # the table itself keeps the layers apart
+        assert not MAY_IMPORT[core] & set(APPLICATION), core
+    assert "foveate" not in MAY_IMPORT["render"]
+
+
+@pytest.mark.parametrize(
+    "rule",
+    [
+        pytest.param("a", id="no-private-reach-ins"),
+        pytest.param("b", id="core-imports-no-application"),
+        pytest.param("c", id="render-imports-no-foveate"),
+        pytest.param("d", id="only-allowed-package-imports"),
+    ],
+)
+def test_import_rules(rule):
+    broken = violations()[rule]
+    assert not broken, "\n".join(broken)
+
+
+BAD = {
+    # file written into a copy of the package -> the rule it must break
+    "render/_bad.py": ("from ..foveate import Foveation\n", {"c", "d"}),
+    "foveate/_bad.py": ("from ..render._frame import render_image\n", {"a"}),
+    "eval/_bad.py": ("from fovjax.render import _bvh_for\n", {"a"}),
+    "scene/_bad.py": ("def f():\n    from ..cli import main\n", {"b", "d"}),
+    "trace/_bad.py": ("import fovjax.session\n", {"b", "d"}),
+    "devices/_bad.py": ("from .. import run_session\n", {"b", "d"}),
+    "acuity/_bad.py": ("from ..render import render_image\n", {"d"}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+def test_the_checker_catches_a_bad_import(name):
+    """Each rule fails on a module that breaks it (so the rules above can fail)."""
+    source, rules = BAD[name]
+    found = check(PACKAGE / name, ast.parse(source))
+    assert {rule for rule, hits in found.items() if hits} == rules, found
+
+
+def test_a_private_module_of_the_same_package_is_fine():
+    path = PACKAGE / "render" / "_x.py"
+    got = list(imports(path, ast.parse("from ._frame import render_image\nfrom . import _vec\n")))
+    assert [package_of(t) for _, t, _ in got] == ["render", "render"]
