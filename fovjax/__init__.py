@@ -9,8 +9,6 @@ from . import scene as scene
 from . import scenes as scenes
 from . import trace as trace
 from ._dispatch import render_stereo as render_stereo
-from ._session import full_eccentricity as full_eccentricity
-from ._session import run_session as run_session
 from .files import linear_to_srgb as linear_to_srgb
 from .files import load_image as load_image
 from .files import save_image as save_image
@@ -32,5 +30,7 @@ from .scene import make_scene as make_scene
 from .scene import pixel_sample_positions as pixel_sample_positions
 from .scene import stratified_offsets as stratified_offsets
 from .scene import vfov_from_hfov as vfov_from_hfov
+from .session import full_eccentricity as full_eccentricity
+from .session import run_session as run_session
 
 __version__ = "0.1.0"

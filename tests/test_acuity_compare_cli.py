@@ -98,7 +98,7 @@ def test_fit_command_with_bootstrap_and_a_fixed_parameter(tmp_path):
 
 
 def test_cli_choices_match_the_package():
-    from fovjax.acuity import _cli
+    from fovjax.cli import _fit as _cli
 
     assert set(_cli.MODEL_NAMES) == set(fa.MODEL_FAMILIES)
     assert set(_cli.SOLVER_NAMES) == set(fa.SOLVERS)

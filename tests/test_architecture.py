@@ -38,7 +38,21 @@ MAY_IMPORT = {
     "eval": {"files", "scene", "trace", "render", "foveate", "acuity", "devices"},
     "session": {"files", "scene", "trace", "render", "foveate", "acuity", "devices"},
     "view": {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session"},
-    "cli": {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "eval", "session", "view"},
+    # The commands call the library as a user would, through `fovjax.*` (ROOT) too.
+    "cli": {
+        "files",
+        "scene",
+        "trace",
+        "render",
+        "foveate",
+        "acuity",
+        "devices",
+        "eval",
+        "session",
+        "view",
+        ROOT,
+    },
+    # The top level re-exports the public API; `python -m fovjax` (__main__) runs the CLI.
     ROOT: {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session", "cli"},
 }
 

@@ -18,8 +18,7 @@ from pathlib import Path
 import pytest
 
 import fovjax
-import fovjax.acuity._fit
-import fovjax.acuity._stability
+import fovjax.acuity
 import fovjax.eval
 import fovjax.trace
 from fovjax.cli import main
@@ -48,8 +47,8 @@ def _traps(monkeypatch):
         (fovjax.eval, "compare_thresholds"),
         (fovjax.eval, "failure_cases"),
         (fovjax.eval, "temporal_stability"),
-        (fovjax.acuity._fit, "fit"),
-        (fovjax.acuity._stability, "write_sweep"),
+        (fovjax.acuity, "fit"),
+        (fovjax.acuity, "write_sweep"),
     ]:
         monkeypatch.setattr(module, name, _trap)
 

@@ -181,7 +181,7 @@ def test_record_cli_subprocess_survives_sigint_without_losing_samples(tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "fovjax.devices._cli",
+        "fovjax.cli._record",
         "record",
         "--gaze",
         "synthetic:scanpath:9",

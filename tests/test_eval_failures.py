@@ -202,8 +202,8 @@ def test_bad_inputs_raise_clear_errors(tiny):
 
 
 def test_cli_registers_failures_and_stability():
+    from fovjax.cli import _failures as _cli_failures
     from fovjax.cli import build_parser
-    from fovjax.eval import _cli_failures
 
     parser = build_parser()
     args = parser.parse_args(["failures", "--cases", "corner_gaze", "--small", "64x48", "--spp", "1", "4"])

@@ -1,5 +1,7 @@
-"""`fovjax` command line. Each subcommand lives next to the code it drives and registers itself
-through a `register(subparsers)` function listed in `_SUBCOMMAND_MODULES`.
+"""`fovjax` command line. Each subcommand has its own module in this package (`_render`, `_record`,
+`_session`, `_compare`, `_failures`, `_study`, `_fit`, `_view`) and registers itself through a
+`register(subparsers)` function listed in `_SUBCOMMAND_MODULES`. This package is the top layer:
+it may import every other package of fovjax, and none of them imports it.
 
 Errors: every command checks its arguments first, in one `validate(args)` step, with the checkers
 below, which raise `UsageError`. `main` turns any error into one line on stderr naming the
@@ -19,20 +21,20 @@ import signal
 import sys
 from pathlib import Path
 
-from .files import atomic_path as atomic_path
-from .files import deferred_interrupt as deferred_interrupt
+from ..files import atomic_path as atomic_path
+from ..files import deferred_interrupt as deferred_interrupt
 
 # Modules that define `register(subparsers)`. The first one's command is the default
 # when `fovjax` is run with no arguments.
 _SUBCOMMAND_MODULES = [
-    "fovjax._cli_render",
-    "fovjax.devices._cli",
-    "fovjax._cli_session",
-    "fovjax.eval._cli",
-    "fovjax.eval._cli_failures",
-    "fovjax.eval._cli_study",
-    "fovjax.acuity._cli",
-    "fovjax.view._cli",
+    "fovjax.cli._render",
+    "fovjax.cli._record",
+    "fovjax.cli._session",
+    "fovjax.cli._compare",
+    "fovjax.cli._failures",
+    "fovjax.cli._study",
+    "fovjax.cli._fit",
+    "fovjax.cli._view",
 ]
 
 # Exit status of an interrupted command (128 + SIGINT), as shells report Ctrl-C.
@@ -113,7 +115,7 @@ def _on_interrupt_exit(name: str) -> None:
 
 def _explain(err: Exception) -> tuple[int, str]:
     """Exit status and one line for an error that ended a command."""
-    from .devices import DeviceError
+    from ..devices import DeviceError
 
     if isinstance(err, UsageError):
         return 2, str(err)
@@ -284,7 +286,7 @@ def input_file(path, option: str, *, suffixes=None, text: bool = False) -> Path:
 
 def scene(name: str, option: str = "--scene") -> None:
     """A built-in scene name (or alias) or an existing scene file of a supported format."""
-    from .scene import BUILTIN, SUPPORTED_FORMATS
+    from ..scene import BUILTIN, SUPPORTED_FORMATS
 
     if name in BUILTIN or name == "cornell":
         return
@@ -302,7 +304,7 @@ def scene(name: str, option: str = "--scene") -> None:
 
 def source_spec(spec: str, kind: str, option: str) -> None:
     """A gaze/head source spec that parses and names an existing recording (nothing is opened)."""
-    from .devices import source_from_spec
+    from ..devices import source_from_spec
 
     try:
         source_from_spec(spec, kind)

@@ -121,8 +121,7 @@ def run(args) -> int:
 
     import fovjax
     from fovjax import cli
-    from fovjax.eval import compare_thresholds
-    from fovjax.eval._compare import HIGHER_IS_BETTER
+    from fovjax.eval import HIGHER_IS_BETTER, compare_thresholds
     from fovjax.render import RenderConfig, StereoRig
 
     name = {"cornell": "cornell_box"}.get(args.scene, args.scene)  # the alias `render` takes

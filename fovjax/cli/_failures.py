@@ -28,7 +28,7 @@ def _common(p: argparse.ArgumentParser, output: str) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ._failures import CASES
+    from fovjax.eval import FAILURE_CASES as CASES
 
     p = sub.add_parser(
         "failures",

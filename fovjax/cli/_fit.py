@@ -102,8 +102,7 @@ def validate_fit(args) -> None:
     import math
 
     from fovjax import cli
-
-    from ._models import MODEL_FAMILIES
+    from fovjax.acuity import MODEL_FAMILIES
 
     cli.input_file(args.data, "data", suffixes=(".csv",), text=True)
     family = MODEL_FAMILIES[args.model]
@@ -139,13 +138,20 @@ def validate_fit(args) -> None:
 
 def run_fit(args) -> int:
     from fovjax import cli
-
-    from ._compare import compare
-    from ._data import AcuityDataError, load_csv
-    from ._fit import FitError, fit
-    from ._io import fit_record, save_fit
-    from ._plot import plot_corner, plot_fit
-    from ._posterior import PosteriorConvergenceError, bootstrap, sample_posterior
+    from fovjax.acuity import (
+        AcuityDataError,
+        FitError,
+        PosteriorConvergenceError,
+        bootstrap,
+        compare,
+        fit,
+        fit_record,
+        load_csv,
+        plot_corner,
+        plot_fit,
+        sample_posterior,
+        save_fit,
+    )
 
     if args.output is None:
         args.output = str(Path("fits") / Path(args.data).stem)
@@ -221,8 +227,7 @@ def run_fit(args) -> int:
 
 def run_stability(args) -> int:
     from fovjax import cli
-
-    from ._stability import SweepConfig, write_sweep
+    from fovjax.acuity import SweepConfig, write_sweep
 
     cli.output(args.output, "-o", directory=True)
     cli.seed(args.seed)

@@ -10,8 +10,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .scene import Camera
-from .trace import BVH, closest_hit
+from ..scene import Camera
+from ..trace import BVH, closest_hit
 
 
 def normal_depth_image(bvh: BVH, camera: Camera, *, packet=(8, 8)) -> Float[Array, "H W 3"]:

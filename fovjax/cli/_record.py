@@ -85,10 +85,13 @@ def validate(args: argparse.Namespace) -> list[tuple[float, float]]:
 
 def run(args: argparse.Namespace) -> int:
     from fovjax import cli
-
-    from ._recording import load_recording, record
-    from ._source import DEFAULT_CONNECT_TIMEOUT, ConnectTimeoutError
-    from ._specs import source_from_spec
+    from fovjax.devices import (
+        DEFAULT_CONNECT_TIMEOUT,
+        ConnectTimeoutError,
+        load_recording,
+        record,
+        source_from_spec,
+    )
 
     dropouts = validate(args)
     kind = "gaze" if args.gaze else "head"
@@ -149,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m fovjax.devices._cli record ...`: the same as `fovjax record ...`."""
+    """`python -m fovjax.cli._record record ...`: the same as `fovjax record ...`."""
     from fovjax.cli import main as fovjax_main
 
     return fovjax_main(argv)

@@ -274,7 +274,7 @@ def _run_preview(args, out: Path) -> int:
     import numpy as np
 
     import fovjax
-    from fovjax._preview import normal_depth_image_jit
+    from fovjax.cli._preview import normal_depth_image_jit
     from fovjax.files import save_image
     from fovjax.trace import build_bvh, last_build_info
 

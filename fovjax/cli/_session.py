@@ -108,7 +108,7 @@ def run(args) -> int:
 
     import fovjax
     from fovjax import cli
-    from fovjax._cli_render import _load_scene
+    from fovjax.cli._render import _load_scene
     from fovjax.devices import DEFAULT_CONNECT_TIMEOUT, ConnectTimeoutError, FallbackPolicy, GazeTracker
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig

@@ -138,17 +138,21 @@ def _level_text(fovea: float | None, levels) -> str:
 
 def run(args) -> int:
     from fovjax import cli
-    from fovjax.eval import read_csv, read_responses, run_study, write_csv, write_responses
-    from fovjax.eval import write_study_report as report
-    from fovjax.eval._protocols import APPENDIX_LEVELS
-    from fovjax.eval._study import (
+    from fovjax.eval import (
+        APPENDIX_LEVELS,
         MAJORITY_TESTS,
         STUDY_METRICS,
         THESIS_LEVEL,
         default_metric,
         observers_from_comparison,
+        read_csv,
+        read_responses,
+        run_study,
         study_majorities,
+        write_csv,
+        write_responses,
     )
+    from fovjax.eval import write_study_report as report
 
     validate(args)
     parser = args._parser

@@ -53,8 +53,7 @@ def validate(args) -> None:
     served: `fovjax.cli`'s checkers (`UsageError`, exit status 2), then the extras it needs
     (ImportError naming the `pip install`, exit status 1)."""
     from fovjax import cli
-
-    from ._renderer import MAX_THRESHOLD_DEG
+    from fovjax.view import MAX_THRESHOLD_DEG
 
     cli.number(args.width, "--width", ge=1, le=MAX_EYE_PIXELS, integer=True)
     cli.number(args.height, "--height", ge=1, le=MAX_EYE_PIXELS, integer=True)
@@ -125,9 +124,7 @@ def _run(args) -> int:
     from fovjax import cli
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
-
-    from ._renderer import LiveRenderer
-    from ._server import Viewer
+    from fovjax.view import LiveRenderer, Viewer
 
     logging.basicConfig(level=logging.WARNING, format="fovjax view: %(levelname)s: %(message)s")
     logging.getLogger("fovjax.view").setLevel(logging.INFO if args.verbose else logging.WARNING)

@@ -34,7 +34,7 @@ from ._charts import (
     plot_tracking_error,
     write_study_report,
 )
-from ._compare import DEFAULT_CRITERION, DEFAULT_GAZES, Comparison, compare_thresholds
+from ._compare import DEFAULT_CRITERION, DEFAULT_GAZES, HIGHER_IS_BETTER, Comparison, compare_thresholds
 from ._failures import (
     CASES as FAILURE_CASES,
 )
@@ -117,6 +117,7 @@ from ._stability import (
     temporal_stability,
 )
 from ._study import (
+    MAJORITY_TESTS,
     STUDY_METRICS,
     THESIS_LEVEL,
     LevelDifference,
@@ -129,6 +130,7 @@ from ._study import (
 __all__ = [
     "DEFAULT_CRITERION",
     "DEFAULT_GAZES",
+    "HIGHER_IS_BETTER",
     "Comparison",
     "compare_thresholds",
     "FrameBatch",
@@ -185,6 +187,7 @@ __all__ = [
     "write_csv",
     "write_responses",
     "write_study_report",
+    "MAJORITY_TESTS",
     "STUDY_METRICS",
     "THESIS_LEVEL",
     "LevelDifference",

@@ -136,7 +136,7 @@ def _is_live(spec_or_source) -> bool:
         return False
     if isinstance(spec_or_source, str):
         return _scheme(spec_or_source) in LIVE_SCHEMES
-    from .devices import ThreadedSource
+    from ..devices import ThreadedSource
 
     return isinstance(spec_or_source, ThreadedSource)
 
@@ -148,10 +148,10 @@ def _source(spec_or_source, kind, clock, duration, name, wait=None):
     if spec_or_source is None:
         return None
     if isinstance(spec_or_source, str):
-        from .devices import source_from_spec
+        from ..devices import source_from_spec
 
         return source_from_spec(spec_or_source, kind, duration=duration, clock=clock, connect_timeout=wait)
-    from .devices import Source
+    from ..devices import Source
 
     source = spec_or_source
     if not isinstance(source, Source):
@@ -176,7 +176,7 @@ def full_eccentricity(rig, foveation) -> float:
     """The largest eccentricity (degrees) any pixel of either eye's display can have for any
     gaze on that display -- the fovea that covers the whole screen -- rounded up to 0.1°.
     Eccentricity is measured in the eye's own camera, so the head pose does not matter."""
-    from .foveate import eccentricity_map
+    from ..foveate import eccentricity_map
 
     corners = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0))
     worst = 0.0
@@ -267,10 +267,10 @@ def run_session(
     a `DeviceError` naming the spec, the device and the reason. Each frame logs its sources'
     state (`SessionFrame`); ``summary["sources"]`` has each source's final state and
     ``summary["warnings"]`` says when a source never delivered a sample."""
-    from .devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
-    from .files import deferred_interrupt, interrupt_flag
-    from .foveate import Foveation, render_foveated
-    from .render import DEFAULT_CONFIG, SceneArrays, StereoRig, bvh_for, scene_arrays
+    from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
+    from ..files import deferred_interrupt, interrupt_flag
+    from ..foveate import Foveation, render_foveated
+    from ..render import DEFAULT_CONFIG, SceneArrays, StereoRig, bvh_for, scene_arrays
 
     n_frames = _check_count(frames, seconds, fps)
     rate = float(fps)
@@ -291,7 +291,7 @@ def run_session(
     tracker = tracker or GazeTracker(policy=policy)
     head_tracker = HeadTracker()
     if rig is None:
-        from .scene import default_camera
+        from ..scene import default_camera
 
         rig = StereoRig.from_pose(default_camera(scene))
     # The scene's arrays and BVH once, not per frame.
@@ -393,7 +393,7 @@ def run_session(
                 if out is not None:
                     path = str(frame.save(out / f"frame_{k:05d}.png"))
                     if debug:
-                        from .files import save_image
+                        from ..files import save_image
 
                         save_image(out / f"debug_{k:05d}.png", frame.debug_view)
                     if writer is not None:
@@ -479,7 +479,7 @@ def run_session(
 
 def _source_states(gaze_source, head_source, last_sample: dict, t: float) -> dict:
     """The `SessionFrame` fields describing the sources at time `t`."""
-    from .devices import ThreadedSource
+    from ..devices import ThreadedSource
 
     states = {}
     for role, source in (("gaze", gaze_source), ("head", head_source)):
@@ -537,7 +537,7 @@ def _forking_ffmpeg():
 
 def _video_frame(image: np.ndarray) -> np.ndarray:
     """8-bit sRGB as the PNGs, padded to even sides (H.264 in yuv420p needs them)."""
-    from .files import linear_to_srgb, tonemap
+    from ..files import linear_to_srgb, tonemap
 
     rgb8 = np.round(linear_to_srgb(tonemap(image)) * 255).astype(np.uint8)
     h, w = rgb8.shape[:2]
@@ -582,7 +582,7 @@ def _jsonable(value):
 
 
 def _write_log(out: Path, rows: list[SessionFrame], summary: dict) -> None:
-    from .files import atomic_path
+    from ..files import atomic_path
 
     fields = [f.name for f in dataclasses.fields(SessionFrame)]
     with atomic_path(out / "session.csv") as tmp, open(tmp, "w", newline="") as fh:

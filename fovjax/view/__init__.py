@@ -3,7 +3,8 @@ for the newest gaze -- the mouse over either eye, or any gaze source -- and stre
 page in the browser over a WebSocket, with an overlay of frame rate, stage times, rays and the
 gaze-to-display latency. Needs the 'view' extra (aiohttp).
 
-- `LiveRenderer`: the live state and one frame at a time (`render_next`);
+- `LiveRenderer`: the live state and one frame at a time (`render_next`); `MAX_THRESHOLD_DEG`
+  the largest fovea or periphery radius it takes;
 - `Viewer`: the aiohttp server around it (`start`, `stop`, `url`);
 - `binocular_gaze`: both eyes' gaze from one eye's, through the rig's geometry;
 - `parse_message`, `MessageError`, `ACTIONS`: the page protocol and its validation.
@@ -14,6 +15,7 @@ from ._protocol import ACTIONS as ACTIONS
 from ._protocol import MAX_MESSAGE_BYTES as MAX_MESSAGE_BYTES
 from ._protocol import MessageError as MessageError
 from ._protocol import parse_message as parse_message
+from ._renderer import MAX_THRESHOLD_DEG as MAX_THRESHOLD_DEG
 from ._renderer import LiveRenderer as LiveRenderer
 from ._renderer import RenderedFrame as RenderedFrame
 from ._renderer import encode_jpeg as encode_jpeg

@@ -51,7 +51,7 @@ def encode_jpeg(image: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     """Linear RGB (H, W, 3) -> JPEG bytes, tone-mapped and sRGB-encoded as `save_image` does PNGs."""
     from PIL import Image
 
-    from .. import linear_to_srgb, tonemap
+    from ..files import linear_to_srgb, tonemap
 
     rgb8 = np.round(linear_to_srgb(tonemap(np.asarray(image, np.float32))) * 255).astype(np.uint8)
     buf = io.BytesIO()
@@ -215,10 +215,11 @@ class LiveRenderer:
         return binocular_gaze(self.bvh, self.rig, pose, eye, xy)
 
     def _render(self, gaze, foveation, pose, full, key=None):
-        import fovjax
+        from ..foveate import render_foveated
+        from ..render import render_stereo
 
         if full:
-            return fovjax.render_stereo(
+            return render_stereo(
                 self.arrays,
                 self.rig,
                 head_pose=pose,
@@ -227,10 +228,10 @@ class LiveRenderer:
                 config=self.config,
                 bvh=self.bvh,
             )
-        return fovjax.render_stereo(
+        return render_foveated(
             self.arrays,
             self.rig,
-            gaze=gaze,
+            gaze=((0.5, 0.5), (0.5, 0.5)) if gaze is None else gaze,
             foveation=foveation,
             head_pose=pose,
             key=key,
@@ -240,8 +241,8 @@ class LiveRenderer:
 
     def _tracked_gaze(self, now: float):
         """Gaze, thresholds and tracking state from the gaze source (tracker with fallback)."""
-        from .. import full_eccentricity
         from ..devices import widen_thresholds
+        from ..session import full_eccentricity
 
         tf = self.tracker.step(now, self.gaze_source.drain(), display_time=now + self._last_frame_s)
         fovea, periphery = self.fovea_deg, self.periphery_deg
@@ -370,8 +371,7 @@ class LiveRenderer:
     def save(self, directory, extra: dict | None = None) -> list[Path]:
         """Write the newest frame (PNG), its regions/samples view when shown, and its statistics
         (JSON) to `directory`; returns the paths."""
-        from .. import save_image
-        from ..cli import atomic_path
+        from ..files import atomic_path, save_image
 
         frame = self.last
         if frame is None:
