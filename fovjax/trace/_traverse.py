@@ -2,8 +2,10 @@
 
 Every ray holds one "item" (an inner node or a triangle row of `BVH.table`) and a private
 stack. One step gathers each ray's row (64 bytes), and
-- at a node: slab-tests both child boxes (stored in the parent), goes to the nearer hit child
-  and pushes the farther one;
+- at a node (4-wide, `_wide.py`): decodes its four child boxes (8-bit, quantised relative to
+  the node's own box, stored in the node's row), slab-tests all four, goes to the nearest hit
+  child and pushes the other hit children with their entry distances, farthest deepest (a
+  popped entry whose box starts beyond the best hit so far is dropped without a table access);
 - at a triangle: runs the watertight test (Woop, Benthin & Wald 2013) and moves to the next
   triangle of the leaf or pops the stack.
 Both interpretations of the row are computed for every ray and the right one is selected: on
