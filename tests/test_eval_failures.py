@@ -203,13 +203,14 @@ def test_bad_inputs_raise_clear_errors(tiny):
 
 def test_cli_registers_failures_and_stability():
     from fovjax.cli import _failures as _cli_failures
+    from fovjax.cli import _stability as _cli_stability
     from fovjax.cli import build_parser
 
     parser = build_parser()
     args = parser.parse_args(["failures", "--cases", "corner_gaze", "--small", "64x48", "--spp", "1", "4"])
     assert args.func is _cli_failures.run_failures and args.small == (64, 48) and args.spp == [1, 4]
     args = parser.parse_args(["stability", "--gaze", "pursuit", "--frames", "4"])
-    assert args.func is _cli_failures.run_stability and args.frames == 4
+    assert args.func is _cli_stability.run_stability and args.frames == 4
     with pytest.raises(SystemExit):
         parser.parse_args(["failures", "--small", "64by48"])
     with pytest.raises(SystemExit):

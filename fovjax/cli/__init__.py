@@ -1,7 +1,8 @@
-"""`fovjax` command line. Each subcommand has its own module in this package (`_render`, `_record`,
-`_session`, `_compare`, `_failures`, `_study`, `_fit`, `_view`) and registers itself through a
-`register(subparsers)` function listed in `_SUBCOMMAND_MODULES`. This package is the top layer:
-it may import every other package of fovjax, and none of them imports it.
+"""`fovjax` command line. Each subcommand has its own module in this package (`_render`,
+`_record`, `_session`, `_compare`, `_failures`, `_stability`, `_study`, `_fit`, `_fit_stability`,
+`_view`) and registers itself through a `register(subparsers)` function listed in
+`_SUBCOMMAND_MODULES`. This package is the top layer: it may import every other package of
+fovjax, and none of them imports it.
 
 Errors: every command checks its arguments first, in one `validate(args)` step, with the checkers
 below, which raise `UsageError`. `main` turns any error into one line on stderr naming the
@@ -32,8 +33,10 @@ _SUBCOMMAND_MODULES = [
     "fovjax.cli._session",
     "fovjax.cli._compare",
     "fovjax.cli._failures",
+    "fovjax.cli._stability",
     "fovjax.cli._study",
     "fovjax.cli._fit",
+    "fovjax.cli._fit_stability",
     "fovjax.cli._view",
 ]
 
