@@ -1,8 +1,8 @@
 """Batches of stereo frames in one compiled program, sharded over `jax.devices()`.
 
 A batch (gaze points × keys × head poses, one frame each) becomes one jitted program: the pure
-frame function (the full render's `fovjax.render._frame._stereo_program`, `jax.vmap`ped over
-the frames; or `fovjax.foveate._frame.foveated_stereo`, `lax.map`ped: one frame after another,
+frame function (the full render's `fovjax.render.stereo_program`, `jax.vmap`ped over
+the frames; or `fovjax.foveate.foveated_stereo`, `lax.map`ped: one frame after another,
 so each frame's chunk `lax.cond`s still skip what it does not trace), and the frame axis is
 laid out over a one-axis mesh `Mesh(devices, ("frames",))` with `NamedSharding(mesh,
 P("frames"))`; the scene, BVH, rig and foveation are replicated. `jax.shard_map` gives each
