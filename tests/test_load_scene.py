@@ -12,7 +12,7 @@ import trimesh
 from PIL import Image
 
 import fovjax
-from fovjax.scene._loaders import srgb_to_linear
+from fovjax.scene._parts import srgb_to_linear
 
 # A unit square in z = 0 (a quad, material "red") and a triangle in z = 1 (material "blue").
 OBJ = """\
