@@ -61,9 +61,16 @@ def _private(part: str) -> bool:
     return part.startswith("_") and not (part.startswith("__") and part.endswith("__"))
 
 
+# Top-level modules that only re-export one package, counted as that package.
+ALIASES = {"scenes": "scene"}  # fovjax/scenes.py: `fovjax.scenes.atrium()` as it always was
+
+
 def package_of(module: str) -> str:
-    """`fovjax.render._frame` -> "render"; `fovjax`, `fovjax._dispatch` -> the top level."""
+    """`fovjax.render._frame` -> "render"; `fovjax`, `fovjax._dispatch` -> the top level;
+    `fovjax.scenes` -> "scene"."""
     parts = module.split(".")
+    if len(parts) > 1 and parts[1] in ALIASES:
+        return ALIASES[parts[1]]
     if len(parts) == 1 or (PACKAGE / parts[1]).is_dir() is False:
         return ROOT
     return parts[1]
@@ -184,6 +191,12 @@ def test_the_checker_catches_a_bad_import(name):
     source, rules = BAD[name]
     found = check(PACKAGE / name, ast.parse(source))
     assert {rule for rule, hits in found.items() if hits} == rules, found
+
+
+def test_the_scenes_alias_counts_as_scene():
+    got = list(imports(PACKAGE / "eval" / "_x.py", ast.parse("from ..scenes import default_camera\n")))
+    assert [package_of(t) for _, t, _ in got] == ["scene"]
+    assert (PACKAGE / "scenes.py").read_text().count("from .scene import") >= 1
 
 
 def test_a_private_module_of_the_same_package_is_fine():

@@ -62,6 +62,7 @@ from ._metrics import (
     MetricValue,
     MissingExtraError,
     RingErrors,
+    _require,
     display_encode,
     error_by_eccentricity,
     flip,
@@ -148,6 +149,7 @@ __all__ = [
     "MetricObserver",
     "MetricValue",
     "MissingExtraError",
+    "require_extra",
     "Response",
     "ResultsFileError",
     "RingErrors",
@@ -229,3 +231,7 @@ __all__ = [
     "plot_scanpath_flicker",
     "plot_tracking_error",
 ]
+
+# `require_extra(module, extra, what)`: the imported module, or `MissingExtraError` naming the
+# `pip install 'fovjax[extra]'` that provides it (for the commands that need an optional extra).
+require_extra = _require
