@@ -19,7 +19,7 @@ their `FrameStats`.
 
 For the packages that build frames of their own on this one (`fovjax.foveate`, `fovjax.eval`'s
 sharded batches, the session loop): `stereo_program(scene_arrays, bvh, rig, head_pose, key, *,
-spp, jitter, config)` is the pure full stereo frame (image, `RayCounts`, bad pixels) that
+spp, jitter, config)` is the pure full stereo frame (image, `RayCounts`, number of bad pixels) that
 `render_stereo` compiles; `key_args(key, spp)` checks `spp` (a positive square) and returns
 (key, jitter) as every entry point reads an optional PRNG key; `bvh_for(scene, bvh)` the BVH a
 frame traces (the one given, else the cached build); `DEFAULT_CONFIG` is `RenderConfig()`.
