@@ -210,6 +210,83 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     return cur, sp, stack, t_best, prim
 
 
+def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
+    """One any-hit traversal step for every lane (`occluded`): `_step` without the ordering.
+
+    A lane stops at its first hit, so there is no best distance to shrink and no reason to
+    visit children nearest first: the hit children are taken in their stored order (the first
+    goes next, the others are pushed), which replaces the sorting network, and the stack holds
+    bare items (an entry cannot be culled later: the ray's interval does not shrink).
+    """
+    del any_hit
+    barrier = lax.optimization_barrier
+    rays, state = barrier((rays, state))
+    o, inv_d, perm, shear, tmin = rays
+    cur, sp, stack, t_max, prim = state
+    w = cur.shape[0]
+    lane = jnp.arange(w)
+
+    active = cur >= 0
+    row = table[jnp.maximum(cur, 0)]
+    is_node = cur < num_nodes
+
+    t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
+    t_near = jnp.maximum(t_near, tmin[:, None])
+    t_far = jnp.minimum(t_far, t_max[:, None])
+    child = row[:, 10:14]
+    key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
+    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
+    hit_t, t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
+    t_tri = jnp.where(active & ~is_node & hit_t & (t_t > tmin) & (t_t < t_max), t_t, jnp.inf)
+    key, t_tri = barrier((key, t_tri))
+    # Materialised once as the carried distance (see `_step`); consumers compare with it.
+    t_new = barrier(jnp.minimum(t_tri, t_max))
+    found = t_new < t_max
+
+    # The nearest hit child is visited next; the other hit children are pushed in slot order.
+    k = [key[:, c] for c in range(4)]
+    near01 = k[1] < k[0]
+    near23 = k[3] < k[2]
+    k01 = jnp.minimum(k[0], k[1])
+    k23 = jnp.minimum(k[2], k[3])
+    s01 = jnp.where(near01, 1, 0)
+    s23 = jnp.where(near23, 3, 2)
+    nearest = jnp.where(k23 < k01, s23, s01)
+    counts = [(jnp.isfinite(k[c]) & (nearest != c)).astype(jnp.int32) for c in range(4)]
+    ranks = [counts[0]]
+    for c in range(1, 4):
+        ranks.append(ranks[-1] + counts[c])
+    n_push = ranks[3]
+    has_hit = jnp.isfinite(jnp.minimum(k01, k23))
+    first = jnp.where(
+        nearest == 0,
+        child[:, 0],
+        jnp.where(nearest == 1, child[:, 1], jnp.where(nearest == 2, child[:, 2], child[:, 3])),
+    )
+    at_node = active & is_node
+    pos = jnp.stack(
+        [jnp.where(at_node & (counts[c] > 0), sp + ranks[c] - 1, stack_size) for c in range(4)], 1
+    )
+    pos, first, n_push, has_hit = barrier((pos, first, n_push, has_hit))
+    stack = stack.at[pos, lane[:, None]].set(child, mode="drop")
+    sp = sp + jnp.where(at_node, n_push, 0)
+
+    prim = jnp.where(found, row[:, 9], prim)
+    node_next = jnp.where(has_hit, first, ITEM_POP)
+    tri_next = jnp.where(row[:, 10] != 0, ITEM_POP, cur + 1)
+    nxt = jnp.where(found, ITEM_DONE, jnp.where(is_node, node_next, tri_next))
+    cur = jnp.where(active, nxt, cur)
+    cur, sp, prim = barrier((cur, sp, prim))
+
+    # Pop after pushing (in place); one pop per step, every entry is live.
+    popping = cur == ITEM_POP
+    has = sp > 0
+    item = stack[jnp.maximum(sp - 1, 0), lane]
+    sp = sp - (popping & has).astype(jnp.int32)
+    cur = jnp.where(popping, jnp.where(has, item, ITEM_DONE), cur)
+    return cur, sp, stack, t_new, prim
+
+
 def live_first(live):
     """(number live, queue): a stable permutation of the indices with the live ones first."""
     live = live.astype(jnp.int32)
@@ -267,7 +344,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
     state = (
         jnp.full(w, ITEM_DONE, jnp.int32),
         jnp.zeros(w, jnp.int32),
-        jnp.zeros((stack_size, w, 2), jnp.int32),
+        jnp.zeros((stack_size, w) if any_hit else (stack_size, w, 2), jnp.int32),
         jnp.zeros(w, jnp.float32),
         jnp.full(w, -1, jnp.int32),
     )
@@ -306,7 +383,15 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
         next_ray = jnp.minimum(next_ray + jnp.sum(idle.astype(jnp.int32)), n_live)
         state = (cur, sp, stack, t_best, prim)
         state = _run_steps(
-            _step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_ray
+            _step_any if any_hit else _step,
+            table,
+            num_nodes,
+            stack_size,
+            any_hit,
+            rays,
+            state,
+            steps_per_refill,
+            next_ray,
         )
         return next_ray, lane_ray, rays, state, out_t, out_prim
 
