@@ -50,9 +50,9 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     key = jnp.where(child >= 0, jnp.min(ray_key, axis=1), jnp.inf)  # (K, 4): packet entry distance
 
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)[:, None, :]  # (K, 1, 9)
-    hit_t, t_t = _watertight(f[..., 0:3], f[..., 3:6], f[..., 6:9], o, perm, shear)  # (K, P)
+    t_t = _watertight(f[..., 0:3], f[..., 3:6], f[..., 6:9], o, perm, shear)  # (K, P)
     tri_lane = (active & ~is_node)[:, None]
-    t_tri = jnp.where(tri_lane & hit_t & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
+    t_tri = jnp.where(tri_lane & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
     key, t_tri = barrier((key, t_tri))
 
     keys, items = _sort4([key[:, c] for c in range(4)], [child[:, c] for c in range(4)])

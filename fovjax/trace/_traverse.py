@@ -62,7 +62,10 @@ def _pick(x, k):
 
 
 def _watertight(v0, v1, v2, o, perm, shear):
-    """Woop-Benthin-Wald watertight ray/triangle test. Returns (hit, t)."""
+    """Woop-Benthin-Wald watertight ray/triangle test. Returns the hit distance t, inf on a miss.
+
+    One array out (not a hit flag and a distance): XLA:CPU materialises it once, where a flag
+    and a distance were each re-derived from the edge functions by their consumers."""
     kx, ky, kz = perm[..., 0], perm[..., 1], perm[..., 2]
     sx, sy, sz = shear[..., 0], shear[..., 1], shear[..., 2]
     a, b, c = v0 - o, v1 - o, v2 - o
@@ -88,7 +91,7 @@ def _watertight(v0, v1, v2, o, perm, shear):
     det = u + v + w
     t_scaled = u * (sz * az) + v * (sz * bz) + w * (sz * cz)
     t = t_scaled / jnp.where(det == 0, 1.0, det)
-    return ~outside & (det != 0), t
+    return jnp.where(~outside & (det != 0), t, jnp.inf)
 
 
 def _decode_boxes(row):
@@ -157,8 +160,8 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
     # As a triangle: the hit distance, inf where there is none.
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
-    hit_t, t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
-    t_tri = jnp.where(active & ~is_node & hit_t & (t_t > tmin) & (t_t < t_best), t_t, jnp.inf)
+    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
+    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_best), t_t, jnp.inf)
     key, t_tri = barrier((key, t_tri))
 
     keys, items = _sort4([key[:, c] for c in range(4)], [child[:, c] for c in range(4)])
@@ -242,8 +245,8 @@ def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
     child = row[:, 10:14]
     key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
-    hit_t, t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
-    t_tri = jnp.where(active & ~is_node & hit_t & (t_t > tmin) & (t_t < t_max), t_t, jnp.inf)
+    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
+    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_max), t_t, jnp.inf)
     key, t_tri = barrier((key, t_tri))
     # Materialised once as the carried distance (see `_step`); consumers compare with it.
     t_new = barrier(jnp.minimum(t_tri, t_max))
