@@ -38,7 +38,7 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     """One step of every packet. The packet's row and decoded child boxes come with the state
     (loaded at the end of the previous step): carried through the loop, they are materialised
     once per packet, where decoding inside the step was fused into the per-ray box test and
-    repeated for each of the packet's rays (measured with benchmarks/trace_throughput.py)."""
+    repeated for each of the packet's rays (seen in the optimised HLO of the loop body)."""
     barrier = lax.optimization_barrier
     rays, state = barrier((rays, state))
     o, inv_d, perm, shear, tmin = rays  # (K, P, ...)
