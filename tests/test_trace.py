@@ -13,6 +13,7 @@ import subprocess
 import sys
 import textwrap
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
@@ -327,3 +328,37 @@ def test_rays_split_over_two_host_devices():
         [sys.executable, "-c", SPLIT_SCRIPT], env=env, capture_output=True, text=True, timeout=600
     )
     assert result.returncode == 0 and result.stdout.strip().endswith("OK"), result.stderr[-3000:]
+
+
+@pytest.mark.parametrize("opts", TRAVERSALS)
+def test_any_hit_traversal_finds_a_face_on_the_ray_iff_there_is_one(soup, opts):
+    """The any-hit traversal (`occluded`, its own kernel) against brute force: the same hit/miss
+    as the closest-hit traversal and as every-ray-against-every-triangle, and the face it stops
+    at lies on the ray within (tmin, tmax)."""
+    from fovjax.trace._packet import traverse_packets
+    from fovjax.trace._traverse import traverse
+
+    V, F, bvh = soup
+    rng = np.random.default_rng(7)
+    n = 4096
+    o = rng.uniform(-3, 3, (n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3)).astype(np.float32)
+    tmin = rng.uniform(0, 1, n).astype(np.float32)
+    tmax = (tmin + rng.uniform(0, 4, n)).astype(np.float32)
+    args = (jnp.asarray(bvh.table), bvh.num_nodes, bvh.stack_size, *map(jnp.asarray, (o, d, tmin, tmax)))
+    if "packet" in opts:
+        kw = {"packet_size": opts["packet"], "packets": 32, "steps_per_refill": 4}
+        run = traverse_packets
+    else:
+        kw = {"lanes": 512, "steps_per_refill": 4}
+        run = traverse
+    _, prim_any = run(*args, any_hit=True, **kw)
+    _, prim_closest = run(*args, any_hit=False, **kw)
+    prim_any, prim_closest = np.asarray(prim_any), np.asarray(prim_closest)
+    assert ((prim_any >= 0) == (prim_closest >= 0)).all()
+    t_ref, _, t_all = brute_force_closest_hit(V, F, o, d, tmin, tmax)
+    assert np.mean((prim_any >= 0) == np.isfinite(t_ref)) >= 0.9999
+    hit = np.flatnonzero(prim_any >= 0)
+    assert hit.size > n // 20  # the test has hits to check (about 12% of the rays)
+    on_ray = np.isfinite(t_all[hit, prim_any[hit]])  # brute force: within (tmin, tmax)
+    assert np.mean(on_ray) >= 0.9999

@@ -27,21 +27,31 @@ from ._traverse import (
 )
 
 
+def _load(table, cur):
+    """Each packet's row (K, 16) and, decoded, its child boxes (K, 6, 4): per axis lo, hi."""
+    row = table[jnp.maximum(cur, 0)]
+    boxes = jnp.stack([b for lo_hi in _decode_boxes(row) for b in lo_hi], 1)
+    return row, boxes
+
+
 def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
+    """One step of every packet. The packet's row and decoded child boxes come with the state
+    (loaded at the end of the previous step): carried through the loop, they are materialised
+    once per packet, where decoding inside the step was fused into the per-ray box test and
+    repeated for each of the packet's rays (seen in the optimised HLO of the loop body)."""
     barrier = lax.optimization_barrier
     rays, state = barrier((rays, state))
     o, inv_d, perm, shear, tmin = rays  # (K, P, ...)
-    cur, sp, stack, t_best, prim, done = state
+    cur, sp, stack, t_best, prim, done, row, box = state
     k = cur.shape[0]
     packet = jnp.arange(k)
 
     # Rays that may still gain a hit: not finished (any-hit) and valid.
     t_limit = jnp.where(done, -jnp.inf, t_best)
     active = cur >= 0
-    row = table[jnp.maximum(cur, 0)]  # (K, 16)
     is_node = cur < num_nodes
 
-    boxes = [(lo[:, None, :], hi[:, None, :]) for lo, hi in _decode_boxes(row)]  # (K, 1, 4)
+    boxes = [(box[:, 2 * a, None, :], box[:, 2 * a + 1, None, :]) for a in range(3)]  # (K, 1, 4)
     t_near, t_far = _slab4(boxes, o, inv_d)  # (K, P, 4)
     t_near = jnp.maximum(t_near, tmin[..., None])
     t_far = jnp.minimum(t_far, t_limit[..., None])
@@ -50,9 +60,9 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     key = jnp.where(child >= 0, jnp.min(ray_key, axis=1), jnp.inf)  # (K, 4): packet entry distance
 
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)[:, None, :]  # (K, 1, 9)
-    hit_t, t_t = _watertight(f[..., 0:3], f[..., 3:6], f[..., 6:9], o, perm, shear)  # (K, P)
+    t_t = _watertight(f[..., 0:3], f[..., 3:6], f[..., 6:9], o, perm, shear)  # (K, P)
     tri_lane = (active & ~is_node)[:, None]
-    t_tri = jnp.where(tri_lane & hit_t & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
+    t_tri = jnp.where(tri_lane & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
     key, t_tri = barrier((key, t_tri))
 
     keys, items = _sort4([key[:, c] for c in range(4)], [child[:, c] for c in range(4)])
@@ -99,7 +109,7 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
         sp = sp - (popping & has).astype(jnp.int32)
         live = jnp.where(t_entry < reach, item, ITEM_POP)
         cur = jnp.where(popping, jnp.where(has, live, ITEM_DONE), cur)
-    return cur, sp, stack, t_best, prim, done
+    return (cur, sp, stack, t_best, prim, done, *_load(table, cur))
 
 
 def traverse_packets(
@@ -135,11 +145,12 @@ def traverse_packets(
         jnp.full((k, p), -1, jnp.int32),
         jnp.ones((k, p), bool),
     )
+    state = (*state, *_load(table, state[0]))
     out_t = tmax_all
     out_prim = jnp.full((n_packets, p), -1, jnp.int32)
 
     def write_back(lane_packet, state, out_t, out_prim):
-        cur, _, _, t_best, prim, _ = state
+        cur, t_best, prim = state[0], state[3], state[4]
         dst = jnp.where(cur == ITEM_DONE, lane_packet, n_packets)
         return out_t.at[dst].set(t_best, mode="drop"), out_prim.at[dst].set(prim, mode="drop")
 
@@ -150,7 +161,7 @@ def traverse_packets(
     def body(carry):
         next_packet, lane_packet, rays, state, out_t, out_prim = carry
         out_t, out_prim = write_back(lane_packet, state, out_t, out_prim)
-        cur, sp, stack, t_best, prim, done = state
+        cur, sp, stack, t_best, prim, done = state[:6]
         idle = cur == ITEM_DONE
         new = next_packet + jnp.cumsum(idle.astype(jnp.int32)) - 1
         take = idle & (new < n_live)
@@ -170,7 +181,7 @@ def traverse_packets(
         prim = jnp.where(take[:, None], -1, prim)
         done = jnp.where(take[:, None], ~ray_ok, done)
         next_packet = jnp.minimum(next_packet + jnp.sum(idle.astype(jnp.int32)), n_live)
-        state = (cur, sp, stack, t_best, prim, done)
+        state = (cur, sp, stack, t_best, prim, done, *_load(table, cur))
         state = _run_steps(
             _packet_step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_packet
         )

@@ -64,7 +64,10 @@ def _pick(x, k):
 
 
 def _watertight(v0, v1, v2, o, perm, shear):
-    """Woop-Benthin-Wald watertight ray/triangle test. Returns (hit, t)."""
+    """Woop-Benthin-Wald watertight ray/triangle test. Returns the hit distance t, inf on a miss.
+
+    One array out (not a hit flag and a distance): XLA:CPU materialises it once, where a flag
+    and a distance were each re-derived from the edge functions by their consumers."""
     kx, ky, kz = perm[..., 0], perm[..., 1], perm[..., 2]
     sx, sy, sz = shear[..., 0], shear[..., 1], shear[..., 2]
     a, b, c = v0 - o, v1 - o, v2 - o
@@ -90,7 +93,7 @@ def _watertight(v0, v1, v2, o, perm, shear):
     det = u + v + w
     t_scaled = u * (sz * az) + v * (sz * bz) + w * (sz * cz)
     t = t_scaled / jnp.where(det == 0, 1.0, det)
-    return ~outside & (det != 0), t
+    return jnp.where(~outside & (det != 0), t, jnp.inf)
 
 
 def _decode_boxes(row):
@@ -159,8 +162,8 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
     # As a triangle: the hit distance, inf where there is none.
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
-    hit_t, t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
-    t_tri = jnp.where(active & ~is_node & hit_t & (t_t > tmin) & (t_t < t_best), t_t, jnp.inf)
+    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
+    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_best), t_t, jnp.inf)
     key, t_tri = barrier((key, t_tri))
 
     keys, items = _sort4([key[:, c] for c in range(4)], [child[:, c] for c in range(4)])
@@ -210,6 +213,89 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
         live = jnp.where(t_entry < t_best, item, ITEM_POP)
         cur = jnp.where(popping, jnp.where(has, live, ITEM_DONE), cur)
     return cur, sp, stack, t_best, prim
+
+
+def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
+    """One any-hit traversal step for every lane (`occluded`): `_step` without the sorting.
+
+    A lane stops at its first hit, so there is no best distance to shrink: the nearest child
+    the ray enters is still visited next (three comparisons; visiting children in their stored
+    order instead took 2-5x the steps), but the other entered children are pushed in stored
+    order, which replaces the sorting network, and the stack holds bare items (an entry is
+    never culled: the ray's interval does not shrink). One pop per step (every entry is live).
+
+    The triangle test is materialised once, as the carried distance `t_new`, and the other
+    consumers read whether it shrank: given to them as a boolean, XLA:CPU re-derived the whole
+    test inside each consumer (measured 3x slower). Likewise the nearest child is picked with
+    selects, not a gather (a gather fused the box tests into itself, 5x slower).
+    """
+    del any_hit
+    barrier = lax.optimization_barrier
+    rays, state = barrier((rays, state))
+    o, inv_d, perm, shear, tmin = rays
+    cur, sp, stack, t_max, prim = state
+    w = cur.shape[0]
+    lane = jnp.arange(w)
+
+    active = cur >= 0
+    row = table[jnp.maximum(cur, 0)]
+    is_node = cur < num_nodes
+
+    t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
+    t_near = jnp.maximum(t_near, tmin[:, None])
+    t_far = jnp.minimum(t_far, t_max[:, None])
+    child = row[:, 10:14]
+    key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
+    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
+    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
+    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_max), t_t, jnp.inf)
+    key, t_tri = barrier((key, t_tri))
+    # Materialised once as the carried distance (see `_step`); consumers compare with it.
+    t_new = barrier(jnp.minimum(t_tri, t_max))
+    found = t_new < t_max
+
+    # The nearest entered child is visited next; the others are pushed in slot order.
+    k = [key[:, c] for c in range(4)]
+    near01 = k[1] < k[0]
+    near23 = k[3] < k[2]
+    k01 = jnp.minimum(k[0], k[1])
+    k23 = jnp.minimum(k[2], k[3])
+    s01 = jnp.where(near01, 1, 0)
+    s23 = jnp.where(near23, 3, 2)
+    nearest = jnp.where(k23 < k01, s23, s01)
+    counts = [(jnp.isfinite(k[c]) & (nearest != c)).astype(jnp.int32) for c in range(4)]
+    ranks = [counts[0]]
+    for c in range(1, 4):
+        ranks.append(ranks[-1] + counts[c])
+    n_push = ranks[3]
+    has_hit = jnp.isfinite(jnp.minimum(k01, k23))
+    first = jnp.where(
+        nearest == 0,
+        child[:, 0],
+        jnp.where(nearest == 1, child[:, 1], jnp.where(nearest == 2, child[:, 2], child[:, 3])),
+    )
+    at_node = active & is_node
+    pos = jnp.stack(
+        [jnp.where(at_node & (counts[c] > 0), sp + ranks[c] - 1, stack_size) for c in range(4)], 1
+    )
+    pos, first, n_push, has_hit = barrier((pos, first, n_push, has_hit))
+    stack = stack.at[pos, lane[:, None]].set(child, mode="drop")
+    sp = sp + jnp.where(at_node, n_push, 0)
+
+    prim = jnp.where(found, row[:, 9], prim)
+    node_next = jnp.where(has_hit, first, ITEM_POP)
+    tri_next = jnp.where(row[:, 10] != 0, ITEM_POP, cur + 1)
+    nxt = jnp.where(found, ITEM_DONE, jnp.where(is_node, node_next, tri_next))
+    cur = jnp.where(active, nxt, cur)
+    cur, sp, prim = barrier((cur, sp, prim))
+
+    # Pop after pushing (in place); one pop per step, every entry is live.
+    popping = cur == ITEM_POP
+    has = sp > 0
+    item = stack[jnp.maximum(sp - 1, 0), lane]
+    sp = sp - (popping & has).astype(jnp.int32)
+    cur = jnp.where(popping, jnp.where(has, item, ITEM_DONE), cur)
+    return cur, sp, stack, t_new, prim
 
 
 def live_first(live):
@@ -269,7 +355,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
     state = (
         jnp.full(w, ITEM_DONE, jnp.int32),
         jnp.zeros(w, jnp.int32),
-        jnp.zeros((stack_size, w, 2), jnp.int32),
+        jnp.zeros((stack_size, w) if any_hit else (stack_size, w, 2), jnp.int32),
         jnp.zeros(w, jnp.float32),
         jnp.full(w, -1, jnp.int32),
     )
@@ -308,7 +394,15 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
         next_ray = jnp.minimum(next_ray + jnp.sum(idle.astype(jnp.int32)), n_live)
         state = (cur, sp, stack, t_best, prim)
         state = _run_steps(
-            _step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_ray
+            _step_any if any_hit else _step,
+            table,
+            num_nodes,
+            stack_size,
+            any_hit,
+            rays,
+            state,
+            steps_per_refill,
+            next_ray,
         )
         return next_ray, lane_ray, rays, state, out_t, out_prim
 
