@@ -18,6 +18,11 @@ From answers in the results-file format (.csv or .jsonl; several files are poole
 
     fovjax study --responses results/p01.csv results/p02.csv -o out/study
     fovjax study --responses out/study/responses.csv -o out/study_again
+
+From an animated sequence judged by FovVideoVDP in video mode (`fovjax.eval.video_study`; the
+options and what is written: `fovjax.eval._cli_video_study`):
+
+    fovjax study --video [--scene atrium --width 160 --height 128 --frames 30 ...] -o out/video_study
 """
 
 from __future__ import annotations
