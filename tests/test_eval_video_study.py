@@ -148,6 +148,7 @@ BAD = [
     ({"spp": 3}, "spp must be a perfect square"),
     ({"gaze": "wander"}, "gaze must be one of ('scanpath', 'fixed'), got 'wander'"),
     ({"rule": "sometimes"}, "rule must be one of"),
+    ({"keys": "random"}, "keys must be one of ('fresh', 'fixed'), got 'random'"),
     ({"walk_speed": -1.0}, "walk_speed must be a finite number >= 0 (m/s), got -1.0"),
     ({"seed": -2}, "seed must be a whole number >= 0, got -2"),
     ({"levels": [(10.0, 5.0)]}, "0 <= fovea <= periphery"),

@@ -30,8 +30,11 @@ What the thesis gives (chapter 5.2, section 2.1.3, section 4.3) and what is assu
 - Foveation regions: the thesis's own region reading (`Foveation.thesis_measured`: planar
   eccentricity at the SX111's 64° over the display's rows, i.e. 16 pixels per degree at 1024 rows,
   2 at 128) with the sampling `rule` ("either", fovjax's reading of the text, by default;
-  "thesis-measured", the sampling the thesis's Table 2 implies). Fresh sampling key per frame,
-  the same for the full and the foveated render (stochastic anti-aliasing in both).
+  "thesis-measured", the sampling the thesis's Table 2 implies). Sampling key: `keys="fresh"`
+  (default) a new key per frame, the same for the full and the foveated render (stochastic
+  anti-aliasing in both; the foveated frame's random sample pattern changes every frame);
+  `keys="fixed"` the same key every frame (a pattern fixed on the display). The thesis does not
+  say which its renderer did.
 - Display model (`sx111_display`): per eye `eye_width` x `eye_height` pixels over the SX111's
   64° vertical (thesis 2.1.3: 102° x 64° in all, 1280 x 1024 per eye; horizontal per eye
   2·atan(tan 32° · 1280/1024) = 75.9°), so at a reduced resolution the field of view stays and
@@ -62,6 +65,7 @@ SX111_FPS = 60.0  # the SX111's video input rate (NVIS's specification; the thes
 STUDY_SPP = 4  # thesis 5.2
 DEFAULT_PEAK_LUMINANCE = 100.0  # cd/m²; the thesis gives none (pyfvvdp's standard_hmd)
 GAZE_MODES = ("scanpath", "fixed")
+KEY_MODES = ("fresh", "fixed")  # a new sampling key per frame, or the same key every frame
 WALK_SPEED = 1.0  # m/s along the default view direction
 MIN_FRAMES = 2
 
@@ -105,6 +109,7 @@ class StudySequence:
     spp: int
     rule: str
     gaze_mode: str
+    key_mode: str
     scene: str
     primary_rays: dict
     render_seconds: float
@@ -148,7 +153,7 @@ def _check_positive(value, name: str) -> float:
     return float(value)
 
 
-def _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels):
+def _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys="fresh"):
     """Every argument of `study_sequence`, before any rendering."""
     from ..foveate import SAMPLING_RULES
 
@@ -161,6 +166,8 @@ def _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed,
         raise ValueError(f"video_study: spp must be a perfect square (1, 4, 9, 16, ...), got {spp}")
     if gaze not in GAZE_MODES:
         raise ValueError(f"video_study: gaze must be one of {GAZE_MODES}, got {gaze!r}")
+    if keys not in KEY_MODES:
+        raise ValueError(f"video_study: keys must be one of {KEY_MODES}, got {keys!r}")
     if rule not in SAMPLING_RULES:
         raise ValueError(f"video_study: rule must be one of {SAMPLING_RULES}, got {rule!r}")
     if (
@@ -208,6 +215,7 @@ def study_sequence(
     rule: str = "either",
     walk_speed: float = WALK_SPEED,
     seed: int = 0,
+    keys: str = "fresh",
     config=None,
     progress: Callable[[str], None] | None = None,
 ) -> StudySequence:
@@ -215,7 +223,8 @@ def study_sequence(
     `frames` frames at `fps`, per eye `eye_width` x `eye_height`, `spp` samples per pixel. Head
     pose, head position, gaze, sampling key and the foveation thresholds change per frame as
     traced values: the full render compiles once and the foveated render once for the whole
-    sequence. `seed`: the scanpath's seed and the first frame's key (frame f uses seed + f).
+    sequence. `seed`: the scanpath's seed and the first frame's key (frame f uses seed + f with
+    `keys="fresh"`, seed with "fixed").
     `progress(text)` is called once per frame rendered."""
     import equinox as eqx
     import jax
@@ -225,7 +234,7 @@ def study_sequence(
     from ..scenes import default_camera
 
     eye_width, eye_height, frames, fps, spp, walk_speed, seed, levels = _check_args(
-        eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels
+        eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys
     )
     config = config or RenderConfig()
     tick = progress or (lambda text: None)
@@ -253,7 +262,7 @@ def study_sequence(
     render_s = compile_s = 0.0
     for f in range(frames):
         rig = eqx.tree_at(lambda r: r.position, rig0, positions[f])
-        key = jax.random.key(seed + f)
+        key = jax.random.key(seed + f if keys == "fresh" else seed)
         frame = render_stereo(arrays, rig, head_pose=poses[f], spp=spp, key=key, config=config, bvh=bvh)
         reference.append(frame.image)
         rays[None].append(frame.stats.primary_rays)
@@ -286,6 +295,7 @@ def study_sequence(
         spp=spp,
         rule=rule,
         gaze_mode=gaze,
+        key_mode=keys,
         scene=str(getattr(scene, "name", "scene")),
         primary_rays={k: float(np.mean(v)) for k, v in rays.items()},
         render_seconds=render_s,
@@ -350,6 +360,7 @@ class VideoStudy:
                     "spp": s.spp,
                     "rule": s.rule,
                     "gaze": s.gaze_mode,
+                    "keys": s.key_mode,
                     "jod": float(jod),
                     "jod_left": jod.details.get("jod_left"),
                     "jod_right": jod.details.get("jod_right"),
@@ -445,6 +456,7 @@ def video_study(
     rule: str = "either",
     walk_speed: float = WALK_SPEED,
     seed: int = 0,
+    keys: str = "fresh",
     peak_luminance: float = DEFAULT_PEAK_LUMINANCE,
     observers: int = 15,
     noise_sd: float = 0.0,
@@ -470,7 +482,7 @@ def video_study(
     if not (isinstance(threshold, int | float) and math.isfinite(threshold) and threshold >= 0):
         raise ValueError(f"video_study: threshold must be a finite number >= 0 (JOD), got {threshold!r}")
     if sequence is None:
-        _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels)
+        _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys)
         _require("pyfvvdp", "fvvdp", "the video study's FovVideoVDP")
         sequence = study_sequence(
             scene,
@@ -484,6 +496,7 @@ def video_study(
             rule=rule,
             walk_speed=walk_speed,
             seed=seed,
+            keys=keys,
             config=config,
             progress=progress,
         )
