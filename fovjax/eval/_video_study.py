@@ -18,9 +18,10 @@ What the thesis gives (chapter 5.2, section 2.1.3, section 4.3) and what is assu
   walk) while the head turns: `fovjax.devices.SyntheticHeadSource`'s look-around (yaw ±20°,
   pitch ±5°, period 8 s), sampled at the frame times. Head tracking (InertiaCube3) was live in the
   thesis's application, so head motion is part of what participants saw.
-- Frame rate: `fps`, default 60 Hz, the SX111's video input rate (NVIS's specification, not the
-  thesis's; the thesis's renderer reached 26 fps full and 48 fps foveated at SPP 4 on the atrium,
-  so its participants saw new frames less often than the display refreshed).
+- Frame rate: `fps`, default 60 Hz, the frame rate of NVIS's LCOS HMDs ("per color, per frame,
+  at 60 Hz", NVIS's Advanced Video Control Unit user guide; the thesis states none). The thesis's
+  renderer reached 26 fps full and 48 fps foveated at SPP 4 on its Sponza, so its participants
+  saw new frames less often than the display refreshed.
 - Gaze: "scanpath" (default) — `fovjax.devices.Scanpath` (fixations of 218 ms mean and
   main-sequence saccades), the same point in both eyes, amplitudes in degrees of the SX111
   display; the foveation and the metric take the same gaze every frame (a perfect tracker).
@@ -61,7 +62,7 @@ from ._study import THESIS_LEVEL, observers_from_comparison, study_majorities
 
 SX111_EYE = (1280, 1024)  # pixels per eye (thesis 2.1.3)
 SX111_VFOV_DEG = 64.0  # vertical field of view (thesis 2.1.3: 102° x 64°)
-SX111_FPS = 60.0  # the SX111's video input rate (NVIS's specification; the thesis gives none)
+SX111_FPS = 60.0  # NVIS's LCOS HMDs run at 60 Hz (NVIS AVCU user guide); the thesis gives none
 STUDY_SPP = 4  # thesis 5.2
 DEFAULT_PEAK_LUMINANCE = 100.0  # cd/m²; the thesis gives none (pyfvvdp's standard_hmd)
 GAZE_MODES = ("scanpath", "fixed")
