@@ -289,7 +289,7 @@ def test_model_errors_name_the_models():
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        ([], "one of the arguments --comparison --responses is required"),
+        ([], "one of the arguments --comparison --responses --video is required"),
         (["--comparison", "c.csv", "--responses", "r.csv"], "not allowed with argument"),
         (
             ["--responses", "r.csv", "--metric", "jod", "--seed", "3"],

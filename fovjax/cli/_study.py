@@ -18,12 +18,19 @@ From answers in the results-file format (.csv or .jsonl; several files are poole
 
     fovjax study --responses results/p01.csv results/p02.csv -o out/study
     fovjax study --responses out/study/responses.csv -o out/study_again
+
+From an animated sequence judged by FovVideoVDP in video mode (`fovjax.eval.video_study`; the
+options and what is written: `fovjax.eval._cli_video_study`):
+
+    fovjax study --video [--scene atrium --width 160 --height 128 --frames 30 ...] -o out/video_study
 """
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+from . import _cli_video_study as _video
 
 # Options that only mean something with --comparison (their defaults, applied there).
 _COMPARISON_DEFAULTS = {
@@ -77,6 +84,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     source.add_argument(
         "--responses", metavar="FILE", nargs="+", help="results files (.csv/.jsonl, RESULT_FIELDS columns)"
     )
+    source.add_argument(
+        "--video",
+        action="store_true",
+        help="render an animated sequence and judge it with FovVideoVDP in video mode (the study emulated)",
+    )
     p.add_argument(
         "--metric",
         choices=("jod", "flip"),
@@ -100,6 +112,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="each observer its own trial order (from --seed) instead of the appendix's",
     )
     p.add_argument("-o", "--output", default="out/study")
+    _video.add_arguments(p)
     p.set_defaults(func=run, _parser=p)
 
 
@@ -127,6 +140,7 @@ def validate(args) -> None:
         if Path(name).is_file():
             cli.input_file(name, "--responses", suffixes=(".csv", ".jsonl"), text=True)
     cli.output(args.output, "-o", directory=True)
+    _video.validate(args)
 
 
 def _level_text(fovea: float | None, levels) -> str:
@@ -155,6 +169,8 @@ def run(args) -> int:
     from fovjax.eval import write_study_report as report
 
     validate(args)
+    if args.video:
+        return _video.run(args)
     parser = args._parser
     levels = APPENDIX_LEVELS
     out = Path(args.output)

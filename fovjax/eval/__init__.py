@@ -15,6 +15,9 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
     # or from a `fovjax compare` table: 15 observers judging 10 - JOD (else FLIP) per level
     observers = fe.observers_from_comparison(fe.read_csv("out/compare/comparison.csv"), spp=4)
     fe.study_majorities(fe.run_study(observers))                       # {"pair": 12.5, ...}
+    # the study emulated on video: an animation, FovVideoVDP in video mode, the SX111 display
+    study = fe.video_study(fovjax.scenes.atrium(), eye_width=160, eye_height=128, frames=30)
+    study.jods, study.majorities                                       # per level; per test
 """
 
 from ._charts import (
@@ -127,6 +130,18 @@ from ._study import (
     observers_from_comparison,
     study_majorities,
 )
+from ._video_study import (
+    GAZE_MODES as VIDEO_GAZE_MODES,
+)
+from ._video_study import (
+    StudySequence,
+    VideoStudy,
+    judge_sequence,
+    study_sequence,
+    sx111_display,
+    verdict_from_jods,
+    video_study,
+)
 
 __all__ = [
     "DEFAULT_CRITERION",
@@ -197,6 +212,14 @@ __all__ = [
     "difference_from_comparison",
     "observers_from_comparison",
     "study_majorities",
+    "VIDEO_GAZE_MODES",
+    "StudySequence",
+    "VideoStudy",
+    "judge_sequence",
+    "study_sequence",
+    "sx111_display",
+    "verdict_from_jods",
+    "video_study",
     "FAILURE_CASES",
     "AcuityTerms",
     "EqualBudget",
