@@ -20,7 +20,7 @@ From answers in the results-file format (.csv or .jsonl; several files are poole
     fovjax study --responses out/study/responses.csv -o out/study_again
 
 From an animated sequence judged by FovVideoVDP in video mode (`fovjax.eval.video_study`; the
-options and what is written: `fovjax.eval._cli_video_study`):
+options and what is written: `fovjax.cli._video_study`):
 
     fovjax study --video [--scene atrium --width 160 --height 128 --frames 30 ...] -o out/video_study
 """
@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from . import _cli_video_study as _video
+from . import _video_study as _video
 
 # Options that only mean something with --comparison (their defaults, applied there).
 _COMPARISON_DEFAULTS = {

@@ -85,11 +85,9 @@ def validate(args) -> None:
 def run(args) -> int:
     import fovjax
     from fovjax import cli
-    from fovjax.eval import video_study
+    from fovjax.eval import require_extra, video_study
 
-    from ._metrics import _require
-
-    _require("pyfvvdp", "fvvdp", "fovjax study --video (FovVideoVDP)")
+    require_extra("pyfvvdp", "fvvdp", "fovjax study --video (FovVideoVDP)")
     spp = 4 if args.spp is None else args.spp
     observers = 15 if args.observers is None else args.observers
     noise_sd = 0.0 if args.noise_sd is None else args.noise_sd
