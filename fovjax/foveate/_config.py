@@ -88,6 +88,11 @@ class Foveation(eqx.Module):
       full rendering, reuse it). `fovea_deg` and `periphery_deg` are traced values: a new pair
       within the maximum compiles nothing. A smaller maximum lets `plan_budget` cap the
       number of slots (samples beyond it are dropped and counted, see `FoveationStats`).
+    - `fovea_tile_deg`: the fovea is traced as a dense image tile around the gaze point, sized
+      (statically) for a fovea of this radius: its rays in packets of neighbouring pixels, as
+      the full frame's (fovea pixels beyond the tile, for a larger `fovea_deg`, go through the
+      sparse sample list: the frame is the same either way). None: no tile. Used only when the
+      budget is every sample (`max_periphery_deg` and `ray_budget` None).
     """
 
     fovea_deg: float = eqx.field(converter=_angle, default=5.0)
@@ -103,6 +108,7 @@ class Foveation(eqx.Module):
     pixel_pitch_mm: float | None = eqx.field(static=True, default=None)
     ray_budget: int | None = eqx.field(static=True, default=None)
     max_periphery_deg: float | None = eqx.field(static=True, default=None)
+    fovea_tile_deg: float | None = eqx.field(static=True, default=5.0)
 
     def __check_init__(self):
         traced = isinstance(self.fovea_deg, jax.core.Tracer) or isinstance(
@@ -147,6 +153,12 @@ class Foveation(eqx.Module):
             raise ValueError(f"Foveation.blur_sigma must be > 0, got {self.blur_sigma}")
         if not callable(self.acuity):
             raise ValueError(f"Foveation.acuity must be callable (ω -> probability), got {self.acuity!r}")
+        if self.fovea_tile_deg is not None and not (
+            math.isfinite(self.fovea_tile_deg) and self.fovea_tile_deg > 0
+        ):
+            raise ValueError(
+                f"Foveation.fovea_tile_deg must be None or a finite angle > 0, got {self.fovea_tile_deg}"
+            )
         if self.ray_budget is not None and self.ray_budget < 1:
             raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")
 
