@@ -170,9 +170,61 @@ def tile_rays(cameras, positions, sel: Selection, origins, tile: tuple[int, int]
     return ImageTile(jnp.concatenate(o), jnp.concatenate(d), jnp.concatenate(active))
 
 
-def trace_selection(
-    scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget, tiles=()
-):
+def grid_layout(spp: int):
+    """(n, to_image, from_image) for a stride grid's samples: each grid pixel's n × n
+    sub-samples laid out as an n × n block of an image (so an 8×8 packet holds 4×4 grid pixels
+    at SPP 4: neighbouring rays)."""
+    n = int(round(spp**0.5))
+
+    def to_image(x):  # (2, S, Hg, Wg, ...) -> (2, Hg·n, Wg·n, ...)
+        e, _, hg, wg = x.shape[:4]
+        rest = x.shape[4:]
+        x = x.reshape((e, n, n, hg, wg) + rest)  # sample s: cell (s % n, s // n) = (x, y)
+        x = jnp.moveaxis(x, (1, 2), (2, 4))  # (e, hg, n_y, wg, n_x, ...)
+        return x.reshape((e, hg * n, wg * n) + rest)
+
+    def from_image(x, hg, wg):  # inverse
+        e = x.shape[0]
+        rest = x.shape[3:]
+        x = x.reshape((e, hg, n, wg, n) + rest)
+        x = jnp.moveaxis(x, (2, 4), (1, 2))
+        return x.reshape((e, n * n, hg, wg) + rest)
+
+    return n, to_image, from_image
+
+
+def grid_rays(cameras, positions, sel: Selection, stride: int):
+    """Every `stride`-th pixel of each eye (rows and columns) as image-shaped rays (its
+    sub-samples side by side, `grid_layout`), active where the sample is traced."""
+    from ..render import ImageTile
+
+    spp = positions.shape[0]
+    _, to_image, _ = grid_layout(spp)
+    xy = positions[:, ::stride, ::stride]
+    d = jnp.stack([cam.ray_directions(xy) for cam in cameras])  # (2, S, Hg, Wg, 3)
+    o = jnp.stack([jnp.broadcast_to(cam.position, d.shape[1:]) for cam in cameras])
+    active = sel.classes[:, :, ::stride, ::stride] != SKIPPED
+    return ImageTile(to_image(o), to_image(d), to_image(active))
+
+
+def grid_sums(radiance, tile, *, spp, h, w, stride):
+    """The grid's samples summed into their pixels: (sums (2, H, W, 3), bad pixel (2, H, W),
+    bad samples)."""
+    _, _, from_image = grid_layout(spp)
+    hg, wg = -(-h // stride), -(-w // stride)
+    rgb = from_image(radiance, hg, wg)
+    active = from_image(tile.active, hg, wg)
+    bad = active & ~jnp.all(jnp.isfinite(rgb), axis=-1)
+    rgb = jnp.where((active & ~bad)[..., None], rgb, 0.0)
+    pix, bad_pix = rgb[:, 0], bad[:, 0]
+    for s in range(1, spp):
+        pix, bad_pix = pix + rgb[:, s], bad_pix | bad[:, s]
+    sums = jnp.zeros((2, h, w, 3), jnp.float32).at[:, ::stride, ::stride].set(pix)
+    bad_pixel = jnp.zeros((2, h, w), bool).at[:, ::stride, ::stride].set(bad_pix)
+    return sums, bad_pixel, jnp.sum(bad, dtype=jnp.int32)
+
+
+def trace_selection(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget, tiles=()):
     """Stage 3: trace and shade the selected samples (`radiance_in_chunks`), `tiles` (image
     tiles of rays) first. Returns the per-slot radiance (padded to whole chunks), the tiles'
     and the ray counts."""
@@ -182,15 +234,20 @@ def trace_selection(
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
         return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
 
-    return radiance_in_chunks(
-        scene, bvh, rays_at, sel.n_traced, n_slots=budget, config=config, tiles=tiles
-    )
+    return radiance_in_chunks(scene, bvh, rays_at, sel.n_traced, n_slots=budget, config=config, tiles=tiles)
 
 
-def tile_sums(radiance, active, origins, *, spp, h, w):
-    """The fovea tile's samples summed into their pixels, as the accumulate's starting point:
-    (sums (2·H·W, 3), bad pixel (2·H·W), bad samples). A sample whose radiance is not finite
-    is bad (its pixel painted `bad_color` by `accumulate`)."""
+def _tile_slice(mask, origins, tile, spp):
+    """(2·S, rows, cols): a (1, H, W) pixel mask over each eye's fovea tile, per sub-sample."""
+    th, tw = tile
+    parts = [jax.lax.dynamic_slice(mask[0], (origins[i, 0], origins[i, 1]), (th, tw)) for i in range(2)]
+    return jnp.concatenate([jnp.broadcast_to(p, (spp, th, tw)) for p in parts])
+
+
+def tile_sums(radiance, active, origins, *, spp, h, w, init=None):
+    """The fovea tile's samples summed into their pixels, onto `init` (sums (2, H, W, 3), bad
+    pixel (2, H, W), bad samples) or zeros: the accumulate's starting point, flat. A sample
+    whose radiance is not finite is bad (its pixel painted `bad_color` by `accumulate`)."""
     _, th, tw = active.shape
     rgb = radiance.reshape(2, spp, th, tw, 3)
     active = active.reshape(2, spp, th, tw)
@@ -199,13 +256,17 @@ def tile_sums(radiance, active, origins, *, spp, h, w):
     pix, bad_pix = rgb[:, 0], bad[:, 0]
     for s in range(1, spp):
         pix, bad_pix = pix + rgb[:, s], bad_pix | bad[:, s]
-    sums = jnp.zeros((2, h, w, 3), jnp.float32)
-    bad_pixel = jnp.zeros((2, h, w), bool)
+    if init is None:
+        init = (jnp.zeros((2, h, w, 3), jnp.float32), jnp.zeros((2, h, w), bool), jnp.int32(0))
+    sums, bad_pixel, n_bad = init
     for i in range(2):
         at = (origins[i, 0], origins[i, 1])
-        sums = sums.at[i].set(jax.lax.dynamic_update_slice(sums[i], pix[i], at + (0,)))
-        bad_pixel = bad_pixel.at[i].set(jax.lax.dynamic_update_slice(bad_pixel[i], bad_pix[i], at))
-    return sums.reshape(-1, 3), bad_pixel.reshape(-1), jnp.sum(bad, dtype=jnp.int32)
+        old = jax.lax.dynamic_slice(sums[i], at + (0,), pix[i].shape)
+        sums = sums.at[i].set(jax.lax.dynamic_update_slice(sums[i], old + pix[i], at + (0,)))
+        old = jax.lax.dynamic_slice(bad_pixel[i], at, bad_pix[i].shape)
+        bad_pixel = bad_pixel.at[i].set(jax.lax.dynamic_update_slice(bad_pixel[i], old | bad_pix[i], at))
+    n_bad = n_bad + jnp.sum(bad, dtype=jnp.int32)
+    return sums.reshape(-1, 3), bad_pixel.reshape(-1), n_bad
 
 
 def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color, init=None):
@@ -278,12 +339,13 @@ def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H
 
 
 def foveated_stereo(
-    scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget, tile=None
+    scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget, tile=None, grid=None
 ):
     """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
     arguments static. `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
-    cols): the fovea tile traced as an image in packets (None: none; only where the budget is
-    every sample, so that the tile's samples can never be dropped).
+    cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images in packets
+    (None: not; only where the budget is every sample, so that their samples are never
+    dropped; see `Foveation.fovea_tile_deg`).
 
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
@@ -294,13 +356,25 @@ def foveated_stereo(
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
-    if tile is not None and budget < 2 * spp * h * w:
-        raise ValueError(f"a fovea tile needs a budget of every sample ({2 * spp * h * w}), got {budget}")
+    if (tile is not None or grid is not None) and budget < 2 * spp * h * w:
+        raise ValueError(f"image tiles need a budget of every sample ({2 * spp * h * w}), got {budget}")
     origins = None if tile is None else tile_origins(gaze, tile, h, w)
     covered = None if tile is None else tile_mask(origins, tile, h, w)
+    on_grid = None
+    if grid is not None:
+        yy, xx = np.mgrid[:h, :w]
+        on_grid = jnp.asarray((yy % grid == 0) & (xx % grid == 0))[None]
+        covered = jnp.broadcast_to(on_grid, (2, h, w)) if covered is None else covered | on_grid
     sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
     positions = pixel_sample_positions(w, h, spp, key if jitter else None)
-    tiles = () if tile is None else (tile_rays(cameras, positions, sel, origins, tile),)
+    tiles = ()
+    if grid is not None:
+        tiles += (grid_rays(cameras, positions, sel, grid),)
+    if tile is not None:
+        ft = tile_rays(cameras, positions, sel, origins, tile)
+        if grid is not None:  # the grid's pixels are the grid tile's
+            ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
+        tiles += (ft,)
     size = min(config.chunk_size, budget)
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
@@ -311,8 +385,12 @@ def foveated_stereo(
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)
     init = None
-    if tiles:
-        init = tile_sums(traced.tiles[0], tiles[0].active, origins, spp=spp, h=h, w=w)
+    if grid is not None:
+        init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
+        if tile is None:
+            init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
+    if tile is not None:
+        init = tile_sums(traced.tiles[-1], tiles[-1].active, origins, spp=spp, h=h, w=w, init=init)
     prefill, n_bad, bad_pixel = accumulate(
         traced.total,
         sel,
