@@ -604,17 +604,27 @@ def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config):
     return total, queue, n_q, n_primary, n_shadow
 
 
-def _queue_chunks(chunks: _Chunks, config) -> _Chunks:
+def _level_sizes(chunks: _Chunks, config) -> tuple[int, int]:
+    """Chunk sizes of the first reflection level and of the later ones."""
+    rest = min(config.queue_chunk_size, chunks.size)
+    first = config.first_bounce_chunk_size
+    return (rest if first is None else min(first, chunks.size)), rest
+
+
+def _queue_chunks(chunks: _Chunks, config, size=None) -> _Chunks:
     """The reflection levels' chunks over the queue (capacity: the slots and tile rays plus
-    one chunk)."""
-    size = min(config.queue_chunk_size, chunks.size)
-    return _Chunks(size, -(-chunks.capacity // size))
+    one chunk, in whole chunks of every level's size)."""
+    first, rest = _level_sizes(chunks, config)
+    size = size or rest
+    whole = max(first, rest)
+    capacity = -(-chunks.capacity // whole) * whole
+    return _Chunks(size, capacity // size)
 
 
-def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config):
+def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config, size=None):
     """One reflection level over the queue's first `n_q` rays, in place, in chunks of
     `_queue_chunks`: (total, queue, the next level's queued rays, shadow rays traced)."""
-    chunks = _queue_chunks(chunks, config)
+    chunks = _queue_chunks(chunks, config, size)
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
     spawn = depth < config.max_depth
@@ -680,11 +690,20 @@ def radiance_in_chunks(
         return (total, queue, n_next, n_shadow + traced), n_q
 
     n_reflection = jnp.int32(0)
-    if config.max_depth > 0:
-        (total, _, _, n_shadow), per_level = jax.lax.scan(
-            level, (total, queue, n_q, n_shadow), jnp.arange(1, config.max_depth + 1)
+    first, rest = _level_sizes(chunks, config)
+    start = 1
+    if config.max_depth > 0 and first != rest:
+        n_reflection = n_q
+        total, queue, n_q, traced = _queue_level(
+            scene, bvh, total, queue, n_q, 1, chunks, offset=offset, config=config, size=first
         )
-        n_reflection = jnp.sum(per_level)
+        n_shadow = n_shadow + traced
+        start = 2
+    if config.max_depth >= start:
+        (total, _, _, n_shadow), per_level = jax.lax.scan(
+            level, (total, queue, n_q, n_shadow), jnp.arange(start, config.max_depth + 1)
+        )
+        n_reflection = n_reflection + jnp.sum(per_level)
     parts, base = [], chunks.padded
     for tile in tiles:
         n = int(np.prod(tile.active.shape))
