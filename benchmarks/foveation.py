@@ -180,6 +180,7 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     from fovjax.render import chunk_loop
     from fovjax.render._integrator import (
         _chunks,
+        _level_sizes,
         _packet_of,
         _primary_level,
         _queue_level,
@@ -244,13 +245,19 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     )
     rows.append(("shading (surfaces, lights, spawn)", max(t_level - t - (t_with - t_setup), 0.0)))
     rows.append(("shadow rays (depth 0)", max(t_with - t_setup, 0.0)))
-    bounce = jax.jit(
-        lambda a, b, tot, q, n, k: _queue_level(a, b, tot, q, n, k, chunks, offset=offset(a), config=config)
-    )
+    first, _ = _level_sizes(chunks, config)
+    bounces = [
+        jax.jit(
+            lambda a, b, tot, q, n, k, size=size: _queue_level(
+                a, b, tot, q, n, k, chunks, offset=offset(a), config=config, size=size
+            )
+        )
+        for size in (first, None)  # the first level's chunks, the later levels'
+    ]
     for depth in range(1, config.max_depth + 1):
         n_rays = int(n_q)
         (total, queue, n_q, _), t = _timed(
-            bounce, arrays, bvh, total, queue, n_q, jnp.int32(depth), repeats=repeats
+            bounces[depth > 1], arrays, bvh, total, queue, n_q, jnp.int32(depth), repeats=repeats
         )
         rows.append((f"reflection bounce {depth}", t))
         rows.append((f"  (bounce {depth} rays)", n_rays))
