@@ -19,6 +19,11 @@ Data flow inside one jitted program (static shapes throughout):
    samples), and each eye is filled and blurred (`fill_and_blur_pixels`; the pull-push fill
    runs only when a block has no traced sample).
 
+Optionally (`Foveation.fovea_tile_deg`, `grid_tile`; off by default, see there) the fovea
+around the gaze and every `blocks[1]`-th pixel are traced first as image tiles in packets
+(`tile_rays`, `grid_rays`), left out of the slots, and summed into their pixels before the
+slots' samples (`tile_sums`, `grid_sums`).
+
 The fovea and periphery thresholds are traced values: a new pair (within the configuration's
 `max_periphery_deg`) reuses the compiled program. Ray counts are rays actually traced; the
 padding (budget slots left empty) and any samples dropped beyond the budget are reported
