@@ -6,6 +6,7 @@
     python benchmarks/foveation.py --backend embree
     python benchmarks/foveation.py --profile       # per-stage ms and % of a foveated and a full frame
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
+    python benchmarks/foveation.py --variants --spp 4   # foveated default vs variants, same run
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
     python benchmarks/foveation.py --regions       # region shares under each reading (issue 17)
@@ -180,6 +181,7 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     from fovjax.render import chunk_loop
     from fovjax.render._integrator import (
         _chunks,
+        _level_sizes,
         _packet_of,
         _primary_level,
         _queue_level,
@@ -244,13 +246,19 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     )
     rows.append(("shading (surfaces, lights, spawn)", max(t_level - t - (t_with - t_setup), 0.0)))
     rows.append(("shadow rays (depth 0)", max(t_with - t_setup, 0.0)))
-    bounce = jax.jit(
-        lambda a, b, tot, q, n, k: _queue_level(a, b, tot, q, n, k, chunks, offset=offset(a), config=config)
-    )
+    first, _ = _level_sizes(chunks, config)
+    bounces = [
+        jax.jit(
+            lambda a, b, tot, q, n, k, size=size: _queue_level(
+                a, b, tot, q, n, k, chunks, offset=offset(a), config=config, size=size
+            )
+        )
+        for size in (first, None)  # the first level's chunks, the later levels'
+    ]
     for depth in range(1, config.max_depth + 1):
         n_rays = int(n_q)
         (total, queue, n_q, _), t = _timed(
-            bounce, arrays, bvh, total, queue, n_q, jnp.int32(depth), repeats=repeats
+            bounces[depth > 1], arrays, bvh, total, queue, n_q, jnp.int32(depth), repeats=repeats
         )
         rows.append((f"reflection bounce {depth}", t))
         rows.append((f"  (bounce {depth} rays)", n_rays))
@@ -449,6 +457,56 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         sys.stdout.flush()
 
 
+def variants_table(scene, bvh, rig, config, spps, pair, repeats):
+    """Foveated frames of the default configuration against variants of it, in the same run:
+    compile each, then one frame of each in turn (so the machine's load falls on all alike),
+    medians of the frame time and of this process's CPU time (less sensitive to other jobs on
+    a shared machine), and each variant's ratio to the default."""
+    import dataclasses
+
+    variants = {
+        "default": ({}, {}),
+        "every bounce in 4096-ray chunks": ({"first_bounce_chunk_size": None}, {}),
+        "fovea tile + pixel grid (packets)": ({}, {"fovea_tile_deg": pair[0], "grid_tile": True}),
+    }
+    print(
+        f"\nVariants, 2 x {rig.eye_width}x{rig.eye_height}, foveated {pair[0]}°/{pair[1]}° at gaze "
+        f"{OFF_CENTRE}, median of {repeats} frames each (fresh key each)"
+    )
+    for spp in spps:
+
+        def render(name, k, spp=spp):
+            c, f = variants[name]
+            foveation = Foveation.thesis(pair, spp=spp, **f)
+            cfg = dataclasses.replace(config, **c)
+            return fovjax.render_stereo(
+                scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=cfg, bvh=bvh
+            )
+
+        for name in variants:
+            warm = render(name, jax.random.key(10_000))
+            print(f"    SPP {spp} {name}: compile {warm.stats.compile_seconds:.1f} s", flush=True)
+        wall = {n: [] for n in variants}
+        cpu = {n: [] for n in variants}
+        rays = {}
+        for i in range(repeats):
+            for name in variants:
+                c0 = time.process_time()
+                frame = render(name, jax.random.key(i))
+                cpu[name].append(time.process_time() - c0)
+                wall[name].append(frame.stats.render_seconds)
+                rays[name] = frame.stats.rays
+        base_w, base_c = statistics.median(wall["default"]), statistics.median(cpu["default"])
+        for name in variants:
+            w_ms, c_ms = statistics.median(wall[name]), statistics.median(cpu[name])
+            print(
+                f"  SPP {spp} {name:36s} {1000 * w_ms:8.1f} ms ({w_ms / base_w:5.2f}x default), "
+                f"CPU {1000 * c_ms:8.1f} ms ({c_ms / base_c:5.2f}x), {rays[name]:,} rays; "
+                f"frames ms {[round(1000 * t) for t in wall[name]]}"
+            )
+        sys.stdout.flush()
+
+
 def foveation_for(pair, spp, rule, eye_height):
     if rule == "thesis-measured":
         return Foveation.thesis_measured(pair, spp=spp, eye_height=eye_height)
@@ -505,6 +563,7 @@ def main(argv=None):
     ap.add_argument("--pair", type=float, nargs=2, default=(5.0, 10.0), help="fovea, periphery (--profile)")
     ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
     ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
+    ap.add_argument("--variants", action="store_true", help="foveated default vs its variants (--spp)")
     ap.add_argument("--rule", choices=("either", "strict", "thesis-measured"), default="either")
     ap.add_argument("--count-only", action="store_true", help="tables 2-3 from traced samples, no render")
     ap.add_argument("--regions", action="store_true", help="region shares under each reading (issue 17)")
@@ -528,6 +587,11 @@ def main(argv=None):
             f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
         )
         return speedup_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats)
+    if args.variants:
+        print(
+            f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
+        )
+        return variants_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats)
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "

@@ -55,6 +55,25 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
     return budget
 
 
+def uncapped(rig, foveation: Foveation, budget: int) -> bool:
+    """Whether the budget is every sample (image tiles need it: their samples are never dropped)."""
+    return budget >= 2 * foveation.spp * rig.eye_width * rig.eye_height
+
+
+def fovea_tile(rig, foveation: Foveation, budget: int) -> tuple[int, int] | None:
+    """Static (rows, cols) of the fovea tile: a square over `foveation.fovea_tile_deg` of
+    eccentricity at the display's pixels per degree at its centre (plus 10%: they grow off
+    centre), in whole 8-pixel packets, within the eye's image; None without a tile or when the
+    budget is capped (a tile's samples must never be dropped)."""
+    if foveation.fovea_tile_deg is None or not uncapped(rig, foveation, budget):
+        return None
+    h, w = rig.eye_height, rig.eye_width
+    per_degree = (h / 2) / np.tan(np.deg2rad(float(rig.vfov_deg())) / 2) * np.pi / 180
+    edge = 2 * int(np.ceil(1.1 * foveation.fovea_tile_deg * per_degree))
+    edge = -(-edge // 8) * 8
+    return min(edge, h), min(edge, w)
+
+
 @dataclasses.dataclass(frozen=True)
 class FoveatedFrame:
     """A foveated stereo frame: the side-by-side `image` (H, 2W, 3) linear RGB, `stats` (the
@@ -142,7 +161,9 @@ def render_foveated(
     # The foveation config is an argument: its options are static fields (part of the tree
     # structure), its thresholds and acuity model's parameters arrays (new thresholds or a
     # refitted model recompile nothing).
-    static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget}
+    tile = fovea_tile(rig, foveation, budget)
+    static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget, "tile": tile}
+    static["grid"] = foveation.blocks[1] if foveation.grid_tile and uncapped(rig, foveation, budget) else None
     args = jax.tree.map(jnp.asarray, (arrays, bvh, rig, angles, gaze, key, foveation))
     out, compile_s, render_s = run_compiled("foveated", foveated_stereo, args, static)
     image = np.asarray(out.image)

@@ -19,6 +19,11 @@ Data flow inside one jitted program (static shapes throughout):
    samples), and each eye is filled and blurred (`fill_and_blur_pixels`; the pull-push fill
    runs only when a block has no traced sample).
 
+Optionally (`Foveation.fovea_tile_deg`, `grid_tile`; off by default, see there) the fovea
+around the gaze and every `blocks[1]`-th pixel are traced first as image tiles in packets
+(`tile_rays`, `grid_rays`), left out of the slots, and summed into their pixels before the
+slots' samples (`tile_sums`, `grid_sums`).
+
 The fovea and periphery thresholds are traced values: a new pair (within the configuration's
 `max_periphery_deg`) reuses the compiled program. Ray counts are rays actually traced; the
 padding (budget slots left empty) and any samples dropped beyond the budget are reported
@@ -81,6 +86,7 @@ class Selection(NamedTuple):
     order: Int[Array, " N"]
     rank: Int[Array, " N"]
     n_traced: Int[Array, ""]
+    covered: Bool[Array, "2 H W"] | None = None  # pixels the fovea tile traces (not in the slots)
 
 
 def eccentricities(cameras, gaze, foveation) -> Float[Array, "2 H W"]:
@@ -88,18 +94,45 @@ def eccentricities(cameras, gaze, foveation) -> Float[Array, "2 H W"]:
     return jnp.stack([eccentricity_map(cam, gaze[i], foveation) for i, cam in enumerate(cameras)])
 
 
-def select_samples(ecc, key, *, foveation, budget) -> Selection:
+def tile_origins(gaze, tile: tuple[int, int], h: int, w: int) -> Int[Array, "2 2"]:
+    """Per eye, the (row, col) of the top-left pixel of the fovea tile (`tile` = (rows, cols),
+    static): centred on the gaze point, moved inside the image."""
+    th, tw = tile
+    centre = jnp.round(jnp.asarray(gaze, jnp.float32) * jnp.array([w, h], jnp.float32)).astype(jnp.int32)
+    row = jnp.clip(centre[:, 1] - th // 2, 0, h - th)
+    col = jnp.clip(centre[:, 0] - tw // 2, 0, w - tw)
+    return jnp.stack([row, col], axis=1)
+
+
+def tile_mask(origins, tile: tuple[int, int], h: int, w: int) -> Bool[Array, "2 H W"]:
+    """The pixels of each eye's fovea tile."""
+    th, tw = tile
+    y = jnp.arange(h, dtype=jnp.int32)[None, :, None]
+    x = jnp.arange(w, dtype=jnp.int32)[None, None, :]
+    row, col = origins[:, 0, None, None], origins[:, 1, None, None]
+    return (y >= row) & (y < row + th) & (x >= col) & (x < col + tw)
+
+
+def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
     """Stage 2: regions, sample classes from the sampling stream of `key`, and their compaction
-    in locality order (see the module docstring)."""
+    in locality order (see the module docstring). `covered` (2, H, W): pixels traced as an
+    image tile, left out of the slots (counted in `counts` all the same)."""
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
     classes, region = zip(*(sample_classes(ecc[i], foveation, keys[i]) for i in range(2)), strict=True)
     classes, region = jnp.stack(classes), jnp.stack(region)  # (2, S, H, W), (2, H, W)
     _, spp, h, w = classes.shape
     perm = jnp.asarray(locality_order(h, w))
-    local = classes.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
+    listed = classes if covered is None else jnp.where(covered[:, None], SKIPPED, classes)
+    local = listed.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
     order, counts, rank = compaction_order(local, with_rank=True)
-    wanted = counts[MANDATORY] + counts[OPTIONAL]
-    return Selection(ecc, region, classes, counts, order, rank, jnp.minimum(wanted, budget))
+    n_slots = jnp.minimum(counts[MANDATORY] + counts[OPTIONAL], budget)
+    if covered is not None:  # the tile's samples: counted, not listed
+        in_tile = covered[:, None]
+        counts = counts + jnp.stack(
+            [jnp.sum(in_tile & (classes == c), dtype=counts.dtype) for c in (MANDATORY, OPTIONAL)]
+            + [jnp.zeros((), counts.dtype)]
+        )
+    return Selection(ecc, region, classes, counts, order, rank, n_slots, covered)
 
 
 def _slot_samples(slots, *, spp, h, w):
@@ -123,23 +156,130 @@ def slot_rays(cameras, positions, slots, *, spp, h, w):
     return origins, directions
 
 
-def trace_selection(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget):
-    """Stage 3: trace and shade the selected samples (`radiance_in_chunks`). Returns the
-    per-slot radiance (padded to whole chunks) and the ray counts."""
+def tile_rays(cameras, positions, sel: Selection, origins, tile: tuple[int, int]):
+    """The fovea tile of each eye as image-shaped rays (2·S, rows, cols): the full render's
+    sub-pixel positions, active where the sample is traced."""
+    from ..render import ImageTile
+
+    spp = positions.shape[0]
+    th, tw = tile
+    o, d, active = [], [], []
+    for i, cam in enumerate(cameras):
+        row, col = origins[i, 0], origins[i, 1]
+        xy = jax.lax.dynamic_slice(positions, (0, row, col, 0), (spp, th, tw, 2))
+        cls = jax.lax.dynamic_slice(sel.classes[i], (0, row, col), (spp, th, tw))
+        di = cam.ray_directions(xy)
+        d.append(di)
+        o.append(jnp.broadcast_to(cam.position, di.shape))
+        active.append(cls != SKIPPED)
+    return ImageTile(jnp.concatenate(o), jnp.concatenate(d), jnp.concatenate(active))
+
+
+def grid_layout(spp: int):
+    """(n, to_image, from_image) for a stride grid's samples: each grid pixel's n × n
+    sub-samples laid out as an n × n block of an image (so an 8×8 packet holds 4×4 grid pixels
+    at SPP 4: neighbouring rays)."""
+    n = int(round(spp**0.5))
+
+    def to_image(x):  # (2, S, Hg, Wg, ...) -> (2, Hg·n, Wg·n, ...)
+        e, _, hg, wg = x.shape[:4]
+        rest = x.shape[4:]
+        x = x.reshape((e, n, n, hg, wg) + rest)  # sample s: cell (s % n, s // n) = (x, y)
+        x = jnp.moveaxis(x, (1, 2), (2, 4))  # (e, hg, n_y, wg, n_x, ...)
+        return x.reshape((e, hg * n, wg * n) + rest)
+
+    def from_image(x, hg, wg):  # inverse
+        e = x.shape[0]
+        rest = x.shape[3:]
+        x = x.reshape((e, hg, n, wg, n) + rest)
+        x = jnp.moveaxis(x, (2, 4), (1, 2))
+        return x.reshape((e, n * n, hg, wg) + rest)
+
+    return n, to_image, from_image
+
+
+def grid_rays(cameras, positions, sel: Selection, stride: int):
+    """Every `stride`-th pixel of each eye (rows and columns) as image-shaped rays (its
+    sub-samples side by side, `grid_layout`), active where the sample is traced."""
+    from ..render import ImageTile
+
+    spp = positions.shape[0]
+    _, to_image, _ = grid_layout(spp)
+    xy = positions[:, ::stride, ::stride]
+    d = jnp.stack([cam.ray_directions(xy) for cam in cameras])  # (2, S, Hg, Wg, 3)
+    o = jnp.stack([jnp.broadcast_to(cam.position, d.shape[1:]) for cam in cameras])
+    active = sel.classes[:, :, ::stride, ::stride] != SKIPPED
+    return ImageTile(to_image(o), to_image(d), to_image(active))
+
+
+def grid_sums(radiance, tile, *, spp, h, w, stride):
+    """The grid's samples summed into their pixels: (sums (2, H, W, 3), bad pixel (2, H, W),
+    bad samples)."""
+    _, _, from_image = grid_layout(spp)
+    hg, wg = -(-h // stride), -(-w // stride)
+    rgb = from_image(radiance, hg, wg)
+    active = from_image(tile.active, hg, wg)
+    bad = active & ~jnp.all(jnp.isfinite(rgb), axis=-1)
+    rgb = jnp.where((active & ~bad)[..., None], rgb, 0.0)
+    pix, bad_pix = rgb[:, 0], bad[:, 0]
+    for s in range(1, spp):
+        pix, bad_pix = pix + rgb[:, s], bad_pix | bad[:, s]
+    sums = jnp.zeros((2, h, w, 3), jnp.float32).at[:, ::stride, ::stride].set(pix)
+    bad_pixel = jnp.zeros((2, h, w), bool).at[:, ::stride, ::stride].set(bad_pix)
+    return sums, bad_pixel, jnp.sum(bad, dtype=jnp.int32)
+
+
+def trace_selection(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget, tiles=()):
+    """Stage 3: trace and shade the selected samples (`radiance_in_chunks`), `tiles` (image
+    tiles of rays) first. Returns the per-slot radiance (padded to whole chunks), the tiles'
+    and the ray counts."""
     from ..render import radiance_in_chunks
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
         return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
 
-    return radiance_in_chunks(scene, bvh, rays_at, sel.n_traced, n_slots=budget, config=config)
+    return radiance_in_chunks(scene, bvh, rays_at, sel.n_traced, n_slots=budget, config=config, tiles=tiles)
 
 
-def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color):
+def _tile_slice(mask, origins, tile, spp):
+    """(2·S, rows, cols): a (1, H, W) pixel mask over each eye's fovea tile, per sub-sample."""
+    th, tw = tile
+    parts = [jax.lax.dynamic_slice(mask[0], (origins[i, 0], origins[i, 1]), (th, tw)) for i in range(2)]
+    return jnp.concatenate([jnp.broadcast_to(p, (spp, th, tw)) for p in parts])
+
+
+def tile_sums(radiance, active, origins, *, spp, h, w, init=None):
+    """The fovea tile's samples summed into their pixels, onto `init` (sums (2, H, W, 3), bad
+    pixel (2, H, W), bad samples) or zeros: the accumulate's starting point, flat. A sample
+    whose radiance is not finite is bad (its pixel painted `bad_color` by `accumulate`)."""
+    _, th, tw = active.shape
+    rgb = radiance.reshape(2, spp, th, tw, 3)
+    active = active.reshape(2, spp, th, tw)
+    bad = active & ~jnp.all(jnp.isfinite(rgb), axis=-1)
+    rgb = jnp.where((active & ~bad)[..., None], rgb, 0.0)
+    pix, bad_pix = rgb[:, 0], bad[:, 0]
+    for s in range(1, spp):
+        pix, bad_pix = pix + rgb[:, s], bad_pix | bad[:, s]
+    if init is None:
+        init = (jnp.zeros((2, h, w, 3), jnp.float32), jnp.zeros((2, h, w), bool), jnp.int32(0))
+    sums, bad_pixel, n_bad = init
+    for i in range(2):
+        at = (origins[i, 0], origins[i, 1])
+        old = jax.lax.dynamic_slice(sums[i], at + (0,), pix[i].shape)
+        sums = sums.at[i].set(jax.lax.dynamic_update_slice(sums[i], old + pix[i], at + (0,)))
+        old = jax.lax.dynamic_slice(bad_pixel[i], at, bad_pix[i].shape)
+        bad_pixel = bad_pixel.at[i].set(jax.lax.dynamic_update_slice(bad_pixel[i], old | bad_pix[i], at))
+    n_bad = n_bad + jnp.sum(bad, dtype=jnp.int32)
+    return sums.reshape(-1, 3), bad_pixel.reshape(-1), n_bad
+
+
+def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color, init=None):
     """Stage 4a: add each traced sample's radiance to its pixel, chunk by chunk (only chunks
-    that hold samples). A sample whose radiance is not finite is bad: its pixel is painted
-    `bad_color` outright, as in the full render. Returns (per-pixel mean of the traced samples
-    (2, H, W, 3), bad samples, bad pixels (2, H, W))."""
+    that hold samples), onto `init` (sums, bad pixel, bad samples: the tile's) or zeros. A
+    sample whose radiance is not finite is bad: its pixel is painted `bad_color` outright, as
+    in the full render. Returns (per-pixel mean of the traced samples (2, H, W, 3), bad
+    samples, bad pixels (2, H, W))."""
     from ..render import chunk_loop
 
     lanes = jnp.arange(size, dtype=jnp.int32)
@@ -159,7 +299,8 @@ def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color):
         return sums, bad_pixel, n_bad + jnp.sum(bad, dtype=jnp.int32)
 
     n_chunks = total.shape[0] // size
-    init = (jnp.zeros((n_pixels, 3), jnp.float32), jnp.zeros(n_pixels, bool), jnp.int32(0))
+    if init is None:
+        init = (jnp.zeros((n_pixels, 3), jnp.float32), jnp.zeros(n_pixels, bool), jnp.int32(0))
     sums, bad_pixel, n_bad = chunk_loop(n_chunks, size, sel.n_traced, body, init)
     mean = sums.reshape(2, h, w, 3) / jnp.maximum(n, 1)[..., None]
     bad_pixel = bad_pixel.reshape(2, h, w)
@@ -177,6 +318,8 @@ def traced_mask(sel: Selection, budget: int) -> Bool[Array, "2 S H W"]:
         kept = (sel.rank < budget).reshape(2, h * w, spp).transpose(0, 2, 1)
         perm = jnp.asarray(locality_order(h, w))
         grid = jnp.zeros((2, spp, h * w), bool).at[:, :, perm].set(kept).reshape(wanted.shape)
+        if sel.covered is not None:  # a tile's samples are never dropped
+            grid = grid | sel.covered[:, None]
         return wanted & grid
 
     dropped = sel.counts[MANDATORY] + sel.counts[OPTIONAL] > budget
@@ -200,9 +343,14 @@ def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H
     return jnp.concatenate(eyes, axis=1)
 
 
-def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget):
+def foveated_stereo(
+    scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget, tile=None, grid=None
+):
     """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
-    arguments static. `gaze` (2, 2): per-eye normalised display coordinates.
+    arguments static. `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
+    cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images in packets
+    (None: not; only where the budget is every sample, so that their samples are never
+    dropped; see `Foveation.fovea_tile_deg`).
 
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
@@ -213,17 +361,41 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, ji
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
-    sel = select_samples(ecc, key, foveation=foveation, budget=budget)
+    if (tile is not None or grid is not None) and budget < 2 * spp * h * w:
+        raise ValueError(f"image tiles need a budget of every sample ({2 * spp * h * w}), got {budget}")
+    origins = None if tile is None else tile_origins(gaze, tile, h, w)
+    covered = None if tile is None else tile_mask(origins, tile, h, w)
+    on_grid = None
+    if grid is not None:
+        yy, xx = np.mgrid[:h, :w]
+        on_grid = jnp.asarray((yy % grid == 0) & (xx % grid == 0))[None]
+        covered = jnp.broadcast_to(on_grid, (2, h, w)) if covered is None else covered | on_grid
+    sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
     positions = pixel_sample_positions(w, h, spp, key if jitter else None)
+    tiles = ()
+    if grid is not None:
+        tiles += (grid_rays(cameras, positions, sel, grid),)
+    if tile is not None:
+        ft = tile_rays(cameras, positions, sel, origins, tile)
+        if grid is not None:  # the grid's pixels are the grid tile's
+            ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
+        tiles += (ft,)
     size = min(config.chunk_size, budget)
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
     traced = trace_selection(
-        scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, budget=budget
+        scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, budget=budget, tiles=tiles
     )
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)
+    init = None
+    if grid is not None:
+        init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
+        if tile is None:
+            init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
+    if tile is not None:
+        init = tile_sums(traced.tiles[-1], tiles[-1].active, origins, spp=spp, h=h, w=w, init=init)
     prefill, n_bad, bad_pixel = accumulate(
         traced.total,
         sel,
@@ -233,6 +405,7 @@ def foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, ji
         w=w,
         size=min(config.chunk_size, budget),
         bad_color=config.bad_color,
+        init=init,
     )
     image = fill_and_blur_eyes(prefill, n, sel, foveation)
     counts = sel.counts

@@ -57,6 +57,7 @@ from ._frame import resolve as resolve
 from ._frame import run_compiled as run_compiled
 from ._frame import side_by_side as side_by_side
 from ._integrator import ChunkedRadiance as ChunkedRadiance
+from ._integrator import ImageTile as ImageTile
 from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
 from ._integrator import Surface as Surface

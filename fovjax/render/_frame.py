@@ -358,6 +358,3 @@ def render_stereo(
         "stereo", (arrays, bvh, rig, angles, key), {"spp": int(spp), "jitter": jitter, "config": config}
     )
     return _frame(outputs, compile_s, render_s, spp=int(spp), stereo=True)
-
-
-_bvh_for = bvh_for  # the name other modules of this session used

@@ -439,12 +439,23 @@ def radiance(
 
 class ChunkedRadiance(NamedTuple):
     """`radiance_in_chunks`'s result: the radiance of every slot (padded to whole chunks; slots
-    beyond the live ones are 0) and the rays traced."""
+    beyond the live ones are 0), of every ray of each image tile (its own shape; inactive rays
+    0), and the rays traced."""
 
     total: Float[Array, "P 3"]
     primary: Int[Array, ""]
     shadow: Int[Array, ""]
     reflection: Int[Array, ""]
+    tiles: tuple = ()
+
+
+class ImageTile(NamedTuple):
+    """Rays laid out as images, `(..., h, w)`: traced like the full frame's camera rays
+    (`config.packet`, tiles of neighbouring pixels sharing one traversal), only where `active`."""
+
+    origins: Float[Array, "*batch 3"]
+    directions: Float[Array, "*batch 3"]
+    active: Bool[Array, "*batch"]
 
 
 def chunk_loop(n_chunks: int, size: int, n_live, body, init):
@@ -474,20 +485,28 @@ def _append(queue, n, rays, alive):
 class _Chunks(NamedTuple):
     size: int
     count: int
+    extra: int = 0  # rays of image tiles, held after the slots
 
     @property
     def padded(self) -> int:
         return self.size * self.count
 
+    @property
+    def capacity(self) -> int:
+        """Queue entries: every slot and tile ray, plus a chunk of room (a chunk is appended
+        whole), rounded up to whole reflection chunks."""
+        return self.padded + self.extra + self.size
 
-def _chunks(n_slots: int, config) -> _Chunks:
+
+def _chunks(n_slots: int, config, extra: int = 0) -> _Chunks:
     size = min(config.chunk_size, n_slots)
-    return _Chunks(size, -(-n_slots // size))
+    return _Chunks(size, -(-n_slots // size), extra)
 
 
-def _empty_queue(chunks: _Chunks):
-    """(origins, directions, weights, target slots) with a chunk of room beyond the slots."""
-    capacity = chunks.padded + chunks.size
+def _empty_queue(chunks: _Chunks, config):
+    """(origins, directions, weights, target slots) with a chunk of room beyond the slots and
+    tile rays, in whole reflection chunks."""
+    capacity = _queue_chunks(chunks, config).padded
     return (
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.ones((capacity, 3), jnp.float32),
@@ -504,8 +523,9 @@ def _packet_of(config):
     return config.packet if isinstance(config.packet, int) else None
 
 
-def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config):
-    """Depth 0 of `radiance_in_chunks`: (total (padded, 3), queue, queued, primary, shadow)."""
+def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config, init=None):
+    """Depth 0 of `radiance_in_chunks` on the slots: (total (padded + extra, 3), queue, queued,
+    primary, shadow), starting from `init` (the image tiles' carry) or empty."""
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
     spawn = config.max_depth > 0
@@ -538,22 +558,73 @@ def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, conf
         n_primary = n_primary + jnp.sum(active & valid, dtype=jnp.int32)
         return total, queue, n_q, n_primary, n_shadow + traced
 
-    zero = jnp.int32(0)
-    total = jnp.zeros((chunks.padded, 3), jnp.float32)
-    init = (total, _empty_queue(chunks), zero, zero, zero)
+    if init is None:
+        zero = jnp.int32(0)
+        total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
+        init = (total, _empty_queue(chunks, config), zero, zero, zero)
     return chunk_loop(chunks.count, size, n_live, body, init)
 
 
-def _queue_chunks(chunks: _Chunks, config) -> _Chunks:
-    """The reflection levels' chunks over the queue (capacity: the slots plus one chunk)."""
-    size = min(config.queue_chunk_size, chunks.size)
-    return _Chunks(size, (chunks.padded + chunks.size) // size)
+def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config):
+    """Depth 0 of the image tiles, each traced and shaded whole as the full frame's camera rays
+    are (`config.packet`; shadow rays in the same packets), written after the slots in `total`,
+    their reflection rays queued (compacted) like the slots'. Returns the `_primary_level` carry."""
+    zero = jnp.int32(0)
+    total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
+    queue, n_q, n_primary, n_shadow = _empty_queue(chunks, config), zero, zero, zero
+    spawn = config.max_depth > 0
+    base = chunks.padded
+    for tile in tiles:
+        batch = tile.active.shape
+        n = int(np.prod(batch))
+        o = jnp.asarray(tile.origins, jnp.float32)
+        d_raw = jnp.asarray(tile.directions, jnp.float32)
+        d = normalize(d_raw)
+        valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        contribution, nxt, traced = _trace_and_shade(
+            scene,
+            bvh,
+            o,
+            d,
+            tile.active,
+            jnp.ones(batch + (3,), jnp.float32),
+            packet=_usable_packet(config.packet, len(batch)),
+            offset=offset,
+            backend=config.backend,
+            spawn=spawn,
+        )
+        total = jax.lax.dynamic_update_slice_in_dim(total, contribution.reshape(n, 3), base, 0)
+        if spawn:
+            o2, d2, w2, alive2 = (x.reshape((n,) + x.shape[len(batch) :]) for x in nxt)
+            target = base + jnp.arange(n, dtype=jnp.int32)
+            queue, n_q = _append(queue, n_q, (o2, d2, w2, target), alive2)
+        n_primary = n_primary + jnp.sum(tile.active & valid, dtype=jnp.int32)
+        n_shadow = n_shadow + traced
+        base += n
+    return total, queue, n_q, n_primary, n_shadow
 
 
-def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config):
+def _level_sizes(chunks: _Chunks, config) -> tuple[int, int]:
+    """Chunk sizes of the first reflection level and of the later ones."""
+    rest = min(config.queue_chunk_size, chunks.size)
+    first = config.first_bounce_chunk_size
+    return (rest if first is None else min(first, chunks.size)), rest
+
+
+def _queue_chunks(chunks: _Chunks, config, size=None) -> _Chunks:
+    """The reflection levels' chunks over the queue (capacity: the slots and tile rays plus
+    one chunk, in whole chunks of every level's size)."""
+    first, rest = _level_sizes(chunks, config)
+    size = size or rest
+    whole = max(first, rest)
+    capacity = -(-chunks.capacity // whole) * whole
+    return _Chunks(size, capacity // size)
+
+
+def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config, size=None):
     """One reflection level over the queue's first `n_q` rays, in place, in chunks of
     `_queue_chunks`: (total, queue, the next level's queued rays, shadow rays traced)."""
-    chunks = _queue_chunks(chunks, config)
+    chunks = _queue_chunks(chunks, config, size)
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
     spawn = depth < config.max_depth
@@ -576,7 +647,14 @@ def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offse
 
 
 def radiance_in_chunks(
-    scene: SceneArrays, bvh: BVH, rays_at, n_live, *, n_slots: int, config: RenderConfig = DEFAULT_CONFIG
+    scene: SceneArrays,
+    bvh: BVH,
+    rays_at,
+    n_live,
+    *,
+    n_slots: int,
+    config: RenderConfig = DEFAULT_CONFIG,
+    tiles: tuple[ImageTile, ...] = (),
 ) -> ChunkedRadiance:
     """Whitted radiance of up to `n_slots` rays of which the first `n_live` are live, made and
     traced chunk by chunk (`config.chunk_size`): `rays_at(first, size)` returns the
@@ -589,12 +667,19 @@ def radiance_in_chunks(
     in packets of `config.packet` consecutive rays where that is an int, else one by one (a
     chunk is a flat list, not an image); later levels one by one. Pure and jittable; the chunk
     loops are `lax.while_loop`s, so forward-mode derivatives only (`radiance` takes `jax.grad`).
+
+    `tiles`: rays laid out as images (`ImageTile`), traced first, whole, as the full frame's
+    camera rays are (dense packets of neighbouring pixels, for rays that are coherent: a
+    foveated frame's fovea); their reflection rays join the slots' in the same queue. Their
+    radiance is returned in `tiles` (each the tile's shape + (3,)).
     """
     scene = jax.tree.map(jnp.asarray, scene)
-    chunks = _chunks(n_slots, config)
+    extra = sum(int(np.prod(t.active.shape)) for t in tiles)
+    chunks = _chunks(n_slots, config, extra)
     offset = config.ray_offset * scene_scale(scene)
+    init = _tile_level(scene, bvh, tiles, chunks, offset=offset, config=config) if tiles else None
     total, queue, n_q, n_primary, n_shadow = _primary_level(
-        scene, bvh, rays_at, n_live, chunks, offset=offset, config=config
+        scene, bvh, rays_at, n_live, chunks, offset=offset, config=config, init=init
     )
 
     def level(carry, depth):
@@ -605,9 +690,23 @@ def radiance_in_chunks(
         return (total, queue, n_next, n_shadow + traced), n_q
 
     n_reflection = jnp.int32(0)
-    if config.max_depth > 0:
-        (total, _, _, n_shadow), per_level = jax.lax.scan(
-            level, (total, queue, n_q, n_shadow), jnp.arange(1, config.max_depth + 1)
+    first, rest = _level_sizes(chunks, config)
+    start = 1
+    if config.max_depth > 0 and first != rest:
+        n_reflection = n_q
+        total, queue, n_q, traced = _queue_level(
+            scene, bvh, total, queue, n_q, 1, chunks, offset=offset, config=config, size=first
         )
-        n_reflection = jnp.sum(per_level)
-    return ChunkedRadiance(total, n_primary, n_shadow, n_reflection)
+        n_shadow = n_shadow + traced
+        start = 2
+    if config.max_depth >= start:
+        (total, _, _, n_shadow), per_level = jax.lax.scan(
+            level, (total, queue, n_q, n_shadow), jnp.arange(start, config.max_depth + 1)
+        )
+        n_reflection = n_reflection + jnp.sum(per_level)
+    parts, base = [], chunks.padded
+    for tile in tiles:
+        n = int(np.prod(tile.active.shape))
+        parts.append(total[base : base + n].reshape(tile.active.shape + (3,)))
+        base += n
+    return ChunkedRadiance(total[: chunks.padded], n_primary, n_shadow, n_reflection, tuple(parts))
