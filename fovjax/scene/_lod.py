@@ -27,13 +27,14 @@ seam duplicates vertices), the one whose normal agrees best with the new vertex'
 is taken, so a flat-shaded box keeps each face's normal.
 
 **Error.** `LODLevels.errors[i]` is the one-sided Hausdorff distance (scene units) from the
-original vertices to level i's surface, measured as an upper
-bound: each original vertex's distance is the exact point-to-triangle distance to the nearest of
-the candidate triangles that own the point's `CANDIDATES` nearest samples of level i's surface
-(its vertices, centroids and area-weighted random points). The minimum over a subset
-of triangles is never below the minimum over all, so the error is never under-reported; it is
-exact whenever the true closest triangle owns one of those samples. Missing geometry (a part
-decimated away) shows as a large error, which is what `select_lod` needs.
+original vertices to level i's surface (`geometric_error`: the bounds below, then exact
+brute-force distances for the vertices with the largest bounds until the maximum is settled).
+`surface_distance` gives each vertex's distance as an upper bound: the exact point-to-triangle
+distance to the nearest of the candidate triangles that own the point's `CANDIDATES` nearest
+samples of level i's surface (its vertices, centroids, points along its long edges and
+area-weighted random points). A minimum over a subset of triangles is never below the minimum
+over all, so a bound never under-reports; the refinement then makes the maximum exact. Missing
+geometry (a part decimated away) shows as a large error, which is what `select_lod` needs.
 """
 
 from __future__ import annotations
@@ -50,11 +51,11 @@ from jaxtyping import Array, ArrayLike, Int
 
 from ._scene import Scene, drop_degenerate, geometry_hash, make_scene
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DEFAULT_RATIOS = (1.0, 0.5, 0.25, 0.1)
 CANDIDATES = 16  # nearest surface samples whose triangles are checked exactly per original point
 AGGRESSION = 7.0  # fast-simplification's default; lower is slower and closer to the target
-_SAMPLES_PER_TRIANGLE = 2  # area-weighted random samples on a level, per triangle on average
+_SAMPLES_PER_TRIANGLE = 1  # area-weighted random samples on a level, per triangle on average
 
 
 def _fast_simplification():
@@ -291,18 +292,22 @@ def surface_distance(
     n_random = _SAMPLES_PER_TRIANGLE * len(f)
     owner_r = rng.choice(len(f), n_random, p=area / area.sum()) if area.sum() > 0 else ids[:0]
     w = rng.dirichlet(np.ones(3), len(owner_r))
-    # Points along each edge (at 1/4, 1/2, 3/4): a long thin triangle is found from any point
-    # beside it, not only from near its centroid.
-    edges = [tri + s * (np.roll(tri, -1, axis=1) - tri) for s in (0.25, 0.5, 0.75)]
+    # Points along each long edge (at 1/4, 1/2, 3/4; long: over twice the median edge): a long
+    # thin triangle is found from any point beside it, not only from near its centroid. Short
+    # edges are covered by their vertices.
+    ends = np.roll(tri, -1, axis=1)
+    length = np.linalg.norm(ends - tri, axis=2)
+    long_f, long_e = np.nonzero(length > 2 * np.median(length))
+    a, b = tri[long_f, long_e], ends[long_f, long_e]
     samples = np.concatenate(
         [
             v[used],
             tri.mean(axis=1),
-            *(e.reshape(-1, 3) for e in edges),
+            *(a + s * (b - a) for s in (0.25, 0.5, 0.75)),
             np.einsum("nk,nkc->nc", w, tri[owner_r]),
         ]
     )
-    owners = np.concatenate([vertex_owner[used], ids, *(np.repeat(ids, 3),) * 3, owner_r])
+    owners = np.concatenate([vertex_owner[used], ids, long_f, long_f, long_f, owner_r])
     tree = cKDTree(samples)
     p = np.asarray(points, np.float32)
     # First the triangle owning the nearest sample: most points of a decimated scene lie on the
@@ -326,14 +331,57 @@ def surface_distance(
     return best
 
 
-def geometric_error(original: Scene, level: Scene) -> float:
-    """One-sided Hausdorff distance (scene units, an upper bound as in the module docstring)
-    from the original scene's vertices to `level`'s surface; 0 when `level` is `original`."""
+def _original_points(original: Scene) -> np.ndarray:
+    v = np.asarray(original.vertices, np.float32)
+    return v[np.unique(np.asarray(original.faces))]
+
+
+def _exact_distance(points: np.ndarray, tri: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    """Distance from each point to the nearest of all triangles, given an upper bound per point:
+    only triangles whose bounding box lies within the bound can be nearer, and only those get
+    the exact test (the result is exact, the pruning only saves work)."""
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    out = np.asarray(bound, np.float32).copy()
+    block = max(1, 4_000_000 // max(len(tri), 1))
+    for i in range(0, len(points), block):
+        p = points[i : i + block]
+        gap = np.maximum(np.maximum(lo[None] - p[:, None], p[:, None] - hi[None]), 0.0)
+        near = np.einsum("ptc,ptc->pt", gap, gap) <= (out[i : i + block, None] * (1 + 1e-5)) ** 2
+        rows, cols = np.nonzero(near)
+        t = tri[cols]
+        d = _point_triangle_distance(p[rows], t[:, 0], t[:, 1], t[:, 2])
+        part = out[i : i + block]
+        np.minimum.at(part, rows, d)
+        out[i : i + block] = part
+    return out
+
+
+def geometric_error(
+    original: Scene, level: Scene, _points: np.ndarray | None = None, max_exact: int = 512
+) -> float:
+    """One-sided Hausdorff distance (scene units) from the original scene's vertices to
+    `level`'s surface; 0 when `level` is `original`.
+
+    Each vertex's `surface_distance` bound is computed first; then the vertices with the largest
+    bounds get their exact distance (every triangle of the level whose bounding box lies within
+    the bound is tested), in order,
+    until the largest exact distance found is at least every remaining bound: that is the exact
+    maximum. If `max_exact` vertices do not settle it, the result is the larger of the exact
+    maximum so far and the largest remaining bound, still never below the true distance."""
     if level is original or level.content_hash == original.content_hash:
         return 0.0
-    v = np.asarray(original.vertices, np.float32)
-    points = v[np.unique(np.asarray(original.faces))]
-    return float(surface_distance(points, level.vertices, level.faces).max())
+    points = _original_points(original) if _points is None else _points
+    bound = surface_distance(points, level.vertices, level.faces)
+    order = np.argsort(-bound, kind="stable")
+    tri = level.triangles()
+    exact_max, step = 0.0, 32
+    for start in range(0, min(len(order), max_exact), step):
+        if bound[order[start]] <= exact_max:
+            return exact_max
+        idx = order[start : start + step]
+        exact_max = max(exact_max, float(_exact_distance(points[idx], tri, bound[idx]).max()))
+    rest = order[max_exact:]
+    return max(exact_max, float(bound[rest].max()) if len(rest) else 0.0)
 
 
 # --- the chain of levels, cached --------------------------------------------------------------
@@ -435,7 +483,7 @@ def lod_levels(
     if list(ratios) != sorted(set(ratios), reverse=True):
         raise ValueError(f"lod_levels: ratios must be strictly decreasing (finest first), got {ratios}")
     t0 = time.perf_counter()
-    scenes, errors, all_cached = [], [], True
+    scenes, errors, all_cached, points = [], [], True, None
     for r in ratios:
         if round(r * scene.num_triangles) >= scene.num_triangles:
             scenes.append(scene)
@@ -447,7 +495,8 @@ def lod_levels(
             all_cached = False
             arrays = _decimate_arrays(scene, r, preserve_border)
             level = _build(scene, r, arrays)
-            error = geometric_error(scene, level)
+            points = _original_points(scene) if points is None else points
+            error = geometric_error(scene, level, points)
             if cache:
                 _save_level(path, arrays, error)
         else:
