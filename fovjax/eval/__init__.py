@@ -56,6 +56,7 @@ from ._failures import (
     scanpath_flicker,
     tracking_error,
 )
+from ._inspect import SceneInspection, inspect_scene
 from ._metrics import (
     JND_JOD,
     HmdDisplay,
@@ -129,6 +130,8 @@ from ._study import (
 )
 
 __all__ = [
+    "SceneInspection",
+    "inspect_scene",
     "DEFAULT_CRITERION",
     "DEFAULT_GAZES",
     "HIGHER_IS_BETTER",
