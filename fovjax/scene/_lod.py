@@ -345,8 +345,13 @@ def _exact_distance(points: np.ndarray, tri: np.ndarray, bound: np.ndarray) -> n
     block = max(1, 4_000_000 // max(len(tri), 1))
     for i in range(0, len(points), block):
         p = points[i : i + block]
-        gap = np.maximum(np.maximum(lo[None] - p[:, None], p[:, None] - hi[None]), 0.0)
-        near = np.einsum("ptc,ptc->pt", gap, gap) <= (out[i : i + block, None] * (1 + 1e-5)) ** 2
+        reach = out[i : i + block, None] * (1 + 1e-5) + 1e-7
+        # A triangle can be nearer than the bound only if its box overlaps the cube of half-side
+        # `reach` around the point (a superset of the sphere: nothing nearer is skipped).
+        near = np.ones((len(p), len(tri)), bool)
+        for c in range(3):
+            near &= lo[None, :, c] <= p[:, None, c] + reach
+            near &= hi[None, :, c] >= p[:, None, c] - reach
         rows, cols = np.nonzero(near)
         t = tri[cols]
         d = _point_triangle_distance(p[rows], t[:, 0], t[:, 1], t[:, 2])
