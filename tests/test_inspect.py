@@ -74,6 +74,8 @@ def test_cornell_box_reflections_add_nothing_and_shares_sum_to_one():
     parsed = json.loads(result.to_json())
     assert parsed["scene"] == "cornell_box" and len(parsed["rings"]) == len(result.rings)
     assert "share of radiance by light" in result.table()
+    assert parsed["rig"]["fov_deg"] == pytest.approx(float(_rig(scene).fov_deg))
+    assert "rig: fov_deg" in result.table()
 
 
 @pytest.mark.no_typecheck  # wrong types on purpose: the function's own check answers

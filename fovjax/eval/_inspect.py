@@ -30,7 +30,8 @@ REGIONS = ("fovea", "periphery", "outside")
 
 @dataclasses.dataclass(frozen=True)
 class SceneInspection:
-    """The result of `inspect_scene`. `rings[i]` = {"lo", "hi" (degrees), "pixels": [left,
+    """The result of `inspect_scene`. `rig`: the stereo rig's field of view (its `fov_axis`),
+    IPD, toe-out and the head pose; `rings[i]` = {"lo", "hi" (degrees), "pixels": [left,
     right], "triangles": [left, right], "per_pixel": [left, right]}; `depth_share[region][d]` the
     share of that region's radiance first added at reflection depth d; `light_share[region]`
     maps "ambient+emission" and each light ("light 0", …) to its share; `region_pixels[region]`
@@ -39,6 +40,7 @@ class SceneInspection:
     scene: str
     triangles: int
     eye_size: tuple[int, int]
+    rig: dict
     gaze: tuple[tuple[float, float], tuple[float, float]]
     fovea_deg: float
     periphery_deg: float
@@ -58,6 +60,7 @@ class SceneInspection:
         lines = [
             f"scene {self.scene}: {self.triangles:,} triangles; eyes {w}x{h}, gaze {self.gaze}, "
             f"fovea {self.fovea_deg:g}°, periphery {self.periphery_deg:g}°, spp {self.spp}",
+            "rig: " + ", ".join(f"{k} {v:g}" for k, v in self.rig.items()),
             "",
             "triangles per pixel by eccentricity ring (triangle centroids in view, occluded included)",
             f"{'ring':>10}  {'pixels L':>9} {'pixels R':>9}  {'tris L':>8} {'tris R':>8}  "
@@ -216,6 +219,14 @@ def inspect_scene(
         scene=scene.name,
         triangles=scene.num_triangles,
         eye_size=(int(rig.eye_width), int(rig.eye_height)),
+        rig={
+            "fov_deg": float(rig.fov_deg),
+            "ipd_m": float(rig.ipd),
+            "toe_out_deg": float(rig.toe_out_deg),
+            "head_yaw_deg": float(head[0]),
+            "head_pitch_deg": float(head[1]),
+            "head_roll_deg": float(head[2]),
+        },
         gaze=(tuple(float(x) for x in g[0]), tuple(float(x) for x in g[1])),
         fovea_deg=float(foveation.fovea_deg),
         periphery_deg=float(foveation.periphery_deg),
