@@ -260,3 +260,15 @@ def test_select_lod_is_monotone_in_eccentricity_and_jits():
 def test_select_lod_bad_arguments(args, match):
     with pytest.raises(ValueError, match=match):
         select_lod(*args)
+
+
+def test_a_corrupt_cache_file_is_rebuilt(tmp_path):
+    _need_fast_simplification()
+    scene = _grid_plane(bump=0.2)
+    first = lod_levels(scene, (1.0, 0.3), cache_dir=tmp_path)
+    (cached,) = list(tmp_path.glob("*.npz"))
+    cached.write_bytes(b"not an npz")
+    again = lod_levels(scene, (1.0, 0.3), cache_dir=tmp_path)
+    assert not again.from_cache and again.errors == first.errors
+    assert again.scenes[1].content_hash == first.scenes[1].content_hash
+    assert lod_levels(scene, (1.0, 0.3), cache_dir=tmp_path).from_cache  # rewritten
