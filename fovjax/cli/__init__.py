@@ -1,6 +1,6 @@
 """`fovjax` command line. Each subcommand has its own module in this package (`_render`,
 `_record`, `_session`, `_compare`, `_failures`, `_stability`, `_study`, `_fit`, `_fit_stability`,
-`_view`) and registers itself through a `register(subparsers)` function listed in
+`_view`, `_inspect`) and registers itself through a `register(subparsers)` function listed in
 `_SUBCOMMAND_MODULES`. This package is the top layer: it may import every other package of
 fovjax, and none of them imports it.
 
@@ -38,6 +38,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax.cli._fit",
     "fovjax.cli._fit_stability",
     "fovjax.cli._view",
+    "fovjax.cli._inspect",
 ]
 
 # Exit status of an interrupted command (128 + SIGINT), as shells report Ctrl-C.

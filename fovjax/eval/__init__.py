@@ -59,6 +59,7 @@ from ._failures import (
     scanpath_flicker,
     tracking_error,
 )
+from ._inspect import SceneInspection, inspect_scene
 from ._metrics import (
     JND_JOD,
     HmdDisplay,
@@ -144,6 +145,8 @@ from ._video_study import (
 )
 
 __all__ = [
+    "SceneInspection",
+    "inspect_scene",
     "DEFAULT_CRITERION",
     "DEFAULT_GAZES",
     "HIGHER_IS_BETTER",

@@ -10,6 +10,10 @@
 - `cornell_box()`: the classic box from its published dimensions (metres by default).
 - `atrium(triangles=262_000)`: an indoor courtyard like Sponza in layout and scale.
 - `spheres()`: a minimal scene for fast tests.
+- Level of detail (`_lod.py`, the `[lod]` extra): `decimate(scene, ratio)` by per-material
+  quadric decimation, `lod_levels(scene, ratios)` the cached chain with each level's measured
+  `geometric_error`, `select_lod(errors, eccentricity, distance, acuity, pixels_per_degree)` the
+  coarsest level the eye cannot tell apart.
 - `default_camera(scene)`: a `CameraPose` (position, look_at, up, vertical FOV) for each;
   `BUILTIN` maps the built-in scenes' names to their constructors.
 
@@ -25,6 +29,13 @@ from ._camera import vfov_from_hfov as vfov_from_hfov
 from ._cornell import cornell_box as cornell_box
 from ._loaders import SUPPORTED_FORMATS as SUPPORTED_FORMATS
 from ._loaders import load_scene as load_scene
+from ._lod import DEFAULT_RATIOS as DEFAULT_RATIOS
+from ._lod import LODLevels as LODLevels
+from ._lod import decimate as decimate
+from ._lod import geometric_error as geometric_error
+from ._lod import lod_levels as lod_levels
+from ._lod import select_lod as select_lod
+from ._lod import surface_distance as surface_distance
 from ._poses import CameraPose as CameraPose
 from ._poses import default_camera as default_camera
 from ._scene import DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT
