@@ -23,6 +23,9 @@ from ._config import (
     Constant as Constant,
 )
 from ._config import (
+    Fidelity as Fidelity,
+)
+from ._config import (
     Foveation as Foveation,
 )
 from ._config import (

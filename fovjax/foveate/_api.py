@@ -12,7 +12,7 @@ import numpy as np
 
 from ..render import TRACE_COUNTS as TRACE_COUNTS  # shared by every entry point
 from ._budget import plan_budget
-from ._config import Foveation, check_gaze
+from ._config import Foveation, check_gaze, shading_classes
 from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
 
 _BUDGETS: dict = {}
@@ -148,6 +148,7 @@ def render_foveated(
             f"render_foveated: periphery_deg {foveation.periphery_deg} exceeds max_periphery_deg {m} "
             "(the maximum the compiled program serves)"
         )
+    shading_classes(foveation, config)  # a bad per-region depth fails before any work
     bvh = bvh_for(scene, bvh)
     arrays = (
         scene

@@ -50,6 +50,60 @@ class Constant(eqx.Module):
         return jnp.broadcast_to(jnp.asarray(self.p, jnp.float32), jnp.shape(omega))
 
 
+SHADOW_MODES = ("all", "brightest", "none")
+
+
+class Fidelity(eqx.Module):
+    """Shading fidelity of one region of a foveated frame (static: part of the configuration).
+
+    - `max_depth`: mirror reflections at most this deep (None: the render config's
+      `max_depth`; never more than it);
+    - `shadows`: "all" (a shadow ray to every light), "brightest" (only to the light with the
+      largest R + G + B of its colour, which carries its intensity; ties: the first light), or
+      "none" (no shadow rays). A light without its shadow ray still lights the point,
+      unshadowed: the level of detail drops the occlusion test, not the light, so the region
+      keeps its brightness and loses only shadows (no light at all would darken it).
+
+    `Fidelity()` is full fidelity: the frame of a foveation without `fidelity`, bit for bit.
+    """
+
+    max_depth: int | None = eqx.field(static=True, default=None)
+    shadows: str = eqx.field(static=True, default="all")
+
+    def __check_init__(self):
+        depth = self.max_depth
+        if depth is not None and (
+            isinstance(depth, bool) or not isinstance(depth, int | np.integer) or depth < 0
+        ):
+            raise ValueError(f"Fidelity.max_depth must be None or an integer >= 0, got {depth!r}")
+        if self.shadows not in SHADOW_MODES:
+            raise ValueError(f"Fidelity.shadows must be one of {SHADOW_MODES}, got {self.shadows!r}")
+
+
+def shading_classes(foveation, config):
+    """The renderer's `ShadingClasses` for `foveation.fidelity` (one class per region: fovea,
+    periphery, outside) under the render `config`, or None where every region is at full
+    fidelity (the program without classes). Raises ValueError for a depth above the config's."""
+    if foveation.fidelity is None:
+        return None
+    from ..render import SHADOWS_ALL, SHADOWS_BRIGHTEST, SHADOWS_NONE, ShadingClasses
+
+    modes = {"all": SHADOWS_ALL, "brightest": SHADOWS_BRIGHTEST, "none": SHADOWS_NONE}
+    depths = []
+    for name, f in zip(("fovea", "periphery", "outside"), foveation.fidelity, strict=True):
+        depth = config.max_depth if f.max_depth is None else int(f.max_depth)
+        if depth > config.max_depth:
+            raise ValueError(
+                f"Foveation.fidelity ({name}): max_depth {depth} exceeds the render config's "
+                f"max_depth {config.max_depth}"
+            )
+        depths.append(depth)
+    shadows = [modes[f.shadows] for f in foveation.fidelity]
+    if all(d == config.max_depth for d in depths) and all(m == SHADOWS_ALL for m in shadows):
+        return None
+    return ShadingClasses(np.asarray(depths, np.int32), np.asarray(shadows, np.int32))
+
+
 def _angle(x):
     """Thresholds are traced floats: one dtype whatever the caller passed (5, 5.0, np.float64)."""
     return x if isinstance(x, jax.core.Tracer) else float(x)
@@ -97,6 +151,9 @@ class Foveation(eqx.Module):
       by side. Only when the budget is every sample (`max_periphery_deg` and `ray_budget`
       None). Off by default: on a 2-core CPU they measured at most ~5% faster frames at 1.6-2.7x
       the compile time (README, "Foveated rendering").
+    - `fidelity`: None (full fidelity everywhere) or a `Fidelity` per region, (fovea,
+      periphery, outside): reflection depth and shadow rays per region (regions move with the
+      gaze without a recompile; the fidelities themselves are static).
     """
 
     fovea_deg: float = eqx.field(converter=_angle, default=5.0)
@@ -114,6 +171,7 @@ class Foveation(eqx.Module):
     max_periphery_deg: float | None = eqx.field(static=True, default=None)
     fovea_tile_deg: float | None = eqx.field(static=True, default=None)
     grid_tile: bool = eqx.field(static=True, default=False)
+    fidelity: tuple | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         traced = isinstance(self.fovea_deg, jax.core.Tracer) or isinstance(
@@ -163,6 +221,15 @@ class Foveation(eqx.Module):
         ):
             raise ValueError(
                 f"Foveation.fovea_tile_deg must be None or a finite angle > 0, got {self.fovea_tile_deg}"
+            )
+        if self.fidelity is not None and not (
+            isinstance(self.fidelity, tuple | list)
+            and len(self.fidelity) == 3
+            and all(isinstance(f, Fidelity) for f in self.fidelity)
+        ):
+            raise ValueError(
+                "Foveation.fidelity must be None or three Fidelity (fovea, periphery, outside), "
+                f"got {self.fidelity!r}"
             )
         if self.ray_budget is not None and self.ray_budget < 1:
             raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")

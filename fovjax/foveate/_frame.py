@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._config import shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import fill_and_blur_pixels
 from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
@@ -163,7 +164,7 @@ def tile_rays(cameras, positions, sel: Selection, origins, tile: tuple[int, int]
 
     spp = positions.shape[0]
     th, tw = tile
-    o, d, active = [], [], []
+    o, d, active, shading = [], [], [], []
     for i, cam in enumerate(cameras):
         row, col = origins[i, 0], origins[i, 1]
         xy = jax.lax.dynamic_slice(positions, (0, row, col, 0), (spp, th, tw, 2))
@@ -172,7 +173,11 @@ def tile_rays(cameras, positions, sel: Selection, origins, tile: tuple[int, int]
         d.append(di)
         o.append(jnp.broadcast_to(cam.position, di.shape))
         active.append(cls != SKIPPED)
-    return ImageTile(jnp.concatenate(o), jnp.concatenate(d), jnp.concatenate(active))
+        region = jax.lax.dynamic_slice(sel.region[i], (row, col), (th, tw))
+        shading.append(jnp.broadcast_to(region, (spp, th, tw)))
+    return ImageTile(
+        jnp.concatenate(o), jnp.concatenate(d), jnp.concatenate(active), jnp.concatenate(shading)
+    )
 
 
 def grid_layout(spp: int):
@@ -209,7 +214,8 @@ def grid_rays(cameras, positions, sel: Selection, stride: int):
     d = jnp.stack([cam.ray_directions(xy) for cam in cameras])  # (2, S, Hg, Wg, 3)
     o = jnp.stack([jnp.broadcast_to(cam.position, d.shape[1:]) for cam in cameras])
     active = sel.classes[:, :, ::stride, ::stride] != SKIPPED
-    return ImageTile(to_image(o), to_image(d), to_image(active))
+    region = jnp.broadcast_to(sel.region[:, None, ::stride, ::stride], active.shape)
+    return ImageTile(to_image(o), to_image(d), to_image(active), to_image(region))
 
 
 def grid_sums(radiance, tile, *, spp, h, w, stride):
@@ -229,17 +235,38 @@ def grid_sums(radiance, tile, *, spp, h, w, stride):
     return sums, bad_pixel, jnp.sum(bad, dtype=jnp.int32)
 
 
-def trace_selection(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget, tiles=()):
+def trace_selection(
+    scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget, tiles=(), classes=None
+):
     """Stage 3: trace and shade the selected samples (`radiance_in_chunks`), `tiles` (image
-    tiles of rays) first. Returns the per-slot radiance (padded to whole chunks), the tiles'
-    and the ray counts."""
+    tiles of rays) first; `classes`: the renderer's `ShadingClasses` per region (a sample's
+    class is its region), None for full fidelity. Returns the per-slot radiance (padded to
+    whole chunks), the tiles' and the ray counts."""
     from ..render import radiance_in_chunks
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
         return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
 
-    return radiance_in_chunks(scene, bvh, rays_at, sel.n_traced, n_slots=budget, config=config, tiles=tiles)
+    def class_at(first, size):
+        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
+        eye, _, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
+        return sel.region.reshape(2, h * w)[eye, pixel]
+
+    if classes is None:
+        tiles = tuple(t._replace(shading_class=None) for t in tiles)
+        class_at = None
+    return radiance_in_chunks(
+        scene,
+        bvh,
+        rays_at,
+        sel.n_traced,
+        n_slots=budget,
+        config=config,
+        tiles=tiles,
+        classes=classes,
+        class_at=class_at,
+    )
 
 
 def _tile_slice(mask, origins, tile, spp):
@@ -384,8 +411,20 @@ def foveated_stereo(
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
+    classes = shading_classes(foveation, config)
     traced = trace_selection(
-        scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, budget=budget, tiles=tiles
+        scene,
+        bvh,
+        cameras,
+        positions,
+        sel,
+        spp=spp,
+        h=h,
+        w=w,
+        config=config,
+        budget=budget,
+        tiles=tiles,
+        classes=classes,
     )
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)

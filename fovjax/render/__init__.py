@@ -9,7 +9,9 @@ The frame is three steps, each usable on its own (the foveation layer reuses the
   `Radiance(rgb (..., 3), bad (...), counts: RayCounts)`, tracing only the `active` rays;
 - `resolve(rgb, bad)` → the box-filtered pixels (and which are bad); `side_by_side` for stereo;
 - `radiance_in_chunks(scene_arrays, bvh, rays_at, n_live, n_slots=)`: rays made and traced chunk
-  by chunk, a cost that follows the live rays (the foveated frame).
+  by chunk, a cost that follows the live rays (the foveated frame); with `classes=`
+  (`ShadingClasses`, shadow modes `SHADOWS_ALL`/`SHADOWS_BRIGHTEST`/`SHADOWS_NONE`) a
+  reflection depth and shadow-ray mode per class of rays (the foveated frame's per-region fidelity).
 
 `render` / `render_stereo` put them together and return a `Frame`; `render_image` /
 `render_stereo_image` are the pure, differentiable versions. `run_compiled` is the one compile
@@ -56,10 +58,14 @@ from ._frame import render_stereo_image as render_stereo_image
 from ._frame import resolve as resolve
 from ._frame import run_compiled as run_compiled
 from ._frame import side_by_side as side_by_side
+from ._integrator import SHADOWS_ALL as SHADOWS_ALL
+from ._integrator import SHADOWS_BRIGHTEST as SHADOWS_BRIGHTEST
+from ._integrator import SHADOWS_NONE as SHADOWS_NONE
 from ._integrator import ChunkedRadiance as ChunkedRadiance
 from ._integrator import ImageTile as ImageTile
 from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
+from ._integrator import ShadingClasses as ShadingClasses
 from ._integrator import Surface as Surface
 from ._integrator import bilinear_wrap as bilinear_wrap
 from ._integrator import chunk_loop as chunk_loop

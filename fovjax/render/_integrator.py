@@ -66,6 +66,33 @@ class RayCounts(NamedTuple):
         return self.primary + self.shadow + self.reflection
 
 
+# Shadow modes of `ShadingClasses.shadows`.
+SHADOWS_ALL = 0  # a shadow ray to every light
+SHADOWS_BRIGHTEST = 1  # only to the brightest light (largest R + G + B of its colour; ties: the first)
+SHADOWS_NONE = 2  # none: every light shines unshadowed
+
+
+class ShadingClasses(NamedTuple):
+    """Shading fidelity per class of rays, for `radiance_in_chunks`: class k's rays spawn
+    reflections only up to depth `max_depth[k]` (never beyond `config.max_depth`), and trace
+    shadow rays per `shadows[k]` (`SHADOWS_ALL`, `SHADOWS_BRIGHTEST`, `SHADOWS_NONE`). A light
+    whose shadow ray is not traced still lights the point, unshadowed (as if visible): dropping
+    a shadow ray drops the occlusion test, not the light, so the level of detail keeps the
+    energy and only loses the shadow. A reflection ray inherits the class of its sample.
+    int32 arrays (K,); traced values, so new tables recompile nothing."""
+
+    max_depth: Int[Array, " K"]
+    shadows: Int[Array, " K"]
+
+
+def _tested_lights(scene, classes: ShadingClasses, cls):
+    """Which lights each ray's class traces a shadow ray to: (lights, *batch) bool."""
+    mode = jnp.asarray(classes.shadows, jnp.int32)[cls][None]
+    index = jnp.arange(scene.num_lights).reshape((scene.num_lights,) + (1,) * cls.ndim)
+    brightest = jnp.argmax(jnp.sum(jnp.asarray(scene.light_color, jnp.float32), axis=-1))
+    return (mode == SHADOWS_ALL) | ((mode == SHADOWS_BRIGHTEST) & (index == brightest))
+
+
 class Radiance(NamedTuple):
     """`radiance`'s result: linear RGB per sample (bad samples already `bad_color`, inactive
     ones 0), which samples were bad, and the ray counts."""
@@ -266,16 +293,26 @@ def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, 
     return contribution, (surface.point + offset * n_g, normalize(reflected), weight, alive)
 
 
-def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn):
+def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn, fidelity=None):
     """One depth level: trace `alive` rays (unit directions `d`), add what they see (weighted),
-    and the reflection rays they spawn where `spawn`. Returns (contribution, (o, d, weight,
-    alive) of the next level, shadow rays traced)."""
+    and the reflection rays they spawn where `spawn`. `fidelity`: None, or (ShadingClasses,
+    class per ray, this level's depth) limiting reflections and shadow rays per ray. Returns
+    (contribution, (o, d, weight, alive) of the next level, shadow rays traced)."""
+    if fidelity is not None:
+        classes, cls, depth = fidelity
+        spawn = spawn & (depth < jnp.asarray(classes.max_depth, jnp.int32)[cls])
     hit = _trace_primary(scene, bvh, o, d, alive, packet=packet, backend=backend)
     surface, rays = _surface_and_shadow_rays(scene, hit, d, alive, offset)
     blocked, n_shadow = None, jnp.int32(0)
     if rays is not None:
-        blocked = _trace_shadows(bvh, rays, packet, backend)
-        n_shadow = jnp.sum(rays.wanted, dtype=jnp.int32)
+        traced = rays
+        if fidelity is not None:  # untested lights: no ray (tmax 0), never blocked
+            tested = _tested_lights(scene, classes, cls)
+            traced = rays._replace(tmax=jnp.where(tested, rays.tmax, 0.0), wanted=rays.wanted & tested)
+        blocked = _trace_shadows(bvh, traced, packet, backend)
+        if fidelity is not None:
+            blocked = blocked & tested
+        n_shadow = jnp.sum(traced.wanted, dtype=jnp.int32)
     contribution, nxt = _finish_shading(
         scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn
     )
@@ -451,11 +488,13 @@ class ChunkedRadiance(NamedTuple):
 
 class ImageTile(NamedTuple):
     """Rays laid out as images, `(..., h, w)`: traced like the full frame's camera rays
-    (`config.packet`, tiles of neighbouring pixels sharing one traversal), only where `active`."""
+    (`config.packet`, tiles of neighbouring pixels sharing one traversal), only where `active`;
+    `shading_class`: each ray's class in `radiance_in_chunks`'s `classes` (needed with them)."""
 
     origins: Float[Array, "*batch 3"]
     directions: Float[Array, "*batch 3"]
     active: Bool[Array, "*batch"]
+    shading_class: Int[Array, "*batch"] | None = None
 
 
 def chunk_loop(n_chunks: int, size: int, n_live, body, init):
@@ -503,16 +542,17 @@ def _chunks(n_slots: int, config, extra: int = 0) -> _Chunks:
     return _Chunks(size, -(-n_slots // size), extra)
 
 
-def _empty_queue(chunks: _Chunks, config):
-    """(origins, directions, weights, target slots) with a chunk of room beyond the slots and
-    tile rays, in whole reflection chunks."""
+def _empty_queue(chunks: _Chunks, config, classes=None):
+    """(origins, directions, weights, target slots[, shading classes]) with a chunk of room
+    beyond the slots and tile rays, in whole reflection chunks."""
     capacity = _queue_chunks(chunks, config).padded
-    return (
+    queue = (
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.ones((capacity, 3), jnp.float32),
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.zeros((capacity,), jnp.int32),
     )
+    return queue if classes is None else queue + (jnp.zeros((capacity,), jnp.int32),)
 
 
 def _packet_of(config):
@@ -523,7 +563,9 @@ def _packet_of(config):
     return config.packet if isinstance(config.packet, int) else None
 
 
-def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config, init=None):
+def _primary_level(
+    scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config, init=None, classes=None, class_at=None
+):
     """Depth 0 of `radiance_in_chunks` on the slots: (total (padded + extra, 3), queue, queued,
     primary, shadow), starting from `init` (the image tiles' carry) or empty."""
     size = chunks.size
@@ -540,6 +582,10 @@ def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, conf
         valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
         active = first + lanes < n_live
         weight = jnp.ones((size, 3), jnp.float32)
+        fidelity, extra = None, ()
+        if classes is not None:
+            cls = jnp.asarray(class_at(first, size), jnp.int32)
+            fidelity, extra = (classes, cls, 0), (cls,)
         contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
             scene,
             bvh,
@@ -551,27 +597,28 @@ def _primary_level(scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, conf
             offset=offset,
             backend=config.backend,
             spawn=spawn,
+            fidelity=fidelity,
         )
         total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
         if spawn:
-            queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes), alive2)
+            queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes) + extra, alive2)
         n_primary = n_primary + jnp.sum(active & valid, dtype=jnp.int32)
         return total, queue, n_q, n_primary, n_shadow + traced
 
     if init is None:
         zero = jnp.int32(0)
         total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
-        init = (total, _empty_queue(chunks, config), zero, zero, zero)
+        init = (total, _empty_queue(chunks, config, classes), zero, zero, zero)
     return chunk_loop(chunks.count, size, n_live, body, init)
 
 
-def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config):
+def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config, classes=None):
     """Depth 0 of the image tiles, each traced and shaded whole as the full frame's camera rays
     are (`config.packet`; shadow rays in the same packets), written after the slots in `total`,
     their reflection rays queued (compacted) like the slots'. Returns the `_primary_level` carry."""
     zero = jnp.int32(0)
     total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
-    queue, n_q, n_primary, n_shadow = _empty_queue(chunks, config), zero, zero, zero
+    queue, n_q, n_primary, n_shadow = _empty_queue(chunks, config, classes), zero, zero, zero
     spawn = config.max_depth > 0
     base = chunks.padded
     for tile in tiles:
@@ -581,6 +628,10 @@ def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config):
         d_raw = jnp.asarray(tile.directions, jnp.float32)
         d = normalize(d_raw)
         valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        fidelity, extra = None, ()
+        if classes is not None:
+            cls = jnp.broadcast_to(jnp.asarray(tile.shading_class, jnp.int32), batch)
+            fidelity, extra = (classes, cls, 0), (cls.reshape(n),)
         contribution, nxt, traced = _trace_and_shade(
             scene,
             bvh,
@@ -592,12 +643,13 @@ def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config):
             offset=offset,
             backend=config.backend,
             spawn=spawn,
+            fidelity=fidelity,
         )
         total = jax.lax.dynamic_update_slice_in_dim(total, contribution.reshape(n, 3), base, 0)
         if spawn:
             o2, d2, w2, alive2 = (x.reshape((n,) + x.shape[len(batch) :]) for x in nxt)
             target = base + jnp.arange(n, dtype=jnp.int32)
-            queue, n_q = _append(queue, n_q, (o2, d2, w2, target), alive2)
+            queue, n_q = _append(queue, n_q, (o2, d2, w2, target) + extra, alive2)
         n_primary = n_primary + jnp.sum(tile.active & valid, dtype=jnp.int32)
         n_shadow = n_shadow + traced
         base += n
@@ -621,7 +673,9 @@ def _queue_chunks(chunks: _Chunks, config, size=None) -> _Chunks:
     return _Chunks(size, capacity // size)
 
 
-def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config, size=None):
+def _queue_level(
+    scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config, size=None, classes=None
+):
     """One reflection level over the queue's first `n_q` rays, in place, in chunks of
     `_queue_chunks`: (total, queue, the next level's queued rays, shadow rays traced)."""
     chunks = _queue_chunks(chunks, config, size)
@@ -631,13 +685,24 @@ def _queue_level(scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offse
 
     def body(inner, first):
         total, queue, n_next, n_shadow = inner
-        o, d, weight, target = (jax.lax.dynamic_slice_in_dim(q, first, size) for q in queue)
+        o, d, weight, target, *extra = (jax.lax.dynamic_slice_in_dim(q, first, size) for q in queue)
         alive = first + lanes < n_q
+        fidelity = None if classes is None else (classes, extra[0], depth)
         contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
-            scene, bvh, o, d, alive, weight, packet=None, offset=offset, backend=config.backend, spawn=spawn
+            scene,
+            bvh,
+            o,
+            d,
+            alive,
+            weight,
+            packet=None,
+            offset=offset,
+            backend=config.backend,
+            spawn=spawn,
+            fidelity=fidelity,
         )
         total = total.at[target].add(contribution)
-        queue, n_next = _append(queue, n_next, (o2, d2, w2, target), alive2)
+        queue, n_next = _append(queue, n_next, (o2, d2, w2, target, *extra), alive2)
         return total, queue, n_next, n_shadow + traced
 
     # Chunks past the queued rays are skipped; the writes of a chunk go to the queue's front,
@@ -655,6 +720,8 @@ def radiance_in_chunks(
     n_slots: int,
     config: RenderConfig = DEFAULT_CONFIG,
     tiles: tuple[ImageTile, ...] = (),
+    classes: ShadingClasses | None = None,
+    class_at=None,
 ) -> ChunkedRadiance:
     """Whitted radiance of up to `n_slots` rays of which the first `n_live` are live, made and
     traced chunk by chunk (`config.chunk_size`): `rays_at(first, size)` returns the
@@ -672,20 +739,38 @@ def radiance_in_chunks(
     camera rays are (dense packets of neighbouring pixels, for rays that are coherent: a
     foveated frame's fovea); their reflection rays join the slots' in the same queue. Their
     radiance is returned in `tiles` (each the tile's shape + (3,)).
+
+    `classes` (`ShadingClasses`): shading fidelity per class of rays, `class_at(first, size)`
+    the class of each of those slots (int32, traced) and each tile's `shading_class` that of
+    its rays; reflection rays carry their sample's class. None: every ray at full fidelity
+    (`config`), the program without classes.
     """
+    if classes is not None and (class_at is None or any(t.shading_class is None for t in tiles)):
+        raise ValueError("radiance_in_chunks: classes need class_at and every tile's shading_class")
     scene = jax.tree.map(jnp.asarray, scene)
     extra = sum(int(np.prod(t.active.shape)) for t in tiles)
     chunks = _chunks(n_slots, config, extra)
     offset = config.ray_offset * scene_scale(scene)
-    init = _tile_level(scene, bvh, tiles, chunks, offset=offset, config=config) if tiles else None
+    init = None
+    if tiles:
+        init = _tile_level(scene, bvh, tiles, chunks, offset=offset, config=config, classes=classes)
     total, queue, n_q, n_primary, n_shadow = _primary_level(
-        scene, bvh, rays_at, n_live, chunks, offset=offset, config=config, init=init
+        scene,
+        bvh,
+        rays_at,
+        n_live,
+        chunks,
+        offset=offset,
+        config=config,
+        init=init,
+        classes=classes,
+        class_at=class_at,
     )
 
     def level(carry, depth):
         total, queue, n_q, n_shadow = carry
         total, queue, n_next, traced = _queue_level(
-            scene, bvh, total, queue, n_q, depth, chunks, offset=offset, config=config
+            scene, bvh, total, queue, n_q, depth, chunks, offset=offset, config=config, classes=classes
         )
         return (total, queue, n_next, n_shadow + traced), n_q
 
@@ -695,7 +780,17 @@ def radiance_in_chunks(
     if config.max_depth > 0 and first != rest:
         n_reflection = n_q
         total, queue, n_q, traced = _queue_level(
-            scene, bvh, total, queue, n_q, 1, chunks, offset=offset, config=config, size=first
+            scene,
+            bvh,
+            total,
+            queue,
+            n_q,
+            1,
+            chunks,
+            offset=offset,
+            config=config,
+            size=first,
+            classes=classes,
         )
         n_shadow = n_shadow + traced
         start = 2
