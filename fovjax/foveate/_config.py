@@ -67,7 +67,8 @@ class Fidelity(eqx.Module):
     `Fidelity()` is full fidelity: the frame of a foveation without `fidelity`, bit for bit.
     """
 
-    max_depth: int | None = eqx.field(static=True, default=None)
+    # `object`, not `int | None`: a wrong value gets this class's ValueError, not a type-check error.
+    max_depth: object = eqx.field(static=True, default=None)
     shadows: str = eqx.field(static=True, default="all")
 
     def __check_init__(self):
