@@ -78,10 +78,7 @@ def main(argv=None):
             f"{name:10} {s.primary_rays:9,} {s.shadow_rays:9,} {s.reflection_rays:11,} {s.rays:9,} "
             f"{1e3 * t:9.1f} {s.compile_seconds:9.1f}"
         )
-    print(
-        f"rays: {lod.stats.rays / plain.stats.rays:.3f} x plain; "
-        f"frame time: {t_plain / t_lod:.2f}x faster"
-    )
+    print(f"rays: {lod.stats.rays / plain.stats.rays:.3f} x plain; frame time: {t_plain / t_lod:.2f}x faster")
     regions = np.concatenate([plain.regions[0], plain.regions[1]], axis=1)
     diff = np.abs(lod.image - plain.image).mean(axis=-1)
     for r, name in enumerate(("fovea", "periphery", "outside")):
