@@ -134,6 +134,28 @@ def _sort4(keys, vals):
     return keys, vals
 
 
+def _visit(table, num_nodes, rays, cur, t_limit):
+    """The row each lane visits, read as a 4-wide node and as a triangle (the two steps share it):
+    (active, is_node, the row, child ids, entry distance of each child (inf where the ray misses it or
+    enters beyond `t_limit`), the triangle's hit distance (inf where there is none)), both
+    distances materialised once (see `_step`)."""
+    o, inv_d, perm, shear, tmin = rays
+    active = cur >= 0
+    # Lanes with nothing to do read row 0, which stays in cache.
+    row = table[jnp.maximum(cur, 0)]
+    is_node = cur < num_nodes
+    t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
+    t_near = jnp.maximum(t_near, tmin[:, None])
+    t_far = jnp.minimum(t_far, t_limit[:, None])
+    child = row[:, 10:14]
+    key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
+    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
+    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
+    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
+    key, t_tri = lax.optimization_barrier((key, t_tri))
+    return active, is_node, row, child, key, t_tri
+
+
 def _step(table, num_nodes, stack_size, any_hit, rays, state):
     """One traversal step for every lane.
 
@@ -144,27 +166,11 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
     barrier = lax.optimization_barrier
     # A step is a unit: nothing is fused across its start (it would be recomputed per consumer).
     rays, state = barrier((rays, state))
-    o, inv_d, perm, shear, tmin = rays
     cur, sp, stack, t_best, prim = state
     w = cur.shape[0]
     lane = jnp.arange(w)
 
-    active = cur >= 0
-    # Lanes with nothing to do read row 0, which stays in cache.
-    row = table[jnp.maximum(cur, 0)]
-    is_node = cur < num_nodes
-
-    # As a 4-wide node: entry distance of each child, inf where the ray misses it.
-    t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
-    t_near = jnp.maximum(t_near, tmin[:, None])
-    t_far = jnp.minimum(t_far, t_best[:, None])
-    child = row[:, 10:14]
-    key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
-    # As a triangle: the hit distance, inf where there is none.
-    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
-    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
-    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_best), t_t, jnp.inf)
-    key, t_tri = barrier((key, t_tri))
+    active, is_node, row, child, key, t_tri = _visit(table, num_nodes, rays, cur, t_best)
 
     keys, items = _sort4([key[:, c] for c in range(4)], [child[:, c] for c in range(4)])
     # (w, 4, 2): sorted (item, entry-distance bits) pairs, the stack's entry format.
@@ -232,24 +238,11 @@ def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
     del any_hit
     barrier = lax.optimization_barrier
     rays, state = barrier((rays, state))
-    o, inv_d, perm, shear, tmin = rays
     cur, sp, stack, t_max, prim = state
     w = cur.shape[0]
     lane = jnp.arange(w)
 
-    active = cur >= 0
-    row = table[jnp.maximum(cur, 0)]
-    is_node = cur < num_nodes
-
-    t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
-    t_near = jnp.maximum(t_near, tmin[:, None])
-    t_far = jnp.minimum(t_far, t_max[:, None])
-    child = row[:, 10:14]
-    key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
-    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
-    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear)
-    t_tri = jnp.where(active & ~is_node & (t_t > tmin) & (t_t < t_max), t_t, jnp.inf)
-    key, t_tri = barrier((key, t_tri))
+    active, is_node, row, child, key, t_tri = _visit(table, num_nodes, rays, cur, t_max)
     # Materialised once as the carried distance (see `_step`); consumers compare with it.
     t_new = barrier(jnp.minimum(t_tri, t_max))
     found = t_new < t_max
