@@ -619,7 +619,10 @@ def test_bad_messages_are_logged_and_ignored(server):
             assert stats["ignored_messages"] >= before["ignored_messages"] + len(bad)
         finally:
             await client.close()
-        # Far too large: aiohttp closes that connection (1009); the server goes on.
+        # Far too large: aiohttp closes that connection with 1009; the server goes on. The client
+        # sees 1009 when the server's close frame arrives before the socket is torn down and 1006
+        # (abnormal) when it does not (a race with the client still sending), so the client's
+        # code is only checked to be one of the two; the server's own log says why it closed.
         client = await Client.connect(server.ws_url())
         try:
             await client.send('{"type": "leave", "pad": "' + "x" * (1 << 20) + '"}')
@@ -627,7 +630,7 @@ def test_bad_messages_are_logged_and_ignored(server):
                 msg = await client.next(timeout=60)
                 if isinstance(msg, tuple) and msg[0] == "closed":
                     break
-            assert msg[0] == "closed" and msg[2] == 1009
+            assert msg[0] == "closed" and msg[2] in (1009, 1006)
         finally:
             await client.close()
         client = await Client.connect(server.ws_url())
@@ -643,6 +646,8 @@ def test_bad_messages_are_logged_and_ignored(server):
     for reason in ("malformed JSON", "x must be finite", "x must be in", "unknown keys ['evil']", "exceeds"):
         assert reason in log, reason
     assert "binary message" in log and "Traceback" not in log
+    # The server side of the too-large close, whatever code the client saw.
+    assert re.search(r"connection error: Message size \d+ exceeds limit", log)
 
 
 def test_never_more_than_one_frame_in_flight(server):
