@@ -83,5 +83,8 @@ from ._sampling import (
 from ._sampling import (
     top_left as top_left,
 )
+from ._sampling import (
+    subsample_rank as subsample_rank,
+)
 
 budget_for = _budget_for  # public: the batches of fovjax.eval plan the same budget

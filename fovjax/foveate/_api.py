@@ -12,7 +12,7 @@ import numpy as np
 
 from ..render import TRACE_COUNTS as TRACE_COUNTS  # shared by every entry point
 from ._budget import plan_budget
-from ._config import Foveation, check_gaze, shading_classes
+from ._config import Foveation, check_gaze, max_region_spp, region_spp, shading_classes
 from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
 
 _BUDGETS: dict = {}
@@ -22,7 +22,7 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
     """Static slot count of both eyes (cached per rig intrinsics and configuration): every
     sample when `max_periphery_deg` is None (any thresholds fit), else `plan_budget` at the
     maximum thresholds (or the configured `ray_budget`)."""
-    full = 2 * foveation.spp * rig.eye_width * rig.eye_height
+    full = 2 * max_region_spp(foveation) * rig.eye_width * rig.eye_height
     if foveation.ray_budget is None and foveation.max_periphery_deg is None:
         return full
     key = (
@@ -39,6 +39,7 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
         foveation.eye_display_mm,
         foveation.pixel_pitch_mm,
         foveation.ray_budget,
+        region_spp(foveation),  # texspp
         # Any acuity callable: scalar parameters or arrays (a tabulated curve, a batch of fits).
         tuple(
             (np.shape(x), tuple(np.asarray(x).reshape(-1).tolist()))
@@ -57,7 +58,7 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
 
 def uncapped(rig, foveation: Foveation, budget: int) -> bool:
     """Whether the budget is every sample (image tiles need it: their samples are never dropped)."""
-    return budget >= 2 * foveation.spp * rig.eye_width * rig.eye_height
+    return budget >= 2 * max_region_spp(foveation) * rig.eye_width * rig.eye_height
 
 
 def fovea_tile(rig, foveation: Foveation, budget: int) -> tuple[int, int] | None:

@@ -6,8 +6,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._config import max_region_spp
 from ._eccentricity import eccentricity_map
-from ._sampling import FOVEA, regions, thesis_measured_mandatory, top_left
+from ._sampling import FOVEA, allowed_samples, regions, thesis_measured_mandatory, top_left
 
 BUDGET_SIGMAS = 6.0
 BUDGET_GRID = 7  # gaze positions per axis examined (corners, edges and centre included)
@@ -24,8 +25,11 @@ def _gaze_counts(camera, gaze, foveation):
     p = foveation.probability(ecc)
     fovea = region == FOVEA
     spp = foveation.spp
+    allowed = allowed_samples(region, foveation)  # texspp: None, or (spp, H, W)
     if foveation.rule == "thesis-measured":
-        m = jnp.sum(thesis_measured_mandatory(region, spp)).astype(jnp.float32)
+        wanted = thesis_measured_mandatory(region, spp)
+        wanted = wanted if allowed is None else wanted & allowed
+        m = jnp.sum(wanted).astype(jnp.float32)
         return jnp.stack([m, jnp.float32(0), jnp.float32(0)])
     if foveation.rule == "either":
         mandatory = fovea | is_tl
@@ -33,6 +37,10 @@ def _gaze_counts(camera, gaze, foveation):
     else:
         mandatory = fovea
         chance = jnp.where(~fovea & is_tl, p, 0.0)
+    if allowed is not None:  # texspp: each pixel's own number of sub-samples
+        k = jnp.sum(allowed, axis=0).astype(jnp.float32)
+        counts = [jnp.sum(mandatory * k), jnp.sum(chance * k), jnp.sum(chance * (1 - chance) * k)]
+        return jnp.stack(counts).astype(jnp.float32)
     counts = jnp.stack([jnp.sum(mandatory), jnp.sum(chance), jnp.sum(chance * (1 - chance))])
     return spp * counts.astype(jnp.float32)
 
@@ -49,7 +57,7 @@ def plan_budget(camera, foveation) -> int:
     it drop their last probabilistic samples and count them (`Frame.stats`)."""
     if foveation.ray_budget is not None:
         return int(foveation.ray_budget)
-    full = foveation.spp * camera.height * camera.width
+    full = max_region_spp(foveation) * camera.height * camera.width
     grid = np.linspace(0.0, 1.0, BUDGET_GRID, dtype=np.float32)
     gazes = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
     stats = np.asarray(jax.jit(jax.vmap(_gaze_counts, in_axes=(None, 0, None)))(camera, gazes, foveation))

@@ -64,12 +64,24 @@ class Fidelity(eqx.Module):
       unshadowed: the level of detail drops the occlusion test, not the light, so the region
       keeps its brightness and loses only shadows (no light at all would darken it).
 
+    - `texture_lod` (texspp): None (texture lookups at full resolution, level 0), an integer
+      level >= 0 of the texture's box-filtered mip pyramid (level l: texels 2^l times as wide),
+      or "auto": the level of the ray's footprint (a ray cone, see `fovjax.render.ShadingClasses`)
+      widened by the region's sample spacing (its block edge);
+    - `spp` (texspp): samples per pixel at most (None: the frame's `Foveation.spp`; an integer
+      1..the frame's spp): a pixel of the region traces only its first `spp` sub-samples in a
+      well-spread order (`fovjax.foveate.subsample_rank`), and the static slot budget shrinks.
+
     `Fidelity()` is full fidelity: the frame of a foveation without `fidelity`, bit for bit.
     """
 
     # `object`, not `int | None`: a wrong value gets this class's ValueError, not a type-check error.
     max_depth: object = eqx.field(static=True, default=None)
     shadows: str = eqx.field(static=True, default="all")
+    # ---- texspp: texture level of detail and samples per pixel per region ----
+    texture_lod: object = eqx.field(static=True, default=None)
+    spp: object = eqx.field(static=True, default=None)
+    # ---- end texspp ----
 
     def __check_init__(self):
         depth = self.max_depth
@@ -79,6 +91,37 @@ class Fidelity(eqx.Module):
             raise ValueError(f"Fidelity.max_depth must be None or an integer >= 0, got {depth!r}")
         if self.shadows not in SHADOW_MODES:
             raise ValueError(f"Fidelity.shadows must be one of {SHADOW_MODES}, got {self.shadows!r}")
+        # ---- texspp ----
+        lod = self.texture_lod
+        if lod is not None and lod != "auto" and not _is_int(lod, low=0):
+            raise ValueError(f'Fidelity.texture_lod must be None, "auto" or an integer level >= 0, got {lod!r}')
+        if self.spp is not None and not _is_int(self.spp, low=1):
+            raise ValueError(f"Fidelity.spp must be None or an integer >= 1, got {self.spp!r}")
+        # ---- end texspp ----
+
+
+def _is_int(x, *, low: int) -> bool:
+    """A Python or NumPy integer (not a bool, not a string) >= `low`."""
+    return not isinstance(x, bool | str) and isinstance(x, int | np.integer) and x >= low
+
+
+REGION_NAMES = ("fovea", "periphery", "outside")
+
+
+def region_spp(foveation) -> tuple[int, int, int] | None:
+    """(texspp) Samples per pixel of each region (fovea, periphery, outside), or None where
+    every region takes the frame's `spp` (the program without per-region sample counts)."""
+    if foveation.fidelity is None:
+        return None
+    spp = tuple(foveation.spp if f.spp is None else int(f.spp) for f in foveation.fidelity)
+    return None if all(s == foveation.spp for s in spp) else spp
+
+
+def max_region_spp(foveation) -> int:
+    """(texspp) The most samples a pixel of any region traces: the frame's spp unless every
+    region's `Fidelity.spp` is below it (then every-sample budgets shrink to it)."""
+    spp = region_spp(foveation)
+    return foveation.spp if spp is None else max(spp)
 
 
 def shading_classes(foveation, config):
@@ -232,6 +275,13 @@ class Foveation(eqx.Module):
                 "Foveation.fidelity must be None or three Fidelity (fovea, periphery, outside), "
                 f"got {self.fidelity!r}"
             )
+        if self.fidelity is not None:  # texspp: a region never takes more samples than the frame
+            for name, f in zip(REGION_NAMES, self.fidelity, strict=True):
+                if f.spp is not None and f.spp > self.spp:
+                    raise ValueError(
+                        f"Foveation.fidelity ({name}): spp {f.spp} exceeds the frame's spp {self.spp} "
+                        f"(expected 1..{self.spp})"
+                    )
         if self.ray_budget is not None and self.ray_budget < 1:
             raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")
 

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._config import shading_classes
+from ._config import max_region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import fill_and_blur_pixels
 from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
@@ -388,8 +388,9 @@ def foveated_stereo(
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
-    if (tile is not None or grid is not None) and budget < 2 * spp * h * w:
-        raise ValueError(f"image tiles need a budget of every sample ({2 * spp * h * w}), got {budget}")
+    every = 2 * max_region_spp(foveation) * h * w  # texspp: every sample a region may trace
+    if (tile is not None or grid is not None) and budget < every:
+        raise ValueError(f"image tiles need a budget of every sample ({every}), got {budget}")
     origins = None if tile is None else tile_origins(gaze, tile, h, w)
     covered = None if tile is None else tile_mask(origins, tile, h, w)
     on_grid = None

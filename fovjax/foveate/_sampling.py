@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ._config import region_spp
 
 FOVEA, PERIPHERY, OUTSIDE = 0, 1, 2
 # Compaction order: samples that must be traced, then the probabilistic extras, then the rest.
@@ -46,6 +51,39 @@ def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[A
     return inside | first
 
 
+@functools.lru_cache(maxsize=16)
+def subsample_rank(spp: int) -> np.ndarray:
+    """(texspp) The rank of each of a pixel's `spp` sub-samples in the order a region with fewer
+    samples per pixel keeps them (`Fidelity.spp`: a pixel keeps the sub-samples of rank < its
+    region's spp). Sub-sample s lies in cell (s % n, s // n) of the pixel's n x n grid
+    (`fovjax.scene.pixel_sample_positions`); the order starts with sub-sample 0 (the one the
+    rule "thesis-measured" keeps beyond the periphery) and then always takes the cell farthest
+    from those already taken (ties: the lowest index), so every prefix is spread over the
+    pixel: at SPP 4 the order is 0, 3, 1, 2 (a diagonal pair first)."""
+    n = int(round(spp**0.5))
+    cells = np.stack([np.arange(spp) % n, np.arange(spp) // n], axis=1).astype(np.float64)
+    order = [0]
+    gap = np.linalg.norm(cells - cells[0], axis=1)
+    for _ in range(spp - 1):
+        gap[order] = -1.0
+        nxt = int(np.argmax(gap))  # argmax: the lowest index among ties
+        order.append(nxt)
+        gap = np.minimum(gap, np.linalg.norm(cells - cells[nxt], axis=1))
+    rank = np.empty(spp, np.int32)
+    rank[np.asarray(order)] = np.arange(spp, dtype=np.int32)
+    return rank
+
+
+def allowed_samples(region: Int[ArrayLike, "H W"], foveation) -> Bool[Array, "S H W"] | None:
+    """(texspp) Which sub-samples a pixel may trace under its region's `Fidelity.spp` (rank
+    below the region's samples per pixel), or None where every region takes every sub-sample."""
+    spp = region_spp(foveation)
+    if spp is None:
+        return None
+    rank = jnp.asarray(subsample_rank(foveation.spp))[:, None, None]
+    return rank < jnp.asarray(spp, jnp.int32)[region][None]
+
+
 def sample_classes(
     ecc: Float[Array, "H W"], foveation, key: jax.Array
 ) -> tuple[Int[Array, "S H W"], Int[Array, "H W"]]:
@@ -77,6 +115,9 @@ def sample_classes(
         mandatory = jnp.broadcast_to(thesis_measured_mandatory(region, foveation.spp), kept.shape)
         optional = jnp.zeros_like(mandatory)
     cls = jnp.where(mandatory, MANDATORY, jnp.where(optional, OPTIONAL, SKIPPED)).astype(jnp.int32)
+    allowed = allowed_samples(region, foveation)
+    if allowed is not None:  # texspp: beyond the region's samples per pixel, nothing is traced
+        cls = jnp.where(allowed, cls, SKIPPED)
     return cls, region
 
 
