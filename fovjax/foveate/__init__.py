@@ -81,10 +81,10 @@ from ._sampling import (
     sample_classes as sample_classes,
 )
 from ._sampling import (
-    top_left as top_left,
+    subsample_rank as subsample_rank,
 )
 from ._sampling import (
-    subsample_rank as subsample_rank,
+    top_left as top_left,
 )
 
 budget_for = _budget_for  # public: the batches of fovjax.eval plan the same budget

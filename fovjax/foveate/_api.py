@@ -12,7 +12,14 @@ import numpy as np
 
 from ..render import TRACE_COUNTS as TRACE_COUNTS  # shared by every entry point
 from ._budget import plan_budget
-from ._config import Foveation, check_gaze, max_region_spp, region_spp, shading_classes
+from ._config import (
+    Foveation,
+    check_gaze,
+    max_region_spp,
+    region_spp,
+    shading_classes,
+    uses_texture_lod,
+)
 from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
 
 _BUDGETS: dict = {}
@@ -134,6 +141,7 @@ def render_foveated(
         head_pose_angles,
         run_compiled,
         scene_arrays,
+        with_texture_mips,
     )
 
     foveation = foveation or Foveation()
@@ -156,6 +164,8 @@ def render_foveated(
         if isinstance(scene, SceneArrays)
         else scene_arrays(scene, envmap=envmap, background=config.background)
     )
+    if uses_texture_lod(foveation):  # texspp: mip pyramids on the host, once per texture
+        arrays = with_texture_mips(arrays)
     jitter = key is not None
     key = key if jitter else jax.random.key(0)
     angles = np.asarray(head_pose_angles(head_pose), np.float32)

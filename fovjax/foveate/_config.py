@@ -94,7 +94,9 @@ class Fidelity(eqx.Module):
         # ---- texspp ----
         lod = self.texture_lod
         if lod is not None and lod != "auto" and not _is_int(lod, low=0):
-            raise ValueError(f'Fidelity.texture_lod must be None, "auto" or an integer level >= 0, got {lod!r}')
+            raise ValueError(
+                f'Fidelity.texture_lod must be None, "auto" or an integer level >= 0, got {lod!r}'
+            )
         if self.spp is not None and not _is_int(self.spp, low=1):
             raise ValueError(f"Fidelity.spp must be None or an integer >= 1, got {self.spp!r}")
         # ---- end texspp ----
@@ -143,9 +145,37 @@ def shading_classes(foveation, config):
             )
         depths.append(depth)
     shadows = [modes[f.shadows] for f in foveation.fidelity]
-    if all(d == config.max_depth for d in depths) and all(m == SHADOWS_ALL for m in shadows):
+    texture = _texture_tables(foveation)  # texspp
+    if (
+        all(d == config.max_depth for d in depths)
+        and all(m == SHADOWS_ALL for m in shadows)
+        and texture[0] is None
+    ):
         return None
-    return ShadingClasses(np.asarray(depths, np.int32), np.asarray(shadows, np.int32))
+    return ShadingClasses(np.asarray(depths, np.int32), np.asarray(shadows, np.int32), *texture)
+
+
+# ---- texspp: texture level of detail tables ----
+def _texture_tables(foveation):
+    """(texture_level, texture_cone) of `ShadingClasses` per region, or (None, None) where no
+    region sets `texture_lod`. "auto": level 0 plus the ray cone of the region's sample spacing
+    in pixels (1 in the fovea, the block edge beyond: one sample stands for a block after the
+    fill), scaled to radians by the pixel's spread angle in the frame (`foveated_stereo`)."""
+    lods = [f.texture_lod for f in foveation.fidelity]
+    if all(lod is None for lod in lods):
+        return None, None
+    strides = (1, foveation.blocks[0], foveation.blocks[1])
+    level = [0.0 if lod in (None, "auto") else float(lod) for lod in lods]
+    cone = [float(s) if lod == "auto" else 0.0 for lod, s in zip(lods, strides, strict=True)]
+    return np.asarray(level, np.float32), np.asarray(cone, np.float32)
+
+
+def uses_texture_lod(foveation) -> bool:
+    """Whether any region of `foveation` sets `Fidelity.texture_lod` (the scene needs mips)."""
+    return foveation.fidelity is not None and any(f.texture_lod is not None for f in foveation.fidelity)
+
+
+# ---- end texspp ----
 
 
 def _angle(x):

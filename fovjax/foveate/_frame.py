@@ -382,7 +382,7 @@ def foveated_stereo(
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
     from their indices, chunk by chunk, so no screen-sized ray arrays exist."""
-    from ..render import RayCounts
+    from ..render import RayCounts, pixel_spread_angle
     from ..scene import pixel_sample_positions
 
     cameras = rig.eye_cameras(head_pose)
@@ -413,6 +413,9 @@ def foveated_stereo(
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
     classes = shading_classes(foveation, config)
+    if classes is not None and classes.texture_cone is not None:  # texspp: cones in radians
+        spread = pixel_spread_angle(rig.vfov_deg(), h)
+        classes = classes._replace(texture_cone=jnp.asarray(classes.texture_cone) * spread)
     traced = trace_selection(
         scene,
         bvh,

@@ -11,7 +11,9 @@ The frame is three steps, each usable on its own (the foveation layer reuses the
 - `radiance_in_chunks(scene_arrays, bvh, rays_at, n_live, n_slots=)`: rays made and traced chunk
   by chunk, a cost that follows the live rays (the foveated frame); with `classes=`
   (`ShadingClasses`, shadow modes `SHADOWS_ALL`/`SHADOWS_BRIGHTEST`/`SHADOWS_NONE`) a
-  reflection depth and shadow-ray mode per class of rays (the foveated frame's per-region fidelity).
+  reflection depth and shadow-ray mode per class of rays (the foveated frame's per-region fidelity),
+  and a texture level of detail per class (`texture_level`, `texture_cone`: box-filtered mip
+  pyramids from `with_texture_mips`, trilinear lookups `mip_lookup`, ray-cone levels).
 
 `render` / `render_stereo` put them together and return a `Frame`; `render_image` /
 `render_stereo_image` are the pure, differentiable versions. `run_compiled` is the one compile
@@ -73,6 +75,11 @@ from ._integrator import radiance as radiance
 from ._integrator import radiance_in_chunks as radiance_in_chunks
 from ._integrator import scene_scale as scene_scale
 from ._integrator import surface_at as surface_at
+from ._mips import mip_lookup as mip_lookup
+from ._mips import mip_shapes as mip_shapes
+from ._mips import pixel_spread_angle as pixel_spread_angle
+from ._mips import texture_mips as texture_mips
+from ._mips import with_texture_mips as with_texture_mips
 from ._stereo import SampleRays as SampleRays
 from ._stereo import StereoRig as StereoRig
 from ._stereo import head_pose_angles as head_pose_angles

@@ -49,6 +49,7 @@ from ..trace import BVH, Hit, closest_hit, occluded
 from ._arrays import SceneArrays
 from ._config import DEFAULT_CONFIG, RenderConfig
 from ._envmap import envmap_lookup
+from ._mips import lod_uv, mip_level, mip_lookup
 from ._vec import all3, any3, cross, dot, interpolate, norm, normalize
 
 
@@ -79,10 +80,22 @@ class ShadingClasses(NamedTuple):
     whose shadow ray is not traced still lights the point, unshadowed (as if visible): dropping
     a shadow ray drops the occlusion test, not the light, so the level of detail keeps the
     energy and only loses the shadow. A reflection ray inherits the class of its sample.
-    int32 arrays (K,); traced values, so new tables recompile nothing."""
+    int32 arrays (K,); traced values, so new tables recompile nothing.
+
+    Texture level of detail (texspp; None: every lookup bilinear at full resolution): class k's
+    diffuse-texture lookups are trilinear in the scene's mip pyramids (`with_texture_mips`) at
+    level `texture_level[k]`, plus, where `texture_cone[k]` > 0, the level of a ray cone of that
+    spread angle (radians; `fovjax.render._mips`: λ = ½·log2(t_a / p_a) + log2(α·t / |n·d|),
+    Akenine-Möller et al., Ray Tracing Gems ch. 20), at least 0. A reflection ray's cone is
+    counted from its mirror (a lower bound of the cone's width: a finer level, never coarser).
+    float32 arrays (K,)."""
 
     max_depth: Int[Array, " K"]
     shadows: Int[Array, " K"]
+    # ---- texspp ----
+    texture_level: Float[Array, " K"] | None = None
+    texture_cone: Float[Array, " K"] | None = None
+    # ---- end texspp ----
 
 
 def _tested_lights(scene, classes: ShadingClasses, cls):
@@ -158,17 +171,22 @@ def surface_at(scene: SceneArrays, hit: Hit, directions: Float[Array, "*batch 3"
     return Surface(found, point, n_geo, n_shade, scene.face_material[prim], uv)
 
 
-def diffuse_color(scene: SceneArrays, material, uv):
-    """Kd, times the material's texture at `uv` where it has one."""
+def diffuse_color(scene: SceneArrays, material, uv, lod=None):
+    """Kd, times the material's texture at `uv` where it has one. `lod` (texspp): None (level 0,
+    bilinear), or (fixed level, auto, λ without the texture size) per ray, looked up trilinearly
+    in `scene.texture_mips` (see `ShadingClasses`)."""
     kd = scene.kd[material]
     if not scene.textures:
         return kd
     index = scene.texture[material]
     factor = jnp.ones_like(kd)
     for i, texture in enumerate(scene.textures):
-        factor = jnp.where(
-            (index == i)[..., None], bilinear_wrap(jnp.asarray(texture, jnp.float32), uv), factor
-        )
+        if lod is None:
+            value = bilinear_wrap(jnp.asarray(texture, jnp.float32), uv)
+        else:  # texspp
+            level = mip_level(np.shape(texture), *lod)
+            value = mip_lookup(jnp.asarray(scene.texture_mips[i], jnp.float32), np.shape(texture), level, uv)
+        factor = jnp.where((index == i)[..., None], value, factor)
     return kd * factor
 
 
@@ -269,7 +287,7 @@ def _surface_and_shadow_rays(scene, hit, d, alive, offset):
     return surface, rays
 
 
-def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, spawn):
+def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, spawn, lod=None):
     """What the rays see (weighted) given the shadow rays' visibility, and the reflection rays
     they spawn where `spawn`: (contribution, (o, d, weight, alive) of the next level)."""
     lit = alive & surface.found
@@ -277,7 +295,7 @@ def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, 
     m = surface.material
     local = scene.ka[m] * jnp.asarray(scene.ambient, jnp.float32) + scene.ke[m]
     if rays is not None:
-        kd = diffuse_color(scene, m, surface.uv)
+        kd = diffuse_color(scene, m, surface.uv, lod)
         local = local + _light_sum(scene, surface, d, rays, blocked, kd, scene.ks[m], scene.ns[m])
     contribution = jnp.where(missed[..., None], weight * envmap_lookup(scene.environment, d), 0.0)
     contribution = contribution + jnp.where(lit[..., None], weight * local, 0.0)
@@ -313,10 +331,27 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
         if fidelity is not None:
             blocked = blocked & tested
         n_shadow = jnp.sum(traced.wanted, dtype=jnp.int32)
+    lod = None
+    if fidelity is not None and classes.texture_level is not None and scene.textures:  # texspp
+        lod = _texture_lod(scene, classes, cls, hit, d, surface)
     contribution, nxt = _finish_shading(
-        scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn
+        scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn, lod=lod
     )
     return contribution, nxt, n_shadow
+
+
+def _texture_lod(scene, classes: ShadingClasses, cls, hit, d, surface):
+    """(texspp) Each ray's texture level of detail from its class: (fixed level, auto, λ
+    without the texture size), for `diffuse_color`."""
+    if scene.texture_mips is None:
+        raise ValueError("texture levels of detail need the scene's mip pyramids: with_texture_mips(arrays)")
+    fixed = jnp.asarray(classes.texture_level, jnp.float32)[cls]
+    cone = jnp.asarray(classes.texture_cone, jnp.float32)[cls]
+    if scene.uvs is None:
+        return fixed, jnp.zeros(fixed.shape, bool), jnp.zeros_like(fixed)  # no UVs: uv 0 everywhere
+    prim = jnp.maximum(hit.prim, 0)
+    lam = lod_uv(scene, prim, jnp.where(hit.prim >= 0, hit.t, 1.0), d, surface.geometric_normal, cone)
+    return fixed, cone > 0, lam
 
 
 def _live_first(alive):
