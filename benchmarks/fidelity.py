@@ -3,6 +3,18 @@
     python benchmarks/fidelity.py                          # atrium 262k, 320x256 per eye, SPP 1
     python benchmarks/fidelity.py --triangles 20000 --width 160 --height 128 --spp 4
 
+Texture level of detail and samples per pixel per region (texspp):
+
+    python benchmarks/fidelity.py --full-shading --spp 4 --spp-periphery 1 --spp-outside 1
+    python benchmarks/fidelity.py --full-shading --textured --texture-lod auto,auto --reference-spp 16
+
+The atrium has no texture coordinates or textures; `--textured` gives it some (this script
+only): every triangle gets its own corners, UVs by planar projection along its normal's
+dominant axis (one texture repeat per `--texture-metres`) and every material a procedural
+512 x 512 texture (a stone-tile checker with per-texel noise). `--reference-spp N` also renders
+the full (not foveated) frame at SPP N and prints each frame's mean |difference| from it per
+region: the error that matters, where a coarser texture level should alias less.
+
 Plain foveation (thesis pair 0) against the same foveation with `fidelity=(full, periphery,
 outside)` (default: periphery one reflection bounce, outside no reflections and no shadow rays),
 both at the render config's default max depth. Stereo, gaze off-centre, head still; each frame
@@ -37,6 +49,43 @@ def _frames(scene, rig, foveation, config, repeats):
     return first, statistics.median(times)
 
 
+def _textured(scene, metres):
+    """(texspp) `scene` with UVs and one procedural texture on every material (see above)."""
+    import dataclasses
+
+    faces = np.asarray(scene.faces)
+    corners = np.asarray(scene.vertices)[faces]  # (F, 3, 3)
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    axis = np.argmax(np.abs(normal), axis=1)  # project along the dominant axis
+    keep = np.array([[1, 2], [0, 2], [0, 1]])[axis]  # (F, 2): the other two coordinates
+    uv = np.take_along_axis(corners, keep[:, None, :], axis=2) / metres  # (F, 3, 2)
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[:512, :512]
+    tiles = ((y // 64 + x // 64) % 2).astype(np.float32)
+    grain = rng.random((512, 512)).astype(np.float32)
+    base = 0.55 + 0.3 * tiles[..., None] * np.array([1.0, 0.9, 0.75], np.float32)
+    texture = np.clip(base * (0.6 + 0.8 * grain[..., None]), 0.0, 1.0)
+    n = len(faces)
+    materials = dataclasses.replace(scene.materials, texture=np.zeros(len(scene.materials.kd), np.int32))
+    normals = None if scene.normals is None else np.asarray(scene.normals)[faces].reshape(-1, 3)
+    return fovjax.make_scene(
+        corners.reshape(-1, 3),
+        np.arange(3 * n).reshape(n, 3),
+        face_material=scene.face_material,
+        materials=materials,
+        lights=scene.lights,
+        normals=normals,
+        uvs=uv.reshape(-1, 2).astype(np.float32),
+        textures=(texture,),
+        ambient=scene.ambient,
+        name="atrium",
+    )
+
+
+def _lod(text):
+    return None if text in (None, "none") else ("auto" if text == "auto" else int(text))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--triangles", type=int, default=262_000)
@@ -47,17 +96,36 @@ def main(argv=None):
     parser.add_argument("--periphery-depth", type=int, default=1)
     parser.add_argument("--outside-depth", type=int, default=0)
     parser.add_argument("--outside-shadows", default="none")
+    # texspp
+    parser.add_argument("--full-shading", action="store_true", help="full depth and shadows everywhere")
+    parser.add_argument("--spp-periphery", type=int, default=None)
+    parser.add_argument("--spp-outside", type=int, default=None)
+    parser.add_argument("--textured", action="store_true", help="UVs and a procedural texture")
+    parser.add_argument("--texture-metres", type=float, default=2.0)
+    parser.add_argument("--texture-lod", default=None, help="PERIPHERY,OUTSIDE: none, auto or a level")
+    parser.add_argument("--reference-spp", type=int, default=None)
     args = parser.parse_args(argv)
 
     scene = fovjax.scenes.atrium(triangles=args.triangles)
+    if args.textured:
+        scene = _textured(scene, args.texture_metres)
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
     config = RenderConfig()
+    if args.full_shading:
+        args.periphery_depth = args.outside_depth = None
+        args.outside_shadows = "all"
+    tex_lod = [None, None] if args.texture_lod is None else [_lod(x) for x in args.texture_lod.split(",")]
     fidelity = (
         Fidelity(),
-        Fidelity(max_depth=args.periphery_depth),
-        Fidelity(max_depth=args.outside_depth, shadows=args.outside_shadows),
+        Fidelity(max_depth=args.periphery_depth, texture_lod=tex_lod[0], spp=args.spp_periphery),
+        Fidelity(
+            max_depth=args.outside_depth,
+            shadows=args.outside_shadows,
+            texture_lod=tex_lod[1],
+            spp=args.spp_outside,
+        ),
     )
     plain_f = Foveation.thesis(0, spp=args.spp)
     lod_f = Foveation.thesis(0, spp=args.spp, fidelity=fidelity)
@@ -81,8 +149,23 @@ def main(argv=None):
     print(f"rays: {lod.stats.rays / plain.stats.rays:.3f} x plain; frame time: {t_plain / t_lod:.2f}x faster")
     regions = np.concatenate([plain.regions[0], plain.regions[1]], axis=1)
     diff = np.abs(lod.image - plain.image).mean(axis=-1)
-    for r, name in enumerate(("fovea", "periphery", "outside")):
-        print(f"mean |difference| {name}: {diff[regions == r].mean():.4f}")
+    names = ("fovea", "periphery", "outside")
+    by_region = (plain.foveation.primary_by_region, lod.foveation.primary_by_region)
+    for r, name in enumerate(names):
+        print(
+            f"{name:10} primary rays plain {by_region[0][r]:7,} fidelity {by_region[1][r]:7,}; "
+            f"mean |difference| {diff[regions == r].mean():.4f}"
+        )
+    if args.reference_spp:
+        reference = fovjax.render.render_stereo(
+            scene, rig, spp=args.reference_spp, key=jax.random.key(0), config=config
+        ).image
+        print(f"mean |difference| from the full frame at SPP {args.reference_spp}:")
+        for r, name in enumerate(names):
+            err = [np.abs(f.image - reference).mean(axis=-1)[regions == r].mean() for f in (plain, lod)]
+            print(f"{name:10} plain {err[0]:.4f} fidelity {err[1]:.4f}")
+    with open("/proc/loadavg") as f:
+        print(f"load average: {f.read().strip()}")
 
 
 if __name__ == "__main__":

@@ -226,8 +226,9 @@ class Foveation(eqx.Module):
       None). Off by default: on a 2-core CPU they measured at most ~5% faster frames at 1.6-2.7x
       the compile time (README, "Foveated rendering").
     - `fidelity`: None (full fidelity everywhere) or a `Fidelity` per region, (fovea,
-      periphery, outside): reflection depth and shadow rays per region (regions move with the
-      gaze without a recompile; the fidelities themselves are static).
+      periphery, outside): reflection depth and shadow rays per region, and (texspp) texture
+      level of detail and samples per pixel per region (regions move with the gaze without a
+      recompile; the fidelities themselves are static).
     """
 
     fovea_deg: float = eqx.field(converter=_angle, default=5.0)
