@@ -124,6 +124,16 @@ def _level_table(h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return offsets, shapes[:, 0], shapes[:, 1]
 
 
+def _wrap(x, n):
+    """floor-valued float `x` modulo the traced int `n`, as an index in [0, n): the integers of
+    `jnp.mod(x.astype(int32), n)` (exact for |x| well below 2^24), through a float division,
+    which vectorises where an integer remainder by a traced divisor does not: 65,536 trilinear
+    lookups in a 512² pyramid took 0.92 ms against 3.0 ms with `jnp.mod` (XLA:CPU, same run,
+    median of 30; `bilinear_wrap` 1.44 ms)."""
+    nf = n.astype(jnp.float32)
+    return jnp.clip((x - nf * jnp.floor(x / nf)).astype(jnp.int32), 0, n - 1)
+
+
 def _bilinear_level(mips, offset, h, w, uv):
     """Bilinear lookup with wrapping in the level stored at `offset` of `mips` (h x w texels,
     traced per ray): the arithmetic of `bilinear_wrap`, on the flat pyramid."""
@@ -134,10 +144,10 @@ def _bilinear_level(mips, offset, h, w, uv):
     y0 = jnp.floor(y)
     fx = (x - x0)[..., None]
     fy = (y - y0)[..., None]
-    i0 = jnp.mod(x0.astype(jnp.int32), w)
-    j0 = jnp.mod(y0.astype(jnp.int32), h)
-    i1 = jnp.mod(i0 + 1, w)
-    j1 = jnp.mod(j0 + 1, h)
+    i0 = _wrap(x0, w)
+    j0 = _wrap(y0, h)
+    i1 = jnp.where(i0 + 1 >= w, 0, i0 + 1)
+    j1 = jnp.where(j0 + 1 >= h, 0, j0 + 1)
 
     def at(j, i):
         return mips[offset + j * w + i]
