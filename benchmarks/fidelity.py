@@ -18,9 +18,10 @@ region: the error that matters, where a coarser texture level should alias less.
 Plain foveation (thesis pair 0) against the same foveation with `fidelity=(full, periphery,
 outside)` (default: periphery one reflection bounce, outside no reflections and no shadow rays),
 both at the render config's default max depth. Stereo, gaze off-centre, head still; each frame
-time is the median of --repeats frames after a warm-up (compile reported separately, not in
-the times), each frame with a fresh key. The machine is noisy: read the ratio. Also prints the
-mean absolute difference of the two images (linear RGB) per region, to show what it costs.
+time is the median of --repeats frames (the two configurations interleaved) after a warm-up
+(compile reported separately, not in the times), each frame with a fresh key. The machine is
+noisy: read the ratio. Also prints the mean absolute difference of the two images (linear
+RGB) per region, to show what it costs.
 """
 
 from __future__ import annotations
@@ -38,15 +39,21 @@ from fovjax.render import RenderConfig, StereoRig
 GAZE = ((0.35, 0.45), (0.3, 0.45))
 
 
-def _frames(scene, rig, foveation, config, repeats):
-    first = render_foveated(scene, rig, gaze=GAZE, foveation=foveation, key=jax.random.key(0), config=config)
-    times = []
+def _frames(scene, rig, foveations, config, repeats):
+    """The first frame of each foveation (compiles) and each one's median frame time, the
+    foveations' frames interleaved (a load change on the shared machine hits both alike)."""
+    first = [
+        render_foveated(scene, rig, gaze=GAZE, foveation=f, key=jax.random.key(0), config=config)
+        for f in foveations
+    ]
+    times = [[] for _ in foveations]
     for i in range(repeats):
-        f = render_foveated(
-            scene, rig, gaze=GAZE, foveation=foveation, key=jax.random.key(i + 1), config=config
-        )
-        times.append(f.stats.render_seconds)
-    return first, statistics.median(times)
+        for f, t in zip(foveations, times, strict=True):
+            frame = render_foveated(
+                scene, rig, gaze=GAZE, foveation=f, key=jax.random.key(i + 1), config=config
+            )
+            t.append(frame.stats.render_seconds)
+    return [(frame, statistics.median(t)) for frame, t in zip(first, times, strict=True)]
 
 
 def _textured(scene, metres):
@@ -129,8 +136,7 @@ def main(argv=None):
     )
     plain_f = Foveation.thesis(0, spp=args.spp)
     lod_f = Foveation.thesis(0, spp=args.spp, fidelity=fidelity)
-    plain, t_plain = _frames(scene, rig, plain_f, config, args.repeats)
-    lod, t_lod = _frames(scene, rig, lod_f, config, args.repeats)
+    (plain, t_plain), (lod, t_lod) = _frames(scene, rig, (plain_f, lod_f), config, args.repeats)
     print(
         f"atrium {args.triangles} triangles, 2 x {args.width}x{args.height}, SPP {args.spp}, "
         f"max_depth {config.max_depth}"
