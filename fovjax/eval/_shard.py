@@ -273,7 +273,7 @@ def render_foveated_batch(
     "shard_map" (default; each device loops over its own frames) or "auto" (see
     `PARTITIONS`)."""
     from ..foveate import Foveation, budget_for, check_gaze
-    from ..render import DEFAULT_CONFIG
+    from ..render import DEFAULT_CONFIG, with_texture_mips
 
     foveation = foveation or Foveation()
     config = config or DEFAULT_CONFIG
@@ -287,6 +287,8 @@ def render_foveated_batch(
     key_data, jitter = _key_data(keys, n)
     poses = _head_poses(head_poses, n)
     arrays, bvh, rig = _scene_inputs(scene, rig, config, envmap, bvh)
+    if foveation.fidelity is not None and any(f.texture_lod is not None for f in foveation.fidelity):
+        arrays = with_texture_mips(arrays)  # texspp: as render_foveated (mip pyramids, host)
     # The static ray budget of render_foveated (cached per rig and configuration).
     budget = budget_for(rig, poses[0], foveation)
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget}
