@@ -320,3 +320,16 @@ def test_spp_above_the_frames_fails_before_any_compile():
     with pytest.raises(ValueError, match=r"fidelity \(periphery\): spp 2 exceeds the frame's spp 1"):
         Foveation(fidelity=(FULL, Fidelity(spp=2), FULL))
     assert dict(fov_api.TRACE_COUNTS) == before
+
+
+def test_batch_frames_equal_render_foveated_with_texture_lod_and_spp(plane):
+    """`fovjax.eval.render_foveated_batch` gives the scene its mip pyramids as
+    `render_foveated` does: the same frame."""
+    from fovjax.eval import render_foveated_batch
+
+    scene, rig, _ = plane
+    fidelity = (FULL, Fidelity(texture_lod=1), Fidelity(texture_lod="auto", spp=1))
+    f = Foveation.thesis(0, spp=4, fidelity=fidelity)
+    single = render_foveated(scene, rig, foveation=f, config=PLANE_CONFIG)
+    batch = render_foveated_batch(scene, rig, foveation=f, config=PLANE_CONFIG)
+    np.testing.assert_allclose(np.asarray(batch.images)[0], single.image, atol=1e-6)
