@@ -16,6 +16,7 @@ from .files import tonemap as tonemap
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig
 from .render import StereoRig as StereoRig
+from .render import enable_compile_cache as enable_compile_cache
 from .scene import DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT
 from .scene import POINT_LIGHT as POINT_LIGHT
 from .scene import Camera as Camera
