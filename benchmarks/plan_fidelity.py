@@ -2,6 +2,7 @@
 
     python benchmarks/plan_fidelity.py                  # atrium 262k, 2 x 320x256, SPP 1 and 4
     python benchmarks/plan_fidelity.py --threshold 0.02 --spp 1
+    python benchmarks/plan_fidelity.py --step lod=1 --step lod=2   # once Fidelity has `lod`
 
 For each SPP: `fovjax.eval.plan_fidelity` plans the thesis pair 0 (5°/10°) on the atrium with
 the default option chain (reflection depth, then shadow rays) at the criterion "FLIP added per
@@ -11,7 +12,9 @@ compile excluded). Prints the plan, both costs, FLIP mean and 95% interval over 
 speed ratio, and whether issue 16's target holds: planned >= 1.5x faster than plain foveation at
 equal or better FLIP (the plan's mean FLIP within or below plain foveation's interval). Writes a
 chart of ms per frame against FLIP (every configuration the search evaluated; plain and plan
-marked) per SPP to --output. The machine is noisy: read the same-run ratio.
+marked) per SPP to --output. The machine is noisy: read the same-run ratio. `--step` appends
+steps to the default chain (each applied over the previous candidate, so it stays monotone),
+for `Fidelity` fields newer than `fovjax.eval.DEFAULT_STEPS` knows.
 """
 
 from __future__ import annotations
@@ -21,12 +24,30 @@ import time
 from pathlib import Path
 
 import fovjax
-from fovjax.eval import plan_fidelity
-from fovjax.foveate import Foveation
+from fovjax.eval import default_options, plan_fidelity
+from fovjax.foveate import Fidelity, Foveation
 from fovjax.render import RenderConfig, StereoRig
 
 GAZES = ((0.35, 0.45), (0.3, 0.4), (0.7, 0.65))
 TARGET = 1.5
+
+
+def _step(text: str) -> dict:
+    """FIELD=VALUE[,FIELD=VALUE]: integers as integers, anything else a string."""
+    out = {}
+    for part in text.split(","):
+        name, _, value = part.partition("=")
+        out[name.strip()] = int(value) if value.strip().lstrip("-").isdigit() else value.strip()
+    return out
+
+
+def _options(max_depth: int, lights: int, steps: list[dict]) -> tuple:
+    chain = list(default_options(max_depth, lights))
+    fields = {f: getattr(chain[-1], f) for f in ("max_depth", "shadows")}
+    for step in steps:
+        fields = {**fields, **step}
+        chain.append(Fidelity(**fields))
+    return tuple(chain)
 
 
 def _chart(plan, path: Path, title: str) -> Path:
@@ -38,13 +59,17 @@ def _chart(plan, path: Path, title: str) -> Path:
     fig, ax = plt.subplots(figsize=(8, 5.5))
     for passed, colour, label in ((True, "tab:blue", "search: passed"), (False, "0.6", "search: failed")):
         steps = [s for s in plan.steps if s.passed == passed]
-        ax.scatter([s.ms_per_frame for s in steps], [s.metric for s in steps], color=colour, s=25, label=label)
+        ax.scatter(
+            [s.ms_per_frame for s in steps], [s.metric for s in steps], color=colour, s=25, label=label
+        )
     for name, cost, m, colour, marker in (
         ("plain foveation", plan.plain_cost, plan.plain_metric, "tab:red", "o"),
         ("planned fidelity", plan.plan_cost, plan.plan_metric, "tab:green", "D"),
     ):
         err = [[m[0] - m[1]], [m[2] - m[0]]]
-        ax.errorbar([cost["ms_per_frame"]], [m[0]], yerr=err, fmt=marker, color=colour, ms=9, capsize=3, label=name)
+        ax.errorbar(
+            [cost["ms_per_frame"]], [m[0]], yerr=err, fmt=marker, color=colour, ms=9, capsize=3, label=name
+        )
     ax.set_xlabel("ms per frame (median; plain and plan timed alternately)")
     ax.set_ylabel("FLIP against the full render (mean, 95% interval)")
     ax.set_title(title, fontsize=9)
@@ -66,6 +91,7 @@ def main(argv=None):
     parser.add_argument("--threshold", type=float, default=0.01, help="FLIP added per 5° ring")
     parser.add_argument("--keys", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--step", type=_step, action="append", default=[], help="FIELD=VALUE[,...]")
     parser.add_argument("-o", "--output", default="out/plan_fidelity")
     args = parser.parse_args(argv)
 
@@ -74,12 +100,14 @@ def main(argv=None):
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
     config = RenderConfig()
+    options = _options(config.max_depth, len(scene.lights), args.step)
     with open("/proc/loadavg") as fh:
         load = fh.read().split()[:3]
     print(
         f"atrium {args.triangles} triangles, 2 x {args.width}x{args.height}, thesis 5°/10°, "
         f"max_depth {config.max_depth}, gazes {GAZES} x keys {args.keys}; load average {' '.join(load)}"
     )
+    print(f"options per region (dearest first): {options}")
     for spp in args.spp:
         t0 = time.perf_counter()
         plan = plan_fidelity(
@@ -91,6 +119,7 @@ def main(argv=None):
             keys=args.keys,
             config=config,
             repeats=args.repeats,
+            options=options,
             log=lambda line: print("  " + line, flush=True),
         )
         print(f"\nSPP {spp} (search and timing {time.perf_counter() - t0:.0f} s)")
@@ -98,7 +127,8 @@ def main(argv=None):
         equal = plan.plan_metric[0] <= plan.plain_metric[2]
         met = plan.speedup >= TARGET and equal
         print(
-            f"SPP {spp}: planned {plan.speedup:.2f}x faster than plain foveation; FLIP {plan.plan_metric[0]:.4f} "
+            f"SPP {spp}: planned {plan.speedup:.2f}x faster than plain foveation; "
+            f"FLIP {plan.plan_metric[0]:.4f} "
             f"vs plain {plan.plain_metric[0]:.4f} [{plan.plain_metric[1]:.4f}, {plan.plain_metric[2]:.4f}] "
             f"({'within or below' if equal else 'above'} its interval); target >= {TARGET}x at equal FLIP: "
             f"{'met' if met else 'NOT met'}"

@@ -184,7 +184,10 @@ def test_cli_compare_fidelity_auto(scene_rig, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "15/30 spp1 planned:" in text and "fovea shadows='none'" in text and "speed:" in text
     rows = read_csv(out / "comparison.csv")
-    assert [(r["config"], r["planned"]) for r in rows] == [("15/30 spp1", False), ("15/30 spp1 planned", True)]
+    assert [(r["config"], r["planned"]) for r in rows] == [
+        ("15/30 spp1", False),
+        ("15/30 spp1 planned", True),
+    ]
     plain, planned = rows
     assert plain["fidelity"] == "full"
     assert planned["fidelity"] == "fovea shadows='none', periphery shadows='none', outside shadows='none'"

@@ -120,7 +120,9 @@ def validate(args) -> None:
         why = "--no-perceptual skips it" if args.no_perceptual else "pip install 'fovjax[fvvdp]'"
         raise cli.UsageError(f"--criterion jod: needs FovVideoVDP ({why})")
     if args.fidelity == "auto" and importlib.util.find_spec("flip_evaluator") is None:
-        raise cli.UsageError("--fidelity auto: plans by FLIP, needs flip-evaluator (pip install 'fovjax[flip]')")
+        raise cli.UsageError(
+            "--fidelity auto: plans by FLIP, needs flip-evaluator (pip install 'fovjax[flip]')"
+        )
 
 
 def run(args) -> int:

@@ -187,7 +187,9 @@ def _where(name: str) -> str:
 
 def _check_criterion(criterion) -> tuple[str, float]:
     if not (isinstance(criterion, tuple | list) and len(criterion) == 2):
-        raise ValueError(f"{_where('criterion')} {criterion!r}: expected (metric, threshold), e.g. ('flip', 0.05)")
+        raise ValueError(
+            f"{_where('criterion')} {criterion!r}: expected (metric, threshold), e.g. ('flip', 0.05)"
+        )
     metric, threshold = criterion
     if metric not in PLAN_METRICS:
         raise ValueError(f"{_where('criterion')} metric {metric!r}: expected one of {PLAN_METRICS}")
@@ -217,7 +219,9 @@ def _check_gazes(gazes) -> list[np.ndarray]:
         try:
             a = np.asarray(g, np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"{_where(f'gazes[{i}]')} {g!r}: expected (x, y) or ((lx, ly), (rx, ry))") from None
+            raise ValueError(
+                f"{_where(f'gazes[{i}]')} {g!r}: expected (x, y) or ((lx, ly), (rx, ry))"
+            ) from None
         if a.shape == (2,):
             a = np.broadcast_to(a, (2, 2))
         out.append(check_gaze(a, f"plan_fidelity: gazes[{i}]"))
@@ -258,10 +262,14 @@ def _check_options(options, max_depth: int, lights: int) -> list[tuple]:
         )
     for name, chain in zip(REGIONS, per_region, strict=True):
         if not chain:
-            raise ValueError(f"{_where(f'options ({name})')}: empty; expected at least one candidate Fidelity")
+            raise ValueError(
+                f"{_where(f'options ({name})')}: empty; expected at least one candidate Fidelity"
+            )
         for i, f in enumerate(chain):
             if not isinstance(f, Fidelity):
-                raise ValueError(f"{_where(f'options ({name})[{i}]')} {f!r}: expected a fovjax.foveate.Fidelity")
+                raise ValueError(
+                    f"{_where(f'options ({name})[{i}]')} {f!r}: expected a fovjax.foveate.Fidelity"
+                )
             if f.max_depth is not None and int(f.max_depth) > max_depth:
                 raise ValueError(
                     f"{_where(f'options ({name})[{i}]')} max_depth {f.max_depth}: expected at most the "
@@ -452,7 +460,9 @@ def plan_fidelity(
         if key not in references:
             import jax
 
-            ref = render_stereo(scene, rig, spp=foveation.spp, key=jax.random.key(key), config=config, bvh=bvh)
+            ref = render_stereo(
+                scene, rig, spp=foveation.spp, key=jax.random.key(key), config=config, bvh=bvh
+            )
             references[key] = ref.image
     frames = [(g, k) for g in gazes for k in keys]
     judge = _Judge(scene, rig, config, frames, references, metric, bvh)
@@ -475,7 +485,7 @@ def plan_fidelity(
             continue
         results: dict[int, tuple[bool, _Evaluation]] = {}
 
-        def passes(i, region=region, chain=chain):
+        def passes(i, region=region, chain=chain, results=results):
             trial = list(current)
             trial[region] = chain[i]
             ev = judge(dataclasses.replace(foveation, fidelity=tuple(trial)))
