@@ -134,6 +134,7 @@ def test_default_options_are_a_monotone_chain():
     # One light: "brightest" is "all"; max_depth 1: the depth-2 step is skipped.
     assert [f.shadows for f in default_options(1, lights=1)] == ["all", "all", "none"]
     assert [f.max_depth for f in default_options(1, lights=1)] == [None, 0, 0]
+    assert default_options(5, lights=1, spp=4) == default_options(5, lights=1, spp=1)
 
 
 def test_top_level_export():
@@ -173,6 +174,7 @@ BAD = [
     ({"spp": 3}, "spp 3"),
     ({"spp": 0}, "spp 0"),
     ({"repeats": 0}, "repeats 0"),
+    ({"render_kwargs": ["envmap"]}, "render_kwargs"),
     ({"options": []}, "options"),
     ({"options": [FULL, "cheap"]}, "options"),
     ({"options": [FULL, Fidelity(max_depth=3)]}, r"options \(fovea\)\[1\] max_depth 3.*max_depth 2"),

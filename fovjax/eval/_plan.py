@@ -46,9 +46,11 @@ DEFAULT_PLAN_GAZES = ((0.35, 0.45), (0.3, 0.4), (0.7, 0.65))
 # The default option chain of every region, built cumulatively: each step changes the previous
 # candidate's fields, so each candidate does no more work than the one before (monotone). A
 # `max_depth` step is skipped where it is not below the render config's depth, a "brightest"
-# step where the scene has one light (it would equal "all"). When `Fidelity` gains more fields
-# (geometry `lod`, `texture_lod`, per-region `spp`), append their steps here, coarsest last,
-# e.g. {"lod": 1}, {"texture_lod": 1}: the one place the default grid is defined.
+# step where the scene has one light (it would equal "all"), an `spp` step where it is not below
+# the frame's SPP. When `Fidelity` gains more fields (geometry `lod`, `texture_lod`, per-region
+# `spp`), append their steps here, coarsest last, e.g. {"texture_lod": 1}, {"spp": 1},
+# {"lod": "auto"}: the one place the default grid is defined (a field that needs a renderer
+# input, like `lod` its levels, also needs `plan_fidelity(render_kwargs=...)`).
 DEFAULT_STEPS: tuple[dict, ...] = (
     {"max_depth": 2},
     {"max_depth": 1},
@@ -58,11 +60,11 @@ DEFAULT_STEPS: tuple[dict, ...] = (
 )
 
 
-def default_options(max_depth: int = 5, lights: int = 1) -> tuple:
+def default_options(max_depth: int = 5, lights: int = 1, spp: int = 1) -> tuple:
     """The default candidates of one region, dearest first: full fidelity, then the steps of
     `DEFAULT_STEPS` applied one after another (reflection depth 2, 1, 0 below the render
     config's `max_depth`; then shadow rays to the brightest light only, with more than one
-    light; then none)."""
+    light; then none). `spp`: the frame's samples per pixel (an `spp` step must be below it)."""
     from ..foveate import Fidelity
 
     fields: dict = {}
@@ -71,6 +73,8 @@ def default_options(max_depth: int = 5, lights: int = 1) -> tuple:
         if "max_depth" in step and step["max_depth"] >= max_depth:
             continue
         if step.get("shadows") == "brightest" and lights <= 1:
+            continue
+        if "spp" in step and step["spp"] >= spp:
             continue
         fields = {**fields, **step}
         chain.append(Fidelity(**fields))
@@ -237,13 +241,13 @@ def _check_keys(keys) -> list[int]:
     return [int(k) for k in keys]
 
 
-def _check_options(options, max_depth: int, lights: int) -> list[tuple]:
+def _check_options(options, max_depth: int, lights: int, spp: int) -> list[tuple]:
     """Three chains (fovea, periphery, outside) of `Fidelity`, each non-empty, each depth at
     most the render config's."""
     from ..foveate import Fidelity
 
     if options is None:
-        return [default_options(max_depth, lights)] * 3
+        return [default_options(max_depth, lights, spp)] * 3
     if isinstance(options, Fidelity) or isinstance(options, str | bytes) or not isinstance(options, Sequence):
         raise ValueError(
             f"{_where('options')} {options!r}: expected a sequence of candidate Fidelity (every region) "
@@ -306,8 +310,9 @@ def _pad(a: np.ndarray, n: int) -> np.ndarray:
 class _Judge:
     """Renders a configuration over the fixed frames and measures it against the references."""
 
-    def __init__(self, scene, rig, config, frames, references, metric, bvh):
+    def __init__(self, scene, rig, config, frames, references, metric, bvh, render_kwargs):
         self.scene, self.rig, self.config, self.bvh = scene, rig, config, bvh
+        self.render_kwargs = render_kwargs
         self.frames, self.references, self.metric = frames, references, metric
         self.ppd = HmdDisplay.from_camera(rig.eye_cameras()[0]).ppd
 
@@ -325,6 +330,7 @@ class _Judge:
                 key=jax.random.key(key),
                 config=self.config,
                 bvh=self.bvh,
+                **self.render_kwargs,
             )
 
         frame = once()
@@ -392,6 +398,7 @@ def plan_fidelity(
     config=None,
     repeats: int = 1,
     bvh=None,
+    render_kwargs: dict | None = None,
     log: Callable[[str], None] | None = None,
     _references: dict | None = None,
 ) -> FidelityPlan:
@@ -413,7 +420,9 @@ def plan_fidelity(
     `spp` overrides `foveation.spp`; `config`: the `RenderConfig` (default: `RenderConfig()`).
     The search: module docstring. Cost: after the search, plain foveation and the plan are
     rendered alternately over the frames `repeats` times; median ms per frame (compile
-    excluded) and mean rays per frame. `log`: called with a line per evaluation.
+    excluded) and mean rays per frame. `render_kwargs`: more keyword arguments of every
+    `render_foveated` call that change nothing at full fidelity (the full render does not get
+    them), e.g. the levels of detail a `Fidelity.lod` needs. `log`: a line per evaluation.
 
     Every argument is checked before anything is rendered (ValueError naming the argument, the
     value and what was expected; `MissingExtraError` when FLIP is not installed)."""
@@ -443,7 +452,12 @@ def plan_fidelity(
         foveation = dataclasses.replace(foveation, spp=spp)
     repeats = _check_int(repeats, "repeats", 1)
     lights = len(scene.lights) if scene.lights is not None else 0
-    chains = _check_options(options, int(config.max_depth), lights)
+    chains = _check_options(options, int(config.max_depth), lights, foveation.spp)
+    if render_kwargs is not None and not isinstance(render_kwargs, dict):
+        raise ValueError(
+            f"{_where('render_kwargs')} {render_kwargs!r}: expected None or a dict of keyword arguments "
+            "of render_foveated"
+        )
     from ..foveate import Fidelity
 
     for name, f in zip(REGIONS, foveation.fidelity or (), strict=False):
@@ -465,7 +479,7 @@ def plan_fidelity(
             )
             references[key] = ref.image
     frames = [(g, k) for g in gazes for k in keys]
-    judge = _Judge(scene, rig, config, frames, references, metric, bvh)
+    judge = _Judge(scene, rig, config, frames, references, metric, bvh, render_kwargs or {})
 
     start = tuple(foveation.fidelity) if foveation.fidelity is not None else (Fidelity(),) * 3
     plain_ev = judge(foveation)
