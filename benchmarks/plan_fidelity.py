@@ -136,8 +136,8 @@ def main(argv=None):
         path = _chart(
             plan,
             Path(args.output) / f"plan_fidelity_spp{spp}.png",
-            f"atrium {args.triangles:,} tri, 2x{args.width}x{args.height}, SPP {spp}, 5°/10°: "
-            f"plan {plan.describe_plan()}",
+            f"atrium {args.triangles:,} tri, 2x{args.width}x{args.height}, SPP {spp}, 5°/10°, "
+            f"{plan.speedup:.2f}x plain's speed\nplan: {plan.describe_plan()}",
         )
         print(f"wrote {path}\n", flush=True)
     with open("/proc/loadavg") as fh:
