@@ -166,6 +166,11 @@ class FidelityPlan:
                 f"{m[0]:12.4f} [{m[1]:.4f}, {m[2]:.4f}]"
             )
         lines.append(f"speed: {self.speedup:.2f}x plain; rays: {self.ray_ratio:.3f}x plain")
+        if self.speedup <= 1 and self.fidelity != self.plain.fidelity:
+            lines.append(
+                "no measured gain: the plan traces fewer rays but is not faster than plain foveation "
+                "in this run (plain foveation is the cheaper choice here)"
+            )
         lines.append(f"{'ring deg':>9} {'plain':>8} {'planned':>8} {'added':>8}")
         for lo, hi, p, q in zip(
             self.ring_lower_deg, self.ring_upper_deg, self.plain_ring_error, self.ring_error, strict=True
