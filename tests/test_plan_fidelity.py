@@ -78,6 +78,7 @@ def test_zero_criterion_keeps_full_fidelity(spheres, loose):
     assert [(s.region, s.passed) for s in strict.steps] == [("outside", False)]
     assert strict.steps[0].worst_added > 0
     assert strict.fidelity == (FULL, FULL, FULL)
+    assert strict.foveation is strict.plain  # plain foveation itself: the same program
     assert strict.plan_cost["rays_per_frame"] == strict.plain_cost["rays_per_frame"]
     for key in KEYS:
         kwargs = {"gaze": (GAZES[0], GAZES[0]), "key": jax.random.key(key)}

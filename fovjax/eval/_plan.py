@@ -102,7 +102,8 @@ class PlanStep:
 @dataclasses.dataclass(frozen=True)
 class FidelityPlan:
     """What `plan_fidelity` found. `foveation`: the plan (the given foveation with
-    `fidelity=(fovea, periphery, outside)`); `plain`: the given foveation (its own fidelity).
+    `fidelity=(fovea, periphery, outside)`, or the given foveation itself where no region could
+    be cheapened); `plain`: the given foveation (its own fidelity).
     Per 5° ring (`ring_lower_deg` up): the plan's and plain foveation's mean error against the
     full render (pixel-weighted over every gaze × key frame). `plan_cost`/`plain_cost`:
     `ms_per_frame` (median over frames, the two timed alternately in the same run) and
@@ -125,7 +126,10 @@ class FidelityPlan:
 
     @property
     def fidelity(self) -> tuple:
-        return self.foveation.fidelity
+        """The plan's (fovea, periphery, outside) `Fidelity` (full ones where the foveation has none)."""
+        from ..foveate import Fidelity
+
+        return self.foveation.fidelity or (Fidelity(),) * 3
 
     @property
     def added_ring_error(self) -> np.ndarray:
@@ -166,7 +170,7 @@ class FidelityPlan:
                 f"{m[0]:12.4f} [{m[1]:.4f}, {m[2]:.4f}]"
             )
         lines.append(f"speed: {self.speedup:.2f}x plain; rays: {self.ray_ratio:.3f}x plain")
-        if self.speedup <= 1 and self.fidelity != self.plain.fidelity:
+        if self.speedup <= 1 and self.foveation is not self.plain:
             lines.append(
                 "no measured gain: the plan traces fewer rays but is not faster than plain foveation "
                 "in this run (plain foveation is the cheaper choice here)"
@@ -545,7 +549,10 @@ def plan_fidelity(
             current[region] = chain[chosen]
             best_ev = results[chosen][1]
 
-    planned = dataclasses.replace(foveation, fidelity=tuple(current))
+    # Nothing cheaper passed: the given foveation itself (the same compiled program).
+    planned = (
+        foveation if tuple(current) == start else dataclasses.replace(foveation, fidelity=tuple(current))
+    )
     plain_fov = foveation
     # Cost in the same run: plain and plan rendered alternately over the frames.
     plain_s, plan_s, plain_rays, plan_rays = [], [], [], []
