@@ -12,9 +12,11 @@ compile excluded). Prints the plan, both costs, FLIP mean and 95% interval over 
 speed ratio, and whether issue 16's target holds: planned >= 1.5x faster than plain foveation at
 equal or better FLIP (the plan's mean FLIP within or below plain foveation's interval). Writes a
 chart of ms per frame against FLIP (every configuration the search evaluated; plain and plan
-marked) per SPP to --output. The machine is noisy: read the same-run ratio. `--step` appends
-steps to the default chain (each applied over the previous candidate, so it stays monotone),
-for `Fidelity` fields newer than `fovjax.eval.DEFAULT_STEPS` knows.
+marked) per SPP to --output. The machine is noisy: read the same-run ratio. `--step` puts
+steps before the default chain's (each applied over the previous candidate, so the chain stays
+monotone; first, because a lever meant to be invisible, like geometry LOD below the resolvable
+angle, should be taken before reflections and shadows go), for `Fidelity` fields newer than
+`fovjax.eval.DEFAULT_STEPS` knows.
 """
 
 from __future__ import annotations
@@ -41,12 +43,16 @@ def _step(text: str) -> dict:
     return out
 
 
-def _options(max_depth: int, lights: int, steps: list[dict]) -> tuple:
-    chain = list(default_options(max_depth, lights))
-    fields = {f: getattr(chain[-1], f) for f in ("max_depth", "shadows")}
+def _options(max_depth: int, lights: int, spp: int, steps: list[dict]) -> tuple:
+    """The default chain with `steps` taken first: full, the steps, then every default
+    candidate with the steps' fields added."""
+    extra: dict = {}
+    chain = [Fidelity()]
     for step in steps:
-        fields = {**fields, **step}
-        chain.append(Fidelity(**fields))
+        extra = {**extra, **step}
+        chain.append(Fidelity(**extra))
+    for f in default_options(max_depth, lights, spp)[1:]:
+        chain.append(Fidelity(max_depth=f.max_depth, shadows=f.shadows, **extra))
     return tuple(chain)
 
 
@@ -100,15 +106,15 @@ def main(argv=None):
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
     config = RenderConfig()
-    options = _options(config.max_depth, len(scene.lights), args.step)
     with open("/proc/loadavg") as fh:
         load = fh.read().split()[:3]
     print(
         f"atrium {args.triangles} triangles, 2 x {args.width}x{args.height}, thesis 5°/10°, "
         f"max_depth {config.max_depth}, gazes {GAZES} x keys {args.keys}; load average {' '.join(load)}"
     )
-    print(f"options per region (dearest first): {options}")
     for spp in args.spp:
+        options = _options(config.max_depth, len(scene.lights), spp, args.step)
+        print(f"options per region (dearest first): {options}")
         t0 = time.perf_counter()
         plan = plan_fidelity(
             scene,

@@ -48,9 +48,11 @@ DEFAULT_PLAN_GAZES = ((0.35, 0.45), (0.3, 0.4), (0.7, 0.65))
 # `max_depth` step is skipped where it is not below the render config's depth, a "brightest"
 # step where the scene has one light (it would equal "all"), an `spp` step where it is not below
 # the frame's SPP. When `Fidelity` gains more fields (geometry `lod`, `texture_lod`, per-region
-# `spp`), append their steps here, coarsest last, e.g. {"texture_lod": 1}, {"spp": 1},
-# {"lod": "auto"}: the one place the default grid is defined (a field that needs a renderer
-# input, like `lod` its levels, also needs `plan_fidelity(render_kwargs=...)`).
+# `spp`), add their steps here in the order of the error each is expected to add, least first
+# (the binary search assumes the error grows along the chain), e.g. {"lod": "auto"} (meant to
+# stay below the resolvable angle) and {"texture_lod": "auto"} before the reflection-depth steps,
+# {"spp": 1} where it measures: the one place the default grid is defined (a field that needs
+# a renderer input beyond what `render_foveated` finds itself also needs `render_kwargs`).
 DEFAULT_STEPS: tuple[dict, ...] = (
     {"max_depth": 2},
     {"max_depth": 1},
