@@ -52,7 +52,7 @@ def _options(max_depth: int, lights: int, spp: int, steps: list[dict]) -> tuple:
         extra = {**extra, **step}
         chain.append(Fidelity(**extra))
     for f in default_options(max_depth, lights, spp)[1:]:
-        chain.append(Fidelity(max_depth=f.max_depth, shadows=f.shadows, **extra))
+        chain.append(Fidelity(**{**extra, "max_depth": f.max_depth, "shadows": f.shadows}))
     return tuple(chain)
 
 
