@@ -13,10 +13,10 @@ speed ratio, and whether issue 16's target holds: planned >= 1.5x faster than pl
 equal or better FLIP (the plan's mean FLIP within or below plain foveation's interval). Writes a
 chart of FLIP against rays per frame (every configuration the search evaluated; plain and plan
 marked with their ms per frame) per SPP to --output. The machine is noisy: read the same-run
-ratio. `--step` puts steps before the default chain's (each applied over the previous candidate, so the chain stays
-monotone; first, because a lever meant to be invisible, like geometry LOD below the resolvable
-angle, should be taken before reflections and shadows go), for `Fidelity` fields newer than
-`fovjax.eval.DEFAULT_STEPS` knows.
+ratio. `--step` puts steps before the default chain's (each applied over the previous
+candidate, so the chain stays monotone; first, because a lever meant to be invisible, like
+geometry LOD below the resolvable angle, should be taken before reflections and shadows go),
+for `Fidelity` fields newer than `fovjax.eval.DEFAULT_STEPS` knows.
 """
 
 from __future__ import annotations
