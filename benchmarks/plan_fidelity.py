@@ -2,7 +2,7 @@
 
     python benchmarks/plan_fidelity.py                  # atrium 262k, 2 x 320x256, SPP 1 and 4
     python benchmarks/plan_fidelity.py --threshold 0.02 --spp 1
-    python benchmarks/plan_fidelity.py --step lod=1 --step lod=2   # once Fidelity has `lod`
+    python benchmarks/plan_fidelity.py --spp 4 --step spp=1   # once Fidelity has `spp` (or lod=auto)
 
 For each SPP: `fovjax.eval.plan_fidelity` plans the thesis pair 0 (5°/10°) on the atrium with
 the default option chain (reflection depth, then shadow rays) at the criterion "FLIP added per
