@@ -10,7 +10,7 @@ tests/test_architecture.py). So the planner sits with the metrics and returns a 
 The criterion bounds the error the plan *adds*: per ring, the plan's mean error against the
 full render minus plain foveation's (the same foveation without fidelity, same gazes and keys,
 so the same samples). Not the plan's whole error: plain foveation alone already measures FLIP
-0.11-0.17 per ring outside the fovea against the full render on the atrium at SPP 1 (2×320×256),
+0.10-0.17 per ring outside the fovea against the full render on the atrium at SPP 1 (2×320×256),
 so an absolute per-ring bound of 0.05 would be missed by every plan, full fidelity included.
 
 The search is short by construction:
