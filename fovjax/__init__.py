@@ -39,3 +39,14 @@ from .session import full_eccentricity as full_eccentricity
 from .session import run_session as run_session
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """`fovjax.plan_fidelity` (from `fovjax.eval`, imported on first use: `import fovjax` stays
+    free of the metrics' dependencies). It lives in eval, not foveate, because it judges plans
+    by image metrics and the core packages never import eval (README, "Architecture")."""
+    if name == "plan_fidelity":
+        from .eval import plan_fidelity
+
+        return plan_fidelity
+    raise AttributeError(f"module 'fovjax' has no attribute {name!r}")
