@@ -17,6 +17,8 @@ from ._traverse import (
     ITEM_DONE,
     ITEM_POP,
     _decode_boxes,
+    _fmax,
+    _fmin,
     _ray_setup,
     _run_steps,
     _slab4,
@@ -53,8 +55,8 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
 
     boxes = [(box[:, 2 * a, None, :], box[:, 2 * a + 1, None, :]) for a in range(3)]  # (K, 1, 4)
     t_near, t_far = _slab4(boxes, o, inv_d)  # (K, P, 4)
-    t_near = jnp.maximum(t_near, tmin[..., None])
-    t_far = jnp.minimum(t_far, t_limit[..., None])
+    t_near = _fmax(t_near, tmin[..., None])
+    t_far = _fmin(t_far, t_limit[..., None])
     child = row[:, 10:14]
     ray_key = jnp.where(t_near <= t_far, t_near, jnp.inf)
     key = jnp.where(child >= 0, jnp.min(ray_key, axis=1), jnp.inf)  # (K, 4): packet entry distance
@@ -78,7 +80,7 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     n_hit = jnp.sum(jnp.isfinite(jnp.stack(keys, 1)), axis=1).astype(jnp.int32)
 
     # Materialised once (see _traverse._step): the consumers read whether the best improved.
-    t_new = barrier(jnp.minimum(t_tri, t_best))
+    t_new = barrier(_fmin(t_tri, t_best))
     found = t_new < t_best
     t_best = t_new
     prim = jnp.where(found, row[:, None, 9], prim)

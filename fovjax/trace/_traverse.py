@@ -58,6 +58,17 @@ def _ray_setup(o, d):
     return valid, o, inv_d, jnp.stack([kx, ky, kz], -1), shear
 
 
+def _fmin(a, b):
+    """min(a, b) as one compare and select: XLA's `minimum` also propagates NaN, which costs
+    extra instructions per call; the traversal's distances are never NaN (see `_ray_setup`)."""
+    return jnp.where(a < b, a, b)
+
+
+def _fmax(a, b):
+    """max(a, b) as one compare and select (see `_fmin`)."""
+    return jnp.where(a > b, a, b)
+
+
 def _pick(x, k):
     """x[..., k] for a per-ray component index k, as selects (no gather)."""
     return jnp.where(k == 0, x[..., 0], jnp.where(k == 1, x[..., 1], x[..., 2]))
@@ -117,10 +128,10 @@ def _slab4(boxes, o, inv_d):
     for axis, (lo, hi) in enumerate(boxes):
         t0 = (lo - o[..., axis, None]) * inv_d[..., axis, None]
         t1 = (hi - o[..., axis, None]) * inv_d[..., axis, None]
-        t_lo.append(jnp.minimum(t0, t1))
-        t_hi.append(jnp.maximum(t0, t1))
-    t_near = jnp.maximum(jnp.maximum(t_lo[0], t_lo[1]), t_lo[2])
-    t_far = jnp.minimum(jnp.minimum(t_hi[0], t_hi[1]), t_hi[2]) * BOX_FAR_SCALE
+        t_lo.append(_fmin(t0, t1))
+        t_hi.append(_fmax(t0, t1))
+    t_near = _fmax(_fmax(t_lo[0], t_lo[1]), t_lo[2])
+    t_far = _fmin(_fmin(t_hi[0], t_hi[1]), t_hi[2]) * BOX_FAR_SCALE
     return t_near, t_far
 
 
@@ -145,8 +156,8 @@ def _visit(table, num_nodes, rays, cur, t_limit):
     row = table[jnp.maximum(cur, 0)]
     is_node = cur < num_nodes
     t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
-    t_near = jnp.maximum(t_near, tmin[:, None])
-    t_far = jnp.minimum(t_far, t_limit[:, None])
+    t_near = _fmax(t_near, tmin[:, None])
+    t_far = _fmin(t_far, t_limit[:, None])
     child = row[:, 10:14]
     key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
@@ -187,7 +198,7 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
 
     # The triangle test is materialised once, as the new best distance; its other consumers
     # read whether it improved (t_tri < t_best by construction) instead of recomputing it.
-    t_new = barrier(jnp.minimum(t_tri, t_best))
+    t_new = barrier(_fmin(t_tri, t_best))
     found = t_new < t_best
     t_best = t_new
     prim = jnp.where(found, row[:, 9], prim)
@@ -244,7 +255,7 @@ def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
 
     active, is_node, row, child, key, t_tri = _visit(table, num_nodes, rays, cur, t_max)
     # Materialised once as the carried distance (see `_step`); consumers compare with it.
-    t_new = barrier(jnp.minimum(t_tri, t_max))
+    t_new = barrier(_fmin(t_tri, t_max))
     found = t_new < t_max
 
     # The nearest entered child is visited next; the others are pushed in slot order.
