@@ -71,7 +71,7 @@ def _fmax(a, b):
 
 def _xyz(x, i, axis):
     """Component i of x, whose xyz run along `axis`."""
-    return x[..., i] if axis == -1 else jnp.take(x, i, axis=axis)
+    return x[..., i] if axis == -1 else lax.index_in_dim(x, i, axis=axis, keepdims=False)
 
 
 def _pick(x, k, axis=-1):
