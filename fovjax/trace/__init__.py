@@ -10,6 +10,7 @@ from ._build import BuildParams as BuildParams
 from ._bvh import BVH as BVH
 from ._bvh import build_bvh as build_bvh
 from ._bvh import last_build_info as last_build_info
+from ._bvh import merge_bvhs as merge_bvhs
 from ._query import (
     BACKENDS as BACKENDS,
 )
