@@ -120,3 +120,250 @@ def test_level_is_traced_under_jit(levels, merged):
         assert hit.any()
         assert ((prim[hit] >= face_offset[lv]) & (prim[hit] < face_offset[lv] + levels.triangles[lv])).all()
     assert f._cache_size() == 1
+
+
+# ---- the foveated frame ------------------------------------------------------------------------
+
+from fovjax.foveate import Fidelity, Foveation, render_foveated  # noqa: E402
+from fovjax.foveate import _lod as fov_lod  # noqa: E402
+from fovjax.render import TRACE_COUNTS, RenderConfig, StereoRig, stereo_sample_rays  # noqa: E402
+from fovjax.scene import make_materials, make_scene  # noqa: E402
+
+CONFIG = RenderConfig(max_depth=2)
+FULL = Fidelity()
+GAZE = ((0.5, 0.5), (0.5, 0.5))
+
+
+@pytest.fixture(scope="module")
+def spheres_rig(levels):
+    scene = levels.scenes[0]
+    return scene, StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=48, eye_height=32)
+
+
+def _render(scene, rig, levels, fidelity=None, gaze=GAZE, config=CONFIG, **kwargs):
+    f = Foveation.thesis(0, fidelity=fidelity, **kwargs)
+    return render_foveated(
+        scene, rig, gaze=gaze, foveation=f, key=jax.random.key(3), config=config, lod_levels=levels
+    )
+
+
+def _counts(frame):
+    s = frame.stats
+    return (s.primary_rays, s.shadow_rays, s.reflection_rays)
+
+
+def _fovea(frame):
+    return np.concatenate([frame.regions[0], frame.regions[1]], axis=1) == 0
+
+
+@pytest.fixture(scope="module")
+def plain(spheres_rig, levels):
+    return _render(*spheres_rig, levels)
+
+
+def test_default_lod_is_bit_identical(spheres_rig, levels, plain):
+    for lod in (None, 0):
+        frame = _render(*spheres_rig, levels, fidelity=(Fidelity(lod=lod),) * 3)
+        assert np.array_equal(frame.image, plain.image)
+        assert _counts(frame) == _counts(plain)
+
+
+def test_level_zero_through_the_merged_bvh_is_bit_identical(spheres_rig, levels, plain, monkeypatch):
+    """The merged scene, BVH and per-ray levels themselves change nothing at level 0: every
+    region forced to level 0 of all four merged levels, in a fresh compile."""
+    used = []
+
+    def zeros(foveation, tables, bvh, cameras):
+        used.append(1)
+        return jnp.zeros(3, jnp.int32)
+
+    monkeypatch.setattr(fov_lod, "region_levels", zeros)
+    fovjax.render.clear_compile_cache()
+    try:
+        frame = _render(*spheres_rig, levels, fidelity=(Fidelity(lod="auto"),) * 3)
+    finally:
+        fovjax.render.clear_compile_cache()
+    assert used
+    assert np.array_equal(frame.image, plain.image)
+    assert _counts(frame) == _counts(plain)
+
+
+def test_coarse_outside_leaves_the_fovea_alone(spheres_rig, levels, plain):
+    frame = _render(*spheres_rig, levels, fidelity=(FULL, FULL, Fidelity(lod=3)))
+    fovea = _fovea(plain)
+    assert fovea.any()
+    assert np.array_equal(frame.image[fovea], plain.image[fovea])
+    outside = np.concatenate([plain.regions[0], plain.regions[1]], axis=1) == 2
+    assert np.abs(frame.image - plain.image)[outside].mean() > 1e-3  # level 3 visibly differs
+    assert frame.stats.primary_rays == plain.stats.primary_rays
+
+
+def test_gaze_change_does_not_recompile(spheres_rig, levels):
+    fidelity = (FULL, Fidelity(lod=1), Fidelity(lod="auto"))
+    _render(*spheres_rig, levels, fidelity=fidelity)
+    before = TRACE_COUNTS["foveated"]
+    frame = _render(*spheres_rig, levels, fidelity=fidelity, gaze=((0.2, 0.3), (0.25, 0.3)))
+    assert TRACE_COUNTS["foveated"] == before
+    assert frame.stats.compile_seconds == 0.0
+
+
+@pytest.fixture(scope="module")
+def ball(tmp_path_factory):
+    """An emissive red icosphere (1280 triangles) on the background, no lights, and its levels
+    (1, 0.1): a pixel is red exactly where its ray hits, so the hit mask is read off the image."""
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    scene = make_scene(
+        np.asarray(mesh.vertices, np.float32),
+        np.asarray(mesh.faces, np.int32),
+        materials=make_materials([{"kd": (0.0, 0.0, 0.0), "ke": (1.0, 0.0, 0.0)}]),
+        ambient=(0.0, 0.0, 0.0),
+    )
+    ball_levels = lod_levels(scene, (1.0, 0.1), cache_dir=tmp_path_factory.mktemp("ball"))
+    rig = StereoRig.look_at((0.0, 0.0, 3.2), (0.0, 0.0, 0.0), eye_width=128, eye_height=96)
+    return scene, rig, ball_levels
+
+
+def test_outside_hits_lie_on_the_coarse_level(ball):
+    """Gaze on the ball's left edge: the outside region (its right part and silhouette) is traced
+    against level 1, the fovea against the scene: each traced sample hits exactly where brute
+    force against its region's level's triangles says, and level 1's silhouette differs from the
+    scene's on some of them (the test can fail)."""
+    scene, rig, ball_levels = ball
+    config = RenderConfig(max_depth=0)
+    gaze = ((0.22, 0.5), (0.22, 0.5))
+    f = Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(lod=1)))
+    frame = render_foveated(scene, rig, gaze=gaze, foveation=f, config=config, lod_levels=ball_levels)
+    plain = render_foveated(scene, rig, gaze=gaze, foveation=Foveation.thesis(0), config=config)
+    rays = stereo_sample_rays(rig, None, 1, None)
+    o = np.asarray(rays.origins)[:, 0].reshape(-1, 3)
+    d = np.asarray(rays.directions)[:, 0].reshape(-1, 3)
+    traced = np.asarray(frame.sample_mask)[:, 0].reshape(-1)
+    region = np.asarray(frame.regions).reshape(-1)
+    red = np.asarray(frame.outputs.prefill)[..., 1].reshape(-1) < 0.01  # background has green 0.55
+    red_plain = np.asarray(plain.outputs.prefill)[..., 1].reshape(-1) < 0.01
+    for k, level in ((0, 0), (2, 1)):
+        sel = traced & (region == k)
+        assert sel.sum() > 100
+        coarse = ball_levels.scenes[level]
+        t_ref, _, _ = brute_force_closest_hit(coarse.vertices, coarse.faces, o[sel], d[sel])
+        assert np.sum(red[sel] != np.isfinite(t_ref)) <= 1  # a ray through an edge may go either way
+    sel = traced & (region == 2)
+    fine, _, _ = brute_force_closest_hit(scene.vertices, scene.faces, o[sel], d[sel])
+    coarse, _, _ = brute_force_closest_hit(
+        ball_levels.scenes[1].vertices, ball_levels.scenes[1].faces, o[sel], d[sel]
+    )
+    assert np.sum(np.isfinite(fine) != np.isfinite(coarse)) >= 3
+    fovea = (region == 0) & traced
+    assert np.array_equal(red[fovea], red_plain[fovea])
+
+
+def test_auto_distance_is_a_lower_bound(spheres_rig, levels):
+    from fovjax.render import bvh_for
+    from fovjax.scene import surface_distance
+
+    scene, _ = spheres_rig
+    merged = merge_bvhs([bvh_for(scene, None)])
+    tables = fov_lod.prepare_levels(
+        scene, fovjax.render.scene_arrays(scene), bvh_for(scene, None), levels, 0, 1.0
+    )[2]
+    rng = np.random.default_rng(7)
+    eyes = rng.uniform((-5, 0.2, -5), (5, 4, 5), (40, 3)).astype(np.float32)
+    bound = np.array([float(fov_lod.nearest_distance(tables, merged, e)) for e in eyes])
+    exact = surface_distance(eyes, scene.vertices, scene.faces)  # an upper bound of the exact distance
+    assert (bound <= exact + 1e-5).all()
+    assert np.median(bound / exact) > 0.5  # and not trivially 0
+
+
+def test_auto_levels_by_hand(tmp_path):
+    """errors (0, 1 cm, 1 m), the nearest surface 2 m from the eyes, 10 pixels per degree (6'):
+    level 1 subtends 17.2', level 2 26.6°. The thesis model's MAR is 1.09' at 0°, 5.67' at 5° and
+    25.5' at 10°: fovea and periphery keep level 0 (17.2' > 6'), outside takes level 1."""
+    floor = make_scene(
+        np.array([[-50, 0, -50], [50, 0, -50], [50, 0, 50], [-50, 0, 50]], np.float32),
+        np.array([[0, 2, 1], [0, 3, 2]], np.int32),
+    )
+    bvh = merge_bvhs([build_bvh(floor, cache=False)])
+    tables = fov_lod.LODTables(
+        boxes=fov_lod._group_boxes(build_bvh(floor, cache=False)),
+        num_vertices=4,
+        num_triangles=2,
+        errors=(0.0, 0.01, 1.0),
+        pixels_per_degree=10.0,
+    )
+
+    class Eye:
+        def __init__(self, x):
+            self.position = np.array([x, 2.0, 0.0], np.float32)
+
+    f = Foveation.thesis(0, fidelity=(Fidelity(lod="auto"),) * 3)
+    levels = np.asarray(fov_lod.region_levels(f, tables, bvh, (Eye(-0.03), Eye(0.03))))
+    assert levels.tolist() == [0, 0, 1]
+
+
+@pytest.mark.parametrize("lod", [-1, "coarse", True, 1.5])
+def test_bad_lod_values(lod):
+    with pytest.raises(ValueError, match="Fidelity.lod"):
+        Fidelity(lod=lod)
+
+
+def test_bad_levels_fail_before_compiling(spheres_rig, levels):
+    scene, rig = spheres_rig
+    before = TRACE_COUNTS["foveated"]
+    with pytest.raises(ValueError, match=r"\(outside\): lod 4 is out of range: the scene has 4 levels"):
+        _render(scene, rig, levels, fidelity=(FULL, FULL, Fidelity(lod=4)))
+    with pytest.raises(ValueError, match="acuity model"):
+        _render(
+            scene,
+            rig,
+            levels,
+            fidelity=(FULL, Fidelity(lod="auto"), FULL),
+            acuity=fovjax.foveate.LinearFalloff(),
+        )
+    with pytest.raises(ValueError, match="needs a fovjax.Scene"):
+        render_foveated(
+            fovjax.render.scene_arrays(scene),
+            rig,
+            foveation=Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(lod=1))),
+            config=CONFIG,
+            bvh=fovjax.render.bvh_for(scene, None),
+            lod_levels=levels,
+        )
+    other = lod_levels(fovjax.scenes.cornell_box(), (1.0,))
+    with pytest.raises(ValueError, match="another scene"):
+        _render(scene, rig, other, fidelity=(FULL, FULL, Fidelity(lod=1)))
+    assert TRACE_COUNTS["foveated"] == before
+
+
+def test_levels_without_fast_simplification(spheres_rig, monkeypatch, tmp_path):
+    """No cached levels and no decimator: the message names the extra to install."""
+    import sys
+
+    scene, rig = spheres_rig
+    monkeypatch.setitem(sys.modules, "fast_simplification", None)
+    monkeypatch.setenv("FOVJAX_CACHE_DIR", str(tmp_path))
+    with pytest.raises(ImportError, match=r"fovjax\[lod\]"):
+        _render(scene, rig, None, fidelity=(FULL, FULL, Fidelity(lod=1)))
+
+
+def test_frame_program_without_levels_refuses_a_lod_fidelity(spheres_rig):
+    scene, rig = spheres_rig
+    from fovjax.foveate import foveated_stereo
+    from fovjax.render import bvh_for, scene_arrays
+
+    f = Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(lod=1)))
+    with pytest.raises(ValueError, match="levels of detail"):
+        foveated_stereo(
+            scene_arrays(scene),
+            bvh_for(scene, None),
+            rig,
+            np.zeros(3, np.float32),
+            np.full((2, 2), 0.5, np.float32),
+            jax.random.key(0),
+            f,
+            spp=1,
+            jitter=False,
+            config=CONFIG,
+            budget=2 * 48 * 32,
+        )

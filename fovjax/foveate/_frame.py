@@ -418,6 +418,11 @@ def foveated_stereo(
     from ..render import RayCounts
     from ..scene import pixel_sample_positions
 
+    if lod is None and lod_needed(foveation) is not None:  # (lodframe)
+        raise ValueError(
+            "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
+            "merged scene, BVH and LODTables (render_foveated prepares them)"
+        )
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
@@ -450,13 +455,8 @@ def foveated_stereo(
     if lod is not None:
         from ..render import scene_scale
 
-        classes = with_levels(classes, foveation, config, lod, cameras)
+        classes = with_levels(classes, foveation, config, lod, bvh, cameras)
         scale = scene_scale(eqx.tree_at(lambda a: a.vertices, scene, scene.vertices[: lod.num_vertices]))
-    elif lod_needed(foveation) is not None:
-        raise ValueError(
-            "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
-            "merged scene, BVH and LODTables (render_foveated prepares them)"
-        )
     # --- end geometry level of detail ---
     traced = trace_selection(
         scene,
