@@ -84,9 +84,9 @@ def check_levels(foveation, levels) -> None:
             )
 
 
-def _merged_arrays(arrays, scenes):
-    """`arrays` (the finest level's `SceneArrays`) with the geometry of every level concatenated
-    (faces re-indexed), as `merge_bvhs` concatenates the trees."""
+def _merged_geometry(scenes) -> dict:
+    """The geometry of every level concatenated (faces re-indexed), as `merge_bvhs` concatenates
+    the trees: the `SceneArrays` fields to replace."""
     present = {k: [getattr(s, k) is None for s in scenes] for k in ("normals", "uvs")}
     for k, none in present.items():
         if any(none) and not all(none):
@@ -102,6 +102,10 @@ def _merged_arrays(arrays, scenes):
     for k in ("normals", "uvs"):
         if not present[k][0]:
             cat[k] = np.concatenate([np.asarray(getattr(s, k), np.float32) for s in scenes])
+    return cat
+
+
+def _with_geometry(arrays, cat: dict):
     names = tuple(cat)
     return eqx.tree_at(lambda a: tuple(getattr(a, k) for k in names), arrays, tuple(cat[k] for k in names))
 
@@ -120,12 +124,12 @@ def _group_boxes(bvh) -> np.ndarray:
 def prepare_levels(scene, arrays, bvh, levels, top: int, pixels_per_degree: float):
     """(merged scene arrays, merged BVH, `LODTables`) for levels 0..top of `levels` (every level
     for top -1), `bvh` being level 0's. Memoised per levels and arrays (a frame after the first
-    merges nothing)."""
+    merges nothing; the scene arrays' materials, lights and environment are this call's)."""
     from ..render import bvh_for
     from ..trace import merge_bvhs
 
     scenes = levels.scenes if top < 0 else levels.scenes[: top + 1]
-    key = (bvh.key, tuple(s.content_hash for s in scenes), id(arrays.environment), pixels_per_degree)
+    key = (bvh.key, tuple(s.content_hash for s in scenes), pixels_per_degree)
     hit = _MERGED.get(key)
     if hit is None:
         bvhs = [bvh] + [bvh_for(s, None) for s in scenes[1:]]
@@ -136,10 +140,11 @@ def prepare_levels(scene, arrays, bvh, levels, top: int, pixels_per_degree: floa
             errors=tuple(float(e) for e in levels.errors[: len(scenes)]),
             pixels_per_degree=float(pixels_per_degree),
         )
-        hit = _MERGED[key] = (_merged_arrays(arrays, scenes), merge_bvhs(bvhs), tables)
+        hit = _MERGED[key] = (_merged_geometry(scenes), merge_bvhs(bvhs), tables)
         while len(_MERGED) > 2:
             _MERGED.popitem(last=False)
-    return hit
+    cat, merged, tables = hit
+    return _with_geometry(arrays, cat), merged, tables
 
 
 def _box_distance(boxes, p):
