@@ -218,6 +218,17 @@ def test_coarse_outside_leaves_the_fovea_alone(spheres_rig, levels, plain):
     assert frame.stats.primary_rays == plain.stats.primary_rays
 
 
+def test_fovea_tile_packets_straddling_levels(spheres_rig, levels):
+    """With the fovea traced as an 8x8-packet image tile, the tile's corners reach the outside
+    region (level 3) while its centre is level 0: packets mixing the two are traced ray by ray,
+    and the fovea stays the plain tiled frame's, bit for bit."""
+    tiled = _render(*spheres_rig, levels, fovea_tile_deg=5.0)
+    frame = _render(*spheres_rig, levels, fidelity=(FULL, FULL, Fidelity(lod=3)), fovea_tile_deg=5.0)
+    fovea = _fovea(tiled)
+    assert np.array_equal(frame.image[fovea], tiled.image[fovea])
+    assert not np.array_equal(frame.image, tiled.image)
+
+
 def test_gaze_change_does_not_recompile(spheres_rig, levels):
     fidelity = (FULL, Fidelity(lod=1), Fidelity(lod="auto"))
     _render(*spheres_rig, levels, fidelity=fidelity)
@@ -297,9 +308,10 @@ def test_auto_distance_is_a_lower_bound(spheres_rig, levels):
 
 
 def test_auto_levels_by_hand(tmp_path):
-    """errors (0, 1 cm, 1 m), the nearest surface 2 m from the eyes, 10 pixels per degree (6'):
-    level 1 subtends 17.2', level 2 26.6°. The thesis model's MAR is 1.09' at 0°, 5.67' at 5° and
-    25.5' at 10°: fovea and periphery keep level 0 (17.2' > 6'), outside takes level 1."""
+    """errors (0, 1 cm, 1 m), the floor 2 m below the eyes (bounded from their midpoint: 1.97 m),
+    10 pixels per degree (6'): level 1 subtends 17.5', level 2 26.9°. The thesis model's MAR is
+    1.09' at 0°, 5.67' at 5° and 25.5' at 10°: fovea and periphery keep level 0 (17.5' > 6'),
+    outside takes level 1."""
     floor = make_scene(
         np.array([[-50, 0, -50], [50, 0, -50], [50, 0, 50], [-50, 0, 50]], np.float32),
         np.array([[0, 2, 1], [0, 3, 2]], np.int32),

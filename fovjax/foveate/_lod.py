@@ -16,7 +16,8 @@ everywhere in the region (`fovjax.scene.select_lod`):
   `periphery_deg` outside): acuity falls with eccentricity, so the finest detail the region can
   show is at its inner edge, and a level fine enough there is fine enough in all of it;
 - distance: a lower bound of the distance from either eye to the nearest triangle of the finest
-  level, every frame from the traced eye positions. The level's error is its maximum (one-sided
+  level, every frame from the traced eye positions (the bound from the eyes' midpoint less half
+  their separation). The level's error is its maximum (one-sided
   Hausdorff) anywhere in the scene, so the worst case is that error on the nearest surface, seen
   face on; that angle is compared. Conservative on purpose (no visible error anywhere, at the
   price of coarsening less than a per-pixel choice could). The bound: the triangles in BVH leaf
@@ -187,9 +188,12 @@ def region_levels(foveation, tables: LODTables, bvh, cameras):
     auto = np.array([f.lod == "auto" for f in foveation.fidelity])
     if not auto.any():
         return levels
-    distance = jnp.minimum(
-        *(nearest_distance(tables, bvh, jnp.asarray(c.position, jnp.float32)) for c in cameras)
-    )
+    # One bound for both eyes: from their midpoint, less the farthest eye's offset from it
+    # (triangle inequality), half the work of one bound per eye.
+    eyes = jnp.stack([jnp.asarray(c.position, jnp.float32) for c in cameras])
+    mid = jnp.mean(eyes, axis=0)
+    spread = jnp.max(jnp.sqrt(jnp.sum((eyes - mid) ** 2, axis=-1)))
+    distance = jnp.maximum(nearest_distance(tables, bvh, mid) - spread, 0.0)
     inner = jnp.stack(
         [
             jnp.float32(0.0),
