@@ -3,7 +3,8 @@
 - `build_bvh(scene)` — binned SAH on the host, cached on disk;
 - `closest_hit(bvh, origins, directions, tmin, tmax)` → `Hit(t, prim, u, v)`;
 - `occluded(bvh, origins, directions, tmax)` → bool;
-both with `backend="jax"` (default, any XLA device) or `"embree"` (CPU, needs embreex).
+both with `backend="jax"` (default, any XLA device) or `"embree"` (CPU, needs embreex);
+- `merge_bvhs(bvhs)` → one BVH of several trees (levels of detail), queried with `level=` per ray.
 """
 
 from ._build import BuildParams as BuildParams
