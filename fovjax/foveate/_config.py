@@ -64,12 +64,22 @@ class Fidelity(eqx.Module):
       unshadowed: the level of detail drops the occlusion test, not the light, so the region
       keeps its brightness and loses only shadows (no light at all would darken it).
 
+    - `lod` (geometry level of detail): None or 0 (the scene itself), a level index into the
+      scene's levels of detail (`fovjax.scene.lod_levels`; `render_foveated(lod_levels=)`, by
+      default the ratios (1, 0.5, 0.25, 0.1)), or "auto": the coarsest level whose error the eye
+      cannot resolve at the region's inner eccentricity (see `fovjax.foveate._lod`). The region's
+      rays, their shadow rays and reflections are traced against that level and shaded with its
+      normals, UVs and materials.
+
     `Fidelity()` is full fidelity: the frame of a foveation without `fidelity`, bit for bit.
     """
 
     # `object`, not `int | None`: a wrong value gets this class's ValueError, not a type-check error.
     max_depth: object = eqx.field(static=True, default=None)
     shadows: str = eqx.field(static=True, default="all")
+    # --- geometry level of detail (lodframe) ---
+    lod: object = eqx.field(static=True, default=None)
+    # --- end geometry level of detail ---
 
     def __check_init__(self):
         depth = self.max_depth
@@ -79,6 +89,16 @@ class Fidelity(eqx.Module):
             raise ValueError(f"Fidelity.max_depth must be None or an integer >= 0, got {depth!r}")
         if self.shadows not in SHADOW_MODES:
             raise ValueError(f"Fidelity.shadows must be one of {SHADOW_MODES}, got {self.shadows!r}")
+        # --- geometry level of detail (lodframe) ---
+        lod = self.lod
+        if not (
+            lod is None
+            or lod == "auto"
+            and isinstance(lod, str)
+            or (isinstance(lod, int | np.integer) and not isinstance(lod, bool) and lod >= 0)
+        ):
+            raise ValueError(f"Fidelity.lod must be None, a level index >= 0 or 'auto', got {lod!r}")
+        # --- end geometry level of detail ---
 
 
 def shading_classes(foveation, config):

@@ -116,10 +116,23 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
 
 
 def traverse_packets(
-    table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, packet_size, packets, steps_per_refill
+    table,
+    num_nodes,
+    stack_size,
+    o,
+    d,
+    tmin,
+    tmax,
+    *,
+    any_hit,
+    packet_size,
+    packets,
+    steps_per_refill,
+    root=None,
 ):
     """Like `traverse`, for rays grouped into packets of `packet_size` consecutive rays, with
-    `packets` packets in flight. Returns (t, prim), t = tmax on a miss."""
+    `packets` packets in flight. Returns (t, prim), t = tmax on a miss. `root` (n_packets,)
+    int32: the item each packet starts at (None: item 0)."""
     n = o.shape[0]
     p = int(packet_size)
     n_packets = -(-n // p)
@@ -180,7 +193,7 @@ def traverse_packets(
             all_rays,
         )
         ray_ok = valid[src]
-        cur = jnp.where(take, 0, cur)
+        cur = jnp.where(take, 0 if root is None else root[src], cur)
         sp = jnp.where(take, 0, sp)
         t_best = jnp.where(take[:, None], tmax_all[src], t_best)
         prim = jnp.where(take[:, None], -1, prim)

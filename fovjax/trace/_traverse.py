@@ -345,8 +345,9 @@ def _run_steps(step, table, num_nodes, stack_size, any_hit, rays, state, count, 
     return lax.while_loop(lambda c: c[0] < count, body, (jnp.int32(0), state))[1]
 
 
-def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, steps_per_refill):
+def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, steps_per_refill, root=None):
     """Trace flat rays o, d (n, 3) with per-ray tmin, tmax (n,). Returns (t, prim), t = tmax on a miss.
+    `root` (n,) int32: the item each ray starts at (a merged BVH's level roots); None: item 0.
 
     A fixed set of `lanes` rays is in flight; every `steps_per_refill` steps, lanes whose ray has
     finished write its result and take the next ray from the queue (in input order, so
@@ -401,7 +402,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
             rays,
             all_rays,
         )
-        cur = jnp.where(take, 0, cur)
+        cur = jnp.where(take, 0 if root is None else root[src], cur)
         sp = jnp.where(take, 0, sp)
         t_best = jnp.where(take, tmax[src], t_best)
         prim = jnp.where(take, -1, prim)
