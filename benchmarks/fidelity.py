@@ -2,6 +2,7 @@
 
     python benchmarks/fidelity.py                          # atrium 262k, 320x256 per eye, SPP 1
     python benchmarks/fidelity.py --triangles 20000 --width 160 --height 128 --spp 4
+    python benchmarks/fidelity.py --lod none,1,2 --no-shading   # geometry level of detail only
 
 Texture level of detail and samples per pixel per region (texspp):
 
@@ -18,10 +19,14 @@ region: the error that matters, where a coarser texture level should alias less.
 Plain foveation (thesis pair 0) against the same foveation with `fidelity=(full, periphery,
 outside)` (default: periphery one reflection bounce, outside no reflections and no shadow rays),
 both at the render config's default max depth. Stereo, gaze off-centre, head still; each frame
-time is the median of --repeats frames (the two configurations interleaved) after a warm-up
-(compile reported separately, not in the times), each frame with a fresh key. The machine is
-noisy: read the ratio. Also prints the mean absolute difference of the two images (linear
-RGB) per region, to show what it costs.
+time is the median of --repeats frames after a warm-up (compile reported separately, not in
+the times), each frame with a fresh key. The machine is noisy: read the ratio. Also prints the
+mean absolute difference of the two images (linear RGB) per region, to show what it costs.
+
+`--lod F,P,O`: geometry level of detail per region (`Fidelity.lod`: none, a level index into the
+atrium's levels at the default ratios (1, 0.5, 0.25, 0.1), or auto); with `--no-shading` the
+regions keep full shading, so only the geometry differs. Plain and fidelity frames alternate
+(one of each per repeat), so load changes on a shared machine hit both alike.
 """
 
 from __future__ import annotations
@@ -40,8 +45,7 @@ GAZE = ((0.35, 0.45), (0.3, 0.45))
 
 
 def _frames(scene, rig, foveations, config, repeats):
-    """The first frame of each foveation (compiles) and each one's median frame time, the
-    foveations' frames interleaved (a load change on the shared machine hits both alike)."""
+    """First frame (compiles) of each foveation, then `repeats` rounds of one frame each."""
     first = [
         render_foveated(scene, rig, gaze=GAZE, foveation=f, key=jax.random.key(0), config=config)
         for f in foveations
@@ -53,7 +57,14 @@ def _frames(scene, rig, foveations, config, repeats):
                 scene, rig, gaze=GAZE, foveation=f, key=jax.random.key(i + 1), config=config
             )
             t.append(frame.stats.render_seconds)
-    return [(frame, statistics.median(t)) for frame, t in zip(first, times, strict=True)]
+    return first, [statistics.median(t) for t in times]
+
+
+def _lod(text):
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"--lod needs three values (fovea,periphery,outside), got {text!r}")
+    return tuple(None if p == "none" else p if p == "auto" else int(p) for p in parts)
 
 
 def _textured(scene, metres):
@@ -89,7 +100,7 @@ def _textured(scene, metres):
     )
 
 
-def _lod(text):
+def _tex_lod(text):
     return None if text in (None, "none") else ("auto" if text == "auto" else int(text))
 
 
@@ -103,6 +114,8 @@ def main(argv=None):
     parser.add_argument("--periphery-depth", type=int, default=1)
     parser.add_argument("--outside-depth", type=int, default=0)
     parser.add_argument("--outside-shadows", default="none")
+    parser.add_argument("--lod", type=_lod, default=(None, None, None))
+    parser.add_argument("--no-shading", action="store_true", help="full shading everywhere (only --lod)")
     # texspp
     parser.add_argument("--full-shading", action="store_true", help="full depth and shadows everywhere")
     parser.add_argument("--spp-periphery", type=int, default=None)
@@ -120,23 +133,26 @@ def main(argv=None):
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
     config = RenderConfig()
-    if args.full_shading:
+    if args.no_shading or args.full_shading:
         args.periphery_depth = args.outside_depth = None
         args.outside_shadows = "all"
-    tex_lod = [None, None] if args.texture_lod is None else [_lod(x) for x in args.texture_lod.split(",")]
+    tex_lod = [None, None] if args.texture_lod is None else [_tex_lod(x) for x in args.texture_lod.split(",")]
     fidelity = (
-        Fidelity(),
-        Fidelity(max_depth=args.periphery_depth, texture_lod=tex_lod[0], spp=args.spp_periphery),
+        Fidelity(lod=args.lod[0]),
+        Fidelity(
+            max_depth=args.periphery_depth, lod=args.lod[1], texture_lod=tex_lod[0], spp=args.spp_periphery
+        ),
         Fidelity(
             max_depth=args.outside_depth,
             shadows=args.outside_shadows,
+            lod=args.lod[2],
             texture_lod=tex_lod[1],
             spp=args.spp_outside,
         ),
     )
     plain_f = Foveation.thesis(0, spp=args.spp)
     lod_f = Foveation.thesis(0, spp=args.spp, fidelity=fidelity)
-    (plain, t_plain), (lod, t_lod) = _frames(scene, rig, (plain_f, lod_f), config, args.repeats)
+    (plain, lod), (t_plain, t_lod) = _frames(scene, rig, (plain_f, lod_f), config, args.repeats)
     print(
         f"atrium {args.triangles} triangles, 2 x {args.width}x{args.height}, SPP {args.spp}, "
         f"max_depth {config.max_depth}"

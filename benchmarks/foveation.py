@@ -467,6 +467,10 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
     variants = {
         "default": ({}, {}),
         "every bounce in 4096-ray chunks": ({"first_bounce_chunk_size": None}, {}),
+        "every bounce in 16384-ray chunks": (
+            {"first_bounce_chunk_size": None, "queue_chunk_size": 16384},
+            {},
+        ),
         "fovea tile + pixel grid (packets)": ({}, {"fovea_tile_deg": pair[0], "grid_tile": True}),
     }
     print(

@@ -16,6 +16,7 @@ from .files import tonemap as tonemap
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig
 from .render import StereoRig as StereoRig
+from .render import enable_compile_cache as enable_compile_cache
 from .scene import DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT
 from .scene import POINT_LIGHT as POINT_LIGHT
 from .scene import Camera as Camera
@@ -38,3 +39,14 @@ from .session import full_eccentricity as full_eccentricity
 from .session import run_session as run_session
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """`fovjax.plan_fidelity` (from `fovjax.eval`, imported on first use: `import fovjax` stays
+    free of the metrics' dependencies). It lives in eval, not foveate, because it judges plans
+    by image metrics and the core packages never import eval (README, "Architecture")."""
+    if name == "plan_fidelity":
+        from .eval import plan_fidelity
+
+        return plan_fidelity
+    raise AttributeError(f"module 'fovjax' has no attribute {name!r}")

@@ -15,6 +15,10 @@ import types
 import pytest
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+# The command line keeps compiled programs on disk (`fovjax.render.enable_compile_cache`); the
+# suite runs without it, so no test depends on what an earlier test or run left there
+# (tests/test_compile_cache.py turns it on in its own processes and directories).
+os.environ["FOVJAX_COMPILE_CACHE"] = "0"
 
 if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
     from beartype import BeartypeConf, beartype

@@ -52,8 +52,9 @@ MAY_IMPORT = {
         "view",
         ROOT,
     },
-    # The top level re-exports the public API; `python -m fovjax` (__main__) runs the CLI.
-    ROOT: {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session", "cli"},
+    # The top level re-exports the public API; `python -m fovjax` (__main__) runs the CLI;
+    # `fovjax.plan_fidelity` comes from eval (imported on first use).
+    ROOT: {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session", "eval", "cli"},
 }
 
 

@@ -239,6 +239,14 @@ ROWS = [
     ("compare --scene nowhere -o {tmp}/c", 2, "'nowhere'"),
     ("compare -o {a_file}", 2, "not a folder"),
     ("compare --distributed nohost,2,5 -o {tmp}/c", 2, "nohost,2,5"),
+    ("compare --fidelity manual -o {tmp}/c", 2, "--fidelity 'manual'"),
+    (
+        "compare --fidelity auto --fidelity-threshold 2 -o {tmp}/c",
+        2,
+        "--fidelity-threshold (FLIP added per ring) 2",
+    ),
+    ("compare --fidelity auto --fidelity-threshold nan -o {tmp}/c", 2, "nan"),
+    ("compare --fidelity-threshold -0.5 -o {tmp}/c", 2, "-0.5"),
     # -- study -------------------------------------------------------------------------------
     ("study --comparison {table} --metric flip -o {tmp}/st", 2, "flip is -0.2, outside its scale [0, 1]"),
     ("study --comparison {jod} --metric jod -o {tmp}/st", 2, "jod is 10.5, outside its scale"),

@@ -168,6 +168,43 @@ def test_cli_compare(scene_rig, tmp_path, capsys):
     assert (out / "rings.png").is_file()
 
 
+@pytest.mark.skipif(not HAS_FLIP, reason="--fidelity auto plans by FLIP (extra [flip])")
+def test_cli_compare_fidelity_auto(scene_rig, tmp_path, capsys):
+    """A planned configuration beside plain foveation: its own record (planned, with the plan),
+    the plan printed, both on the charts. A loose per-ring threshold: the plan drops every
+    region's shadow rays (max_depth 0 leaves them as the only option), fewer rays."""
+    from fovjax.cli import main
+
+    out = tmp_path / "cmp"
+    argv = ["compare", "--scene", "cornell_box", "--thresholds", "15,30", "--spp", "1"]
+    argv += ["--width", str(EYE_W), "--height", str(EYE_H), "--gazes", "0.5,0.5", "0.3,0.4"]
+    argv += ["--keys", "0", "1", "--max-depth", "0", "--no-perceptual", "-o", str(out)]
+    argv += ["--fidelity", "auto", "--fidelity-threshold", "1"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "15/30 spp1 planned:" in text and "fovea shadows='none'" in text and "speed:" in text
+    rows = read_csv(out / "comparison.csv")
+    assert [(r["config"], r["planned"]) for r in rows] == [
+        ("15/30 spp1", False),
+        ("15/30 spp1 planned", True),
+    ]
+    plain, planned = rows
+    assert plain["fidelity"] == "full"
+    assert planned["fidelity"] == "fovea shadows='none', periphery shadows='none', outside shadows='none'"
+    assert planned["rays_per_frame"] < plain["rays_per_frame"]
+    assert planned["fovea_deg"] == plain["fovea_deg"] and planned["spp"] == plain["spp"]
+    assert (out / "cost_accuracy_ms_spp1.png").is_file()
+
+
+def test_compare_rejects_a_bad_fidelity_before_rendering(scene_rig):
+    scene, rig = scene_rig
+    with pytest.raises(ValueError, match="fidelity 'manual'"):
+        compare_thresholds(scene, rig, fidelity="manual", progress=False)
+    if HAS_FLIP:
+        with pytest.raises(ValueError, match="threshold 3"):
+            compare_thresholds(scene, rig, fidelity="auto", plan_criterion=("flip", 3), progress=False)
+
+
 def test_cli_rejects_a_bad_distributed_spec(capsys):
     from fovjax.cli import main
 

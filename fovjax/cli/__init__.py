@@ -79,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     name = f"fovjax {args.command}"
     _WRITTEN.clear()
+    _compile_cache(name)
     if program:
         _on_interrupt_exit(name)
     try:
@@ -94,6 +95,19 @@ def main(argv: list[str] | None = None) -> int:
         status, text = _explain(err)
         print(f"{name}: error: {text}", file=sys.stderr, flush=True)
         return status
+
+
+def _compile_cache(name: str) -> None:
+    """Compiled frame programs persist across runs (JAX's compilation cache, see
+    `fovjax.render.enable_compile_cache`): a second `fovjax render` loads its programs instead of
+    compiling them. `FOVJAX_COMPILE_CACHE=0` turns it off; a cache that cannot be written is
+    said once and skipped (it is an optimisation, never a reason to fail)."""
+    from fovjax.render import compile_cache_problem, enable_compile_cache
+
+    if os.environ.get("FOVJAX_COMPILE_CACHE", "1").strip() == "0":
+        return
+    if enable_compile_cache() is None:
+        print(f"{name}: note: {compile_cache_problem()}", file=sys.stderr, flush=True)
 
 
 def _exit_interrupted(name: str) -> None:

@@ -57,6 +57,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-depth", type=int, default=5)
     p.add_argument("--no-perceptual", action="store_true", help="skip FovVideoVDP even if installed")
     p.add_argument(
+        "--fidelity",
+        default=None,
+        help="'auto': also plan each configuration's shading fidelity per region (plan_fidelity) "
+        "and add it to the table and charts beside plain foveation",
+    )
+    p.add_argument(
+        "--fidelity-threshold",
+        type=float,
+        default=0.01,
+        help="with --fidelity auto: the FLIP a plan may add per 5° eccentricity ring over plain foveation",
+    )
+    p.add_argument(
         "--shard",
         action="store_true",
         help="render each configuration's frames in one program sharded over jax.devices() "
@@ -97,6 +109,9 @@ def validate(args) -> None:
     cli.choice(args.criterion, "--criterion", tuple(METRIC_RANGES))
     lo, hi = METRIC_RANGES[args.criterion]
     cli.number(args.threshold, f"--threshold (of {args.criterion})", ge=lo, le=hi)
+    if args.fidelity is not None:
+        cli.choice(args.fidelity, "--fidelity", ("auto",))
+    cli.number(args.fidelity_threshold, "--fidelity-threshold (FLIP added per ring)", ge=0.0, le=1.0)
     cli.output(args.output, "-o", directory=True)
     # Installed extras last: every row of tests/test_bad_inputs.py answers the same without them.
     if args.criterion == "flip" and importlib.util.find_spec("flip_evaluator") is None:
@@ -104,6 +119,10 @@ def validate(args) -> None:
     if args.criterion == "jod" and (args.no_perceptual or importlib.util.find_spec("pyfvvdp") is None):
         why = "--no-perceptual skips it" if args.no_perceptual else "pip install 'fovjax[fvvdp]'"
         raise cli.UsageError(f"--criterion jod: needs FovVideoVDP ({why})")
+    if args.fidelity == "auto" and importlib.util.find_spec("flip_evaluator") is None:
+        raise cli.UsageError(
+            "--fidelity auto: plans by FLIP, needs flip-evaluator (pip install 'fovjax[flip]')"
+        )
 
 
 def run(args) -> int:
@@ -140,6 +159,8 @@ def run(args) -> int:
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
         shard=args.shard,
+        fidelity=args.fidelity,
+        plan_criterion=("flip", args.fidelity_threshold),
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them
         return 0
@@ -152,6 +173,8 @@ def run(args) -> int:
     for r in result.records:
         cells = [f"{r[c]:14.4g}" if isinstance(r[c], float) else f"{r[c]!s:>14s}" for c in cols]
         print("  ".join(cells))
+    for label, plan in result.plans.items():
+        print(f"\n{label}:\n{plan}\n")
     for s, f in sorted(result.full.items()):
         print(f"full spp {s}: {f['rays_per_frame']:,.0f} rays, {f['ms_per_frame']:.0f} ms per frame")
     metric, threshold = result.criterion

@@ -9,6 +9,8 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
     fe.error_by_eccentricity(test, ref, eccentricity_deg)            # 5° rings
     fe.pareto_front(table, {"rays_per_frame": "min", "flip": "min"})
     fe.cheapest_within(table, cost="rays_per_frame", metric="jod_drop", threshold=fe.JND_JOD)
+    # the cheapest per-region Fidelity adding at most 0.01 FLIP per 5° ring (extra [flip])
+    plan = fe.plan_fidelity(scene, rig, Foveation.thesis(0), ("flip", 0.01)); print(plan)
     # jod_at(level): your FovVideoVDP JOD of that foveation level against the full render
     observer = fe.MetricObserver(lambda trial: 10 - jod_at(trial.level), threshold=fe.JND_JOD)
     fe.write_study_report(fe.run_study([observer]), "out/study")      # figures 66-68
@@ -87,6 +89,14 @@ from ._pareto import (
     read_csv,
     write_csv,
 )
+from ._plan import (
+    DEFAULT_PLAN_GAZES,
+    DEFAULT_STEPS,
+    FidelityPlan,
+    PlanStep,
+    default_options,
+    plan_fidelity,
+)
 from ._protocols import (
     APPENDIX_LEVELS,
     DECISION_RULE,
@@ -145,6 +155,12 @@ from ._video_study import (
 )
 
 __all__ = [
+    "DEFAULT_PLAN_GAZES",
+    "DEFAULT_STEPS",
+    "FidelityPlan",
+    "PlanStep",
+    "default_options",
+    "plan_fidelity",
     "SceneInspection",
     "inspect_scene",
     "DEFAULT_CRITERION",

@@ -60,7 +60,9 @@ def plot_cost_accuracy(
     intervals as error bars where `accuracy_lo/_hi` exist, the Pareto front (minimum cost;
     `sense` "min" or "max" accuracy) as filled points joined by a step line. With a
     `threshold` on the accuracy column (an upper bound for "min", a lower bound for "max"), a
-    line marks it and the cheapest configuration within it is ringed."""
+    line marks it and the cheapest configuration within it is ringed. Records with a true
+    `planned` column (per-region fidelity planned by `plan_fidelity`) are drawn as diamonds
+    over their point, apart from plain foveation's circles."""
     records = as_records(table)
     if not records:
         raise ValueError("plot_cost_accuracy: the table is empty")
@@ -79,6 +81,19 @@ def plot_cost_accuracy(
     order = np.argsort(x[front], kind="stable")
     fx, fy = x[front][order], y[front][order]
     ax.step(fx, fy, where="post", color="tab:red", lw=1.2, zorder=2)
+    planned = np.array([bool(r.get("planned")) for r in records])
+    if planned.any():
+        ax.scatter(
+            x[planned],
+            y[planned],
+            s=70,
+            marker="D",
+            facecolors="none",
+            edgecolors="tab:purple",
+            lw=1.6,
+            zorder=4,
+            label="planned fidelity (plan_fidelity)",
+        )
     for xi, yi, name in zip(x, y, _labels(records, label), strict=True):
         if math.isfinite(xi) and math.isfinite(yi):
             ax.annotate(name, (xi, yi), xytext=(4, 4), textcoords="offset points", fontsize=8)

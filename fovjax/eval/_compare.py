@@ -33,7 +33,8 @@ def _sense(metric: str) -> str:
 class Comparison:
     """`records`: one per configuration (CSV-writable); `rings`: per configuration label, the
     mean |error| (sRGB) and primary rays per 5° eccentricity ring; `choice`: the cheapest
-    configuration meeting `criterion` (None if none does); `full`: the full render's cost.
+    configuration meeting `criterion` (None if none does); `full`: the full render's cost;
+    `plans`: with `fidelity="auto"`, the `FidelityPlan` of each planned configuration, by label.
     `criterion` (metric, threshold): the metric's whole interval must stay below the threshold
     (above it for PSNR, SSIM and JOD, where larger is better)."""
 
@@ -43,6 +44,7 @@ class Comparison:
     choice: object
     criterion: tuple[str, float]
     full: dict
+    plans: dict = dataclasses.field(default_factory=dict)
 
     def write(self, out_dir) -> dict[str, Path]:
         """CSV and charts next to each other in `out_dir`."""
@@ -133,6 +135,8 @@ def compare_thresholds(
     bvh=None,
     shard: bool = False,
     devices: Sequence | None = None,
+    fidelity: str | None = None,
+    plan_criterion: tuple[str, float] = ("flip", 0.01),
 ) -> Comparison:
     """Render every (threshold pair × spp × acuity model) foveated, for every gaze and key, and
     the full render for every key (it does not depend on gaze); measure rays per frame, ms per
@@ -152,11 +156,22 @@ def compare_thresholds(
     host's under `jax.distributed`; see `render_foveated_batch`). Its ms per frame is then the
     batch's wall time over its frames, not a median of single frames, and includes what
     batching costs (each device's frames wait for its slowest; see `fovjax.eval._shard`); the
-    images, rays and metrics are those of `shard=False`."""
+    images, rays and metrics are those of `shard=False`.
+
+    `fidelity="auto"`: each configuration also planned per region by `plan_fidelity` (the
+    cheapest `Fidelity` per region adding at most `plan_criterion` per 5° ring over plain
+    foveation, judged on the same gazes and keys) and measured like the others: a record
+    labelled "... planned" with `planned` True and the plan in `fidelity` (plain records:
+    `planned` False, `fidelity` "full"); the charts mark planned points apart."""
     from ..foveate import Foveation, render_foveated
     from ..render import RenderConfig, render_stereo
+    from ._plan import _check_criterion, plan_fidelity
     from ._shard import render_foveated_batch, render_stereo_batch
 
+    if fidelity not in (None, "auto"):
+        raise ValueError(f"compare_thresholds: fidelity {fidelity!r}: expected None or 'auto'")
+    if fidelity == "auto":
+        plan_criterion = _check_criterion(plan_criterion)
     config = RenderConfig() if config is None else config
     models = list(models) if models is not None else [None]
     display = HmdDisplay.from_camera(rig.eye_cameras()[0])
@@ -201,12 +216,10 @@ def compare_thresholds(
                     bar.update(1)
         full[s] = {"ms_per_frame": 1000 * statistics.median(times), "rays_per_frame": statistics.mean(rays)}
 
-    records, rings, ring_rays = [], {}, {}
-    for s, (fovea, periphery), model in configs:
-        kwargs = {} if model is None else {"acuity": model}
-        fov = Foveation(fovea_deg=float(fovea), periphery_deg=float(periphery), spp=s, rule=rule, **kwargs)
-        model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
-        label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
+    records, rings, ring_rays, plans = [], {}, {}, {}
+
+    def evaluate(s, fov, label, record_fields):
+        """Render `fov` for every gaze × key, measure it, add its record and rings."""
         samples, times, rays, ring_acc, ring_ray_acc = {}, [], [], [], []
         frames = list(itertools.product(gazes, keys))
         if shard:
@@ -255,10 +268,7 @@ def compare_thresholds(
         ms = 1000 * statistics.median(times)
         record = {
             "config": label,
-            "fovea_deg": float(fovea),
-            "periphery_deg": float(periphery),
-            "spp": s,
-            "model": model_name,
+            **record_fields,
             "rays_per_frame": float(statistics.mean(rays)),
             "ms_per_frame": ms,
             "speedup": full[s]["ms_per_frame"] / ms,
@@ -283,6 +293,37 @@ def compare_thresholds(
         ring_rays_padded = [np.pad(np.asarray(r, float), (0, n_rings - len(r))) for r in ring_ray_acc]
         rings[label] = dataclasses.replace(widest, mean_error=np.nanmean(np.stack(errors), axis=0))
         ring_rays[label] = list(np.mean(np.stack(ring_rays_padded), axis=0))
+
+    for s, (fovea, periphery), model in configs:
+        kwargs = {} if model is None else {"acuity": model}
+        fov = Foveation(fovea_deg=float(fovea), periphery_deg=float(periphery), spp=s, rule=rule, **kwargs)
+        model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
+        label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
+        fields = {
+            "fovea_deg": float(fovea),
+            "periphery_deg": float(periphery),
+            "spp": s,
+            "model": model_name,
+        }
+        planned = {"planned": False, "fidelity": "full"} if fidelity == "auto" else {}
+        evaluate(s, fov, label, {**fields, **planned})
+        if fidelity == "auto":
+            plan = plan_fidelity(
+                scene,
+                rig,
+                fov,
+                plan_criterion,
+                gazes=gazes,
+                keys=keys,
+                config=config,
+                bvh=bvh,
+                _references={k: references[s, k] for k in keys},
+            )
+            plans[label + " planned"] = plan
+            if bar is not None:
+                bar.total += len(gazes) * len(keys)
+            extra = {"planned": True, "fidelity": plan.describe_plan()}
+            evaluate(s, plan.foveation, label + " planned", {**fields, **extra})
     if bar is not None:
         bar.close()
     metric, threshold = criterion
@@ -292,4 +333,4 @@ def compare_thresholds(
     choice = cheapest_within(
         records, cost="ms_per_frame", metric=metric, threshold=threshold, below=_sense(metric) == "min"
     )
-    return Comparison(records, rings, ring_rays, choice, criterion, full)
+    return Comparison(records, rings, ring_rays, choice, criterion, full, plans)

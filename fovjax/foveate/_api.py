@@ -21,6 +21,7 @@ from ._config import (
     uses_texture_lod,
 )
 from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
+from ._lod import check_levels, lod_needed, prepare_levels
 
 _BUDGETS: dict = {}
 
@@ -112,6 +113,33 @@ class FoveatedFrame:
         return self.image[:, :half], self.image[:, half:]
 
 
+def _levels_of_detail(scene, arrays, bvh, foveation, rig, levels, top: int):
+    """The merged scene arrays, BVH and `LODTables` of the levels `foveation` asks for; bad
+    levels fail here, before any compile."""
+    from ..scene import LODLevels, Scene
+    from ..scene import lod_levels as make_levels
+
+    if not isinstance(scene, Scene):
+        raise ValueError(
+            "render_foveated: Fidelity.lod needs a fovjax.Scene (levels of detail are decimated from "
+            f"its geometry), got {type(scene).__name__}"
+        )
+    if levels is None:
+        levels = make_levels(scene)
+    elif not isinstance(levels, LODLevels):
+        raise ValueError(
+            f"render_foveated: lod_levels must be a fovjax.scene.LODLevels, got {type(levels).__name__}"
+        )
+    if levels.scenes[0].content_hash != scene.content_hash:
+        raise ValueError(
+            "render_foveated: lod_levels were made from another scene (their level 0 is not this scene)"
+        )
+    check_levels(foveation, levels)
+    h = rig.eye_height
+    per_degree = (h / 2) / np.tan(np.deg2rad(float(rig.vfov_deg())) / 2) * np.pi / 180
+    return prepare_levels(scene, arrays, bvh, levels, top, float(per_degree))
+
+
 def render_foveated(
     scene,
     rig=None,
@@ -123,6 +151,7 @@ def render_foveated(
     config=None,
     envmap=None,
     bvh=None,
+    lod_levels=None,
 ) -> FoveatedFrame:
     """Render a foveated stereo frame (see `fovjax.foveate._frame`). `gaze`: per eye (x, y) in
     normalised display coordinates, (0, 0) the top-left of each eye's display; NaN or
@@ -131,7 +160,11 @@ def render_foveated(
     sampling pattern. Compiled once per configuration (resolution, spp, render config, scene
     array shapes, the foveation's static options); a new gaze, head pose, key, or fovea and
     periphery thresholds within `foveation.max_periphery_deg` reuse it. A frame whose samples
-    overflow a capped budget warns (the dropped blocks are filled by pull-push)."""
+    overflow a capped budget warns (the dropped blocks are filled by pull-push).
+
+    `lod_levels`: the scene's levels of detail (`fovjax.scene.lod_levels`) that `Fidelity.lod`
+    indexes; None: `lod_levels(scene)` at its default ratios (cached on disk) when a region asks
+    for a level. Only a `Scene` has levels (not a `SceneArrays`)."""
     from ..render import (
         RenderConfig,
         SceneArrays,
@@ -176,7 +209,13 @@ def render_foveated(
     tile = fovea_tile(rig, foveation, budget)
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget, "tile": tile}
     static["grid"] = foveation.blocks[1] if foveation.grid_tile and uncapped(rig, foveation, budget) else None
-    args = jax.tree.map(jnp.asarray, (arrays, bvh, rig, angles, gaze, key, foveation))
+    # --- geometry level of detail (lodframe) ---
+    lod = None
+    top = lod_needed(foveation)
+    if top is not None:
+        arrays, bvh, lod = _levels_of_detail(scene, arrays, bvh, foveation, rig, lod_levels, top)
+    # --- end geometry level of detail ---
+    args = jax.tree.map(jnp.asarray, (arrays, bvh, rig, angles, gaze, key, foveation, lod))
     out, compile_s, render_s = run_compiled("foveated", foveated_stereo, args, static)
     image = np.asarray(out.image)
     stats = frame_stats(

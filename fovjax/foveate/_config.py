@@ -64,6 +64,12 @@ class Fidelity(eqx.Module):
       unshadowed: the level of detail drops the occlusion test, not the light, so the region
       keeps its brightness and loses only shadows (no light at all would darken it).
 
+    - `lod` (geometry level of detail): None or 0 (the scene itself), a level index into the
+      scene's levels of detail (`fovjax.scene.lod_levels`; `render_foveated(lod_levels=)`, by
+      default the ratios (1, 0.5, 0.25, 0.1)), or "auto": the coarsest level whose error the eye
+      cannot resolve at the region's inner eccentricity (see `fovjax.foveate._lod`). The region's
+      rays, their shadow rays and reflections are traced against that level and shaded with its
+      normals, UVs and materials.
     - `texture_lod` (texspp): None (texture lookups at full resolution, level 0), an integer
       level >= 0 of the texture's box-filtered mip pyramid (level l: texels 2^l times as wide),
       or "auto": the level of the ray's footprint (a ray cone, see `fovjax.render.ShadingClasses`)
@@ -78,6 +84,9 @@ class Fidelity(eqx.Module):
     # `object`, not `int | None`: a wrong value gets this class's ValueError, not a type-check error.
     max_depth: object = eqx.field(static=True, default=None)
     shadows: str = eqx.field(static=True, default="all")
+    # --- geometry level of detail (lodframe) ---
+    lod: object = eqx.field(static=True, default=None)
+    # --- end geometry level of detail ---
     # ---- texspp: texture level of detail and samples per pixel per region ----
     texture_lod: object = eqx.field(static=True, default=None)
     spp: object = eqx.field(static=True, default=None)
@@ -91,6 +100,16 @@ class Fidelity(eqx.Module):
             raise ValueError(f"Fidelity.max_depth must be None or an integer >= 0, got {depth!r}")
         if self.shadows not in SHADOW_MODES:
             raise ValueError(f"Fidelity.shadows must be one of {SHADOW_MODES}, got {self.shadows!r}")
+        # --- geometry level of detail (lodframe) ---
+        lod = self.lod
+        if not (
+            lod is None
+            or lod == "auto"
+            and isinstance(lod, str)
+            or (isinstance(lod, int | np.integer) and not isinstance(lod, bool) and lod >= 0)
+        ):
+            raise ValueError(f"Fidelity.lod must be None, a level index >= 0 or 'auto', got {lod!r}")
+        # --- end geometry level of detail ---
         # ---- texspp ----
         lod = self.texture_lod
         if lod is not None and lod != "auto" and not _is_int(lod, low=0):
@@ -152,7 +171,12 @@ def shading_classes(foveation, config):
         and texture[0] is None
     ):
         return None
-    return ShadingClasses(np.asarray(depths, np.int32), np.asarray(shadows, np.int32), *texture)
+    return ShadingClasses(
+        np.asarray(depths, np.int32),
+        np.asarray(shadows, np.int32),
+        texture_level=texture[0],
+        texture_cone=texture[1],
+    )
 
 
 # ---- texspp: texture level of detail tables ----

@@ -36,6 +36,7 @@ import dataclasses
 import functools
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -44,6 +45,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._config import max_region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import fill_and_blur_pixels
+from ._lod import lod_needed, with_levels
 from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
 
 # fold_in constant that separates the sampling draws from the sub-pixel jitter of the same key.
@@ -236,12 +238,26 @@ def grid_sums(radiance, tile, *, spp, h, w, stride):
 
 
 def trace_selection(
-    scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, budget, tiles=(), classes=None
+    scene,
+    bvh,
+    cameras,
+    positions,
+    sel: Selection,
+    *,
+    spp,
+    h,
+    w,
+    config,
+    budget,
+    tiles=(),
+    classes=None,
+    scale=None,
 ):
     """Stage 3: trace and shade the selected samples (`radiance_in_chunks`), `tiles` (image
     tiles of rays) first; `classes`: the renderer's `ShadingClasses` per region (a sample's
     class is its region), None for full fidelity. Returns the per-slot radiance (padded to
-    whole chunks), the tiles' and the ray counts."""
+    whole chunks), the tiles' and the ray counts. `scale`: as `radiance_in_chunks`'s (levels of
+    detail: the finest level's)."""
     from ..render import radiance_in_chunks
 
     def rays_at(first, size):
@@ -266,6 +282,7 @@ def trace_selection(
         tiles=tiles,
         classes=classes,
         class_at=class_at,
+        scale=scale,
     )
 
 
@@ -371,13 +388,29 @@ def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H
 
 
 def foveated_stereo(
-    scene, bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget, tile=None, grid=None
+    scene,
+    bvh,
+    rig,
+    head_pose,
+    gaze,
+    key,
+    foveation,
+    lod=None,
+    *,
+    spp,
+    jitter,
+    config,
+    budget,
+    tile=None,
+    grid=None,
 ):
     """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
     arguments static. `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
     cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images in packets
     (None: not; only where the budget is every sample, so that their samples are never
-    dropped; see `Foveation.fovea_tile_deg`).
+    dropped; see `Foveation.fovea_tile_deg`). `lod`: with levels of detail per region
+    (`Fidelity.lod`), the `LODTables` of `scene` and `bvh` merged over the levels
+    (`render_foveated` prepares them); None otherwise.
 
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
@@ -385,6 +418,11 @@ def foveated_stereo(
     from ..render import RayCounts, pixel_spread_angle
     from ..scene import pixel_sample_positions
 
+    if lod is None and lod_needed(foveation) is not None:  # (lodframe)
+        raise ValueError(
+            "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
+            "merged scene, BVH and LODTables (render_foveated prepares them)"
+        )
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
@@ -416,6 +454,14 @@ def foveated_stereo(
     if classes is not None and classes.texture_cone is not None:  # texspp: cones in radians
         spread = pixel_spread_angle(rig.vfov_deg(), h)
         classes = classes._replace(texture_cone=jnp.asarray(classes.texture_cone) * spread)
+    # --- geometry level of detail (lodframe) ---
+    scale = None
+    if lod is not None:
+        from ..render import scene_scale
+
+        classes = with_levels(classes, foveation, config, lod, bvh, cameras)
+        scale = scene_scale(eqx.tree_at(lambda a: a.vertices, scene, scene.vertices[: lod.num_vertices]))
+    # --- end geometry level of detail ---
     traced = trace_selection(
         scene,
         bvh,
@@ -429,6 +475,7 @@ def foveated_stereo(
         budget=budget,
         tiles=tiles,
         classes=classes,
+        scale=scale,
     )
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)

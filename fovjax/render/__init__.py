@@ -19,7 +19,8 @@ The frame is three steps, each usable on its own (the foveation layer reuses the
 `render_stereo_image` are the pure, differentiable versions. `run_compiled` is the one compile
 path of every host entry point (this package's, `fovjax.foveate`'s, `fovjax.eval`'s batches):
 `clear_compile_cache` and `compile_cache_info` cover them all; `frame_stats` the one builder of
-their `FrameStats`.
+their `FrameStats`. `enable_compile_cache()` keeps compiled programs on disk across processes
+(JAX's persistent compilation cache; the command line turns it on).
 
 For the packages that build frames of their own on this one (`fovjax.foveate`, `fovjax.eval`'s
 sharded batches, the session loop): `stereo_program(scene_arrays, bvh, rig, head_pose, key, *,
@@ -37,6 +38,9 @@ import types
 
 from ._arrays import SceneArrays as SceneArrays
 from ._arrays import scene_arrays as scene_arrays
+from ._compile_cache import compile_cache_dir as compile_cache_dir
+from ._compile_cache import compile_cache_problem as compile_cache_problem
+from ._compile_cache import enable_compile_cache as enable_compile_cache
 from ._config import DEFAULT_CONFIG as DEFAULT_CONFIG
 from ._config import MAGENTA as MAGENTA
 from ._config import THESIS_BACKGROUND as THESIS_BACKGROUND

@@ -82,6 +82,11 @@ class ShadingClasses(NamedTuple):
     energy and only loses the shadow. A reflection ray inherits the class of its sample.
     int32 arrays (K,); traced values, so new tables recompile nothing.
 
+    `level` (geometry level of detail): None (every ray against the BVH's one tree), or the tree
+    of a merged BVH (`fovjax.trace.merge_bvhs`; the scene arrays concatenated the same way) each
+    class's rays, their shadow rays and their reflections are traced against; shading then
+    reads that level's triangles, normals, UVs and materials (the hit's `prim` indexes them).
+
     Texture level of detail (texspp; None: every lookup bilinear at full resolution): class k's
     diffuse-texture lookups are trilinear in the scene's mip pyramids (`with_texture_mips`) at
     level `texture_level[k]`, plus, where `texture_cone[k]` > 0, the level of a ray cone of that
@@ -92,6 +97,7 @@ class ShadingClasses(NamedTuple):
 
     max_depth: Int[Array, " K"]
     shadows: Int[Array, " K"]
+    level: Int[Array, " K"] | None = None
     # ---- texspp ----
     texture_level: Float[Array, " K"] | None = None
     texture_cone: Float[Array, " K"] | None = None
@@ -233,7 +239,7 @@ def _shadow_rays(scene, surface, lit, offset) -> ShadowRays:
     )
 
 
-def _trace_shadows(bvh, rays: ShadowRays, packet, backend):
+def _trace_shadows(bvh, rays: ShadowRays, packet, backend, level=None):
     """Which shadow rays are blocked. Visibility is not differentiated: tangents stay out of
     the traversal's while loop."""
     return occluded(
@@ -244,6 +250,7 @@ def _trace_shadows(bvh, rays: ShadowRays, packet, backend):
         tmin=0.0,
         packet=_usable_packet(packet, rays.wanted.ndim),
         backend=backend,
+        level=level,
     )
 
 
@@ -266,7 +273,7 @@ def _light_sum(scene, surface, d, rays: ShadowRays, blocked, kd, ks, ns):
     return shaded
 
 
-def _trace_primary(scene, bvh, o, d, alive, *, packet, backend) -> Hit:
+def _trace_primary(scene, bvh, o, d, alive, *, packet, backend, level=None) -> Hit:
     return closest_hit(
         bvh,
         o,
@@ -276,6 +283,7 @@ def _trace_primary(scene, bvh, o, d, alive, *, packet, backend) -> Hit:
         packet=packet,
         vertices=scene.vertices,
         backend=backend,
+        level=level,
     )
 
 
@@ -316,10 +324,13 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
     and the reflection rays they spawn where `spawn`. `fidelity`: None, or (ShadingClasses,
     class per ray, this level's depth) limiting reflections and shadow rays per ray. Returns
     (contribution, (o, d, weight, alive) of the next level, shadow rays traced)."""
+    level = None
     if fidelity is not None:
         classes, cls, depth = fidelity
         spawn = spawn & (depth < jnp.asarray(classes.max_depth, jnp.int32)[cls])
-    hit = _trace_primary(scene, bvh, o, d, alive, packet=packet, backend=backend)
+        if classes.level is not None:
+            level = jnp.asarray(classes.level, jnp.int32)[cls]
+    hit = _trace_primary(scene, bvh, o, d, alive, packet=packet, backend=backend, level=level)
     surface, rays = _surface_and_shadow_rays(scene, hit, d, alive, offset)
     blocked, n_shadow = None, jnp.int32(0)
     if rays is not None:
@@ -327,7 +338,7 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
         if fidelity is not None:  # untested lights: no ray (tmax 0), never blocked
             tested = _tested_lights(scene, classes, cls)
             traced = rays._replace(tmax=jnp.where(tested, rays.tmax, 0.0), wanted=rays.wanted & tested)
-        blocked = _trace_shadows(bvh, traced, packet, backend)
+        blocked = _trace_shadows(bvh, traced, packet, backend, None if level is None else level[None])
         if fidelity is not None:
             blocked = blocked & tested
         n_shadow = jnp.sum(traced.wanted, dtype=jnp.int32)
@@ -757,6 +768,7 @@ def radiance_in_chunks(
     tiles: tuple[ImageTile, ...] = (),
     classes: ShadingClasses | None = None,
     class_at=None,
+    scale=None,
 ) -> ChunkedRadiance:
     """Whitted radiance of up to `n_slots` rays of which the first `n_live` are live, made and
     traced chunk by chunk (`config.chunk_size`): `rays_at(first, size)` returns the
@@ -779,13 +791,17 @@ def radiance_in_chunks(
     the class of each of those slots (int32, traced) and each tile's `shading_class` that of
     its rays; reflection rays carry their sample's class. None: every ray at full fidelity
     (`config`), the program without classes.
+
+    `scale`: the length `config.ray_offset` is relative to (None: `scene_scale(scene)`); a scene
+    whose arrays hold several levels of detail passes its finest level's, so that the offsets,
+    and the finest level's rays, are those of the scene alone.
     """
     if classes is not None and (class_at is None or any(t.shading_class is None for t in tiles)):
         raise ValueError("radiance_in_chunks: classes need class_at and every tile's shading_class")
     scene = jax.tree.map(jnp.asarray, scene)
     extra = sum(int(np.prod(t.active.shape)) for t in tiles)
     chunks = _chunks(n_slots, config, extra)
-    offset = config.ray_offset * scene_scale(scene)
+    offset = config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
     init = None
     if tiles:
         init = _tile_level(scene, bvh, tiles, chunks, offset=offset, config=config, classes=classes)

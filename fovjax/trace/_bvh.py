@@ -47,6 +47,12 @@ class BVH(eqx.Module):
     num_nodes: Int[np.ndarray | np.number | Array, ""]
     host_id: Int[np.ndarray | np.number | Array, ""]
     stack_size: int = eqx.field(static=True)
+    # A merged BVH (`merge_bvhs`): the item each level's traversal starts at; None: one tree, root 0.
+    roots: Int[np.ndarray | Array, " L"] | None = None
+
+    @property
+    def num_levels(self) -> int:
+        return 1 if self.roots is None else int(np.shape(self.roots)[0])
 
     @property
     def num_triangles(self) -> int:
@@ -178,6 +184,56 @@ def build_bvh(
         num_nodes=np.int32(num_nodes),
         host_id=np.int32(host_id),
         stack_size=stack_size,
+    )
+
+
+def merge_bvhs(bvhs) -> BVH:
+    """One BVH holding several trees (e.g. a scene's levels of detail), each still its own tree.
+
+    The table is every tree's node rows, then every tree's triangle rows (so `item < num_nodes`
+    still tells a node from a triangle), child items shifted accordingly; `roots[l]` is the item
+    tree l starts at. `vertices`/`faces` are the trees' concatenated, faces re-indexed, and a hit's
+    `prim` is an index into them: tree l's face j is `sum(len(faces of trees < l)) + j`. A query
+    picks a tree per ray with `level=` (`closest_hit`, `occluded`): one traversal for rays of any
+    mix of trees, with static shapes. Host-side (numpy); cheap next to building the trees."""
+    bvhs = tuple(bvhs)
+    if not bvhs or not all(isinstance(b, BVH) and b.roots is None for b in bvhs):
+        raise ValueError("merge_bvhs: need one or more single-tree BVHs (from build_bvh)")
+    tables = [np.asarray(b.table) for b in bvhs]
+    nodes = [int(b.num_nodes) for b in bvhs]
+    tris = [t.shape[0] - m for t, m in zip(tables, nodes, strict=True)]
+    total_nodes = sum(nodes)
+    node_off = np.cumsum([0, *nodes[:-1]])
+    tri_off = np.cumsum([0, *tris[:-1]])
+    vert_off = np.cumsum([0, *(np.shape(b.vertices)[0] for b in bvhs[:-1])])
+    node_rows, tri_rows = [], []
+    for table, m, no, to in zip(tables, nodes, node_off, tri_off, strict=True):
+        rows = table[:m].copy()
+        child = rows[:, 10:14]
+        shifted = np.where(child < m, child + no, child - m + total_nodes + to)
+        rows[:, 10:14] = np.where(child < 0, child, shifted)
+        node_rows.append(rows)
+        trows = table[m:].copy()
+        trows[:, 9] += to  # the merged face index
+        tri_rows.append(trows)
+    table = np.concatenate(node_rows + tri_rows).astype(np.int32)
+    vertices = np.concatenate([np.asarray(b.vertices, np.float32) for b in bvhs])
+    faces = np.concatenate([np.asarray(b.faces) + vo for b, vo in zip(bvhs, vert_off, strict=True)]).astype(
+        np.int32
+    )
+    key = hashlib.sha256("|".join(b.key for b in bvhs).encode()).hexdigest()[:32] + "-merged"
+    host_id = _HOST_ID.get(key)
+    if host_id is None:
+        host_id = _HOST_ID[key] = len(_HOST_GEOMETRY)
+        _HOST_GEOMETRY.append((key, vertices, faces))
+    return BVH(
+        table=table,
+        vertices=vertices,
+        faces=faces,
+        num_nodes=np.int32(total_nodes),
+        host_id=np.int32(host_id),
+        stack_size=max(b.stack_size for b in bvhs),
+        roots=node_off.astype(np.int32),
     )
 
 

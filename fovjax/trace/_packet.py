@@ -17,6 +17,8 @@ from ._traverse import (
     ITEM_DONE,
     ITEM_POP,
     _decode_boxes,
+    _fmax,
+    _fmin,
     _ray_setup,
     _run_steps,
     _slab4,
@@ -41,7 +43,7 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     repeated for each of the packet's rays (seen in the optimised HLO of the loop body)."""
     barrier = lax.optimization_barrier
     rays, state = barrier((rays, state))
-    o, inv_d, perm, shear, tmin = rays  # (K, P, ...)
+    o, inv_d, perm, shear, tmin = rays  # (K, 3, P) and tmin (K, P): rays minor
     cur, sp, stack, t_best, prim, done, row, box = state
     k = cur.shape[0]
     packet = jnp.arange(k)
@@ -51,16 +53,17 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     active = cur >= 0
     is_node = cur < num_nodes
 
-    boxes = [(box[:, 2 * a, None, :], box[:, 2 * a + 1, None, :]) for a in range(3)]  # (K, 1, 4)
-    t_near, t_far = _slab4(boxes, o, inv_d)  # (K, P, 4)
-    t_near = jnp.maximum(t_near, tmin[..., None])
-    t_far = jnp.minimum(t_far, t_limit[..., None])
+    # Children before rays, (K, 4, P): the packet's minimum runs over the contiguous axis.
+    boxes = [(box[:, 2 * a, :, None], box[:, 2 * a + 1, :, None]) for a in range(3)]  # (K, 4, 1)
+    t_near, t_far = _slab4(boxes, o[:, None], inv_d[:, None], axis_dim=-2)  # (K, 4, P)
+    t_near = _fmax(t_near, tmin[:, None, :])
+    t_far = _fmin(t_far, t_limit[:, None, :])
     child = row[:, 10:14]
     ray_key = jnp.where(t_near <= t_far, t_near, jnp.inf)
-    key = jnp.where(child >= 0, jnp.min(ray_key, axis=1), jnp.inf)  # (K, 4): packet entry distance
+    key = jnp.where(child >= 0, jnp.min(ray_key, axis=2), jnp.inf)  # (K, 4): packet entry distance
 
-    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)[:, None, :]  # (K, 1, 9)
-    t_t = _watertight(f[..., 0:3], f[..., 3:6], f[..., 6:9], o, perm, shear)  # (K, P)
+    f = lax.bitcast_convert_type(row[:, :9], jnp.float32)[:, :, None]  # (K, 9, 1)
+    t_t = _watertight(f[:, 0:3], f[:, 3:6], f[:, 6:9], o, perm, shear, axis=1)  # (K, P)
     tri_lane = (active & ~is_node)[:, None]
     t_tri = jnp.where(tri_lane & (t_t > tmin) & (t_t < t_limit), t_t, jnp.inf)
     key, t_tri = barrier((key, t_tri))
@@ -78,7 +81,7 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
     n_hit = jnp.sum(jnp.isfinite(jnp.stack(keys, 1)), axis=1).astype(jnp.int32)
 
     # Materialised once (see _traverse._step): the consumers read whether the best improved.
-    t_new = barrier(jnp.minimum(t_tri, t_best))
+    t_new = barrier(_fmin(t_tri, t_best))
     found = t_new < t_best
     t_best = t_new
     prim = jnp.where(found, row[:, None, 9], prim)
@@ -113,10 +116,23 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
 
 
 def traverse_packets(
-    table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, packet_size, packets, steps_per_refill
+    table,
+    num_nodes,
+    stack_size,
+    o,
+    d,
+    tmin,
+    tmax,
+    *,
+    any_hit,
+    packet_size,
+    packets,
+    steps_per_refill,
+    root=None,
 ):
     """Like `traverse`, for rays grouped into packets of `packet_size` consecutive rays, with
-    `packets` packets in flight. Returns (t, prim), t = tmax on a miss."""
+    `packets` packets in flight. Returns (t, prim), t = tmax on a miss. `root` (n_packets,)
+    int32: the item each packet starts at (None: item 0)."""
     n = o.shape[0]
     p = int(packet_size)
     n_packets = -(-n // p)
@@ -129,7 +145,9 @@ def traverse_packets(
     tmin_all, tmax_all = padded(tmin, 0.0), padded(tmax, 0.0)
     valid = valid & (tmax_all > tmin_all)
     group = lambda x: x.reshape((n_packets, p) + x.shape[1:])  # noqa: E731
-    all_rays = tuple(map(group, (o_all, inv_d_all, perm_all, shear_all, tmin_all)))
+    # Per packet (3, P): each component's rays contiguous, the axis the packet's tests run along.
+    minor = lambda x: jnp.swapaxes(group(x), 1, 2)  # noqa: E731
+    all_rays = (*map(minor, (o_all, inv_d_all, perm_all, shear_all)), group(tmin_all))
     valid, tmax_all = group(valid), group(tmax_all)
 
     k = lanes_for(n_packets, packets, floor=16)
@@ -175,7 +193,7 @@ def traverse_packets(
             all_rays,
         )
         ray_ok = valid[src]
-        cur = jnp.where(take, 0, cur)
+        cur = jnp.where(take, 0 if root is None else root[src], cur)
         sp = jnp.where(take, 0, sp)
         t_best = jnp.where(take[:, None], tmax_all[src], t_best)
         prim = jnp.where(take[:, None], -1, prim)

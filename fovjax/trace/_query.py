@@ -133,8 +133,8 @@ def _host_devices() -> list | None:
     return devices
 
 
-def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int):
-    """`run(table, num_nodes, o, d, tmin, tmax)` on equal parts of the rays, one per device.
+def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int, *level):
+    """`run(table, num_nodes, o, d, tmin, tmax[, level])` on equal parts of the rays, one per device.
     Each part is a multiple of `granule` rays (a packet), padded with empty rays."""
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as P
@@ -150,39 +150,47 @@ def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int):
     split = jax.shard_map(
         run,
         mesh=mesh,
-        in_specs=(P(), P(), P("rays"), P("rays"), P("rays"), P("rays")),
+        in_specs=(P(), P(), P("rays"), P("rays"), P("rays"), P("rays")) + (P("rays"),) * len(level),
         out_specs=(P("rays"), P("rays")),
         check_vma=False,
     )
-    t, prim = split(table, num_nodes, padded(o, 0.0), padded(d, 0.0), padded(tmin, 0.0), padded(tmax, 0.0))
+    rest = tuple(padded(x, 0) for x in level)
+    t, prim = split(
+        table, num_nodes, padded(o, 0.0), padded(d, 0.0), padded(tmin, 0.0), padded(tmax, 0.0), *rest
+    )
     return t[:n], prim[:n]
 
 
 @functools.partial(
     jax.jit, static_argnames=("backend", "any_hit", "packet_size", "lanes", "packets", "steps_per_refill")
 )
-def _raw_query(bvh, o, d, tmin, tmax, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill):
+def _raw_query(
+    bvh, o, d, tmin, tmax, level=None, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill
+):
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
     if backend == "embree":
         from ._embree import embree_query
 
         return embree_query(bvh, o, d, tmin, tmax, any_hit=any_hit)
     stack_size = bvh.stack_size
+    roots = bvh.roots
 
-    def run(table, num_nodes, o, d, tmin, tmax):
-        if packet_size is None:
-            return traverse(
-                table,
-                num_nodes,
-                stack_size,
-                o,
-                d,
-                tmin,
-                tmax,
-                any_hit=any_hit,
-                lanes=lanes,
-                steps_per_refill=steps_per_refill,
-            )
+    def per_ray(table, num_nodes, o, d, tmin, tmax, root=None):
+        return traverse(
+            table,
+            num_nodes,
+            stack_size,
+            o,
+            d,
+            tmin,
+            tmax,
+            any_hit=any_hit,
+            lanes=lanes,
+            steps_per_refill=steps_per_refill,
+            root=root,
+        )
+
+    def packets_of(table, num_nodes, o, d, tmin, tmax, root=None):
         return traverse_packets(
             table,
             num_nodes,
@@ -195,19 +203,77 @@ def _raw_query(bvh, o, d, tmin, tmax, *, backend, any_hit, packet_size, lanes, p
             packet_size=packet_size,
             packets=packets,
             steps_per_refill=steps_per_refill,
+            root=root,
         )
 
+    def run(table, num_nodes, o, d, tmin, tmax, *level):
+        if not level:
+            if packet_size is None:
+                return per_ray(table, num_nodes, o, d, tmin, tmax)
+            return packets_of(table, num_nodes, o, d, tmin, tmax)
+        root = jnp.asarray(roots, jnp.int32)[level[0]]
+        if packet_size is None:
+            return per_ray(table, num_nodes, o, d, tmin, tmax, root)
+        return _mixed_packets(packets_of, per_ray, packet_size, table, num_nodes, o, d, tmin, tmax, root)
+
+    level = () if level is None else (level,)
     devices = _host_devices()
     if devices is None:
-        return run(bvh.table, bvh.num_nodes, o, d, tmin, tmax)
-    return _split_over(devices, run, bvh.table, bvh.num_nodes, o, d, tmin, tmax, packet_size or 1)
+        return run(bvh.table, bvh.num_nodes, o, d, tmin, tmax, *level)
+    return _split_over(devices, run, bvh.table, bvh.num_nodes, o, d, tmin, tmax, packet_size or 1, *level)
+
+
+def _mixed_packets(packets_of, per_ray, p: int, table, num_nodes, o, d, tmin, tmax, root):
+    """Packets whose live rays (tmax > tmin) all start at one root are traced as packets from
+    it; the rays of the others (a packet straddling two levels) one by one, in a second
+    traversal whose queue holds only them (the rest have tmax = tmin and cost nothing)."""
+    n = o.shape[0]
+    n_packets = -(-n // p)
+    pad = n_packets * p - n
+    live = jnp.pad(tmax > tmin, (0, pad)).reshape(n_packets, p)
+    r = jnp.pad(root, (0, pad)).reshape(n_packets, p)
+    hi = jnp.max(jnp.where(live, r, -1), axis=1)
+    lo = jnp.min(jnp.where(live, r, jnp.iinfo(jnp.int32).max), axis=1)
+    mixed = jnp.repeat(hi > lo, p)[:n]
+    t_p, prim_p = packets_of(table, num_nodes, o, d, tmin, jnp.where(mixed, tmin, tmax), jnp.maximum(hi, 0))
+    t_r, prim_r = per_ray(table, num_nodes, o, d, tmin, jnp.where(mixed, tmax, tmin), root)
+    return jnp.where(mixed, t_r, t_p), jnp.where(mixed, prim_r, prim_p)
+
+
+def _levels(bvh, level, backend: str, batch, order):
+    """The per-ray level as flat int32 (tile-ordered like the rays), clipped to the BVH's levels;
+    None when not given."""
+    if level is None:
+        return None
+    if backend != "jax":
+        raise ValueError(f"level= (a merged BVH's tree per ray) needs backend 'jax', got {backend!r}")
+    if bvh.roots is None:
+        raise ValueError("level= needs a merged BVH (fovjax.trace.merge_bvhs); this one has one tree")
+    lv = jnp.broadcast_to(jnp.asarray(level, jnp.int32), batch).reshape(-1)
+    lv = jnp.clip(lv, 0, bvh.num_levels - 1)
+    return lv if order is None else lv[np.maximum(order, 0)]
 
 
 def _query(
-    bvh, origins, directions, tmin, tmax, *, any_hit, backend, packet, lanes, packets, steps_per_refill
+    bvh,
+    origins,
+    directions,
+    tmin,
+    tmax,
+    *,
+    any_hit,
+    backend,
+    packet,
+    lanes,
+    packets,
+    steps_per_refill,
+    level=None,
 ):
     _check(backend, packet)
     batch, o, d, tmin_f, tmax_f, order = _prepare(origins, directions, tmin, tmax, packet)
+    level = _levels(bvh, level, backend, batch, order)
+    if level is not None and order is not None:  # tile padding is never live (nor mixes levels)
+        tmax_f = jnp.where(order < 0, tmin_f, tmax_f)
     packet_size = None if packet is None else int(np.prod(packet))
     _, prim = _raw_query(
         bvh,
@@ -215,6 +281,7 @@ def _query(
         d,
         tmin_f,
         tmax_f,
+        level,
         backend=backend,
         any_hit=any_hit,
         packet_size=packet_size,
@@ -238,6 +305,7 @@ def closest_hit(
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
+    level: Int[ArrayLike, "*#batch"] | None = None,
 ) -> Hit:
     """The nearest triangle hit by each ray with tmin < t < tmax.
 
@@ -256,6 +324,11 @@ def closest_hit(
     `directions` and `vertices` (pass `vertices` to differentiate w.r.t. positions other than
     the build-time ones; traversal still uses the build-time geometry). Which triangle is hit
     (visibility) is not differentiated.
+
+    `level` (a merged BVH, `merge_bvhs`): which of its trees each ray is traced against (int,
+    broadcast against the batch; traced values, clipped to the trees); `prim` then indexes the
+    merged faces. One traversal for any mix of levels; a packet whose rays are not all of one
+    level has its rays traced one by one.
     """
     batch, o, d, prim, order = _query(
         bvh,
@@ -269,6 +342,7 @@ def closest_hit(
         lanes=lanes,
         packets=packets,
         steps_per_refill=steps_per_refill,
+        level=level,
     )
     verts = bvh.vertices if vertices is None else vertices
     t, u, v = hit_geometry(verts, bvh.faces, prim, o, d)
@@ -288,9 +362,10 @@ def occluded(
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,
     steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
+    level: Int[ArrayLike, "*#batch"] | None = None,
 ) -> Bool[Array, "..."]:
     """Whether anything lies on each ray with tmin < t < tmax (a shadow ray; stops at the
-    first hit found, not the nearest). Options as for `closest_hit`."""
+    first hit found, not the nearest). Options (and `level`) as for `closest_hit`."""
     batch, _, _, prim, order = _query(
         bvh,
         origins,
@@ -303,6 +378,7 @@ def occluded(
         lanes=lanes,
         packets=packets,
         steps_per_refill=steps_per_refill,
+        level=level,
     )
     return _restore(prim >= 0, order, int(np.prod(batch))).reshape(batch)
 

@@ -58,26 +58,43 @@ def _ray_setup(o, d):
     return valid, o, inv_d, jnp.stack([kx, ky, kz], -1), shear
 
 
-def _pick(x, k):
-    """x[..., k] for a per-ray component index k, as selects (no gather)."""
-    return jnp.where(k == 0, x[..., 0], jnp.where(k == 1, x[..., 1], x[..., 2]))
+def _fmin(a, b):
+    """min(a, b) as one compare and select: XLA's `minimum` also propagates NaN, which costs
+    extra instructions per call; the traversal's distances are never NaN (see `_ray_setup`)."""
+    return jnp.where(a < b, a, b)
 
 
-def _watertight(v0, v1, v2, o, perm, shear):
+def _fmax(a, b):
+    """max(a, b) as one compare and select (see `_fmin`)."""
+    return jnp.where(a > b, a, b)
+
+
+def _xyz(x, i, axis):
+    """Component i of x, whose xyz run along `axis`."""
+    return x[..., i] if axis == -1 else lax.index_in_dim(x, i, axis=axis, keepdims=False)
+
+
+def _pick(x, k, axis=-1):
+    """x's component k for a per-ray component index k, as selects (no gather)."""
+    return jnp.where(k == 0, _xyz(x, 0, axis), jnp.where(k == 1, _xyz(x, 1, axis), _xyz(x, 2, axis)))
+
+
+def _watertight(v0, v1, v2, o, perm, shear, axis=-1):
     """Woop-Benthin-Wald watertight ray/triangle test. Returns the hit distance t, inf on a miss.
+    xyz run along `axis` of every argument (the last by default).
 
     One array out (not a hit flag and a distance): XLA:CPU materialises it once, where a flag
     and a distance were each re-derived from the edge functions by their consumers."""
-    kx, ky, kz = perm[..., 0], perm[..., 1], perm[..., 2]
-    sx, sy, sz = shear[..., 0], shear[..., 1], shear[..., 2]
+    kx, ky, kz = (_xyz(perm, i, axis) for i in range(3))
+    sx, sy, sz = (_xyz(shear, i, axis) for i in range(3))
     a, b, c = v0 - o, v1 - o, v2 - o
-    az, bz, cz = _pick(a, kz), _pick(b, kz), _pick(c, kz)
-    ax = _pick(a, kx) - sx * az
-    ay = _pick(a, ky) - sy * az
-    bx = _pick(b, kx) - sx * bz
-    by = _pick(b, ky) - sy * bz
-    cx = _pick(c, kx) - sx * cz
-    cy = _pick(c, ky) - sy * cz
+    az, bz, cz = _pick(a, kz, axis), _pick(b, kz, axis), _pick(c, kz, axis)
+    ax = _pick(a, kx, axis) - sx * az
+    ay = _pick(a, ky, axis) - sy * az
+    bx = _pick(b, kx, axis) - sx * bz
+    by = _pick(b, ky, axis) - sy * bz
+    cx = _pick(c, kx, axis) - sx * cz
+    cy = _pick(c, ky, axis) - sy * cz
     # Edge functions. In exact float arithmetic a shared edge gives exactly opposite values in
     # its two triangles, which is what makes the test watertight. A compiler may contract
     # x*y - z*w into an FMA (XLA:CPU does inside fused loops), which breaks that symmetry by an
@@ -111,16 +128,20 @@ def _decode_boxes(row):
     return boxes
 
 
-def _slab4(boxes, o, inv_d):
-    """Entry/exit distances of rays (o, inv_d: (..., 3)) through boxes broadcast against (..., 4)."""
+def _slab4(boxes, o, inv_d, axis_dim=-1):
+    """Entry/exit distances of rays (o, inv_d: xyz along `axis_dim`, (..., 3) by default) through
+    boxes broadcast against (..., 4)."""
     t_lo, t_hi = [], []
     for axis, (lo, hi) in enumerate(boxes):
-        t0 = (lo - o[..., axis, None]) * inv_d[..., axis, None]
-        t1 = (hi - o[..., axis, None]) * inv_d[..., axis, None]
-        t_lo.append(jnp.minimum(t0, t1))
-        t_hi.append(jnp.maximum(t0, t1))
-    t_near = jnp.maximum(jnp.maximum(t_lo[0], t_lo[1]), t_lo[2])
-    t_far = jnp.minimum(jnp.minimum(t_hi[0], t_hi[1]), t_hi[2]) * BOX_FAR_SCALE
+        oa, ia = _xyz(o, axis, axis_dim), _xyz(inv_d, axis, axis_dim)
+        if axis_dim == -1:
+            oa, ia = oa[..., None], ia[..., None]
+        t0 = (lo - oa) * ia
+        t1 = (hi - oa) * ia
+        t_lo.append(_fmin(t0, t1))
+        t_hi.append(_fmax(t0, t1))
+    t_near = _fmax(_fmax(t_lo[0], t_lo[1]), t_lo[2])
+    t_far = _fmin(_fmin(t_hi[0], t_hi[1]), t_hi[2]) * BOX_FAR_SCALE
     return t_near, t_far
 
 
@@ -145,8 +166,8 @@ def _visit(table, num_nodes, rays, cur, t_limit):
     row = table[jnp.maximum(cur, 0)]
     is_node = cur < num_nodes
     t_near, t_far = _slab4(_decode_boxes(row), o, inv_d)
-    t_near = jnp.maximum(t_near, tmin[:, None])
-    t_far = jnp.minimum(t_far, t_limit[:, None])
+    t_near = _fmax(t_near, tmin[:, None])
+    t_far = _fmin(t_far, t_limit[:, None])
     child = row[:, 10:14]
     key = jnp.where((t_near <= t_far) & (child >= 0), t_near, jnp.inf)
     f = lax.bitcast_convert_type(row[:, :9], jnp.float32)
@@ -187,7 +208,7 @@ def _step(table, num_nodes, stack_size, any_hit, rays, state):
 
     # The triangle test is materialised once, as the new best distance; its other consumers
     # read whether it improved (t_tri < t_best by construction) instead of recomputing it.
-    t_new = barrier(jnp.minimum(t_tri, t_best))
+    t_new = barrier(_fmin(t_tri, t_best))
     found = t_new < t_best
     t_best = t_new
     prim = jnp.where(found, row[:, 9], prim)
@@ -244,7 +265,7 @@ def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
 
     active, is_node, row, child, key, t_tri = _visit(table, num_nodes, rays, cur, t_max)
     # Materialised once as the carried distance (see `_step`); consumers compare with it.
-    t_new = barrier(jnp.minimum(t_tri, t_max))
+    t_new = barrier(_fmin(t_tri, t_max))
     found = t_new < t_max
 
     # The nearest entered child is visited next; the others are pushed in slot order.
@@ -324,8 +345,9 @@ def _run_steps(step, table, num_nodes, stack_size, any_hit, rays, state, count, 
     return lax.while_loop(lambda c: c[0] < count, body, (jnp.int32(0), state))[1]
 
 
-def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, steps_per_refill):
+def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, steps_per_refill, root=None):
     """Trace flat rays o, d (n, 3) with per-ray tmin, tmax (n,). Returns (t, prim), t = tmax on a miss.
+    `root` (n,) int32: the item each ray starts at (a merged BVH's level roots); None: item 0.
 
     A fixed set of `lanes` rays is in flight; every `steps_per_refill` steps, lanes whose ray has
     finished write its result and take the next ray from the queue (in input order, so
@@ -380,7 +402,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
             rays,
             all_rays,
         )
-        cur = jnp.where(take, 0, cur)
+        cur = jnp.where(take, 0 if root is None else root[src], cur)
         sp = jnp.where(take, 0, sp)
         t_best = jnp.where(take, tmax[src], t_best)
         prim = jnp.where(take, -1, prim)

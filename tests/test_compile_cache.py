@@ -1,0 +1,75 @@
+"""The persistent compilation cache the command line turns on (`fovjax.render.enable_compile_cache`).
+
+Each case runs in its own process with its own cache directory: the cache is process-wide JAX
+configuration, and the rest of the suite runs without it (conftest)."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+RENDER = ["render", "--scene", "cornell", "--width", "8", "--height", "8", "--mono", "--spp", "1"]
+
+
+def _fovjax(argv, cache_dir, **env):
+    environment = dict(
+        os.environ,
+        PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+        FOVJAX_CACHE_DIR=str(cache_dir),
+        FOVJAX_COMPILE_CACHE="1",
+    )
+    environment.update(env)
+    return subprocess.run(
+        [sys.executable, "-m", "fovjax", *argv], capture_output=True, text=True, env=environment, timeout=600
+    )
+
+
+def _entries(directory: Path) -> set[str]:
+    return {p.name for p in directory.glob("*-cache")} if directory.exists() else set()
+
+
+def test_a_second_run_loads_the_programs_the_first_compiled(tmp_path):
+    cache = tmp_path / "cache"
+    first = _fovjax([*RENDER, "-o", str(tmp_path / "a.png")], cache)
+    assert first.returncode == 0, first.stderr
+    written = _entries(cache / "xla")
+    # The frame program takes well over the 1 s threshold to compile, so it was written.
+    assert any(name.startswith("jit_counted") for name in written), written
+    second = _fovjax([*RENDER, "-o", str(tmp_path / "b.png")], cache)
+    assert second.returncode == 0, second.stderr
+    # Every program of the second run came from the cache: nothing new was written.
+    assert _entries(cache / "xla") == written
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
+
+
+def test_turned_off_by_the_environment(tmp_path):
+    cache = tmp_path / "cache"
+    done = _fovjax([*RENDER, "-o", str(tmp_path / "a.png")], cache, FOVJAX_COMPILE_CACHE="0")
+    assert done.returncode == 0, done.stderr
+    assert not (cache / "xla").exists()
+
+
+def test_an_unwritable_cache_is_said_and_skipped(tmp_path):
+    # A directory under a regular file cannot be created, whoever runs the test (root too).
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    done = _fovjax([*RENDER, "-o", str(tmp_path / "a.png")], blocker / "cache")
+    assert done.returncode == 0, done.stderr
+    assert "compile cache off: cannot write" in done.stderr and str(blocker) in done.stderr
+    assert "Traceback" not in done.stderr
+    assert (tmp_path / "a.png").exists()
+
+
+def test_a_cache_directory_the_user_configured_is_kept(tmp_path):
+    mine = tmp_path / "mine"
+    code = (
+        "import jax, fovjax\n"
+        f"jax.config.update('jax_compilation_cache_dir', {str(mine)!r})\n"
+        f"print(fovjax.enable_compile_cache({str(tmp_path / 'other')!r}))\n"
+        "print(jax.config.jax_compilation_cache_dir)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(mine), str(mine)]

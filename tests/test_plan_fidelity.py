@@ -1,0 +1,204 @@
+"""`fovjax.eval.plan_fidelity`: the cheapest per-region fidelity within an added error per 5°
+ring. On the spheres (mirror spheres, shadows, max_depth 2, tiny frames): a loose criterion
+takes the cheapest candidate everywhere, a zero criterion keeps full fidelity (plain
+foveation's frame), a middle one cheapens the outside but not the periphery, and the plan's
+rings, recomputed from fresh renders, stay within the criterion. Bad arguments fail before any
+rendering. Options are two-candidate chains (full, cheapest) so the whole file compiles five
+programs: the full render, plain foveation and three fidelity configurations."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import fovjax
+from fovjax.eval import (
+    DEFAULT_STEPS,
+    FidelityPlan,
+    HmdDisplay,
+    default_options,
+    error_by_eccentricity,
+    flip,
+    plan_fidelity,
+)
+from fovjax.foveate import Fidelity, Foveation, render_foveated
+from fovjax.render import RenderConfig, StereoRig, render_stereo
+
+pytest.importorskip("flip_evaluator")
+
+CONFIG = RenderConfig(max_depth=2)  # the spheres' mirror material needs bounces
+GAZES = [(0.4, 0.5)]
+KEYS = [0, 1]
+FULL = Fidelity()
+CHEAP = Fidelity(max_depth=0, shadows="none")
+CHAIN = [FULL, CHEAP]
+FOVEATION = Foveation.thesis(0)
+
+
+@pytest.fixture(scope="module")
+def spheres():
+    scene = fovjax.scenes.spheres(subdivisions=1, ground_cells=4)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=32, eye_height=24)
+    return scene, rig
+
+
+def _plan(spheres, threshold, options) -> FidelityPlan:
+    scene, rig = spheres
+    return plan_fidelity(
+        scene, rig, FOVEATION, ("flip", threshold), gazes=GAZES, keys=KEYS, options=options, config=CONFIG
+    )
+
+
+@pytest.fixture(scope="module")
+def loose(spheres):
+    return _plan(spheres, 1.0, CHAIN)
+
+
+@pytest.fixture(scope="module")
+def middle(spheres):
+    # The fovea keeps full fidelity (one candidate); periphery and outside are searched.
+    return _plan(spheres, 0.05, ([FULL], CHAIN, CHAIN))
+
+
+def test_loose_criterion_takes_the_cheapest_option_everywhere(loose):
+    assert loose.fidelity == (CHEAP, CHEAP, CHEAP)
+    assert [s.region for s in loose.steps] == ["outside", "periphery", "fovea"]  # outside inward
+    assert all(s.passed for s in loose.steps)
+    assert loose.plan_cost["rays_per_frame"] < loose.plain_cost["rays_per_frame"]
+    assert loose.plain.fidelity is None and loose.foveation.fovea_deg == FOVEATION.fovea_deg
+    text = str(loose)
+    assert "fovea max_depth=0 shadows='none'" in text and "speed:" in text and "0-5" in text
+
+
+def test_zero_criterion_keeps_full_fidelity(spheres, loose):
+    scene, rig = spheres
+    strict = _plan(spheres, 0.0, ([FULL], [FULL], CHAIN))
+    # The cheapest outside fidelity changes pixels there (mirrors and shadows), so it fails.
+    assert [(s.region, s.passed) for s in strict.steps] == [("outside", False)]
+    assert strict.steps[0].worst_added > 0
+    assert strict.fidelity == (FULL, FULL, FULL)
+    assert strict.foveation is strict.plain  # plain foveation itself: the same program
+    assert strict.plan_cost["rays_per_frame"] == strict.plain_cost["rays_per_frame"]
+    for key in KEYS:
+        kwargs = {"gaze": (GAZES[0], GAZES[0]), "key": jax.random.key(key)}
+        planned = render_foveated(scene, rig, foveation=strict.foveation, config=CONFIG, **kwargs)
+        plain = render_foveated(scene, rig, foveation=FOVEATION, config=CONFIG, **kwargs)
+        assert np.array_equal(planned.image, plain.image)
+    np.testing.assert_array_equal(strict.added_ring_error[np.isfinite(strict.added_ring_error)], 0.0)
+
+
+def test_middle_criterion_cheapens_only_what_stays_within(middle):
+    # Outside without reflections and shadows adds little FLIP per ring on the spheres; the
+    # periphery, where the mirror spheres are, adds far more than 0.05.
+    assert middle.fidelity == (FULL, FULL, CHEAP)
+    assert [(s.region, s.passed) for s in middle.steps] == [("outside", True), ("periphery", False)]
+    assert middle.steps[1].worst_added > 0.05 >= middle.steps[0].worst_added
+    assert middle.within
+
+
+def test_the_plan_meets_the_criterion_per_ring_recomputed(spheres, middle):
+    """Fresh renders of the plan, plain foveation and the full render, FLIP maps and rings
+    computed here: the plan adds at most the threshold in every ring, and the plan's numbers
+    are these."""
+    scene, rig = spheres
+    ppd = HmdDisplay.from_camera(rig.eye_cameras()[0]).ppd
+    sums = {"plan": 0.0, "plain": 0.0}
+    pixels = 0
+    for key in KEYS:
+        ref = render_stereo(scene, rig, spp=1, key=jax.random.key(key), config=CONFIG).image
+        for name, fov in (("plan", middle.foveation), ("plain", FOVEATION)):
+            frame = render_foveated(
+                scene, rig, gaze=(GAZES[0], GAZES[0]), foveation=fov, key=jax.random.key(key), config=CONFIG
+            )
+            ecc = np.concatenate(list(frame.eccentricity), axis=1)
+            _, emap = flip(frame.image, ref, ppd=ppd, return_map=True)
+            rings = error_by_eccentricity(frame.image, ref, ecc, error_map=emap)
+            sums[name] = sums[name] + np.nan_to_num(rings.mean_error) * rings.pixels
+        pixels = pixels + rings.pixels
+    seen = pixels > 0
+    plan_rings = sums["plan"][seen] / pixels[seen]
+    plain_rings = sums["plain"][seen] / pixels[seen]
+    assert np.all(plan_rings - plain_rings <= 0.05)
+    assert np.any(plan_rings - plain_rings > 0)  # the plan did change the frame
+    np.testing.assert_allclose(middle.ring_error[: len(plan_rings)], plan_rings, atol=1e-6)
+    np.testing.assert_allclose(middle.plain_ring_error[: len(plain_rings)], plain_rings, atol=1e-6)
+
+
+def test_default_options_are_a_monotone_chain():
+    chain = default_options(5, lights=2)
+    assert chain[0] == Fidelity()
+    depths = [5 if f.max_depth is None else f.max_depth for f in chain]
+    shadows = [("all", "brightest", "none").index(f.shadows) for f in chain]
+    assert depths == sorted(depths, reverse=True) and shadows == sorted(shadows)
+    assert chain[-1] == CHEAP and len(chain) == 1 + len(DEFAULT_STEPS)
+    # One light: "brightest" is "all"; max_depth 1: the depth-2 step is skipped.
+    assert [f.shadows for f in default_options(1, lights=1)] == ["all", "all", "none"]
+    assert [f.max_depth for f in default_options(1, lights=1)] == [None, 0, 0]
+    assert default_options(5, lights=1, spp=4) == default_options(5, lights=1, spp=1)
+
+
+def test_top_level_export():
+    assert fovjax.plan_fidelity is plan_fidelity
+    with pytest.raises(AttributeError, match="no_such_thing"):
+        fovjax.no_such_thing  # noqa: B018
+
+
+# -- bad input: a ValueError naming the argument and the value, before anything is rendered ---
+class Rendered(BaseException):
+    pass
+
+
+def _trap(*args, **kwargs):
+    raise Rendered("rendered before refusing the input")
+
+
+BAD = [
+    ({"scene": "atrium"}, "scene"),
+    ({"rig": None}, "rig"),
+    ({"foveation": (5, 10)}, "foveation"),
+    ({"config": {"max_depth": 2}}, "config"),
+    ({"criterion": ("psnr", 30)}, "'psnr'"),
+    ({"criterion": ("flip", float("nan"))}, "threshold nan"),
+    ({"criterion": ("flip", -0.1)}, "threshold -0.1"),
+    ({"criterion": ("flip", 2)}, "threshold 2"),
+    ({"criterion": ("flip",)}, "criterion"),
+    ({"criterion": "flip"}, "criterion 'flip'"),
+    ({"gazes": []}, "gazes"),
+    ({"gazes": [(0.5, 1.2)]}, r"gazes\[0\].*off-screen"),
+    ({"gazes": [(0.5, 0.5), (float("nan"), 0.5)]}, r"gazes\[1\].*NaN"),
+    ({"gazes": [(0.1, 0.2, 0.3)]}, r"gazes\[0\]"),
+    ({"keys": []}, "keys"),
+    ({"keys": [0, -1]}, r"keys\[1\] -1"),
+    ({"keys": [1.5]}, r"keys\[0\] 1.5"),
+    ({"keys": [True]}, r"keys\[0\] True"),
+    ({"spp": 3}, "spp 3"),
+    ({"spp": 0}, "spp 0"),
+    ({"repeats": 0}, "repeats 0"),
+    ({"render_kwargs": ["envmap"]}, "render_kwargs"),
+    ({"options": []}, "options"),
+    ({"options": [FULL, "cheap"]}, "options"),
+    ({"options": [FULL, Fidelity(max_depth=3)]}, r"options \(fovea\)\[1\] max_depth 3.*max_depth 2"),
+    ({"options": ([FULL], [], [FULL])}, r"options \(periphery\).*empty"),
+    ({"options": ([FULL], [FULL], [FULL, 7])}, r"options \(outside\)\[1\] 7"),
+    ({"options": FULL}, "options"),
+    (
+        {"foveation": Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(max_depth=4)))},
+        r"foveation.fidelity \(outside\) max_depth 4",
+    ),
+]
+
+
+@pytest.mark.no_typecheck
+@pytest.mark.parametrize(("change", "message"), BAD)
+def test_bad_arguments_fail_before_rendering(spheres, monkeypatch, change, message):
+    monkeypatch.setattr(fovjax.render, "render_stereo", _trap)
+    monkeypatch.setattr(fovjax.foveate, "render_foveated", _trap)
+    scene, rig = spheres
+    args = {"scene": scene, "rig": rig, "foveation": FOVEATION, "criterion": ("flip", 0.05)}
+    kwargs = {"gazes": GAZES, "keys": KEYS, "config": CONFIG}
+    for name, value in change.items():
+        (args if name in args else kwargs)[name] = value
+    with pytest.raises(ValueError, match=message) as err:
+        plan_fidelity(args["scene"], args["rig"], args["foveation"], args["criterion"], **kwargs)
+    assert "plan_fidelity" in str(err.value)
