@@ -131,11 +131,17 @@ def test_default_options_are_a_monotone_chain():
     depths = [5 if f.max_depth is None else f.max_depth for f in chain]
     shadows = [("all", "brightest", "none").index(f.shadows) for f in chain]
     assert depths == sorted(depths, reverse=True) and shadows == sorted(shadows)
-    assert chain[-1] == CHEAP and len(chain) == 1 + len(DEFAULT_STEPS)
+    # At SPP 1 the spp step is no step at all (skipped).
+    assert chain[-1] == CHEAP and len(chain) == len(DEFAULT_STEPS)
     # One light: "brightest" is "all"; max_depth 1: the depth-2 step is skipped.
     assert [f.shadows for f in default_options(1, lights=1)] == ["all", "all", "none"]
     assert [f.max_depth for f in default_options(1, lights=1)] == [None, 0, 0]
-    assert default_options(5, lights=1, spp=4) == default_options(5, lights=1, spp=1)
+    # At SPP 4 the chain gains the 1-SPP step after depth 1, and keeps it to the end.
+    at4 = default_options(5, lights=1, spp=4)
+    assert len(at4) == len(default_options(5, lights=1, spp=1)) + 1
+    spps = [4 if f.spp is None else f.spp for f in at4]
+    assert spps == sorted(spps, reverse=True) and at4[-1].spp == 1
+    assert at4[3] == Fidelity(max_depth=1, spp=1)
 
 
 def test_top_level_export():

@@ -53,9 +53,13 @@ DEFAULT_PLAN_GAZES = ((0.35, 0.45), (0.3, 0.4), (0.7, 0.65))
 # stay below the resolvable angle) and {"texture_lod": "auto"} before the reflection-depth steps,
 # {"spp": 1} where it measures: the one place the default grid is defined (a field that needs
 # a renderer input beyond what `render_foveated` finds itself also needs `render_kwargs`).
+# {"spp": 1} sits after depth 1: on the atrium at SPP 4 it was the one step that bought speed at
+# equal FLIP (periphery at 1 SPP + depth 1: 1.19x, README "Planning the fidelity"); geometry LOD
+# measured no faster there and texture LOD buys no speed on the CPU, so neither is a default step.
 DEFAULT_STEPS: tuple[dict, ...] = (
     {"max_depth": 2},
     {"max_depth": 1},
+    {"spp": 1},
     {"max_depth": 0},
     {"shadows": "brightest"},
     {"shadows": "none"},
@@ -64,9 +68,10 @@ DEFAULT_STEPS: tuple[dict, ...] = (
 
 def default_options(max_depth: int = 5, lights: int = 1, spp: int = 1) -> tuple:
     """The default candidates of one region, dearest first: full fidelity, then the steps of
-    `DEFAULT_STEPS` applied one after another (reflection depth 2, 1, 0 below the render
-    config's `max_depth`; then shadow rays to the brightest light only, with more than one
-    light; then none). `spp`: the frame's samples per pixel (an `spp` step must be below it)."""
+    `DEFAULT_STEPS` applied one after another (reflection depth 2, 1 below the render config's
+    `max_depth`; one sample per pixel where the frame has more; depth 0; then shadow rays to the
+    brightest light only, with more than one light; then none). `spp`: the frame's samples per
+    pixel (an `spp` step must be below it)."""
     from ..foveate import Fidelity
 
     fields: dict = {}
