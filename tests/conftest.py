@@ -19,20 +19,6 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # suite runs without it, so no test depends on what an earlier test or run left there
 # (tests/test_compile_cache.py turns it on in its own processes and directories).
 os.environ["FOVJAX_COMPILE_CACHE"] = "0"
-# Within one run, though, compiled programs are shared: a persistent compile cache in a directory
-# of this run only (named by pytest-xdist's run id, so both workers and every command the tests
-# start use it), so a configuration that several tests, workers or subprocesses build is
-# compiled once. A loaded program is the same executable, so no result depends on it; the
-# locking that `jax_compilation_cache_max_size` turns on keeps concurrent writers apart.
-if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-    import importlib.util
-    import tempfile
-
-    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-    if run_id and importlib.util.find_spec("filelock") is not None:
-        cache = os.path.join(tempfile.gettempdir(), f"fovjax-tests-xla-{run_id}")
-        os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
-        os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(4 << 30)
 
 if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
     from beartype import BeartypeConf, beartype
