@@ -234,6 +234,16 @@ def display_point(xy, option: str) -> None:
         )
 
 
+def head_gaze_fovea(args) -> None:
+    """The frame options `render` and `inspect` share: `--head` (yaw, pitch, roll), `--gaze`
+    (both eyes' display points) and `--fovea`/`--periphery`."""
+    for name, value in zip(("yaw", "pitch", "roll"), args.head, strict=True):
+        number(value, f"--head {name}")
+    display_point(args.gaze[0], "--gaze (left eye)")
+    display_point(args.gaze[1], "--gaze (right eye)")
+    fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+
+
 def _existing_ancestor(path: Path) -> Path:
     path = path.absolute()
     while not path.exists() and path != path.parent:

@@ -49,11 +49,7 @@ def validate(args) -> None:
     cli.number(args.width, "--width", ge=1)
     cli.number(args.height, "--height", ge=1)
     cli.number(args.triangles, "--triangles", ge=1)
-    for name, value in zip(("yaw", "pitch", "roll"), args.head, strict=True):
-        cli.number(value, f"--head {name}")
-    cli.display_point(args.gaze[0], "--gaze (left eye)")
-    cli.display_point(args.gaze[1], "--gaze (right eye)")
-    cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+    cli.head_gaze_fovea(args)
     cli.number(args.max_depth, "--max-depth", ge=0)
     cli.number(args.ring, "--ring", gt=0)
     cli.squares(args.spp, "--spp")

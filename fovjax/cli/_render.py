@@ -128,11 +128,7 @@ def validate(args) -> Path:
     cli.number(args.max_depth, "--max-depth", ge=0)
     cli.number(args.triangles, "--triangles", ge=1)
     cli.number(args.exposure, "--exposure", gt=0)
-    for name, value in zip(("yaw", "pitch", "roll"), args.head, strict=True):
-        cli.number(value, f"--head {name}")
-    cli.display_point(args.gaze[0], "--gaze (left eye)")
-    cli.display_point(args.gaze[1], "--gaze (right eye)")
-    cli.fovea_periphery(args.fovea, args.periphery, "--fovea/--periphery")
+    cli.head_gaze_fovea(args)
     args.envmap_image = None
     if args.envmap is not None:
         from fovjax.render import load_envmap
