@@ -155,14 +155,13 @@ def _to_host(tree):
     return multihost_utils.process_allgather(tree, tiled=True)
 
 
-def _foveated_program(scene, bvh, rig, foveation, head_poses, gazes, key_data, **static):
+def _foveated_program(scene, bvh, rig, foveation, shading, head_poses, gazes, key_data, **static):
     from ..foveate import foveated_stereo
 
     def frame(xs):
         head_pose, gaze, key = xs
-        return foveated_stereo(
-            scene, bvh, rig, head_pose, gaze, jax.random.wrap_key_data(key), foveation, **static
-        )
+        key = jax.random.wrap_key_data(key)
+        return foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, None, shading, **static)
 
     # One frame after another (lax.map), not vmap: a foveated frame skips the chunks of slots it
     # does not trace with lax.cond, which vmap would turn into a select that runs every chunk.
@@ -272,11 +271,13 @@ def render_foveated_batch(
     `render_foveated` of the same gaze, key and head pose (ray budget included). `partition`:
     "shard_map" (default; each device loops over its own frames) or "auto" (see
     `PARTITIONS`)."""
-    from ..foveate import Foveation, budget_for, check_gaze
+    from ..foveate import Foveation, budget_for, check_gaze, program_fidelity
     from ..render import DEFAULT_CONFIG, with_texture_mips
 
     foveation = foveation or Foveation()
     config = config or DEFAULT_CONFIG
+    # Depth and shadow mode per region are traced tables (a new plan reuses the program).
+    program_foveation, shading = program_fidelity(foveation, config)
     n = _batch_size({"gazes": gazes, "keys": keys, "head_poses": head_poses})
 
     def gaze_of(g):
@@ -294,7 +295,7 @@ def render_foveated_batch(
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget}
     out, padded, compile_s, render_s, sharding = _run_sharded(
         "foveated",
-        (arrays, bvh, rig, foveation),
+        (arrays, bvh, rig, program_foveation, shading),
         (poses, gaze, key_data),
         static,
         frame_mesh(devices),

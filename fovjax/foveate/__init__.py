@@ -34,6 +34,9 @@ from ._config import (
 from ._config import (
     check_gaze as check_gaze,
 )
+from ._config import (
+    program_fidelity as program_fidelity,
+)
 from ._eccentricity import (
     display_pixel_pitch_mm as display_pixel_pitch_mm,
 )

@@ -16,8 +16,8 @@ from ._config import (
     Foveation,
     check_gaze,
     max_region_spp,
+    program_fidelity,
     region_spp,
-    shading_classes,
     uses_texture_lod,
 )
 from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
@@ -190,7 +190,8 @@ def render_foveated(
             f"render_foveated: periphery_deg {foveation.periphery_deg} exceeds max_periphery_deg {m} "
             "(the maximum the compiled program serves)"
         )
-    shading_classes(foveation, config)  # a bad per-region depth fails before any work
+    # A bad per-region depth fails before any work; depths and shadow modes are traced tables.
+    program_foveation, shading = program_fidelity(foveation, config)
     bvh = bvh_for(scene, bvh)
     arrays = (
         scene
@@ -215,7 +216,8 @@ def render_foveated(
     if top is not None:
         arrays, bvh, lod = _levels_of_detail(scene, arrays, bvh, foveation, rig, lod_levels, top)
     # --- end geometry level of detail ---
-    args = jax.tree.map(jnp.asarray, (arrays, bvh, rig, angles, gaze, key, foveation, lod))
+    args = (arrays, bvh, rig, angles, gaze, key, program_foveation, lod, shading)
+    args = jax.tree.map(jnp.asarray, args)
     out, compile_s, render_s = run_compiled("foveated", foveated_stereo, args, static)
     image = np.asarray(out.image)
     stats = frame_stats(

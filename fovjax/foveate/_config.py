@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -177,6 +178,23 @@ def shading_classes(foveation, config):
         texture_level=texture[0],
         texture_cone=texture[1],
     )
+
+
+def program_fidelity(foveation, config):
+    """Split `foveation` for compiling: (the foveation the compiled program is keyed on, the
+    `ShadingClasses` tables it is called with). Reflection depth and shadow mode per region are
+    values of the tables (traced), not of the program: a new depth or shadow mode per region
+    (a fidelity plan's search, a user's next try) reuses the compiled frame. What shapes the
+    program stays in the foveation: each region's `spp` (the static slot budget), `lod` and
+    `texture_lod`, and whether any tables exist (None: every region at full fidelity, the
+    program without per-ray classes). Raises ValueError as `shading_classes`."""
+    classes = shading_classes(foveation, config)
+    if foveation.fidelity is None:
+        return foveation, classes
+    shaped = tuple(Fidelity(lod=f.lod, texture_lod=f.texture_lod, spp=f.spp) for f in foveation.fidelity)
+    if all(f == Fidelity() for f in shaped):
+        shaped = None
+    return dataclasses.replace(foveation, fidelity=shaped), classes
 
 
 # ---- texspp: texture level of detail tables ----

@@ -396,6 +396,7 @@ def foveated_stereo(
     key,
     foveation,
     lod=None,
+    shading=None,
     *,
     spp,
     jitter,
@@ -410,7 +411,9 @@ def foveated_stereo(
     (None: not; only where the budget is every sample, so that their samples are never
     dropped; see `Foveation.fovea_tile_deg`). `lod`: with levels of detail per region
     (`Fidelity.lod`), the `LODTables` of `scene` and `bvh` merged over the levels
-    (`render_foveated` prepares them); None otherwise.
+    (`render_foveated` prepares them); None otherwise. `shading`: the per-region
+    `ShadingClasses` tables of `program_fidelity` (traced values: the reflection depth and
+    shadow mode per region are not part of the program); None: computed from `foveation`.
 
     Only the selected samples ever become rays: their sub-pixel positions are the full
     render's (`pixel_sample_positions` from the same key) and their directions are computed
@@ -450,7 +453,7 @@ def foveated_stereo(
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
-    classes = shading_classes(foveation, config)
+    classes = shading_classes(foveation, config) if shading is None else shading
     if classes is not None and classes.texture_cone is not None:  # texspp: cones in radians
         spread = pixel_spread_angle(rig.vfov_deg(), h)
         classes = classes._replace(texture_cone=jnp.asarray(classes.texture_cone) * spread)
