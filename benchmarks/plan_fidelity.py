@@ -22,6 +22,7 @@ for `Fidelity` fields newer than `fovjax.eval.DEFAULT_STEPS` knows.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -51,8 +52,18 @@ def _options(max_depth: int, lights: int, spp: int, steps: list[dict]) -> tuple:
     for step in steps:
         extra = {**extra, **step}
         chain.append(Fidelity(**extra))
+    full = Fidelity()
     for f in default_options(max_depth, lights, spp)[1:]:
-        chain.append(Fidelity(**{**extra, "max_depth": f.max_depth, "shadows": f.shadows}))
+        # every field the default candidate sets (max_depth, shadows, spp, ...), not a fixed few:
+        # a field left out would silently drop that step from the chain
+        changed = {
+            k.name: getattr(f, k.name)
+            for k in dataclasses.fields(f)
+            if getattr(f, k.name) != getattr(full, k.name)
+        }
+        candidate = Fidelity(**{**extra, **changed})
+        if candidate != chain[-1]:
+            chain.append(candidate)
     return tuple(chain)
 
 
