@@ -22,13 +22,12 @@ for `Fidelity` fields newer than `fovjax.eval.DEFAULT_STEPS` knows.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
 import fovjax
 from fovjax.eval import default_options, plan_fidelity
-from fovjax.foveate import Fidelity, Foveation
+from fovjax.foveate import Foveation
 from fovjax.render import RenderConfig, StereoRig
 
 GAZES = ((0.35, 0.45), (0.3, 0.4), (0.7, 0.65))
@@ -42,29 +41,6 @@ def _step(text: str) -> dict:
         name, _, value = part.partition("=")
         out[name.strip()] = int(value) if value.strip().lstrip("-").isdigit() else value.strip()
     return out
-
-
-def _options(max_depth: int, lights: int, spp: int, steps: list[dict]) -> tuple:
-    """The default chain with `steps` taken first: full, the steps, then every default
-    candidate with the steps' fields added."""
-    extra: dict = {}
-    chain = [Fidelity()]
-    for step in steps:
-        extra = {**extra, **step}
-        chain.append(Fidelity(**extra))
-    full = Fidelity()
-    for f in default_options(max_depth, lights, spp)[1:]:
-        # every field the default candidate sets (max_depth, shadows, spp, ...), not a fixed few:
-        # a field left out would silently drop that step from the chain
-        changed = {
-            k.name: getattr(f, k.name)
-            for k in dataclasses.fields(f)
-            if getattr(f, k.name) != getattr(full, k.name)
-        }
-        candidate = Fidelity(**{**extra, **changed})
-        if candidate != chain[-1]:
-            chain.append(candidate)
-    return tuple(chain)
 
 
 def _chart(plan, path: Path, title: str) -> Path:
@@ -134,7 +110,7 @@ def main(argv=None):
         f"max_depth {config.max_depth}, gazes {GAZES} x keys {args.keys}; load average {' '.join(load)}"
     )
     for spp in args.spp:
-        options = _options(config.max_depth, len(scene.lights), spp, args.step)
+        options = default_options(config.max_depth, len(scene.lights), spp, first=args.step)
         print(f"options per region (dearest first): {options}")
         t0 = time.perf_counter()
         plan = plan_fidelity(

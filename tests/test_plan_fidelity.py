@@ -144,6 +144,26 @@ def test_default_options_are_a_monotone_chain():
     assert at4[3] == Fidelity(max_depth=1, spp=1)
 
 
+def test_default_options_take_first_steps_first_and_keep_them():
+    # A lever given in `first` comes before the default steps and stays in every later
+    # candidate, with every field of the default candidates (the spp step included); a step
+    # that changes nothing (spp 1 again) is no second candidate.
+    chain = default_options(5, lights=1, spp=4, first=({"lod": "auto"}, {"spp": 1}))
+    assert chain[:3] == (Fidelity(), Fidelity(lod="auto"), Fidelity(lod="auto", spp=1))
+    assert all(f.lod == "auto" and f.spp == 1 for f in chain[2:])
+    assert chain[3:] == (
+        Fidelity(max_depth=2, lod="auto", spp=1),
+        Fidelity(max_depth=1, lod="auto", spp=1),
+        Fidelity(max_depth=0, lod="auto", spp=1),
+        Fidelity(max_depth=0, shadows="none", lod="auto", spp=1),
+    )
+    assert len(set(chain)) == len(chain)
+    # The skipping rules hold for them too: an spp step at the frame's SPP is no step.
+    assert default_options(5, lights=1, spp=1, first=({"spp": 1},)) == default_options(5, lights=1, spp=1)
+    with pytest.raises(ValueError, match=r"first.*'lod=auto'"):
+        default_options(5, first=("lod=auto",))
+
+
 def test_top_level_export():
     assert fovjax.plan_fidelity is plan_fidelity
     with pytest.raises(AttributeError, match="no_such_thing"):

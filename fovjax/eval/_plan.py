@@ -66,17 +66,23 @@ DEFAULT_STEPS: tuple[dict, ...] = (
 )
 
 
-def default_options(max_depth: int = 5, lights: int = 1, spp: int = 1) -> tuple:
+def default_options(max_depth: int = 5, lights: int = 1, spp: int = 1, first: Sequence = ()) -> tuple:
     """The default candidates of one region, dearest first: full fidelity, then the steps of
     `DEFAULT_STEPS` applied one after another (reflection depth 2, 1 below the render config's
     `max_depth`; one sample per pixel where the frame has more; depth 0; then shadow rays to the
     brightest light only, with more than one light; then none). `spp`: the frame's samples per
-    pixel (an `spp` step must be below it)."""
+    pixel (an `spp` step must be below it). `first`: extra steps (dicts of `Fidelity` fields)
+    taken before the default ones, each kept in every later candidate (e.g. `({"lod": "auto"},)`
+    for a lever meant to stay invisible); the same skipping rules apply to them."""
     from ..foveate import Fidelity
 
     fields: dict = {}
     chain = [Fidelity()]
-    for step in DEFAULT_STEPS:
+    for step in (*first, *DEFAULT_STEPS):
+        if not isinstance(step, dict):
+            raise ValueError(
+                f"default_options: each step of first must be a dict of Fidelity fields, got {step!r}"
+            )
         if "max_depth" in step and step["max_depth"] >= max_depth:
             continue
         if step.get("shadows") == "brightest" and lights <= 1:
@@ -84,7 +90,9 @@ def default_options(max_depth: int = 5, lights: int = 1, spp: int = 1) -> tuple:
         if "spp" in step and step["spp"] >= spp:
             continue
         fields = {**fields, **step}
-        chain.append(Fidelity(**fields))
+        candidate = Fidelity(**fields)
+        if candidate != chain[-1]:  # a step that changes nothing is no candidate
+            chain.append(candidate)
     return tuple(chain)
 
 
