@@ -63,6 +63,9 @@ def main(argv=None) -> None:
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--keys", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument(
+        "--only", type=int, nargs="+", default=None, help="indices of configurations (0: plain, kept)"
+    )
     args = ap.parse_args(argv)
     scene = fovjax.scenes.atrium(triangles=args.triangles)
     rig = StereoRig.from_pose(
@@ -70,6 +73,11 @@ def main(argv=None) -> None:
     )
     config, bvh = RenderConfig(), build_bvh(scene)
     configs = configurations(args.spp)  # bad blocks fail here, before any rendering
+    if args.only is not None:
+        names = list(configs)
+        if any(not 0 <= i < len(names) for i in args.only):
+            ap.error(f"--only: indices in [0, {len(names) - 1}], got {args.only}")
+        configs = {n: configs[n] for i, n in enumerate(names) if i == 0 or i in args.only}
     with open("/proc/loadavg") as fh:
         load = " ".join(fh.read().split()[:3])
     print(
