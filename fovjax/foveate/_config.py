@@ -185,13 +185,15 @@ def program_fidelity(foveation, config):
     `ShadingClasses` tables it is called with). Reflection depth and shadow mode per region are
     values of the tables (traced), not of the program: a new depth or shadow mode per region
     (a fidelity plan's search, a user's next try) reuses the compiled frame. What shapes the
-    program stays in the foveation: each region's `spp` (the static slot budget), `lod` and
-    `texture_lod`, and whether any tables exist (None: every region at full fidelity, the
-    program without per-ray classes). Raises ValueError as `shading_classes`."""
+    program stays in the foveation: each region's `spp` (the static slot budget) and `lod`; and
+    in the tables' structure: whether any exist (None: every region at full fidelity, the
+    program without per-ray classes) and whether they carry texture levels (their values, a
+    fixed level or "auto"'s ray cone per region, are traced too). Raises ValueError as
+    `shading_classes`."""
     classes = shading_classes(foveation, config)
     if foveation.fidelity is None:
         return foveation, classes
-    shaped = tuple(Fidelity(lod=f.lod, texture_lod=f.texture_lod, spp=f.spp) for f in foveation.fidelity)
+    shaped = tuple(Fidelity(lod=f.lod, spp=f.spp) for f in foveation.fidelity)
     if all(f == Fidelity() for f in shaped):
         shaped = None
     return dataclasses.replace(foveation, fidelity=shaped), classes
