@@ -50,7 +50,7 @@ def test_batches_give_the_one_batch_radiance(atrium_small):
 
     def run(config, n_live):
         def rays_at(first, size):
-            return jax.lax.dynamic_slice_in_dim(po, first, size), jax.lax.dynamic_slice_in_dim(pd, first, size)
+            return tuple(jax.lax.dynamic_slice_in_dim(x, first, size) for x in (po, pd))
 
         f = jax.jit(lambda n: radiance_in_chunks(arrays, bvh, rays_at, n, n_slots=n_slots, config=config))
         return f(jnp.int32(n_live))
@@ -82,9 +82,8 @@ def test_tiles_and_batches_give_the_one_batch_frame(atrium_small):
     scene, rig = atrium_small
     gaze, key = ((0.32, 0.38), (0.28, 0.38)), jax.random.key(7)
     tiled = Foveation.thesis((10.0, 20.0), spp=4, fovea_tile_deg=10.0, grid_tile=True)
-    one = render_foveated(
-        scene, rig, gaze=gaze, foveation=tiled, key=key, config=RenderConfig(max_depth=2, depth_batch_size=None)
-    )
+    unbatched = RenderConfig(max_depth=2, depth_batch_size=None)
+    one = render_foveated(scene, rig, gaze=gaze, foveation=tiled, key=key, config=unbatched)
     # Batches of 2048 slots (chunks of 1024): the tiles' reflections go with the first.
     config = RenderConfig(max_depth=2, chunk_size=1024, depth_batch_size=2048)
     many = render_foveated(scene, rig, gaze=gaze, foveation=tiled, key=key, config=config)

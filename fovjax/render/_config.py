@@ -108,7 +108,9 @@ class RenderConfig:
         batch = self.depth_batch_size
         if batch is not None:
             if not isinstance(batch, int | np.integer) or batch < 1:
-                raise ValueError(f"RenderConfig.depth_batch_size must be None or a positive integer, got {batch!r}")
+                raise ValueError(
+                    f"RenderConfig.depth_batch_size must be None or a positive integer, got {batch!r}"
+                )
             object.__setattr__(self, "depth_batch_size", int(batch))
         if self.backend not in BACKENDS:
             raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
