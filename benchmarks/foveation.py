@@ -7,6 +7,7 @@
     python benchmarks/foveation.py --profile       # per-stage ms and % of a foveated and a full frame
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
     python benchmarks/foveation.py --variants --spp 4   # foveated default vs variants, same run
+    python benchmarks/foveation.py --variants --spp 1 --which batch   # only variants named so
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
     python benchmarks/foveation.py --regions       # region shares under each reading (issue 17)
@@ -180,6 +181,7 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     the primary level (shading, reflection spawn and queueing), each reflection bounce."""
     from fovjax.render import chunk_loop
     from fovjax.render._integrator import (
+        _batch,
         _chunks,
         _level_sizes,
         _packet_of,
@@ -237,8 +239,15 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     _, t_with = _timed(
         lambda a, b, h, n: shadow_stage(a, b, h, n, True), arrays, bvh, hit, n_live, repeats=repeats
     )
+    # The program takes the slots through every level a depth batch at a time; the stages
+    # below time the first batch (every live slot when they fit in one, as at 5°/10°).
+    batch = _batch(chunks, config)
+    if int(n_live) > batch.padded:
+        print(f"    (profile: the first depth batch of {batch.padded:,} slots of {int(n_live):,})")
     (total, queue, n_q, _, _), t_level = _timed(
-        lambda a, b, n: _primary_level(a, b, rays_at, n, chunks, offset=offset(a), config=config),
+        lambda a, b, n: _primary_level(
+            a, b, rays_at, n, chunks, offset=offset(a), config=config, count=batch.count
+        ),
         arrays,
         bvh,
         n_live,
@@ -457,12 +466,14 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         sys.stdout.flush()
 
 
-def variants_table(scene, bvh, rig, config, spps, pair, repeats):
+def variants_table(scene, bvh, rig, config, spps, pair, repeats, which=()):
     """Foveated frames of the default configuration against variants of it, in the same run:
     compile each, then one frame of each in turn (so the machine's load falls on all alike),
     medians of the frame time and of this process's CPU time (less sensitive to other jobs on
-    a shared machine), and each variant's ratio to the default."""
+    a shared machine), and each variant's ratio to the default; and the minor page faults
+    per frame (fresh memory the program touches: on a CPU each costs kernel time)."""
     import dataclasses
+    import resource
 
     variants = {
         "default": ({}, {}),
@@ -472,7 +483,10 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
             {},
         ),
         "fovea tile + pixel grid (packets)": ({}, {"fovea_tile_deg": pair[0], "grid_tile": True}),
+        "one depth batch of every slot (before)": ({"depth_batch_size": None}, {}),
     }
+    if which:  # the default and the variants whose names contain any of `which`
+        variants = {n: v for n, v in variants.items() if n == "default" or any(w in n for w in which)}
     print(
         f"\nVariants, 2 x {rig.eye_width}x{rig.eye_height}, foveated {pair[0]}°/{pair[1]}° at gaze "
         f"{OFF_CENTRE}, median of {repeats} frames each (fresh key each)"
@@ -492,12 +506,14 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
             print(f"    SPP {spp} {name}: compile {warm.stats.compile_seconds:.1f} s", flush=True)
         wall = {n: [] for n in variants}
         cpu = {n: [] for n in variants}
+        faults = {n: [] for n in variants}
         rays = {}
         for i in range(repeats):
             for name in variants:
-                c0 = time.process_time()
+                c0, f0 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 frame = render(name, jax.random.key(i))
                 cpu[name].append(time.process_time() - c0)
+                faults[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
                 wall[name].append(frame.stats.render_seconds)
                 rays[name] = frame.stats.rays
         base_w, base_c = statistics.median(wall["default"]), statistics.median(cpu["default"])
@@ -505,7 +521,8 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
             w_ms, c_ms = statistics.median(wall[name]), statistics.median(cpu[name])
             print(
                 f"  SPP {spp} {name:36s} {1000 * w_ms:8.1f} ms ({w_ms / base_w:5.2f}x default), "
-                f"CPU {1000 * c_ms:8.1f} ms ({c_ms / base_c:5.2f}x), {rays[name]:,} rays; "
+                f"CPU {1000 * c_ms:8.1f} ms ({c_ms / base_c:5.2f}x), {rays[name]:,} rays, "
+                f"{statistics.median(faults[name]):,.0f} page faults; "
                 f"frames ms {[round(1000 * t) for t in wall[name]]}"
             )
         sys.stdout.flush()
@@ -568,6 +585,7 @@ def main(argv=None):
     ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
     ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
     ap.add_argument("--variants", action="store_true", help="foveated default vs its variants (--spp)")
+    ap.add_argument("--which", nargs="+", default=(), help="--variants: only those whose names contain these")
     ap.add_argument("--rule", choices=("either", "strict", "thesis-measured"), default="either")
     ap.add_argument("--count-only", action="store_true", help="tables 2-3 from traced samples, no render")
     ap.add_argument("--regions", action="store_true", help="region shares under each reading (issue 17)")
@@ -595,7 +613,7 @@ def main(argv=None):
         print(
             f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
         )
-        return variants_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats)
+        return variants_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats, args.which)
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "
