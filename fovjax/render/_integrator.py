@@ -803,7 +803,13 @@ def radiance_in_chunks(
     Every depth level runs over chunks of a queue: a chunk's reflection rays are compacted
     (O(chunk)) and appended to the queue in place, so no pass over all slots ever happens
     after the primary rays, and reflection rays stay in the order of the slots that spawned
-    them (spatially coherent when the slots are). Primary rays and their shadow rays are traced
+    them (spatially coherent when the slots are). The slots go through every level a depth
+    batch at a time (`config.depth_batch_size` slots, whole chunks; a `lax.while_loop` over
+    the live batches), so the queue holds one batch's rays: the program's memory follows the
+    batch, not `n_slots` (on a CPU every page of it is fresh memory, faulted in and zeroed on
+    every call: `benchmarks/foveation.py --variants --which batch` prints the page faults of a
+    frame with one batch of every slot and with the default). Primary rays and their shadow
+    rays are traced
     in packets of `config.packet` consecutive rays where that is an int, else one by one (a
     chunk is a flat list, not an image); later levels one by one. Pure and jittable; the chunk
     loops are `lax.while_loop`s, so forward-mode derivatives only (`radiance` takes `jax.grad`).
