@@ -8,6 +8,7 @@
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
     python benchmarks/foveation.py --variants --spp 4   # foveated default vs variants, same run
     python benchmarks/foveation.py --variants --spp 1 --which batch   # only variants named so
+    python benchmarks/foveation.py --floor 2097152   # fixed cost of a slot budget, 4,096 live rays
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
     python benchmarks/foveation.py --regions       # region shares under each reading (issue 17)
@@ -528,6 +529,60 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats, which=()):
         sys.stdout.flush()
 
 
+def floor_table(scene, bvh, config, n_slots, repeats):
+    """The fixed cost of a static slot budget: `radiance_in_chunks` on 4,096 live camera rays
+    (depth `config.max_depth`) among `n_slots` slots, with the default depth batches and with
+    one batch of every slot (the queue sized to every slot), in the same run, alternately:
+    medians of this process's CPU time and of the minor page faults per call, also with no
+    live ray at all."""
+    import dataclasses
+    import resource
+
+    from fovjax.render import radiance_in_chunks
+
+    arrays = scene_arrays(scene, background=config.background)
+    cam = fovjax.Camera.from_pose(fovjax.scenes.default_camera(scene), width=64, height=64)
+    o, d, _ = cam.sample_rays(1, None)
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    live = o.shape[0]
+    po = jnp.zeros((n_slots, 3)).at[:live].set(o)
+    pd = jnp.ones((n_slots, 3)).at[:live].set(d)
+    variants = {
+        f"depth batches of {config.depth_batch_size:,}": config,
+        "one batch of every slot": dataclasses.replace(config, depth_batch_size=None),
+    }
+    programs = {}
+    for name, cfg in variants.items():
+
+        def program(a, b, po, pd, n, cfg=cfg):
+            def rays_at(first, size):
+                return tuple(jax.lax.dynamic_slice_in_dim(x, first, size) for x in (po, pd))
+
+            return radiance_in_chunks(a, b, rays_at, n, n_slots=n_slots, config=cfg)
+
+        t0 = time.perf_counter()
+        programs[name] = jax.jit(program).lower(arrays, bvh, po, pd, jnp.int32(live)).compile()
+        print(f"    {name}: compile {time.perf_counter() - t0:.1f} s", flush=True)
+    print(
+        f"\nFixed cost of {n_slots:,} slots: radiance_in_chunks, depth {config.max_depth}, median of {repeats}"
+    )
+    for n in (live, 0):
+        cpu = {k: [] for k in variants}
+        faults = {k: [] for k in variants}
+        for _ in range(repeats):
+            for name, c in programs.items():
+                c0, f0 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+                jax.block_until_ready(c(arrays, bvh, po, pd, jnp.int32(n)))
+                cpu[name].append(1000 * (time.process_time() - c0))
+                faults[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+        for name in variants:
+            print(
+                f"  {n:5d} live rays, {name:32s} CPU {statistics.median(cpu[name]):8.1f} ms, "
+                f"{statistics.median(faults[name]):9,.0f} page faults"
+            )
+    sys.stdout.flush()
+
+
 def foveation_for(pair, spp, rule, eye_height):
     if rule == "thesis-measured":
         return Foveation.thesis_measured(pair, spp=spp, eye_height=eye_height)
@@ -585,6 +640,7 @@ def main(argv=None):
     ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
     ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
     ap.add_argument("--variants", action="store_true", help="foveated default vs its variants (--spp)")
+    ap.add_argument("--floor", type=int, default=None, metavar="SLOTS", help="fixed cost of a slot budget")
     ap.add_argument("--which", nargs="+", default=(), help="--variants: only those whose names contain these")
     ap.add_argument("--rule", choices=("either", "strict", "thesis-measured"), default="either")
     ap.add_argument("--count-only", action="store_true", help="tables 2-3 from traced samples, no render")
@@ -599,6 +655,8 @@ def main(argv=None):
     bvh = build_bvh(scene)
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    if args.floor:
+        return floor_table(scene, bvh, config, args.floor, args.repeats)
     if args.profile:
         print(
             f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
