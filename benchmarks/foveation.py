@@ -563,9 +563,8 @@ def floor_table(scene, bvh, config, n_slots, repeats):
         t0 = time.perf_counter()
         programs[name] = jax.jit(program).lower(arrays, bvh, po, pd, jnp.int32(live)).compile()
         print(f"    {name}: compile {time.perf_counter() - t0:.1f} s", flush=True)
-    print(
-        f"\nFixed cost of {n_slots:,} slots: radiance_in_chunks, depth {config.max_depth}, median of {repeats}"
-    )
+    depth = config.max_depth
+    print(f"\nFixed cost of {n_slots:,} slots: radiance_in_chunks, depth {depth}, median of {repeats}")
     for n in (live, 0):
         cpu = {k: [] for k in variants}
         faults = {k: [] for k in variants}
