@@ -7,6 +7,8 @@
     python benchmarks/foveation.py --profile       # per-stage ms and % of a foveated and a full frame
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
     python benchmarks/foveation.py --variants --spp 4   # foveated default vs variants, same run
+    python benchmarks/foveation.py --variants --spp 1 --which batch   # only variants named so
+    python benchmarks/foveation.py --floor 2097152   # fixed cost of a slot budget, 4,096 live rays
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
     python benchmarks/foveation.py --regions       # region shares under each reading (issue 17)
@@ -180,6 +182,7 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     the primary level (shading, reflection spawn and queueing), each reflection bounce."""
     from fovjax.render import chunk_loop
     from fovjax.render._integrator import (
+        _batch,
         _chunks,
         _level_sizes,
         _packet_of,
@@ -237,8 +240,15 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     _, t_with = _timed(
         lambda a, b, h, n: shadow_stage(a, b, h, n, True), arrays, bvh, hit, n_live, repeats=repeats
     )
+    # The program takes the slots through every level a depth batch at a time; the stages
+    # below time the first batch (every live slot when they fit in one, as at 5°/10°).
+    batch = _batch(chunks, config)
+    if int(n_live) > batch.padded:
+        print(f"    (profile: the first depth batch of {batch.padded:,} slots of {int(n_live):,})")
     (total, queue, n_q, _, _), t_level = _timed(
-        lambda a, b, n: _primary_level(a, b, rays_at, n, chunks, offset=offset(a), config=config),
+        lambda a, b, n: _primary_level(
+            a, b, rays_at, n, chunks, offset=offset(a), config=config, count=batch.count
+        ),
         arrays,
         bvh,
         n_live,
@@ -457,12 +467,14 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         sys.stdout.flush()
 
 
-def variants_table(scene, bvh, rig, config, spps, pair, repeats):
+def variants_table(scene, bvh, rig, config, spps, pair, repeats, which=()):
     """Foveated frames of the default configuration against variants of it, in the same run:
     compile each, then one frame of each in turn (so the machine's load falls on all alike),
     medians of the frame time and of this process's CPU time (less sensitive to other jobs on
-    a shared machine), and each variant's ratio to the default."""
+    a shared machine), and each variant's ratio to the default; and the minor page faults
+    per frame (fresh memory the program touches: on a CPU each costs kernel time)."""
     import dataclasses
+    import resource
 
     variants = {
         "default": ({}, {}),
@@ -472,7 +484,10 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
             {},
         ),
         "fovea tile + pixel grid (packets)": ({}, {"fovea_tile_deg": pair[0], "grid_tile": True}),
+        "one depth batch of every slot (before)": ({"depth_batch_size": None}, {}),
     }
+    if which:  # the default and the variants whose names contain any of `which`
+        variants = {n: v for n, v in variants.items() if n == "default" or any(w in n for w in which)}
     print(
         f"\nVariants, 2 x {rig.eye_width}x{rig.eye_height}, foveated {pair[0]}°/{pair[1]}° at gaze "
         f"{OFF_CENTRE}, median of {repeats} frames each (fresh key each)"
@@ -492,12 +507,14 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
             print(f"    SPP {spp} {name}: compile {warm.stats.compile_seconds:.1f} s", flush=True)
         wall = {n: [] for n in variants}
         cpu = {n: [] for n in variants}
+        faults = {n: [] for n in variants}
         rays = {}
         for i in range(repeats):
             for name in variants:
-                c0 = time.process_time()
+                c0, f0 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 frame = render(name, jax.random.key(i))
                 cpu[name].append(time.process_time() - c0)
+                faults[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
                 wall[name].append(frame.stats.render_seconds)
                 rays[name] = frame.stats.rays
         base_w, base_c = statistics.median(wall["default"]), statistics.median(cpu["default"])
@@ -505,10 +522,64 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats):
             w_ms, c_ms = statistics.median(wall[name]), statistics.median(cpu[name])
             print(
                 f"  SPP {spp} {name:36s} {1000 * w_ms:8.1f} ms ({w_ms / base_w:5.2f}x default), "
-                f"CPU {1000 * c_ms:8.1f} ms ({c_ms / base_c:5.2f}x), {rays[name]:,} rays; "
+                f"CPU {1000 * c_ms:8.1f} ms ({c_ms / base_c:5.2f}x), {rays[name]:,} rays, "
+                f"{statistics.median(faults[name]):,.0f} page faults; "
                 f"frames ms {[round(1000 * t) for t in wall[name]]}"
             )
         sys.stdout.flush()
+
+
+def floor_table(scene, bvh, config, n_slots, repeats):
+    """The fixed cost of a static slot budget: `radiance_in_chunks` on 4,096 live camera rays
+    (depth `config.max_depth`) among `n_slots` slots, with the default depth batches and with
+    one batch of every slot (the queue sized to every slot), in the same run, alternately:
+    medians of this process's CPU time and of the minor page faults per call, also with no
+    live ray at all."""
+    import dataclasses
+    import resource
+
+    from fovjax.render import radiance_in_chunks
+
+    arrays = scene_arrays(scene, background=config.background)
+    cam = fovjax.Camera.from_pose(fovjax.scenes.default_camera(scene), width=64, height=64)
+    o, d, _ = cam.sample_rays(1, None)
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    live = o.shape[0]
+    po = jnp.zeros((n_slots, 3)).at[:live].set(o)
+    pd = jnp.ones((n_slots, 3)).at[:live].set(d)
+    variants = {
+        f"depth batches of {config.depth_batch_size:,}": config,
+        "one batch of every slot": dataclasses.replace(config, depth_batch_size=None),
+    }
+    programs = {}
+    for name, cfg in variants.items():
+
+        def program(a, b, po, pd, n, cfg=cfg):
+            def rays_at(first, size):
+                return tuple(jax.lax.dynamic_slice_in_dim(x, first, size) for x in (po, pd))
+
+            return radiance_in_chunks(a, b, rays_at, n, n_slots=n_slots, config=cfg)
+
+        t0 = time.perf_counter()
+        programs[name] = jax.jit(program).lower(arrays, bvh, po, pd, jnp.int32(live)).compile()
+        print(f"    {name}: compile {time.perf_counter() - t0:.1f} s", flush=True)
+    depth = config.max_depth
+    print(f"\nFixed cost of {n_slots:,} slots: radiance_in_chunks, depth {depth}, median of {repeats}")
+    for n in (live, 0):
+        cpu = {k: [] for k in variants}
+        faults = {k: [] for k in variants}
+        for _ in range(repeats):
+            for name, c in programs.items():
+                c0, f0 = time.process_time(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+                jax.block_until_ready(c(arrays, bvh, po, pd, jnp.int32(n)))
+                cpu[name].append(1000 * (time.process_time() - c0))
+                faults[name].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
+        for name in variants:
+            print(
+                f"  {n:5d} live rays, {name:32s} CPU {statistics.median(cpu[name]):8.1f} ms, "
+                f"{statistics.median(faults[name]):9,.0f} page faults"
+            )
+    sys.stdout.flush()
 
 
 def foveation_for(pair, spp, rule, eye_height):
@@ -568,6 +639,8 @@ def main(argv=None):
     ap.add_argument("--size", type=int, nargs=2, default=None, help="eye width, height (overrides --full)")
     ap.add_argument("--speedup", action="store_true", help="foveated vs full at an off-centre gaze (--spp)")
     ap.add_argument("--variants", action="store_true", help="foveated default vs its variants (--spp)")
+    ap.add_argument("--floor", type=int, default=None, metavar="SLOTS", help="fixed cost of a slot budget")
+    ap.add_argument("--which", nargs="+", default=(), help="--variants: only those whose names contain these")
     ap.add_argument("--rule", choices=("either", "strict", "thesis-measured"), default="either")
     ap.add_argument("--count-only", action="store_true", help="tables 2-3 from traced samples, no render")
     ap.add_argument("--regions", action="store_true", help="region shares under each reading (issue 17)")
@@ -581,6 +654,8 @@ def main(argv=None):
     bvh = build_bvh(scene)
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    if args.floor:
+        return floor_table(scene, bvh, config, args.floor, args.repeats)
     if args.profile:
         print(
             f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
@@ -595,7 +670,7 @@ def main(argv=None):
         print(
             f"atrium {scene.num_triangles:,} triangles, jax {jax.__version__} on {jax.devices()[0].platform}"
         )
-        return variants_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats)
+        return variants_table(scene, bvh, rig, config, args.spp, tuple(args.pair), args.repeats, args.which)
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "

@@ -50,6 +50,11 @@ class RenderConfig:
       thousands of rays, which wider chunks trace in fewer, fuller traversal loops: 16384
       measured 7-13% faster foveated frames than 4096, benchmarks/foveation.py); None: the same
       as `queue_chunk_size` (one loop body for every level, a shorter compile).
+    - `depth_batch_size`: `radiance_in_chunks` takes its slots through every depth level in
+      batches of this many (rounded up to whole chunks), so its reflection queue holds one
+      batch's rays: the program's memory, which on a CPU is fresh pages touched every frame,
+      follows the batch and not the slot budget (every sample of the screen when the
+      foveation is uncapped). None: one batch of every slot.
     """
 
     max_depth: int = 5
@@ -61,6 +66,7 @@ class RenderConfig:
     chunk_size: int = 32768
     queue_chunk_size: int = 4096
     first_bounce_chunk_size: int | None = 16384
+    depth_batch_size: int | None = 262144
 
     def __post_init__(self):
         if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
@@ -99,6 +105,13 @@ class RenderConfig:
                     f"RenderConfig.first_bounce_chunk_size must be None or a positive integer, got {first!r}"
                 )
             object.__setattr__(self, "first_bounce_chunk_size", int(first))
+        batch = self.depth_batch_size
+        if batch is not None:
+            if not isinstance(batch, int | np.integer) or batch < 1:
+                raise ValueError(
+                    f"RenderConfig.depth_batch_size must be None or a positive integer, got {batch!r}"
+                )
+            object.__setattr__(self, "depth_batch_size", int(batch))
         if self.backend not in BACKENDS:
             raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
 

@@ -543,15 +543,18 @@ class ImageTile(NamedTuple):
     shading_class: Int[Array, "*batch"] | None = None
 
 
-def chunk_loop(n_chunks: int, size: int, n_live, body, init):
-    """`body(carry, first)` for the chunks of `size` whose first index is below `n_live` (at
-    most `n_chunks`), one after another: a `lax.while_loop` whose trip count is the number of
-    live chunks, so the others cost nothing (no skipped iterations carrying the buffers)."""
-    live = jnp.minimum((jnp.asarray(n_live, jnp.int32) + size - 1) // size, n_chunks)
+def chunk_loop(n_chunks: int, size: int, n_live, body, init, start=0):
+    """`body(carry, first)` for the chunks of `size` from `start` (traced or static) whose first
+    index is below `n_live` (at most `n_chunks`), one after another: a `lax.while_loop` whose
+    trip count is the number of live chunks, so the others cost nothing (no skipped iterations
+    carrying the buffers)."""
+    start = jnp.asarray(start, jnp.int32)
+    left = jnp.maximum(jnp.asarray(n_live, jnp.int32) - start, 0)
+    live = jnp.minimum((left + size - 1) // size, n_chunks)
 
     def step(state):
         c, carry = state
-        return c + 1, body(carry, c * size)
+        return c + 1, body(carry, start + c * size)
 
     return jax.lax.while_loop(lambda state: state[0] < live, step, (jnp.int32(0), init))[1]
 
@@ -588,6 +591,14 @@ def _chunks(n_slots: int, config, extra: int = 0) -> _Chunks:
     return _Chunks(size, -(-n_slots // size), extra)
 
 
+def _batch(chunks: _Chunks, config) -> _Chunks:
+    """The slot chunks of one depth batch (`config.depth_batch_size`, in whole chunks; the
+    image tiles' rays go with the first batch): what the reflection queue is sized to."""
+    limit = config.depth_batch_size
+    count = chunks.count if limit is None else min(chunks.count, max(1, -(-limit // chunks.size)))
+    return _Chunks(chunks.size, count, chunks.extra)
+
+
 def _empty_queue(chunks: _Chunks, config, classes=None):
     """(origins, directions, weights, target slots[, shading classes]) with a chunk of room
     beyond the slots and tile rays, in whole reflection chunks."""
@@ -610,10 +621,24 @@ def _packet_of(config):
 
 
 def _primary_level(
-    scene, bvh, rays_at, n_live, chunks: _Chunks, *, offset, config, init=None, classes=None, class_at=None
+    scene,
+    bvh,
+    rays_at,
+    n_live,
+    chunks: _Chunks,
+    *,
+    offset,
+    config,
+    init=None,
+    classes=None,
+    class_at=None,
+    start=0,
+    count=None,
 ):
-    """Depth 0 of `radiance_in_chunks` on the slots: (total (padded + extra, 3), queue, queued,
-    primary, shadow), starting from `init` (the image tiles' carry) or empty."""
+    """Depth 0 of `radiance_in_chunks` on the live slots of at most `count` chunks (None: all)
+    from slot `start`: (total (padded + extra, 3), queue, queued, primary, shadow), starting
+    from `init` (the carry of the image tiles or of the previous batch) or empty (a queue of
+    one depth batch, `_batch`)."""
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
     spawn = config.max_depth > 0
@@ -654,8 +679,8 @@ def _primary_level(
     if init is None:
         zero = jnp.int32(0)
         total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
-        init = (total, _empty_queue(chunks, config, classes), zero, zero, zero)
-    return chunk_loop(chunks.count, size, n_live, body, init)
+        init = (total, _empty_queue(_batch(chunks, config), config, classes), zero, zero, zero)
+    return chunk_loop(chunks.count if count is None else count, size, n_live, body, init, start)
 
 
 def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config, classes=None):
@@ -664,7 +689,7 @@ def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config, classes=N
     their reflection rays queued (compacted) like the slots'. Returns the `_primary_level` carry."""
     zero = jnp.int32(0)
     total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
-    queue, n_q, n_primary, n_shadow = _empty_queue(chunks, config, classes), zero, zero, zero
+    queue, n_q, n_primary, n_shadow = _empty_queue(_batch(chunks, config), config, classes), zero, zero, zero
     spawn = config.max_depth > 0
     base = chunks.padded
     for tile in tiles:
@@ -723,8 +748,9 @@ def _queue_level(
     scene, bvh, total, queue, n_q, depth, chunks: _Chunks, *, offset, config, size=None, classes=None
 ):
     """One reflection level over the queue's first `n_q` rays, in place, in chunks of
-    `_queue_chunks`: (total, queue, the next level's queued rays, shadow rays traced)."""
-    chunks = _queue_chunks(chunks, config, size)
+    `_queue_chunks` (of one depth batch of `chunks`): (total, queue, the next level's queued
+    rays, shadow rays traced)."""
+    chunks = _queue_chunks(_batch(chunks, config), config, size)
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
     spawn = depth < config.max_depth
@@ -777,7 +803,13 @@ def radiance_in_chunks(
     Every depth level runs over chunks of a queue: a chunk's reflection rays are compacted
     (O(chunk)) and appended to the queue in place, so no pass over all slots ever happens
     after the primary rays, and reflection rays stay in the order of the slots that spawned
-    them (spatially coherent when the slots are). Primary rays and their shadow rays are traced
+    them (spatially coherent when the slots are). The slots go through every level a depth
+    batch at a time (`config.depth_batch_size` slots, whole chunks; a `lax.while_loop` over
+    the live batches), so the queue holds one batch's rays: the program's memory follows the
+    batch, not `n_slots` (on a CPU every page of it is fresh memory, faulted in and zeroed on
+    every call: `benchmarks/foveation.py --variants --which batch` prints the page faults of a
+    frame with one batch of every slot and with the default). Primary rays and their shadow
+    rays are traced
     in packets of `config.packet` consecutive rays where that is an int, else one by one (a
     chunk is a flat list, not an image); later levels one by one. Pure and jittable; the chunk
     loops are `lax.while_loop`s, so forward-mode derivatives only (`radiance` takes `jax.grad`).
@@ -801,55 +833,80 @@ def radiance_in_chunks(
     scene = jax.tree.map(jnp.asarray, scene)
     extra = sum(int(np.prod(t.active.shape)) for t in tiles)
     chunks = _chunks(n_slots, config, extra)
+    batch = _batch(chunks, config)
     offset = config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
-    init = None
+    zero = jnp.int32(0)
     if tiles:
         init = _tile_level(scene, bvh, tiles, chunks, offset=offset, config=config, classes=classes)
-    total, queue, n_q, n_primary, n_shadow = _primary_level(
-        scene,
-        bvh,
-        rays_at,
-        n_live,
-        chunks,
-        offset=offset,
-        config=config,
-        init=init,
-        classes=classes,
-        class_at=class_at,
-    )
-
-    def level(carry, depth):
-        total, queue, n_q, n_shadow = carry
-        total, queue, n_next, traced = _queue_level(
-            scene, bvh, total, queue, n_q, depth, chunks, offset=offset, config=config, classes=classes
-        )
-        return (total, queue, n_next, n_shadow + traced), n_q
-
-    n_reflection = jnp.int32(0)
+    else:
+        total = jnp.zeros((chunks.padded + chunks.extra, 3), jnp.float32)
+        init = (total, _empty_queue(batch, config, classes), zero, zero, zero)
     first, rest = _level_sizes(chunks, config)
-    start = 1
-    if config.max_depth > 0 and first != rest:
-        n_reflection = n_q
-        total, queue, n_q, traced = _queue_level(
+
+    def levels(total, queue, n_q, n_shadow):
+        """Every reflection level of the queued rays: (total, queue, shadow, reflection rays)."""
+
+        def level(carry, depth):
+            total, queue, n_q, n_shadow = carry
+            total, queue, n_next, traced = _queue_level(
+                scene, bvh, total, queue, n_q, depth, chunks, offset=offset, config=config, classes=classes
+            )
+            return (total, queue, n_next, n_shadow + traced), n_q
+
+        n_reflection = zero
+        start = 1
+        if config.max_depth > 0 and first != rest:
+            n_reflection = n_q
+            total, queue, n_q, traced = _queue_level(
+                scene,
+                bvh,
+                total,
+                queue,
+                n_q,
+                1,
+                chunks,
+                offset=offset,
+                config=config,
+                size=first,
+                classes=classes,
+            )
+            n_shadow = n_shadow + traced
+            start = 2
+        if config.max_depth >= start:
+            (total, queue, _, n_shadow), per_level = jax.lax.scan(
+                level, (total, queue, n_q, n_shadow), jnp.arange(start, config.max_depth + 1)
+            )
+            n_reflection = n_reflection + jnp.sum(per_level)
+        return total, queue, n_shadow, n_reflection
+
+    def one_batch(state):
+        b, (total, queue, n_q, n_primary, n_shadow, n_reflection) = state
+        total, queue, n_q, n_primary, n_shadow = _primary_level(
             scene,
             bvh,
-            total,
-            queue,
-            n_q,
-            1,
+            rays_at,
+            n_live,
             chunks,
             offset=offset,
             config=config,
-            size=first,
+            init=(total, queue, n_q, n_primary, n_shadow),
             classes=classes,
+            class_at=class_at,
+            start=b * batch.padded,
+            count=batch.count,
         )
-        n_shadow = n_shadow + traced
-        start = 2
-    if config.max_depth >= start:
-        (total, _, _, n_shadow), per_level = jax.lax.scan(
-            level, (total, queue, n_q, n_shadow), jnp.arange(start, config.max_depth + 1)
-        )
-        n_reflection = n_reflection + jnp.sum(per_level)
+        total, queue, n_shadow, traced = levels(total, queue, n_q, n_shadow)
+        return b + 1, (total, queue, zero, n_primary, n_shadow, n_reflection + traced)
+
+    # Batches of slots through every level, the live ones only (the tiles' rays, queued before
+    # the first batch's, go with it): the queue holds one batch.
+    n_batches = -(-jnp.asarray(n_live, jnp.int32) // batch.padded)
+    n_batches = jnp.minimum(n_batches, -(-chunks.count // batch.count))
+    if tiles:
+        n_batches = jnp.maximum(n_batches, 1)
+    _, (total, _, _, n_primary, n_shadow, n_reflection) = jax.lax.while_loop(
+        lambda state: state[0] < n_batches, one_batch, (zero, init + (zero,))
+    )
     parts, base = [], chunks.padded
     for tile in tiles:
         n = int(np.prod(tile.active.shape))
