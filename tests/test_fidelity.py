@@ -155,3 +155,20 @@ def test_fidelity_moves_with_the_gaze_without_recompiling(spheres):
     second = render_foveated(scene, rig, gaze=((0.2, 0.3), (0.25, 0.3)), foveation=f, config=CONFIG)
     assert fov_api.TRACE_COUNTS["foveated"] == traces
     assert second.stats.compile_seconds == 0.0
+
+
+def test_new_depth_or_shadow_mode_per_region_does_not_recompile(spheres, plain):
+    """Depth and shadow mode per region are traced tables (`program_fidelity`): a plan's search
+    over them compiles one frame program, and each table still gives its own frame."""
+    scene, rig = spheres
+    first = _render(scene, rig, fidelity=(FULL, FULL, Fidelity(max_depth=0)))
+    traces = fov_api.TRACE_COUNTS["foveated"]
+    unshadowed = _render(scene, rig, fidelity=(FULL, FULL, Fidelity(shadows="none")))
+    flat = _render(scene, rig, fidelity=(Fidelity(max_depth=0, shadows="brightest"),) * 3)
+    assert fov_api.TRACE_COUNTS["foveated"] == traces
+    assert unshadowed.stats.compile_seconds == flat.stats.compile_seconds == 0.0
+    # Not one frame served three times: each table reaches the program.
+    assert first.stats.reflection_rays < plain.stats.reflection_rays
+    assert unshadowed.stats.reflection_rays == plain.stats.reflection_rays
+    assert unshadowed.stats.shadow_rays < plain.stats.shadow_rays
+    assert flat.stats.reflection_rays == 0

@@ -55,7 +55,9 @@ SHADOW_MODES = ("all", "brightest", "none")
 
 
 class Fidelity(eqx.Module):
-    """Shading fidelity of one region of a foveated frame (static: part of the configuration).
+    """Shading fidelity of one region of a foveated frame. Hashable options; `program_fidelity`
+    turns depth, shadows and texture level into traced tables (a new value compiles nothing),
+    while `spp` (the slot budget) and `lod` (the merged levels) are part of the program.
 
     - `max_depth`: mirror reflections at most this deep (None: the render config's
       `max_depth`; never more than it);
@@ -272,7 +274,8 @@ class Foveation(eqx.Module):
     - `fidelity`: None (full fidelity everywhere) or a `Fidelity` per region, (fovea,
       periphery, outside): reflection depth and shadow rays per region, and (texspp) texture
       level of detail and samples per pixel per region (regions move with the gaze without a
-      recompile; the fidelities themselves are static).
+      recompile; reflection depth, shadow mode and texture level per region are traced tables
+      (`program_fidelity`: a new one compiles nothing); a region's `spp` and `lod` are static).
     """
 
     fovea_deg: float = eqx.field(converter=_angle, default=5.0)
