@@ -48,15 +48,18 @@ def test_batches_give_the_one_batch_radiance(atrium_small):
     many = RenderConfig(**base, depth_batch_size=700)  # 3 chunks of 256 a batch
     assert _batch(_chunks(n_slots, many), many).count == 3 and _batch(_chunks(n_slots, one), one).count == 10
 
-    def run(config, n_live):
-        def rays_at(first, size):
-            return tuple(jax.lax.dynamic_slice_in_dim(x, first, size) for x in (po, pd))
+    def rays_at(first, size):
+        return tuple(jax.lax.dynamic_slice_in_dim(x, first, size) for x in (po, pd))
 
-        f = jax.jit(lambda n: radiance_in_chunks(arrays, bvh, rays_at, n, n_slots=n_slots, config=config))
-        return f(jnp.int32(n_live))
-
+    # One program per config; the live count is traced (compiled once for the three counts).
+    run = {
+        config: jax.jit(
+            lambda n, c=config: radiance_in_chunks(arrays, bvh, rays_at, n, n_slots=n_slots, config=c)
+        )
+        for config in (many, one)
+    }
     for n_live in (2304, 1000, 0):  # 4 batches (the last partial), 2 batches, none
-        a, b = run(many, n_live), run(one, n_live)
+        a, b = run[many](jnp.int32(n_live)), run[one](jnp.int32(n_live))
         assert int(a.primary) == int(b.primary) == n_live
         assert int(a.reflection) == int(b.reflection) and int(a.shadow) == int(b.shadow)
         if n_live == 2304:
