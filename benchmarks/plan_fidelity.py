@@ -3,6 +3,7 @@
     python benchmarks/plan_fidelity.py                  # atrium 262k, 2 x 320x256, SPP 1 and 4
     python benchmarks/plan_fidelity.py --threshold 0.02 --spp 1
     python benchmarks/plan_fidelity.py --spp 4 --step spp=1   # once Fidelity has `spp` (or lod=auto)
+    python benchmarks/plan_fidelity.py --width 640 --height 512 --spp 4 --densities 2,4 2,2 1,3
 
 For each SPP: `fovjax.eval.plan_fidelity` plans the thesis pair 0 (5°/10°) on the atrium with
 the default option chain (reflection depth, then shadow rays) at the criterion "FLIP added per
@@ -85,6 +86,14 @@ def _chart(plan, path: Path, title: str) -> Path:
     return path
 
 
+def _density(text: str) -> tuple[int, int]:
+    try:
+        p, o = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected P,O (two integers), got {text!r}") from None
+    return p, o
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--triangles", type=int, default=262_000)
@@ -95,6 +104,13 @@ def main(argv=None):
     parser.add_argument("--keys", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--step", type=_step, action="append", default=[], help="FIELD=VALUE[,...]")
+    parser.add_argument(
+        "--densities",
+        type=_density,
+        nargs="+",
+        default=None,
+        help="sampling densities to plan at, Foveation.blocks pairs P,O (e.g. 2,4 1,3); default: 2,4 only",
+    )
     parser.add_argument("-o", "--output", default="out/plan_fidelity")
     args = parser.parse_args(argv)
 
@@ -124,6 +140,7 @@ def main(argv=None):
             repeats=args.repeats,
             options=options,
             log=lambda line: print("  " + line, flush=True),
+            densities=args.densities,
         )
         print(f"\nSPP {spp} (search and timing {time.perf_counter() - t0:.0f} s)")
         print(plan)

@@ -125,6 +125,52 @@ def test_the_plan_meets_the_criterion_per_ring_recomputed(spheres, middle):
     np.testing.assert_allclose(middle.plain_ring_error[: len(plain_rings)], plain_rings, atol=1e-6)
 
 
+def test_densities_are_planned_and_the_cheapest_is_kept(spheres):
+    """With `densities`, the search runs at each sampling density that passes at full fidelity;
+    the plan is one of them (the faster in the search: which one is the machine's, so not
+    pinned), with its fidelity searched, and says its blocks when they changed."""
+    scene, rig = spheres
+    plan = plan_fidelity(
+        scene,
+        rig,
+        FOVEATION,
+        ("flip", 1.0),
+        gazes=GAZES,
+        keys=KEYS,
+        options=CHAIN,
+        config=CONFIG,
+        densities=[(2, 4), (4, 8)],
+    )
+    density = [s for s in plan.steps if s.region == "density"]
+    assert [(s.candidate, s.passed) for s in density] == [((4, 8), True)]
+    assert plan.fidelity == (CHEAP, CHEAP, CHEAP)
+    assert tuple(plan.foveation.blocks) in {(2, 4), (4, 8)}
+    assert plan.plain is FOVEATION
+    if tuple(plan.foveation.blocks) == (4, 8):
+        assert plan.describe_plan().startswith("blocks (4, 8); ")
+    else:
+        assert "blocks" not in plan.describe_plan()
+
+
+def test_a_density_that_fails_at_full_fidelity_is_no_candidate(spheres):
+    scene, rig = spheres
+    plan = plan_fidelity(
+        scene,
+        rig,
+        FOVEATION,
+        ("flip", 0.0),
+        gazes=GAZES,
+        keys=KEYS,
+        options=[FULL],
+        config=CONFIG,
+        densities=[(2, 4), (4, 8)],
+    )
+    # Sparser blocks change pixels, so at threshold 0 they fail; plain foveation is the plan.
+    assert [(s.region, s.candidate, s.passed) for s in plan.steps] == [("density", (4, 8), False)]
+    assert plan.steps[0].worst_added > 0
+    assert plan.foveation is FOVEATION
+
+
 def test_default_options_are_a_monotone_chain():
     chain = default_options(5, lights=2)
     assert chain[0] == Fidelity()
@@ -208,6 +254,11 @@ BAD = [
     ({"options": ([FULL], [], [FULL])}, r"options \(periphery\).*empty"),
     ({"options": ([FULL], [FULL], [FULL, 7])}, r"options \(outside\)\[1\] 7"),
     ({"options": FULL}, "options"),
+    ({"densities": []}, "densities"),
+    ({"densities": "2,4"}, "densities"),
+    ({"densities": [(2, 4), (2, 3)]}, r"densities\[1\] \(2, 3\)"),
+    ({"densities": [(2, 4), (2.0, 4)]}, r"densities\[1\].*pair of integers"),
+    ({"densities": [(2, 4), (2, 4)]}, r"densities\[1\].*given twice"),
     (
         {"foveation": Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(max_depth=4)))},
         r"foveation.fidelity \(outside\) max_depth 4",

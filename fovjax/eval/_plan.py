@@ -166,7 +166,10 @@ class FidelityPlan:
         return bool(np.all(added[np.isfinite(added)] <= self.criterion[1]))
 
     def describe_plan(self) -> str:
-        return ", ".join(f"{name} {_describe(f)}" for name, f in zip(REGIONS, self.fidelity, strict=True))
+        regions = ", ".join(f"{name} {_describe(f)}" for name, f in zip(REGIONS, self.fidelity, strict=True))
+        if tuple(self.foveation.blocks) != tuple(self.plain.blocks):
+            return f"blocks {tuple(self.foveation.blocks)}; {regions}"
+        return regions
 
     def __str__(self) -> str:
         metric, threshold = self.criterion
@@ -306,6 +309,42 @@ def _check_options(options, max_depth: int, lights: int, spp: int) -> list[tuple
     return per_region
 
 
+def _check_densities(densities, foveation) -> list:
+    """The foveation at each sampling density (`Foveation.blocks` pair), in the given order;
+    None: the foveation itself."""
+    if densities is None:
+        return [foveation]
+    if isinstance(densities, str | bytes) or not isinstance(densities, Sequence) or not densities:
+        raise ValueError(
+            f"{_where('densities')} {densities!r}: expected None or a non-empty sequence of "
+            "Foveation.blocks pairs, e.g. [(2, 4), (1, 3)]"
+        )
+    bases = []
+    for i, d in enumerate(densities):
+        if (
+            isinstance(d, str | bytes)
+            or not isinstance(d, Sequence)
+            or len(d) != 2
+            or not all(isinstance(v, int | np.integer) and not isinstance(v, bool) for v in d)
+        ):
+            raise ValueError(
+                f"{_where(f'densities[{i}]')} {d!r}: expected a pair of integers (periphery, outside)"
+            )
+        blocks = (int(d[0]), int(d[1]))
+        try:
+            base = (
+                foveation
+                if blocks == tuple(foveation.blocks)
+                else dataclasses.replace(foveation, blocks=blocks)
+            )
+        except ValueError as err:
+            raise ValueError(f"{_where(f'densities[{i}]')} {d!r}: {err}") from None
+        if any(b.blocks == base.blocks for b in bases):
+            raise ValueError(f"{_where(f'densities[{i}]')} {d!r}: given twice")
+        bases.append(base)
+    return bases
+
+
 def _check_int(value, name: str, ge: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < ge:
         raise ValueError(f"{_where(name)} {value!r}: expected an integer >= {ge}")
@@ -424,6 +463,7 @@ def plan_fidelity(
     bvh=None,
     render_kwargs: dict | None = None,
     log: Callable[[str], None] | None = None,
+    densities: Sequence | None = None,
     _references: dict | None = None,
 ) -> FidelityPlan:
     """The cheapest per-region shading fidelity for `foveation` (a `fovjax.foveate.Foveation`)
@@ -447,6 +487,12 @@ def plan_fidelity(
     excluded) and mean rays per frame. `render_kwargs`: more keyword arguments of every
     `render_foveated` call that change nothing at full fidelity (the full render does not get
     them), e.g. the levels of detail a `Fidelity.lod` needs. `log`: a line per evaluation.
+    `densities`: sampling densities to plan at, each a `Foveation.blocks` pair (periphery,
+    outside block edges in pixels; None: the foveation's own only). A density is a candidate
+    where it passes the criterion at the foveation's own fidelity (against plain foveation at
+    its own blocks); the region search runs at each, and the plan is the one of them with the
+    least median ms per frame in the search (at SPP > 1 a denser grid at 1 SPP outside the
+    fovea can beat sparse blocks at full SPP: the sub-samples spent on pixels).
 
     Every argument is checked before anything is rendered (ValueError naming the argument, the
     value and what was expected; `MissingExtraError` when FLIP is not installed)."""
@@ -482,6 +528,7 @@ def plan_fidelity(
             f"{_where('render_kwargs')} {render_kwargs!r}: expected None or a dict of keyword arguments "
             "of render_foveated"
         )
+    bases = _check_densities(densities, foveation)
     from ..foveate import Fidelity
 
     for name, f in zip(REGIONS, foveation.fidelity or (), strict=False):
@@ -511,62 +558,101 @@ def plan_fidelity(
         f"plain: {statistics.mean(plain_ev.rays):,.0f} rays, "
         f"{1e3 * statistics.median(plain_ev.seconds):.1f} ms per frame"
     )
-    current = list(start)
     steps: list[PlanStep] = []
-    best_ev = plain_ev
-    for region in (2, 1, 0):
-        # Candidates cheaper than the region's current fidelity: after it where the chain holds it.
-        chain = list(chains[region])
-        if current[region] in chain:
-            chain = chain[chain.index(current[region]) + 1 :]
-        if not chain:
-            continue
-        results: dict[int, tuple[bool, _Evaluation]] = {}
 
-        def passes(i, region=region, chain=chain, results=results):
-            trial = list(current)
-            trial[region] = chain[i]
-            ev = judge(dataclasses.replace(foveation, fidelity=tuple(trial)))
-            worst = _worst(_added(ev, plain_ev))
-            ok = worst <= threshold
-            step = PlanStep(
-                REGIONS[region],
-                chain[i],
-                worst,
-                ok,
-                float(statistics.mean(ev.rays)),
-                1e3 * float(statistics.median(ev.seconds)),
-                float(np.mean(ev.metric)),
-                tuple(trial),
-            )
-            steps.append(step)
-            say(
-                f"{step.region:9} {_describe(chain[i]):40} worst added {worst:.4f} "
-                f"{'pass' if ok else 'fail'}  {step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms"
-            )
-            results[i] = (ok, ev)
-            return ok
+    def search(base, base_ev):
+        """The region search at `base`'s density, from the foveation's own fidelity."""
+        current = list(start)
+        best_ev = base_ev
+        for region in (2, 1, 0):
+            # Candidates cheaper than the region's current fidelity: after it where the chain holds it.
+            chain = list(chains[region])
+            if current[region] in chain:
+                chain = chain[chain.index(current[region]) + 1 :]
+            if not chain:
+                continue
+            results: dict[int, tuple[bool, _Evaluation]] = {}
 
-        # The cheapest first; else binary search for the cheapest passing candidate, -1 being
-        # the region's current (known to pass) fidelity.
-        lo, hi = -1, len(chain) - 1
-        if not passes(hi):
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                if passes(mid):
-                    lo = mid
-                else:
-                    hi = mid
-            chosen = lo
+            def passes(i, region=region, chain=chain, results=results):
+                trial = list(current)
+                trial[region] = chain[i]
+                ev = judge(dataclasses.replace(base, fidelity=tuple(trial)))
+                worst = _worst(_added(ev, plain_ev))
+                ok = worst <= threshold
+                step = PlanStep(
+                    REGIONS[region],
+                    chain[i],
+                    worst,
+                    ok,
+                    float(statistics.mean(ev.rays)),
+                    1e3 * float(statistics.median(ev.seconds)),
+                    float(np.mean(ev.metric)),
+                    tuple(trial),
+                )
+                steps.append(step)
+                say(
+                    f"{step.region:9} {_describe(chain[i]):40} worst added {worst:.4f} "
+                    f"{'pass' if ok else 'fail'}  {step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms"
+                )
+                results[i] = (ok, ev)
+                return ok
+
+            # The cheapest first; else binary search for the cheapest passing candidate, -1 being
+            # the region's current (known to pass) fidelity.
+            lo, hi = -1, len(chain) - 1
+            if not passes(hi):
+                while hi - lo > 1:
+                    mid = (lo + hi) // 2
+                    if passes(mid):
+                        lo = mid
+                    else:
+                        hi = mid
+                chosen = lo
+            else:
+                chosen = hi
+            if chosen >= 0:
+                current[region] = chain[chosen]
+                best_ev = results[chosen][1]
+        return current, best_ev
+
+    plans = []  # (median s per frame in the search, fidelity, base, evaluation)
+    for base in bases:
+        if base.blocks == foveation.blocks:
+            base_ev = plain_ev
         else:
-            chosen = hi
-        if chosen >= 0:
-            current[region] = chain[chosen]
-            best_ev = results[chosen][1]
+            base_ev = judge(base)
+            worst = _worst(_added(base_ev, plain_ev))
+            ok = worst <= threshold
+            steps.append(
+                PlanStep(
+                    "density",
+                    tuple(base.blocks),
+                    worst,
+                    ok,
+                    float(statistics.mean(base_ev.rays)),
+                    1e3 * float(statistics.median(base_ev.seconds)),
+                    float(np.mean(base_ev.metric)),
+                    tuple(start),
+                )
+            )
+            say(
+                f"{'density':9} {'blocks ' + str(tuple(base.blocks)):40} worst added {worst:.4f} "
+                f"{'pass' if ok else 'fail'}  {steps[-1].rays_per_frame:,.0f} rays "
+                f"{steps[-1].ms_per_frame:.1f} ms"
+            )
+            if not ok:
+                continue
+        current, best_ev = search(base, base_ev)
+        plans.append((statistics.median(best_ev.seconds), tuple(current), base, best_ev))
+    if not plans:  # no density passed at full fidelity: plain foveation's own
+        plans.append((statistics.median(plain_ev.seconds), tuple(start), foveation, plain_ev))
+    _, current, base, best_ev = min(plans, key=lambda plan: plan[0])
 
     # Nothing cheaper passed: the given foveation itself (the same compiled program).
     planned = (
-        foveation if tuple(current) == start else dataclasses.replace(foveation, fidelity=tuple(current))
+        foveation
+        if tuple(current) == start and base is foveation
+        else dataclasses.replace(base, fidelity=tuple(current))
     )
     plain_fov = foveation
     # Cost in the same run: plain and plan rendered alternately over the frames.
