@@ -560,6 +560,27 @@ def plan_fidelity(
     )
     steps: list[PlanStep] = []
 
+    def record(region, candidate, label, ev, fidelity) -> bool:
+        """One evaluation as a `PlanStep` and a log line; whether it passed the criterion."""
+        worst = _worst(_added(ev, plain_ev))
+        ok = worst <= threshold
+        step = PlanStep(
+            region,
+            candidate,
+            worst,
+            ok,
+            float(statistics.mean(ev.rays)),
+            1e3 * float(statistics.median(ev.seconds)),
+            float(np.mean(ev.metric)),
+            fidelity,
+        )
+        steps.append(step)
+        say(
+            f"{region:9} {label:40} worst added {worst:.4f} {'pass' if ok else 'fail'}  "
+            f"{step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms"
+        )
+        return ok
+
     def search(base, base_ev):
         """The region search at `base`'s density, from the foveation's own fidelity."""
         current = list(start)
@@ -577,23 +598,7 @@ def plan_fidelity(
                 trial = list(current)
                 trial[region] = chain[i]
                 ev = judge(dataclasses.replace(base, fidelity=tuple(trial)))
-                worst = _worst(_added(ev, plain_ev))
-                ok = worst <= threshold
-                step = PlanStep(
-                    REGIONS[region],
-                    chain[i],
-                    worst,
-                    ok,
-                    float(statistics.mean(ev.rays)),
-                    1e3 * float(statistics.median(ev.seconds)),
-                    float(np.mean(ev.metric)),
-                    tuple(trial),
-                )
-                steps.append(step)
-                say(
-                    f"{step.region:9} {_describe(chain[i]):40} worst added {worst:.4f} "
-                    f"{'pass' if ok else 'fail'}  {step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms"
-                )
+                ok = record(REGIONS[region], chain[i], _describe(chain[i]), ev, tuple(trial))
                 results[i] = (ok, ev)
                 return ok
 
@@ -621,26 +626,8 @@ def plan_fidelity(
             base_ev = plain_ev
         else:
             base_ev = judge(base)
-            worst = _worst(_added(base_ev, plain_ev))
-            ok = worst <= threshold
-            steps.append(
-                PlanStep(
-                    "density",
-                    tuple(base.blocks),
-                    worst,
-                    ok,
-                    float(statistics.mean(base_ev.rays)),
-                    1e3 * float(statistics.median(base_ev.seconds)),
-                    float(np.mean(base_ev.metric)),
-                    tuple(start),
-                )
-            )
-            say(
-                f"{'density':9} {'blocks ' + str(tuple(base.blocks)):40} worst added {worst:.4f} "
-                f"{'pass' if ok else 'fail'}  {steps[-1].rays_per_frame:,.0f} rays "
-                f"{steps[-1].ms_per_frame:.1f} ms"
-            )
-            if not ok:
+            blocks = tuple(base.blocks)
+            if not record("density", blocks, f"blocks {blocks}", base_ev, tuple(start)):
                 continue
         current, best_ev = search(base, base_ev)
         plans.append((statistics.median(best_ev.seconds), tuple(current), base, best_ev))
