@@ -9,7 +9,9 @@ int is a valid `float`), as the annotations mean it. Set FOVJAX_TYPECHECK=0 to r
 to time something)."""
 
 import os
+import shutil
 import sys
+import tempfile
 import types
 
 import pytest
@@ -19,6 +21,16 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # suite runs without it, so no test depends on what an earlier test or run left there
 # (tests/test_compile_cache.py turns it on in its own processes and directories).
 os.environ["FOVJAX_COMPILE_CACHE"] = "0"
+# ... but one run's two workers share what they compile: a fresh directory made by the run's
+# first process (xdist's controller, whose environment the workers inherit) and removed at its
+# end, so a program both workers need (the same frame configuration in two test files) is
+# compiled once. Nothing outlives the run. FOVJAX_TEST_SHARED_COMPILES=0 turns it off.
+_SHARED = "FOVJAX_TEST_COMPILE_DIR"
+if os.environ.get("FOVJAX_TEST_SHARED_COMPILES", "1") != "0" and _SHARED not in os.environ:
+    os.environ[_SHARED] = tempfile.mkdtemp(prefix="fovjax-test-compiles-")
+    _OWN_SHARED = True
+else:
+    _OWN_SHARED = False
 
 if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
     from beartype import BeartypeConf, beartype
@@ -32,6 +44,11 @@ if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
 
 
 def pytest_configure(config):
+    if os.environ.get(_SHARED):
+        import jax
+
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+        jax.config.update("jax_compilation_cache_dir", os.environ[_SHARED])
     config.addinivalue_line(
         "markers",
         "no_typecheck: the test checks the package's own validation of bad arguments (its ValueError "
@@ -52,3 +69,8 @@ def _annotation_checks(request):
         yield
     finally:
         jaxtyping.config.update("jaxtyping_disable", False)
+
+
+def pytest_unconfigure(config):
+    if _OWN_SHARED:
+        shutil.rmtree(os.environ.pop(_SHARED), ignore_errors=True)
