@@ -51,7 +51,7 @@ from jaxtyping import Array, ArrayLike, Int
 
 from ._scene import Scene, drop_degenerate, geometry_hash, make_scene
 
-FORMAT_VERSION = 3  # 3: welded before decimating, coplanar flips after
+FORMAT_VERSION = 4  # 3: welded before decimating, coplanar flips after; 4: normals per corner
 DEFAULT_RATIOS = (1.0, 0.5, 0.25, 0.1)
 CANDIDATES = 16  # nearest surface samples whose triangles are checked exactly per original point
 AGGRESSION = 7.0  # fast-simplification's default; lower is slower and closer to the target
@@ -111,27 +111,31 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 def _carry_attributes(
     new_v: np.ndarray, new_f: np.ndarray, old_v: np.ndarray, pool: np.ndarray, normals, extent: float
-) -> np.ndarray:
-    """For each new vertex, the index of the original vertex (one of `pool`, the material's)
-    whose normal/UV it takes: the nearest one, breaking near-ties by agreement with the new face
-    normal."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertices, faces, src): per triangle corner, the original vertex (one of `pool`, the
+    material's) whose normal/UV it takes: the nearest one, near-ties (the copies of a corner of a
+    flat-shaded box, a UV seam) broken by agreement with that triangle's own normal. A new vertex
+    whose corners take different originals is split into one vertex per original, so a crease
+    the decimator sees as one vertex (the mesh is welded for it) stays a sharp crease."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(old_v[pool].astype(np.float64))
     k = min(4, len(pool))
     dist, idx = tree.query(new_v.astype(np.float64), k=k)
     dist, idx = dist.reshape(len(new_v), k), idx.reshape(len(new_v), k)
-    choice = idx[:, 0]
-    if normals is not None and k > 1:
-        geo = np.zeros((len(new_v), 3))
-        fn = _face_normals(new_v, new_f)
-        for c in range(3):
-            np.add.at(geo, new_f[:, c], fn)
-        near = dist <= dist[:, :1] * (1 + 1e-4) + 1e-6 * extent
-        agree = np.einsum("nkc,nc->nk", normals[pool[idx]].astype(np.float64), geo)
-        agree = np.where(near, agree, -np.inf)
-        choice = idx[np.arange(len(new_v)), np.argmax(agree, axis=1)]
-    return pool[choice]
+    if normals is None or k == 1:
+        return new_v, new_f, pool[idx[:, 0]]
+    near = dist <= dist[:, :1] * (1 + 1e-4) + 1e-6 * extent
+    fn = _face_normals(new_v, new_f)
+    corner = np.empty(new_f.shape, np.int64)
+    for c in range(3):
+        vert = new_f[:, c]
+        agree = np.einsum("fkc,fc->fk", normals[pool[idx[vert]]].astype(np.float64), fn)
+        agree = np.where(near[vert], agree, -np.inf)
+        corner[:, c] = pool[idx[vert, np.argmax(agree, axis=1)]]
+    pairs = np.stack([new_f.reshape(-1), corner.reshape(-1)], axis=1)
+    unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    return new_v[unique[:, 0]], inverse.reshape(-1, 3).astype(np.int32), unique[:, 1]
 
 
 def _weld(points: np.ndarray, faces: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -269,7 +273,7 @@ def _decimate_arrays(scene: Scene, ratio: float, preserve_border: bool = True) -
                 continue  # the material's parts collapsed entirely; the error shows it
             live, tris = np.unique(tris, return_inverse=True)
             pts, tris = pts[live], tris.reshape(-1, 3).astype(np.int32)
-            src = _carry_attributes(pts, tris, v, used, normals, extent)
+            pts, tris, src = _carry_attributes(pts, tris, v, used, normals, extent)
         else:  # nothing to remove (a material of a single triangle at a small ratio)
             pts, tris, src = v[used], local, used
         out_v.append(pts)
