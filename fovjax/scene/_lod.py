@@ -133,9 +133,9 @@ def _carry_attributes(
         agree = np.einsum("fkc,fc->fk", normals[pool[idx[vert]]].astype(np.float64), fn)
         agree = np.where(near[vert], agree, -np.inf)
         corner[:, c] = pool[idx[vert, np.argmax(agree, axis=1)]]
-    pairs = np.stack([new_f.reshape(-1), corner.reshape(-1)], axis=1)
-    unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
-    return new_v[unique[:, 0]], inverse.reshape(-1, 3).astype(np.int32), unique[:, 1]
+    key = new_f.reshape(-1).astype(np.int64) * len(old_v) + corner.reshape(-1)
+    unique, inverse = np.unique(key, return_inverse=True)
+    return new_v[unique // len(old_v)], inverse.reshape(-1, 3).astype(np.int32), unique % len(old_v)
 
 
 def _weld(points: np.ndarray, faces: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
