@@ -18,13 +18,20 @@ the same material, so UVs are never read from another material's texture space. 
 (`preserve_border=True`) no edge touching an open border is collapsed, so the seam between two
 materials stays where it is on both sides: no cracks open between them, and a wall's outline does
 not erode (without it, a decimated flat square loses its corners: measured in tests/test_lod.py).
-The cost: meshes made mostly of border (separate quads) decimate little or not at all.
+Vertices at the same position are welded for the decimator first (`_weld`): meshes built from
+separate face grids (a box's six faces, the Cornell box's quads) would otherwise be all border,
+pinned, and decimate into fans of slivers or not at all.
+
+**Shape.** Quadric decimation still leaves flat regions as fans of long thin triangles, whose
+large overlapping boxes cost a BVH many more tests per ray. `flip_coplanar` then turns coplanar
+neighbours into a Delaunay triangulation (the surface does not change).
 
 **Attributes carried over.** The decimator moves vertices to the quadric optimum, so a new vertex
-is generally not an original one. Its normal and UV come from the nearest original vertex of its
-material; where several original vertices sit within a hair of the nearest (a sharp edge or a UV
-seam duplicates vertices), the one whose normal agrees best with the new vertex's own face normal
-is taken, so a flat-shaded box keeps each face's normal.
+is generally not an original one. Each triangle corner's normal and UV come from the nearest
+original vertex of its material; where several original vertices sit within a hair of the
+nearest (a sharp edge or a UV seam duplicates vertices), the one whose normal agrees best with
+that triangle's own normal is taken, and a vertex whose corners take different originals is split
+into one per original, so a flat-shaded box keeps each face's normal and its sharp edges.
 
 **Error.** `LODLevels.errors[i]` is the one-sided Hausdorff distance (scene units) from the
 original vertices to level i's surface (`geometric_error`: the bounds below, then exact
