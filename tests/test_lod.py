@@ -322,7 +322,7 @@ def test_every_level_passes_the_trace_oracle(name):
     _need_fast_simplification()
     from test_trace import assert_matches_brute_force
 
-    # The Cornell box's quads are all border: it decimates only with the border let go.
+    # The Cornell box with the border let go (the atrium keeps it): both settings traced.
     scene = fovjax.scenes.BUILTIN[name]() if name != "atrium" else fovjax.scenes.atrium(triangles=8000)
     levels = lod_levels(scene, (1.0, 0.5, 0.2), preserve_border=name == "atrium")
     assert len(set(s.content_hash for s in levels.scenes)) == 3

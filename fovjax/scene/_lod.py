@@ -333,8 +333,9 @@ def decimate(
     `preserve_border` (default) never collapses an edge touching an open border of a material's
     mesh: a wall's outline and the seam between two materials stay where they are (no cracks, no
     eroded edges), at the price of not reaching the ratio where most triangles touch a border
-    (the Cornell box's separate quads do not decimate at all). The result may therefore keep more
-    triangles than asked; `num_triangles` says how many.
+    (vertices at one position are welded first, so separate quads that share corners are not
+    border there). The result may therefore keep more triangles than asked; `num_triangles`
+    says how many.
 
     `scene` is a `Scene` or a built-in scene's name (`fovjax.scenes.BUILTIN`). Raises ValueError
     for a ratio outside (0, 1], a target outside [1, number of triangles], both or neither, or an
