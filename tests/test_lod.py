@@ -127,15 +127,136 @@ def test_flat_shaded_box_keeps_each_faces_normal():
     the one agreeing with its own faces, not whichever copy is first."""
     _need_fast_simplification()
     scene = fovjax.scenes.cornell_box()
-    assert decimate(scene, 0.5).num_triangles == scene.num_triangles  # separate quads: all border
-    level = decimate(scene, 0.5, preserve_border=False)
-    assert level.num_triangles < scene.num_triangles
-    v, f, n = np.asarray(level.vertices), np.asarray(level.faces), np.asarray(level.normals)
-    geo = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    geo /= np.linalg.norm(geo, axis=1, keepdims=True)
-    # Each corner's carried normal is parallel (either side) to its face's own normal.
-    for c in range(3):
-        assert (np.abs(np.einsum("ij,ij->i", n[f[:, c]], geo)) > 0.99).all()
+    for border in (True, False):
+        level = decimate(scene, 0.5, preserve_border=border)
+        assert level.num_triangles < scene.num_triangles
+        v, f, n = np.asarray(level.vertices), np.asarray(level.faces), np.asarray(level.normals)
+        geo = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        geo /= np.linalg.norm(geo, axis=1, keepdims=True)
+        # Each corner's carried normal is parallel (either side) to its face's own normal, on
+        # every triangle lying in a wall (32 triangles to 16 also cuts some corners diagonally,
+        # triangles with no original normal to take: `geometric_error` reports those).
+        on_wall = np.abs(geo).max(axis=1) > 0.999
+        assert on_wall.sum() >= 4
+        for c in range(3):
+            assert (np.abs(np.einsum("ij,ij->i", n[f[on_wall, c]], geo[on_wall])) > 0.99).all()
+
+
+def test_separate_quads_sharing_corners_decimate_and_keep_their_shape():
+    """The Cornell box's quads (and the atrium's boxes, six separate face grids each) share
+    corners only by position; welded for the decimator, a box's edges are creases, not borders
+    to keep, so it decimates with `preserve_border` on and keeps its shape exactly."""
+    _need_fast_simplification()
+    from fovjax.scene import _geometry as g
+    from fovjax.scene._scene import make_materials
+
+    mb = g.MeshBuilder()
+    g.add_box(mb, (0.0, 0.0, 0.0), (2.0, 1.0, 0.5), (16, 8, 4), 0)
+    v, f, n, fm = mb.build()
+    box = fovjax.make_scene(v, f, face_material=fm, materials=make_materials([{"name": "stone"}]), normals=n)
+    level = decimate(box, 0.1)
+    assert level.num_triangles <= 0.1 * box.num_triangles + 1
+    assert geometric_error(box, level) < 1e-5
+    assert _brute_force_distance(level.vertices, box).max() < 1e-5  # and no point off the box
+    # the level is still a closed box: its surface area is the box's
+    area = 0.5 * np.linalg.norm(
+        np.cross(*(level.triangles()[:, 1:] - level.triangles()[:, :1]).transpose(1, 0, 2)), axis=1
+    )
+    np.testing.assert_allclose(area.sum(), 2 * (2 * 1 + 1 * 0.5 + 0.5 * 2), rtol=1e-5)
+
+
+def _fan():
+    """A 4 x 1 rectangle in z = 0 with six vertices along its top edge, every triangle joined to
+    corner (0, 0): a fan of slivers across the whole rectangle, what border-preserving decimation
+    leaves; plus a bent quad whose two triangles are not coplanar."""
+    ring = np.array([(0.0, 0.0), (4.0, 0.0)] + [(x, 1.0) for x in np.linspace(4, 0, 6)])
+    v = np.concatenate([np.c_[ring, np.zeros(len(ring))], [[10, 0, 0], [11, 0, 0], [11, 1, 0.5], [10, 1, 0]]])
+    k = len(ring)
+    f = [(0, i, i + 1) for i in range(1, k - 1)] + [(k, k + 1, k + 2), (k, k + 2, k + 3)]
+    return v, np.array(f)
+
+
+def _box_area_sum(v, f):
+    tri = v[f]
+    d = tri.max(axis=1) - tri.min(axis=1)
+    return (2 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])).sum()
+
+
+def test_coplanar_flips_keep_the_surface_and_shrink_the_boxes():
+    from fovjax.scene._lod import flip_coplanar
+
+    v, f = _fan()
+    out = flip_coplanar(v, f, tol=1e-9)
+    assert out.shape == f.shape
+    assert _box_area_sum(v, out) < 0.8 * _box_area_sum(v, f)  # smaller boxes than the fan's
+    # Delaunay: at every inner edge of the rectangle the two angles facing it sum to at most pi
+    flat = out[:-2]
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        for t1 in range(len(flat)):
+            a, b = flat[t1, i], flat[t1, j]
+            for t2 in range(len(flat)):
+                if t2 != t1 and {a, b} <= set(flat[t2]):
+                    c = next(x for x in flat[t1] if x not in (a, b))
+                    d = next(x for x in flat[t2] if x not in (a, b))
+                    ang = [
+                        np.arccos(
+                            np.dot(v[a] - v[e], v[b] - v[e])
+                            / np.linalg.norm(v[a] - v[e])
+                            / np.linalg.norm(v[b] - v[e])
+                        )
+                        for e in (c, d)
+                    ]
+                    assert sum(ang) <= np.pi + 1e-9
+    tri, before = v[out], v[f]
+    n_out = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n_in = np.cross(before[:, 1] - before[:, 0], before[:, 2] - before[:, 0])
+    # same surface: same total area, every triangle still facing +z (no fold-over), no needles
+    np.testing.assert_allclose(
+        0.5 * np.linalg.norm(n_out, axis=1).sum(), 0.5 * np.linalg.norm(n_in, axis=1).sum()
+    )
+    flat = out[:-2]
+    assert (n_out[: len(flat), 2] > 0).all() and set(flat.reshape(-1)) == set(range(8))
+    rng = np.random.default_rng(0)
+    w = rng.dirichlet(np.ones(3), 200)
+    # every point of the new triangulation lies in the rectangle (with the same total area: it
+    # is the rectangle)
+    p = np.einsum("nk,tkc->tnc", w, v[flat]).reshape(-1, 3)
+    assert (p[:, 0] >= -1e-9).all() and (p[:, 0] <= 4 + 1e-9).all() and (np.abs(p[:, 2]) < 1e-12).all()
+    assert (p[:, 1] >= -1e-9).all() and (p[:, 1] <= 1 + 1e-9).all()
+    np.testing.assert_array_equal(out[-2:], f[-2:])  # the bent quad keeps its diagonal
+
+
+def test_flips_make_coarse_levels_cheaper_for_a_bvh(monkeypatch):
+    """On the small atrium the decimated level with flips has a smaller total triangle box area
+    than the same decimation without, at the same error bound class and triangle count."""
+    _need_fast_simplification()
+    from fovjax.scene import _lod
+
+    scene = fovjax.scenes.atrium(triangles=8000)
+    flipped = decimate(scene, 0.25)
+    monkeypatch.setattr(_lod, "FLIP_ROUNDS", 0)
+    plain = decimate(scene, 0.25)
+    assert flipped.num_triangles == plain.num_triangles
+    area = [_box_area_sum(np.asarray(s.vertices, np.float64), np.asarray(s.faces)) for s in (flipped, plain)]
+    assert area[0] < area[1]
+
+
+def test_the_cache_key_follows_the_decimation(monkeypatch):
+    from fovjax.scene import _lod
+
+    scene = _grid_plane()
+    key = _lod._cache_key(scene, 0.5, True)
+    assert _lod._cache_key(scene, 0.5, True) == key
+    for name, value in (
+        ("FLIP_ROUNDS", 0),
+        ("WELD", 1e-3),
+        ("FLAT", 1e-3),
+        ("MIN_SHARE", 0.1),
+        ("FORMAT_VERSION", 99),
+    ):
+        with monkeypatch.context() as m:
+            m.setattr(_lod, name, value)
+            assert _lod._cache_key(scene, 0.5, True) != key, name
 
 
 def _brute_force_distance(points, level):
@@ -201,7 +322,7 @@ def test_every_level_passes_the_trace_oracle(name):
     _need_fast_simplification()
     from test_trace import assert_matches_brute_force
 
-    # The Cornell box's quads are all border: it decimates only with the border let go.
+    # The Cornell box with the border let go (the atrium keeps it): both settings traced.
     scene = fovjax.scenes.BUILTIN[name]() if name != "atrium" else fovjax.scenes.atrium(triangles=8000)
     levels = lod_levels(scene, (1.0, 0.5, 0.2), preserve_border=name == "atrium")
     assert len(set(s.content_hash for s in levels.scenes)) == 3

@@ -18,13 +18,20 @@ the same material, so UVs are never read from another material's texture space. 
 (`preserve_border=True`) no edge touching an open border is collapsed, so the seam between two
 materials stays where it is on both sides: no cracks open between them, and a wall's outline does
 not erode (without it, a decimated flat square loses its corners: measured in tests/test_lod.py).
-The cost: meshes made mostly of border (separate quads) decimate little or not at all.
+Vertices at the same position are welded for the decimator first (`_weld`): meshes built from
+separate face grids (a box's six faces, the Cornell box's quads) would otherwise be all border,
+pinned, and decimate into fans of slivers or not at all.
+
+**Shape.** Quadric decimation still leaves flat regions as fans of long thin triangles, whose
+large overlapping boxes cost a BVH many more tests per ray. `flip_coplanar` then turns coplanar
+neighbours into a Delaunay triangulation (the surface does not change).
 
 **Attributes carried over.** The decimator moves vertices to the quadric optimum, so a new vertex
-is generally not an original one. Its normal and UV come from the nearest original vertex of its
-material; where several original vertices sit within a hair of the nearest (a sharp edge or a UV
-seam duplicates vertices), the one whose normal agrees best with the new vertex's own face normal
-is taken, so a flat-shaded box keeps each face's normal.
+is generally not an original one. Each triangle corner's normal and UV come from the nearest
+original vertex of its material; where several original vertices sit within a hair of the
+nearest (a sharp edge or a UV seam duplicates vertices), the one whose normal agrees best with
+that triangle's own normal is taken, and a vertex whose corners take different originals is split
+into one per original, so a flat-shaded box keeps each face's normal and its sharp edges.
 
 **Error.** `LODLevels.errors[i]` is the one-sided Hausdorff distance (scene units) from the
 original vertices to level i's surface (`geometric_error`: the bounds below, then exact
@@ -51,10 +58,15 @@ from jaxtyping import Array, ArrayLike, Int
 
 from ._scene import Scene, drop_degenerate, geometry_hash, make_scene
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 4  # 3: welded before decimating, coplanar flips after; 4: normals per corner
 DEFAULT_RATIOS = (1.0, 0.5, 0.25, 0.1)
 CANDIDATES = 16  # nearest surface samples whose triangles are checked exactly per original point
 AGGRESSION = 7.0  # fast-simplification's default; lower is slower and closer to the target
+WELD = 1e-6  # coincident-vertex tolerance, relative to the scene's extent (see `_weld`)
+FLAT = 1e-6  # coplanarity tolerance of `flip_coplanar`, relative to the scene's extent
+MIN_SHARE = 0.01  # a flip never makes a triangle with less than this share of its pair's area
+FLIP_RULE = "delaunay"  # Lawson flips; or "box" (greedy, box area), "delaunay+box" (README)
+FLIP_ROUNDS = 16  # most rounds of `flip_coplanar` (the atrium's levels settle within 8)
 _SAMPLES_PER_TRIANGLE = 1  # area-weighted random samples on a level, per triangle on average
 
 
@@ -106,27 +118,134 @@ def _face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 def _carry_attributes(
     new_v: np.ndarray, new_f: np.ndarray, old_v: np.ndarray, pool: np.ndarray, normals, extent: float
-) -> np.ndarray:
-    """For each new vertex, the index of the original vertex (one of `pool`, the material's)
-    whose normal/UV it takes: the nearest one, breaking near-ties by agreement with the new face
-    normal."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertices, faces, src): per triangle corner, the original vertex (one of `pool`, the
+    material's) whose normal/UV it takes: the nearest one, near-ties (the copies of a corner of a
+    flat-shaded box, a UV seam) broken by agreement with that triangle's own normal. A new vertex
+    whose corners take different originals is split into one vertex per original, so a crease
+    the decimator sees as one vertex (the mesh is welded for it) stays a sharp crease."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(old_v[pool].astype(np.float64))
     k = min(4, len(pool))
     dist, idx = tree.query(new_v.astype(np.float64), k=k)
     dist, idx = dist.reshape(len(new_v), k), idx.reshape(len(new_v), k)
-    choice = idx[:, 0]
-    if normals is not None and k > 1:
-        geo = np.zeros((len(new_v), 3))
-        fn = _face_normals(new_v, new_f)
-        for c in range(3):
-            np.add.at(geo, new_f[:, c], fn)
-        near = dist <= dist[:, :1] * (1 + 1e-4) + 1e-6 * extent
-        agree = np.einsum("nkc,nc->nk", normals[pool[idx]].astype(np.float64), geo)
-        agree = np.where(near, agree, -np.inf)
-        choice = idx[np.arange(len(new_v)), np.argmax(agree, axis=1)]
-    return pool[choice]
+    if normals is None or k == 1:
+        return new_v, new_f, pool[idx[:, 0]]
+    near = dist <= dist[:, :1] * (1 + 1e-4) + 1e-6 * extent
+    fn = _face_normals(new_v, new_f)
+    corner = np.empty(new_f.shape, np.int64)
+    for c in range(3):
+        vert = new_f[:, c]
+        agree = np.einsum("fkc,fc->fk", normals[pool[idx[vert]]].astype(np.float64), fn)
+        agree = np.where(near[vert], agree, -np.inf)
+        corner[:, c] = pool[idx[vert, np.argmax(agree, axis=1)]]
+    key = new_f.reshape(-1).astype(np.int64) * len(old_v) + corner.reshape(-1)
+    unique, inverse = np.unique(key, return_inverse=True)
+    return new_v[unique // len(old_v)], inverse.reshape(-1, 3).astype(np.int32), unique % len(old_v)
+
+
+def _weld(points: np.ndarray, faces: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices closer than about `tol` (same rounded coordinates) into one, for the
+    decimator only: a box built from six separate face grids (the atrium's walls) becomes one
+    closed mesh, so its edges are creases the quadrics keep, not open borders that
+    `preserve_border` pins (fans of slivers from every kept border vertex). Triangles that
+    collapse onto an edge are dropped."""
+    keys = np.round(points / max(tol, 1e-30)).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    out = inverse.reshape(-1)[faces]
+    keep = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])
+    return points[first], out[keep].astype(np.int32)
+
+
+def _angle(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
+
+
+def _box_area(tri: np.ndarray) -> np.ndarray:
+    d = tri.max(axis=1) - tri.min(axis=1)
+    return 2.0 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])
+
+
+def flip_coplanar(points, faces, tol: float, rounds: int = FLIP_ROUNDS, rule: str = "delaunay") -> np.ndarray:
+    """Faces with the shared edge of coplanar neighbours flipped wherever that lowers the sum of
+    the pair's bounding-box surface areas (the cost a BVH pays for them), until no flip does or
+    after `rounds` rounds. Only pairs whose fourth vertex lies within `tol` of the other
+    triangle's plane (both ways), that share the edge in opposite directions (consistent
+    winding) and form a convex quad are flipped, so the surface and its orientation are
+    unchanged. Each round flips an independent set (no triangle twice): per triangle the pair of
+    largest gain, taken where both triangles agree.
+
+    Why: quadric decimation leaves flat regions as fans of long slivers (every border vertex
+    connected across the face), whose overlapping boxes cost a ray many more leaf tests; the
+    flips turn a fan over a rectangle back into few triangles with small boxes."""
+    v = np.asarray(points, np.float64)
+    f = np.array(faces, np.int64).reshape(-1, 3)
+    if len(f) < 2:
+        return f
+    sub = np.arange(len(f))  # the faces in play: after the first round, those of coplanar pairs
+    for i in range(rounds):
+        g = f[sub]
+        a = g.reshape(-1)
+        b = np.roll(g, -1, axis=1).reshape(-1)
+        c = np.roll(g, -2, axis=1).reshape(-1)
+        face = np.repeat(np.arange(len(g)), 3)
+        key = np.minimum(a, b) * len(v) + np.maximum(a, b)
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        same = ks[1:] == ks[:-1]
+        # edges of exactly two triangles: equal neighbours in the sorted keys, no third
+        pair = same & np.concatenate([[True], ~same[:-1]]) & np.concatenate([~same[1:], [True]])
+        h1, h2 = order[:-1][pair], order[1:][pair]
+        ok = (a[h1] == b[h2]) & (b[h1] == a[h2])
+        h1, h2 = h1[ok], h2[ok]
+        f1, f2 = face[h1], face[h2]
+        pa, pb, pc, pd = v[a[h1]], v[b[h1]], v[c[h1]], v[c[h2]]
+        n1 = np.cross(pb - pa, pc - pa)
+        n2 = np.cross(pa - pb, pd - pb)
+        l1, l2 = np.linalg.norm(n1, axis=1), np.linalg.norm(n2, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            flat = (np.abs(np.einsum("ij,ij->i", pd - pa, n1)) <= tol * l1) & (
+                np.abs(np.einsum("ij,ij->i", pc - pb, n2)) <= tol * l2
+            )
+        flat &= (l1 > 0) & (l2 > 0) & (np.einsum("ij,ij->i", n1, n2) > 0)
+        if i == 0:  # a flip keeps every edge's coplanarity, so only these faces ever flip
+            keep = np.unique(np.concatenate([f1[flat], f2[flat]]))
+            sub, f1, f2 = sub[keep], np.searchsorted(keep, f1), np.searchsorted(keep, f2)
+            g = g[keep]
+            inside = np.isin(face[h1], keep) & np.isin(face[h2], keep)
+            h1, h2, f1, f2, flat = h1[inside], h2[inside], f1[inside], f2[inside], flat[inside]
+            pa, pb, pc, pd, n1, n2, l1, l2 = (x[inside] for x in (pa, pb, pc, pd, n1, n2, l1, l2))
+        # new triangles (a, d, c) and (b, c, d): both must face the old way (a convex quad)
+        m1 = np.cross(pd - pa, pc - pa)
+        m2 = np.cross(pc - pb, pd - pb)
+        # ... and neither may be a needle (under MIN_SHARE of the pair's area)
+        quad = l1 + l2
+        least = MIN_SHARE * quad * np.linalg.norm(n1, axis=1)
+        convex = (np.einsum("ij,ij->i", m1, n1) > least) & (np.einsum("ij,ij->i", m2, n1) > least)
+        if rule == "delaunay":  # Lawson: the angles facing the edge sum to over pi
+            gain = _angle(pa - pc, pb - pc) + _angle(pa - pd, pb - pd) - np.pi
+            gain = np.where(flat & convex, gain, 0.0)
+            cand = np.flatnonzero(gain > 1e-9)
+        else:
+            old = _box_area(np.stack([pa, pb, pc], 1)) + _box_area(np.stack([pb, pa, pd], 1))
+            new = _box_area(np.stack([pa, pd, pc], 1)) + _box_area(np.stack([pb, pc, pd], 1))
+            gain = np.where(flat & convex, old - new, 0.0)
+            cand = np.flatnonzero(gain > 1e-9 * np.maximum(old, 1e-30))
+        if len(cand) == 0:
+            break
+        # rank candidates by gain (ties by index); keep those that are the best of both triangles
+        rank = np.empty(len(cand), np.int64)
+        rank[np.lexsort((cand, -gain[cand]))] = np.arange(len(cand))
+        best = np.full(len(g), len(cand), np.int64)
+        np.minimum.at(best, f1[cand], rank)
+        np.minimum.at(best, f2[cand], rank)
+        take = cand[(best[f1[cand]] == rank) & (best[f2[cand]] == rank)]
+        ia, ib, ic, id_ = a[h1[take]], b[h1[take]], c[h1[take]], c[h2[take]]
+        g[f1[take]] = np.stack([ia, id_, ic], 1)
+        g[f2[take]] = np.stack([ib, ic, id_], 1)
+        f[sub] = g
+    return f
 
 
 def _decimate_arrays(scene: Scene, ratio: float, preserve_border: bool = True) -> dict:
@@ -147,17 +266,21 @@ def _decimate_arrays(scene: Scene, ratio: float, preserve_border: bool = True) -
         used, local = np.unique(faces_m, return_inverse=True)
         local = local.reshape(-1, 3).astype(np.int32)
         if targets[m] < len(faces_m):
+            pts, tris = _weld(v[used].astype(np.float64), local, WELD * extent)
             pts, tris = fs.simplify(
-                v[used], local, target_count=int(targets[m]), agg=AGGRESSION, preserve_border=preserve_border
+                pts, tris, target_count=int(targets[m]), agg=AGGRESSION, preserve_border=preserve_border
             )
-            pts, tris = np.asarray(pts, np.float32), np.asarray(tris, np.int64)
+            pts, tris = np.asarray(pts, np.float64), np.asarray(tris, np.int64)
+            for rule in FLIP_RULE.split("+") if FLIP_ROUNDS else ():
+                tris = flip_coplanar(pts, tris, FLAT * extent, FLIP_ROUNDS, rule)
+            pts = pts.astype(np.float32)
             keep = drop_degenerate(pts, tris) if len(tris) else np.zeros(0, bool)
             tris = tris[keep]
             if len(tris) == 0:
                 continue  # the material's parts collapsed entirely; the error shows it
             live, tris = np.unique(tris, return_inverse=True)
             pts, tris = pts[live], tris.reshape(-1, 3).astype(np.int32)
-            src = _carry_attributes(pts, tris, v, used, normals, extent)
+            pts, tris, src = _carry_attributes(pts, tris, v, used, normals, extent)
         else:  # nothing to remove (a material of a single triangle at a small ratio)
             pts, tris, src = v[used], local, used
         out_v.append(pts)
@@ -210,8 +333,9 @@ def decimate(
     `preserve_border` (default) never collapses an edge touching an open border of a material's
     mesh: a wall's outline and the seam between two materials stay where they are (no cracks, no
     eroded edges), at the price of not reaching the ratio where most triangles touch a border
-    (the Cornell box's separate quads do not decimate at all). The result may therefore keep more
-    triangles than asked; `num_triangles` says how many.
+    (vertices at one position are welded first, so separate quads that share corners are not
+    border there). The result may therefore keep more triangles than asked; `num_triangles`
+    says how many.
 
     `scene` is a `Scene` or a built-in scene's name (`fovjax.scenes.BUILTIN`). Raises ValueError
     for a ratio outside (0, 1], a target outside [1, number of triangles], both or neither, or an
@@ -428,6 +552,11 @@ def _cache_key(scene: Scene, ratio: float, preserve_border: bool) -> str:
         "r": ratio,
         "border": preserve_border,
         "agg": AGGRESSION,
+        "weld": WELD,
+        "flat": FLAT,
+        "flips": FLIP_ROUNDS,
+        "rule": FLIP_RULE,
+        "share": MIN_SHARE,
         "k": CANDIDATES,
         "v": FORMAT_VERSION,
     }
