@@ -44,7 +44,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._config import max_region_spp, shading_classes
 from ._eccentricity import eccentricity_map
-from ._fill import fill_and_blur_pixels
+from ._fill import blur_and_blend, fill_blanks
 from ._lod import lod_needed, with_levels
 from ._positions import positions_at
 from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
@@ -384,12 +384,10 @@ def traced_count(mask, spp) -> Int[Array, "2 H W"]:
 
 
 def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H W2 3"]:
-    """Stage 4b: each eye filled and blurred, side by side."""
-    eyes = [
-        fill_and_blur_pixels(prefill[i], n[i], sel.region[i], sel.eccentricity[i], foveation)[0]
-        for i in range(2)
-    ]
-    return jnp.concatenate(eyes, axis=1)
+    """Stage 4b: each eye filled and blurred (`fill_and_blur_pixels`; both eyes in the same
+    passes, the blur band by band straight into the side-by-side image)."""
+    filled, _ = fill_blanks(prefill, n, sel.region, foveation)
+    return blur_and_blend(filled, sel.eccentricity, foveation, side_by_side=True)
 
 
 def foveated_stereo(
