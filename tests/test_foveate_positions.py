@@ -49,3 +49,12 @@ def test_another_prng_falls_back_to_the_screen():
     pixel = np.arange(spp * h * w, dtype=np.int32) // spp
     got = positions_at(key, jnp.asarray(sample), jnp.asarray(pixel), spp=spp, h=h, w=w)
     np.testing.assert_array_equal(np.asarray(got), screen[sample, pixel])
+
+
+@pytest.mark.parametrize("shape", [(1, 130, 70), (4, 64, 33), (2, 7, 5)])
+def test_uniform_draws_in_bands_are_jax_random_uniform(shape):
+    from fovjax.foveate._sampling import uniform_draws
+
+    key = jax.random.key(11)
+    want = np.asarray(jax.random.uniform(key, shape, jnp.float32))
+    np.testing.assert_array_equal(np.asarray(jax.jit(uniform_draws, static_argnums=1)(key, shape)), want)

@@ -94,17 +94,19 @@ def _block_broadcast(x, b: int):
 def top_left_values(pix, n, region, foveation):
     """`pix` and `n` at each pixel's block's top-left pixel (`top_left`), from strided slices
     and repeats per block size (the block sizes are static): no per-pixel gather, which
-    XLA:CPU runs several times slower over a screen."""
+    XLA:CPU runs several times slower over a screen. Each fuses into its consumer (no
+    screen-sized copy: the colours and counts are not stacked into one array)."""
     sizes = (1, *foveation.blocks)
-    by_region = [
-        _block_broadcast(jnp.concatenate([pix, n[..., None].astype(pix.dtype)], -1), b) for b in sizes
-    ]
-    out = jnp.where(
-        (region == FOVEA)[..., None],
-        by_region[0],
-        jnp.where((region == PERIPHERY)[..., None], by_region[1], by_region[2]),
-    )
-    return out[..., :-1], out[..., -1]
+
+    def pick(x):
+        by_region = [_block_broadcast(x, b) for b in sizes]
+        return jnp.where(
+            (region == FOVEA)[..., None],
+            by_region[0],
+            jnp.where((region == PERIPHERY)[..., None], by_region[1], by_region[2]),
+        )
+
+    return pick(pix), pick(n[..., None])[..., 0]
 
 
 # Rows per band of `blur_and_blend`: its temporaries are a band's, not a screen's.
