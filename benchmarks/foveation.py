@@ -28,6 +28,8 @@ reported separately and is not in the frame times. The machine is noisy: read th
 from __future__ import annotations
 
 import argparse
+import functools
+import resource
 import statistics
 import sys
 import time
@@ -286,8 +288,8 @@ def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, rep
         traced_count,
         traced_mask,
     )
+    from fovjax.foveate._positions import positions_at
     from fovjax.render._integrator import _chunks
-    from fovjax.scene import pixel_sample_positions
 
     h, w, spp = rig.eye_height, rig.eye_width, foveation.spp
     budget = _budget_for(rig, angles, foveation)
@@ -307,11 +309,14 @@ def profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, rep
         sel = select_samples(e, k, foveation=f, budget=budget)
         if chunks.padded > sel.order.shape[0]:
             sel = sel._replace(order=jnp.pad(sel.order, (0, chunks.padded - sel.order.shape[0])))
-        return sel, pixel_sample_positions(w, h, spp, k)
+        return sel
 
-    (sel, positions), t = _timed(sample, ecc, key, foveation, repeats=repeats)
+    sel, t = _timed(sample, ecc, key, foveation, repeats=repeats)
     rows.append(("sampling + compaction (+ ray generation)", t))
     cameras = rig.eye_cameras(angles)
+    # As the frame: the slots' sub-pixel positions computed for the traced samples only (in
+    # the primary traversal's chunks).
+    positions = functools.partial(positions_at, key, spp=spp, h=h, w=w)
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
@@ -414,6 +419,21 @@ def profile(scene, bvh, rig, config, spp, pair, repeats):
     )
 
 
+def _program_memory() -> str:
+    """Temporaries and outputs (MiB) of each compiled frame program so far, by entry point
+    (`compiled.memory_analysis()`; on a CPU the temporaries are allocated, and their pages
+    faulted in, on every call)."""
+    from fovjax.render._frame import _COMPILED
+
+    parts = []
+    for key, compiled in _COMPILED.items():
+        m = compiled.memory_analysis()
+        if m is not None:
+            temp, out = m.temp_size_in_bytes / 2**20, m.output_size_in_bytes / 2**20
+            parts.append(f"{key[0]}: temp {temp:.1f} MiB, out {out:.1f} MiB")
+    return "; ".join(parts)
+
+
 def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
     """The done-when ratios of issue 12: foveated (off-centre gaze) against the full frame, the
     medians of `repeats` frames each after a warm-up, both in this run; and recompiles when the
@@ -439,10 +459,15 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             f"full {warm[1].stats.compile_seconds:.1f} s",
             flush=True,
         )
-        fov_ts, full_ts = [], []
+        print(f"    SPP {spp}: program memory {_program_memory()}", flush=True)
+        fov_ts, full_ts, fov_faults, full_faults = [], [], [], []
         for i in range(repeats):
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             fov = fov_render(jax.random.key(i))
+            f1 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             full = full_render(jax.random.key(i))
+            full_faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f1)
+            fov_faults.append(f1 - f0)
             fov_ts.append(fov.stats.render_seconds)
             full_ts.append(full.stats.render_seconds)
         fov_t, full_t = 1000 * statistics.median(fov_ts), 1000 * statistics.median(full_ts)
@@ -462,7 +487,9 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             f"foveated/full {per_ray:4.2f}x  ({fov.stats.rays / full.stats.rays:.1%} of the rays); "
             f"7.5°/15° next: compile {first.stats.compile_seconds:.1f} s\n"
             f"    frames ms: foveated {[round(1000 * t) for t in fov_ts]}, "
-            f"full {[round(1000 * t) for t in full_ts]}"
+            f"full {[round(1000 * t) for t in full_ts]}; minor page faults per frame (fresh "
+            f"memory, each a kernel entry on a CPU): foveated {statistics.median(fov_faults):,.0f}, "
+            f"full {statistics.median(full_faults):,.0f}"
         )
         sys.stdout.flush()
 

@@ -18,11 +18,17 @@ def eccentricity_angle(camera: Camera, gaze_xy, pixel_xy) -> Float[Array, "..."]
     """Degrees between the ray through each pixel position and the ray through the gaze point,
     both through the eye's own camera model (projection offset included). atan2 of the cross
     and dot products stays accurate near 0, where acos loses ~0.03° in float32."""
+    pixel_xy = jnp.asarray(pixel_xy)
+    return _angle_to_gaze(camera, gaze_xy, pixel_xy[..., 0], pixel_xy[..., 1])
+
+
+def _angle_to_gaze(camera: Camera, gaze_xy, x, y) -> Float[Array, "..."]:
+    """`eccentricity_angle` of pixel coordinates `x` and `y` (broadcasting against each other)."""
     g = camera.ray_directions(gaze_pixel(camera, gaze_xy))
-    d = camera.ray_directions(pixel_xy)
     # Written out per component: jnp.cross, norm and a sum over the length-3 axis run several
-    # times slower on XLA:CPU over a screen of pixels (as in Camera.ray_directions).
-    d0, d1, d2 = d[..., 0], d[..., 1], d[..., 2]
+    # times slower on XLA:CPU over a screen of pixels (as in Camera.ray_directions), and a
+    # stacked (..., 3) direction array is materialised where the components fuse into one pass.
+    d0, d1, d2 = camera.ray_direction_components(x, y)
     c0 = d1 * g[2] - d2 * g[1]
     c1 = d2 * g[0] - d0 * g[2]
     c2 = d0 * g[1] - d1 * g[0]
@@ -66,7 +72,9 @@ def eccentricity_planar(camera: Camera, gaze_xy, pixel_xy, eye_display_mm=24.0, 
 
 def eccentricity_map(camera: Camera, gaze_xy, foveation) -> Float[Array, "H W"]:
     """Eccentricity (degrees) of every pixel centre, in the foveation's mode."""
+    if foveation.eccentricity == "angle":  # the pixel centres as a row and a column: one fused pass
+        x = jnp.arange(camera.width, dtype=jnp.float32)[None, :] + 0.5
+        y = jnp.arange(camera.height, dtype=jnp.float32)[:, None] + 0.5
+        return jnp.broadcast_to(_angle_to_gaze(camera, gaze_xy, x, y), (camera.height, camera.width))
     pixels = camera.pixel_centres()
-    if foveation.eccentricity == "angle":
-        return eccentricity_angle(camera, gaze_xy, pixels)
     return eccentricity_planar(camera, gaze_xy, pixels, foveation.eye_display_mm, foveation.pixel_pitch_mm)

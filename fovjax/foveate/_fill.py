@@ -32,24 +32,30 @@ def _separable(image: Float[Array, "H W C"], taps: np.ndarray) -> Float[Array, "
 def pull_push(image: Float[Array, "H W C"], valid: Bool[Array, "H W"]) -> Float[Array, "H W C"]:
     """Fill invalid pixels from valid ones (pull-push, Gortler et al. 1996): average valid
     pixels over 2x2 cells level by level up to one cell, then fill each level's empty cells
-    from the coarser level on the way back down. A static number of levels, no pixel loop."""
+    from the coarser level on the way back down. A static number of levels, no pixel loop.
+    Cells are aligned to the image's top-left corner; a level with an odd side gets a row or
+    column of empty (zero-weight) cells, so the pyramid is no larger than the image (the
+    same cells and sums as a pyramid over the image padded to a power-of-two square)."""
     h, w = valid.shape
     levels = int(np.ceil(np.log2(max(h, w)))) if max(h, w) > 1 else 0
-    size = 1 << levels
-    weight = jnp.zeros((size, size), jnp.float32).at[:h, :w].set(valid.astype(jnp.float32))
-    value = jnp.zeros((size, size, image.shape[-1]), jnp.float32).at[:h, :w].set(image)
-    value = value * weight[..., None]
+    weight = valid.astype(jnp.float32)
+    value = image.astype(jnp.float32) * weight[..., None]
     pyramid = []
     for _ in range(levels):
         pyramid.append((value, weight))
-        s = value.shape[0] // 2
-        value = value.reshape(s, 2, s, 2, -1).sum((1, 3))
-        weight = weight.reshape(s, 2, s, 2).sum((1, 3))
+        rows, cols = value.shape[0], value.shape[1]
+        pad = ((0, rows % 2), (0, cols % 2))
+        value = jnp.pad(value, pad + ((0, 0),))
+        weight = jnp.pad(weight, pad)
+        rows, cols = value.shape[0] // 2, value.shape[1] // 2
+        value = value.reshape(rows, 2, cols, 2, -1).sum((1, 3))
+        weight = weight.reshape(rows, 2, cols, 2).sum((1, 3))
     colour = value / jnp.maximum(weight, 1e-30)[..., None]
     for value, weight in reversed(pyramid):
-        up = jnp.repeat(jnp.repeat(colour, 2, axis=0), 2, axis=1)
+        rows, cols = weight.shape
+        up = jnp.repeat(jnp.repeat(colour, 2, axis=0), 2, axis=1)[:rows, :cols]
         colour = jnp.where(weight[..., None] > 0, value / jnp.maximum(weight, 1e-30)[..., None], up)
-    return colour[:h, :w]
+    return colour
 
 
 def resolve(colors: Float[Array, "S H W 3"], traced: Bool[Array, "S H W"]):
@@ -75,29 +81,103 @@ def fill_and_blur(
 
 
 def _block_broadcast(x, b: int):
-    """Each pixel takes the value of the top-left pixel of its aligned b × b block."""
+    """Each pixel takes the value of the top-left pixel of its aligned b × b block (`x`
+    (..., H, W, C): rows and columns are the axes before the last)."""
     if b == 1:
         return x
-    h, w = x.shape[:2]
-    top = x[::b, ::b]
-    up = jnp.repeat(jnp.repeat(top, b, axis=0), b, axis=1)
-    return up[:h, :w]
+    h, w = x.shape[-3:-1]
+    top = x[..., ::b, ::b, :]
+    up = jnp.repeat(jnp.repeat(top, b, axis=-3), b, axis=-2)
+    return up[..., :h, :w, :]
 
 
 def top_left_values(pix, n, region, foveation):
     """`pix` and `n` at each pixel's block's top-left pixel (`top_left`), from strided slices
     and repeats per block size (the block sizes are static): no per-pixel gather, which
-    XLA:CPU runs several times slower over a screen."""
+    XLA:CPU runs several times slower over a screen. Each fuses into its consumer (no
+    screen-sized copy: the colours and counts are not stacked into one array)."""
     sizes = (1, *foveation.blocks)
-    by_region = [
-        _block_broadcast(jnp.concatenate([pix, n[..., None].astype(pix.dtype)], -1), b) for b in sizes
-    ]
-    out = jnp.where(
-        (region == FOVEA)[..., None],
-        by_region[0],
-        jnp.where((region == PERIPHERY)[..., None], by_region[1], by_region[2]),
-    )
-    return out[..., :-1], out[..., -1]
+
+    def pick(x):
+        by_region = [_block_broadcast(x, b) for b in sizes]
+        return jnp.where(
+            (region == FOVEA)[..., None],
+            by_region[0],
+            jnp.where((region == PERIPHERY)[..., None], by_region[1], by_region[2]),
+        )
+
+    return pick(pix), pick(n[..., None])[..., 0]
+
+
+# Rows per band of `blur_and_blend`: its temporaries are a band's, not a screen's.
+BAND_ROWS = 64
+
+
+def _reflect(i, n: int):
+    """Indices reflected into [0, n) as `jnp.pad(mode="reflect")` does (the edge not repeated)."""
+    i = jnp.abs(i)
+    return jnp.where(i > n - 1, 2 * (n - 1) - i, i)
+
+
+def blur_and_blend(
+    filled: Float[Array, "E H W 3"], ecc: Float[Array, "E H W"], foveation, *, side_by_side: bool = False
+) -> Float[Array, "..."]:
+    """The 5×5 Gaussian of `fill_and_blur` (σ = foveation.blur_sigma, edge-reflecting borders)
+    of each of the E images, blended with the sharp image by eccentricity (or the blur alone
+    with `blur_fovea`), in bands of `BAND_ROWS` rows (a `lax.fori_loop`): the same values as
+    `_separable` over the whole screen, but the only screen-sized array is the result, (E, H,
+    W, 3), or the images side by side (H, E·W, 3) with `side_by_side` (written in place: no
+    copy to lay the eyes out). On a CPU each screen-sized temporary is fresh memory, faulted
+    in on every frame."""
+    taps = gaussian_taps(foveation.blur_sigma)
+    r = len(taps) // 2
+    e, h, w, c = filled.shape
+    rows = min(BAND_ROWS, h)
+    n_bands = -(-h // rows)
+    shape = (h, e * w, c) if side_by_side else (e, h, w, c)
+
+    def band(i, out):
+        eye, first = i // n_bands, jnp.minimum((i % n_bands) * rows, h - rows)  # the last overlaps
+        src = filled[eye, _reflect(first - r + jnp.arange(rows + 2 * r), h)]  # (rows + 2r, W, 3)
+        vertical = sum(float(t) * src[k : k + rows] for k, t in enumerate(taps))
+        padded = jnp.pad(vertical, ((0, 0), (r, r), (0, 0)), mode="reflect")
+        result = sum(float(t) * padded[:, k : k + w] for k, t in enumerate(taps))
+        if not foveation.blur_fovea:
+            ecc_rows = jax.lax.dynamic_slice(ecc, (eye, first, 0), (1, rows, w))[0]
+            t = jnp.clip((ecc_rows - foveation.fovea_deg) / FOVEA_BLEND_DEG, 0.0, 1.0)
+            weight = (t * t * (3 - 2 * t))[..., None]  # smoothstep
+            result = src[r : r + rows] * (1 - weight) + result * weight
+        if side_by_side:
+            return jax.lax.dynamic_update_slice(out, result, (first, eye * w, 0))
+        return jax.lax.dynamic_update_slice(out, result[None], (eye, first, 0, 0))
+
+    return jax.lax.fori_loop(0, e * n_bands, band, jnp.zeros(shape, filled.dtype))
+
+
+def fill_blanks(pix, n, region, foveation):
+    """Every pixel with no traced sample takes its block's top-left value; a block whose
+    top-left was not traced either is filled by pull-push. `pix` (..., H, W, 3), leading axes
+    independent images. Returns (filled, pixels that were blank)."""
+    blank = n == 0
+    tl_pix, tl_n = top_left_values(pix, n, region, foveation)
+    filled = jnp.where(blank[..., None], tl_pix, pix)
+    # A block whose top-left was not traced (the "strict" rule, or samples dropped beyond the
+    # ray budget) is still empty: fill it from the nearest traced pixels by pull-push.
+    have = ~blank | (tl_n > 0)
+
+    # Only when some block is empty (rare: the strict rule, or a budget overflow): the pyramid
+    # is a dozen screen-sized passes, one image at a time.
+    def fill_empty(f):
+        images = f.reshape((-1,) + f.shape[-3:])
+        valid = have.reshape((-1,) + have.shape[-2:])
+
+        def one(i, images):
+            pushed = pull_push(images[i], valid[i])
+            return images.at[i].set(jnp.where(valid[i][..., None], images[i], pushed))
+
+        return jax.lax.fori_loop(0, images.shape[0], one, images).reshape(f.shape)
+
+    return jax.lax.cond(jnp.all(have), lambda f: f, fill_empty, filled), blank
 
 
 def fill_and_blur_pixels(
@@ -109,23 +189,5 @@ def fill_and_blur_pixels(
 ) -> tuple[Float[Array, "H W 3"], Bool[Array, "H W"]]:
     """`fill_and_blur` from resolved pixels: the mean of each pixel's traced samples and how
     many there were."""
-    blank = n == 0
-    tl_pix, tl_n = top_left_values(pix, n, region, foveation)
-    filled = jnp.where(blank[..., None], tl_pix, pix)
-    # A block whose top-left was not traced (the "strict" rule, or samples dropped beyond the
-    # ray budget) is still empty: fill it from the nearest traced pixels by pull-push.
-    have = ~blank | (tl_n > 0)
-    # Only when some block is empty (rare: the strict rule, or a budget overflow): the pyramid
-    # is a dozen screen-sized passes.
-    filled = jax.lax.cond(
-        jnp.all(have),
-        lambda f: f,
-        lambda f: jnp.where(have[..., None], f, pull_push(f, have)),
-        filled,
-    )
-    blurred = _separable(filled, gaussian_taps(foveation.blur_sigma))
-    if foveation.blur_fovea:
-        return blurred, blank
-    t = jnp.clip((ecc - foveation.fovea_deg) / FOVEA_BLEND_DEG, 0.0, 1.0)
-    weight = (t * t * (3 - 2 * t))[..., None]  # smoothstep
-    return filled * (1 - weight) + blurred * weight, blank
+    filled, blank = fill_blanks(pix, n, region, foveation)
+    return blur_and_blend(filled[None], ecc[None], foveation)[0], blank

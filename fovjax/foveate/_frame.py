@@ -44,8 +44,9 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._config import max_region_spp, shading_classes
 from ._eccentricity import eccentricity_map
-from ._fill import fill_and_blur_pixels
+from ._fill import blur_and_blend, fill_blanks
 from ._lod import lod_needed, with_levels
+from ._positions import positions_at
 from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
 
 # fold_in constant that separates the sampling draws from the sub-pixel jitter of the same key.
@@ -148,10 +149,14 @@ def _slot_samples(slots, *, spp, h, w):
 
 
 def slot_rays(cameras, positions, slots, *, spp, h, w):
-    """Primary rays of the slots: the full render's sub-pixel `positions` (spp, H, W, 2),
-    directions computed from the indices (no screen-sized ray arrays)."""
+    """Primary rays of the slots: the full render's sub-pixel `positions` (spp, H, W, 2), or a
+    function of (sample, pixel) that gives them (`positions_at`), directions computed from the
+    indices (no screen-sized ray arrays)."""
     eye, sample, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
-    xy = positions.reshape(spp, h * w, 2)[sample, pixel]
+    if callable(positions):
+        xy = positions(sample, pixel)
+    else:
+        xy = positions.reshape(spp, h * w, 2)[sample, pixel]
     left, right = cameras
     is_left = (eye == 0)[:, None]
     directions = jnp.where(is_left, left.ray_directions(xy), right.ray_directions(xy))
@@ -379,12 +384,10 @@ def traced_count(mask, spp) -> Int[Array, "2 H W"]:
 
 
 def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H W2 3"]:
-    """Stage 4b: each eye filled and blurred, side by side."""
-    eyes = [
-        fill_and_blur_pixels(prefill[i], n[i], sel.region[i], sel.eccentricity[i], foveation)[0]
-        for i in range(2)
-    ]
-    return jnp.concatenate(eyes, axis=1)
+    """Stage 4b: each eye filled and blurred (`fill_and_blur_pixels`; both eyes in the same
+    passes, the blur band by band straight into the side-by-side image)."""
+    filled, _ = fill_blanks(prefill, n, sel.region, foveation)
+    return blur_and_blend(filled, sel.eccentricity, foveation, side_by_side=True)
 
 
 def foveated_stereo(
@@ -416,8 +419,9 @@ def foveated_stereo(
     shadow mode per region are not part of the program); None: computed from `foveation`.
 
     Only the selected samples ever become rays: their sub-pixel positions are the full
-    render's (`pixel_sample_positions` from the same key) and their directions are computed
-    from their indices, chunk by chunk, so no screen-sized ray arrays exist."""
+    render's (`pixel_sample_positions` from the same key, computed for those samples only:
+    `positions_at`) and their directions are computed from their indices, chunk by chunk, so
+    no screen-sized ray arrays exist."""
     from ..render import RayCounts, pixel_spread_angle
     from ..scene import pixel_sample_positions
 
@@ -440,12 +444,17 @@ def foveated_stereo(
         on_grid = jnp.asarray((yy % grid == 0) & (xx % grid == 0))[None]
         covered = jnp.broadcast_to(on_grid, (2, h, w)) if covered is None else covered | on_grid
     sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
-    positions = pixel_sample_positions(w, h, spp, key if jitter else None)
+    # The slots' sub-pixel positions, computed for the traced samples only (`positions_at`);
+    # the image tiles slice the full render's screen of them.
+    frame_key = key if jitter else None
+    positions = functools.partial(positions_at, frame_key, spp=spp, h=h, w=w)
     tiles = ()
+    if tile is not None or grid is not None:
+        screen = pixel_sample_positions(w, h, spp, frame_key)
     if grid is not None:
-        tiles += (grid_rays(cameras, positions, sel, grid),)
+        tiles += (grid_rays(cameras, screen, sel, grid),)
     if tile is not None:
-        ft = tile_rays(cameras, positions, sel, origins, tile)
+        ft = tile_rays(cameras, screen, sel, origins, tile)
         if grid is not None:  # the grid's pixels are the grid tile's
             ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
         tiles += (ft,)

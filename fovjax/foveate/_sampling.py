@@ -84,6 +84,32 @@ def allowed_samples(region: Int[ArrayLike, "H W"], foveation) -> Bool[Array, "S 
     return rank < jnp.asarray(spp, jnp.int32)[region][None]
 
 
+# Rows per band of `uniform_draws`.
+DRAW_ROWS = 64
+
+
+def uniform_draws(key: jax.Array, shape: tuple[int, int, int]) -> Float[Array, "S H W"]:
+    """`jax.random.uniform(key, shape)` (float32), the same values, drawn a band of rows at a
+    time (`_positions.uniform_at`, a `lax.fori_loop`): the generator's intermediate arrays are
+    a band's, not a screen's (on a CPU every screen-sized temporary is fresh memory on every
+    frame). Falls back to the one call where the key's PRNG does not allow it."""
+    from ._positions import _per_sample_uniform, uniform_at
+
+    spp, h, w = shape
+    if not _per_sample_uniform(key) or spp * h * w >= 2**31:
+        return jax.random.uniform(key, shape, jnp.float32)
+    rows = min(DRAW_ROWS, h)
+
+    def band(b, out):
+        first = jnp.minimum(b * rows, h - rows)  # the last band overlaps the one before
+        y = first + jnp.arange(rows, dtype=jnp.int32)[None, :, None]
+        s = jnp.arange(spp, dtype=jnp.int32)[:, None, None]
+        index = (s * h + y) * w + jnp.arange(w, dtype=jnp.int32)[None, None, :]
+        return jax.lax.dynamic_update_slice(out, uniform_at(key, index), (0, first, 0))
+
+    return jax.lax.fori_loop(0, -(-h // rows), band, jnp.zeros(shape, jnp.float32))
+
+
 def sample_classes(
     ecc: Float[Array, "H W"], foveation, key: jax.Array
 ) -> tuple[Int[Array, "S H W"], Int[Array, "H W"]]:
@@ -102,7 +128,7 @@ def sample_classes(
     # boundaries, where a 2x2 block's top-left lies in the outside zone and is not 4-aligned.)
     is_tl = jnp.zeros(ecc.shape, bool).at[ty, tx].set(True)
     p = foveation.probability(ecc)
-    u = jax.random.uniform(key, (foveation.spp,) + ecc.shape, jnp.float32)
+    u = uniform_draws(key, (foveation.spp,) + ecc.shape)
     kept = u < p[None]
     fovea = (region == FOVEA)[None]
     if foveation.rule == "either":

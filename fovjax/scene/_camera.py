@@ -79,15 +79,23 @@ class Camera(eqx.Module):
     def ray_directions(self, pixel_xy: Float[np.ndarray | Array, "*batch 2"]) -> Float[Array, "*batch 3"]:
         """Unit world-space directions through continuous pixel coordinates (x right, y down;
         pixel (i, j) covers [i, i+1) x [j, j+1))."""
+        return jnp.stack(self.ray_direction_components(pixel_xy[..., 0], pixel_xy[..., 1]), axis=-1)
+
+    def ray_direction_components(self, x, y) -> tuple[Array, Array, Array]:
+        """`ray_directions` as three arrays (x, y, z components; the same values) of continuous
+        pixel coordinates `x` and `y`, which broadcast against each other (a row of columns and
+        a column of rows give a screen): a caller that combines the components pixel by pixel
+        gets one fused pass, no (..., 3) array."""
         tan_half = jnp.tan(jnp.deg2rad(self.vfov_deg) / 2)
         aspect = self.width / self.height
-        sx = (2.0 * pixel_xy[..., 0] / self.width - 1.0 + self.offset[0]) * tan_half * aspect
-        sy = (1.0 - 2.0 * pixel_xy[..., 1] / self.height + self.offset[1]) * tan_half
+        sx = (2.0 * x / self.width - 1.0 + self.offset[0]) * tan_half * aspect
+        sy = (1.0 - 2.0 * y / self.height + self.offset[1]) * tan_half
         # Written out per component: XLA:CPU runs a matmul or a sum over a length-3 axis
         # through a far slower library kernel than this fused elementwise arithmetic.
         r = self.rotation
-        d = jnp.stack([sx * r[i, 0] + sy * r[i, 1] - r[i, 2] for i in range(3)], axis=-1)
-        return d * jax.lax.rsqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)[..., None]
+        d = [sx * r[i, 0] + sy * r[i, 1] - r[i, 2] for i in range(3)]
+        scale = jax.lax.rsqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        return d[0] * scale, d[1] * scale, d[2] * scale
 
     def project(
         self, points: Float[Array, "*batch 3"]

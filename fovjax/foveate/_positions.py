@@ -1,0 +1,69 @@
+"""Sub-pixel sample positions of the traced samples only.
+
+The foveated frame traces ~9% of a frame's samples at 5°/10°, but the full render's
+positions (`fovjax.scene.pixel_sample_positions`) are one uniform draw per sample and axis over
+the whole screen: at 2 × 1280 × 1024 a 21 MB array of threefry draws every frame, of which
+the frame reads a tenth. `positions_at` computes the same values, bit for bit, for the listed
+samples only.
+
+That rests on how JAX draws uniforms with its default PRNG (threefry2x32, with
+`jax_threefry_partitionable`, the default since JAX 0.5): element i of
+`jax.random.uniform(key, shape)` is threefry2x32 of the key and the 64-bit counter i (hi, lo
+words), the two output words xor-ed, and its top 23 bits as the mantissa of a float in [1, 2),
+minus 1. Where that does not hold (another PRNG implementation, the flag off), `positions_at`
+falls back to the full-screen draw and a gather; `tests/test_foveate_positions.py` checks the
+two against each other.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ..scene import pixel_sample_positions, stratified_offsets
+
+
+def _per_sample_uniform(key) -> bool:
+    """Whether `uniform_at` reproduces `jax.random.uniform` for this key (see the module)."""
+    if not jax.config.jax_threefry_partitionable:
+        return False
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return str(jax.random.key_impl(key)) == "threefry2x32"
+    raw = key.shape == (2,) and key.dtype == jnp.uint32
+    return raw and jax.config.jax_default_prng_impl == "threefry2x32"
+
+
+def uniform_at(key, index: Int[Array, "*batch"]) -> Float[Array, "*batch"]:
+    """`jax.random.uniform(key, shape).reshape(-1)[index]` (float32 in [0, 1)) for any shape of
+    fewer than 2**31 elements, computed at `index` only. Only where `_per_sample_uniform(key)`."""
+    from jax.extend.random import threefry_2x32
+
+    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    lo = jnp.asarray(index, jnp.uint32).reshape(-1)
+    words = threefry_2x32(data, jnp.concatenate([jnp.zeros_like(lo), lo]))  # counter (hi 0, lo)
+    bits = words[: lo.shape[0]] ^ words[lo.shape[0] :]
+    mantissa = (bits >> np.uint32(9)) | np.uint32(0x3F800000)  # [1, 2)
+    floats = jax.lax.bitcast_convert_type(mantissa, jnp.float32) - jnp.float32(1.0)
+    return jnp.maximum(jnp.float32(0.0), floats).reshape(jnp.shape(index))
+
+
+def positions_at(
+    key, sample: Int[Array, " N"], pixel: Int[Array, " N"], *, spp: int, h: int, w: int
+) -> Float[Array, "N 2"]:
+    """`pixel_sample_positions(w, h, spp, key)[sample, pixel // w, pixel % w]`, the same values,
+    computed for those samples only where the key's PRNG allows it (`key` None: cell centres)."""
+    with jax.ensure_compile_time_eval():  # a constant, as XLA folds the screen's (not re-folded)
+        grid = np.asarray(stratified_offsets(spp))  # (spp, 2) cell centres
+    n = int(round(spp**0.5))
+    y, x = pixel // w, pixel % w
+    corner = jnp.stack([x.astype(jnp.float32), y.astype(jnp.float32)], axis=-1)
+    if key is None:
+        return corner + jnp.asarray(grid)[sample]
+    size = spp * h * w * 2
+    if not _per_sample_uniform(key) or size >= 2**31:  # int32 indices
+        return pixel_sample_positions(w, h, spp, key).reshape(spp, h * w, 2)[sample, pixel]
+    first = ((sample * h + y) * w + x) * 2  # flat index of the sample's x draw
+    jitter = uniform_at(key, first[:, None] + jnp.arange(2, dtype=first.dtype))
+    return corner + (jnp.asarray(grid)[sample] + (jitter - 0.5) / n)
