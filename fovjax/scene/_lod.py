@@ -65,7 +65,6 @@ AGGRESSION = 7.0  # fast-simplification's default; lower is slower and closer to
 WELD = 1e-6  # coincident-vertex tolerance, relative to the scene's extent (see `_weld`)
 FLAT = 1e-6  # coplanarity tolerance of `flip_coplanar`, relative to the scene's extent
 MIN_SHARE = 0.01  # a flip never makes a triangle with less than this share of its pair's area
-FLIP_RULE = "delaunay"  # Lawson flips; or "box" (greedy, box area), "delaunay+box" (README)
 FLIP_ROUNDS = 16  # most rounds of `flip_coplanar` (the atrium's levels settle within 8)
 _SAMPLES_PER_TRIANGLE = 1  # area-weighted random samples on a level, per triangle on average
 
@@ -162,14 +161,9 @@ def _angle(u: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w))
 
 
-def _box_area(tri: np.ndarray) -> np.ndarray:
-    d = tri.max(axis=1) - tri.min(axis=1)
-    return 2.0 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])
-
-
-def flip_coplanar(points, faces, tol: float, rounds: int = FLIP_ROUNDS, rule: str = "delaunay") -> np.ndarray:
-    """Faces with the shared edge of coplanar neighbours flipped wherever that lowers the sum of
-    the pair's bounding-box surface areas (the cost a BVH pays for them), until no flip does or
+def flip_coplanar(points, faces, tol: float, rounds: int = FLIP_ROUNDS) -> np.ndarray:
+    """Faces with the shared edge of coplanar neighbours flipped to a Delaunay triangulation
+    (Lawson: where the two angles facing the edge sum to over pi), until no flip is left or
     after `rounds` rounds. Only pairs whose fourth vertex lies within `tol` of the other
     triangle's plane (both ways), that share the edge in opposite directions (consistent
     winding) and form a convex quad are flipped, so the surface and its orientation are
@@ -223,15 +217,10 @@ def flip_coplanar(points, faces, tol: float, rounds: int = FLIP_ROUNDS, rule: st
         quad = l1 + l2
         least = MIN_SHARE * quad * np.linalg.norm(n1, axis=1)
         convex = (np.einsum("ij,ij->i", m1, n1) > least) & (np.einsum("ij,ij->i", m2, n1) > least)
-        if rule == "delaunay":  # Lawson: the angles facing the edge sum to over pi
-            gain = _angle(pa - pc, pb - pc) + _angle(pa - pd, pb - pd) - np.pi
-            gain = np.where(flat & convex, gain, 0.0)
-            cand = np.flatnonzero(gain > 1e-9)
-        else:
-            old = _box_area(np.stack([pa, pb, pc], 1)) + _box_area(np.stack([pb, pa, pd], 1))
-            new = _box_area(np.stack([pa, pd, pc], 1)) + _box_area(np.stack([pb, pc, pd], 1))
-            gain = np.where(flat & convex, old - new, 0.0)
-            cand = np.flatnonzero(gain > 1e-9 * np.maximum(old, 1e-30))
+        # Lawson: the angles facing the edge sum to over pi
+        gain = _angle(pa - pc, pb - pc) + _angle(pa - pd, pb - pd) - np.pi
+        gain = np.where(flat & convex, gain, 0.0)
+        cand = np.flatnonzero(gain > 1e-9)
         if len(cand) == 0:
             break
         # rank candidates by gain (ties by index); keep those that are the best of both triangles
@@ -271,8 +260,7 @@ def _decimate_arrays(scene: Scene, ratio: float, preserve_border: bool = True) -
                 pts, tris, target_count=int(targets[m]), agg=AGGRESSION, preserve_border=preserve_border
             )
             pts, tris = np.asarray(pts, np.float64), np.asarray(tris, np.int64)
-            for rule in FLIP_RULE.split("+") if FLIP_ROUNDS else ():
-                tris = flip_coplanar(pts, tris, FLAT * extent, FLIP_ROUNDS, rule)
+            tris = flip_coplanar(pts, tris, FLAT * extent, FLIP_ROUNDS)
             pts = pts.astype(np.float32)
             keep = drop_degenerate(pts, tris) if len(tris) else np.zeros(0, bool)
             tris = tris[keep]
@@ -555,7 +543,7 @@ def _cache_key(scene: Scene, ratio: float, preserve_border: bool) -> str:
         "weld": WELD,
         "flat": FLAT,
         "flips": FLIP_ROUNDS,
-        "rule": FLIP_RULE,
+        "rule": "delaunay",
         "share": MIN_SHARE,
         "k": CANDIDATES,
         "v": FORMAT_VERSION,
