@@ -24,8 +24,10 @@ Ray sets (seeded; the same arrays for every backend):
 - random: origins uniform in the scene's bounding box, directions uniform on the sphere, one by one;
 - shadow: from each primary hit point towards the scene's first light (tmin 1e-4); "one by one"
   traces only the rays of pixels that hit something (compacted), "8x8 packets" traces the whole
-  image in tiles with an empty interval (tmax = tmin) where the pixel saw nothing. Only live rays
-  are counted.
+  image in tiles with an empty interval (tmax = tmin) where the pixel saw nothing, "sorted" the
+  compacted rays with `packet="sorted"` (regrouped by origin into packets of 64 inside the JAX
+  call, the sort and the scatter back included in its time; the peers trace the same compacted
+  rays one by one). Only live rays are counted.
 Timings on shared machines are noisy: read the ratios of the same run.
 """
 
@@ -262,7 +264,9 @@ def main(argv=None):
     ap.add_argument("--random", type=int, default=1 << 18, help="number of incoherent rays")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--peers", nargs="*", default=["embree", "mitsuba"], choices=["embree", "mitsuba"])
-    ap.add_argument("--rows", nargs="+", default=None, help="subset of: primary random shadow shadow8x8")
+    ap.add_argument(
+        "--rows", nargs="+", default=None, help="subset of: primary random shadow shadow8x8 shadow_sorted"
+    )
     ap.add_argument("--lanes", type=int, default=None, help="JAX traversal lanes (default: library default)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
@@ -317,6 +321,16 @@ def main(argv=None):
                 s_tmax[seen],
             ),
             "shadow8x8": ("occluded", "shadow", (8, 8), (h, w), so, sd, s_tmin, s_tmax),
+            "shadow_sorted": (
+                "occluded",
+                "shadow",
+                "sorted",
+                (int(seen.sum()),),
+                so[seen],
+                sd[seen],
+                s_tmin[seen],
+                s_tmax[seen],
+            ),
         }
         for key in args.rows or list(jobs):
             query, kind, packet, shape, o, d, tmin_h, tmax_h = jobs[key]
@@ -335,7 +349,7 @@ def main(argv=None):
                 "scene": name,
                 "query": query,
                 "rays": kind,
-                "traversal": "8x8 packets" if packet else "one by one",
+                "traversal": {None: "one by one", "sorted": "sorted"}.get(packet, "8x8 packets"),
                 "n": n,
                 "jax": n / t_jax / 1e6,
                 "compile": compile_s,

@@ -22,7 +22,8 @@ import fovjax
 from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, hit_geometry, occluded
 
 RTOL, ATOL = 1e-4, 1e-5
-TRAVERSALS = [pytest.param({}, id="single"), pytest.param({"packet": 16}, id="packet16")]
+KERNELS = [pytest.param({}, id="single"), pytest.param({"packet": 16}, id="packet16")]
+TRAVERSALS = [*KERNELS, pytest.param({"packet": "sorted"}, id="sorted")]
 
 
 def t_close(a, b):
@@ -116,6 +117,8 @@ def test_bad_arguments(soup):
         closest_hit(bvh, np.zeros((4, 2)), np.ones((4, 2)))
     with pytest.raises(ValueError, match="packet"):
         closest_hit(bvh, np.zeros((1, 3)), np.ones((1, 3)), packet=0)
+    with pytest.raises(ValueError, match="'sorted'.*'morton'"):
+        occluded(bvh, np.zeros((1, 3)), np.ones((1, 3)), packet="morton")
     with pytest.raises(ValueError, match="2 batch dimensions"):
         closest_hit(bvh, np.zeros((5, 3)), np.ones((5, 3)), packet=(2, 2))
 
@@ -306,7 +309,7 @@ SPLIT_SCRIPT = textwrap.dedent(
     o = rng.uniform(-3, 3, (999, 3)).astype(np.float32)  # odd: the parts are padded
     d = rng.normal(size=(999, 3)).astype(np.float32)
     t_ref, _, _ = brute_force_closest_hit(V, F, o, d)
-    for packet in (None, 16):
+    for packet in (None, 16, "sorted"):
         hit = jax.jit(lambda o, d: closest_hit(bvh, o, d, packet=packet))(o, d)
         assert len(hit.t.sharding.device_set) == 2, hit.t.sharding  # both devices traced
         t = np.asarray(hit.t)
@@ -330,7 +333,7 @@ def test_rays_split_over_two_host_devices():
     assert result.returncode == 0 and result.stdout.strip().endswith("OK"), result.stderr[-3000:]
 
 
-@pytest.mark.parametrize("opts", TRAVERSALS)
+@pytest.mark.parametrize("opts", KERNELS)
 def test_any_hit_traversal_finds_a_face_on_the_ray_iff_there_is_one(soup, opts):
     """The any-hit traversal (`occluded`, its own kernel) against brute force: the same hit/miss
     as the closest-hit traversal and as every-ray-against-every-triangle, and the face it stops

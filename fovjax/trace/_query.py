@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._bvh import BVH
+from ._order import inverse_order, spatial_order
 from ._packet import traverse_packets
 from ._traverse import traverse
 
@@ -21,8 +22,11 @@ BACKENDS = ("jax", "embree")
 DEFAULT_LANES = 1 << 14
 DEFAULT_PACKETS = 256
 DEFAULT_STEPS_PER_REFILL = 4
+# Packet size of `packet="sorted"` (rays regrouped by their origins): 16, 32 and 64 measured
+# alike on the atrium's shadow rays in pixel order; 64 fastest once they are sorted.
+SORTED_PACKET = 64
 
-Packet = int | tuple[int, int] | None
+Packet = int | tuple[int, int] | str | None
 
 
 class Hit(NamedTuple):
@@ -38,8 +42,12 @@ class Hit(NamedTuple):
 def _check(backend: str, packet: Packet) -> None:
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if packet is None:
+    if packet is None or packet == "sorted":
         return
+    if isinstance(packet, str):
+        raise ValueError(
+            f"packet must be None, a positive int, a (height, width) tile or 'sorted', got {packet!r}"
+        )
     sizes = (packet,) if isinstance(packet, int) else tuple(packet)
     if len(sizes) not in (1, 2) or any(not isinstance(s, int) or s < 1 for s in sizes):
         raise ValueError(f"packet must be None, a positive int or a (height, width) tile, got {packet!r}")
@@ -162,12 +170,47 @@ def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int, 
 
 
 @functools.partial(
-    jax.jit, static_argnames=("backend", "any_hit", "packet_size", "lanes", "packets", "steps_per_refill")
+    jax.jit,
+    static_argnames=("backend", "any_hit", "packet_size", "lanes", "packets", "steps_per_refill", "sort"),
 )
 def _raw_query(
-    bvh, o, d, tmin, tmax, level=None, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill
+    bvh,
+    o,
+    d,
+    tmin,
+    tmax,
+    level=None,
+    *,
+    backend,
+    any_hit,
+    packet_size,
+    lanes,
+    packets,
+    steps_per_refill,
+    sort=False,
 ):
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
+    if sort and backend == "jax" and o.shape[0] > 0:
+        # Regroup the rays by origin, trace them as packets, and put the results back.
+        order = spatial_order(o, tmax > tmin)
+        o, d, tmin, tmax = o[order], d[order], tmin[order], tmax[order]
+        level = None if level is None else level[order]
+        t, prim = _raw_query(
+            bvh,
+            o,
+            d,
+            tmin,
+            tmax,
+            level,
+            backend=backend,
+            any_hit=any_hit,
+            packet_size=packet_size,
+            lanes=lanes,
+            packets=packets,
+            steps_per_refill=steps_per_refill,
+        )
+        back = inverse_order(order)
+        return t[back], prim[back]
     if backend == "embree":
         from ._embree import embree_query
 
@@ -274,7 +317,8 @@ def _query(
     level = _levels(bvh, level, backend, batch, order)
     if level is not None and order is not None:  # tile padding is never live (nor mixes levels)
         tmax_f = jnp.where(order < 0, tmin_f, tmax_f)
-    packet_size = None if packet is None else int(np.prod(packet))
+    sort = packet == "sorted"
+    packet_size = None if packet is None else SORTED_PACKET if sort else int(np.prod(packet))
     _, prim = _raw_query(
         bvh,
         o,
@@ -288,6 +332,7 @@ def _query(
         lanes=lanes,
         packets=packets,
         steps_per_refill=steps_per_refill,
+        sort=sort,
     )
     return batch, o, d, prim, order
 
@@ -317,8 +362,10 @@ def closest_hit(
 
     `packet` chooses the traversal: None traces every ray on its own (any rays); an int P groups
     consecutive rays into packets of P that share one traversal; a tile (h, w) does the same for
-    h x w tiles of the last two batch dimensions (camera rays of an image). Packets pay off for
-    coherent rays only; results are identical either way.
+    h x w tiles of the last two batch dimensions (camera rays of an image); "sorted" regroups
+    the rays by their origins first (a Morton order within blocks of 16384 rays) into packets
+    of 64, for rays that are coherent but not in a coherent order (shadow rays from a list of
+    surface points). Packets pay off for coherent rays only; results are identical either way.
 
     `t, u, v` are recomputed from the hit triangle's corners, so `jax.grad` flows to `origins`,
     `directions` and `vertices` (pass `vertices` to differentiate w.r.t. positions other than
