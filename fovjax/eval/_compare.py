@@ -238,7 +238,8 @@ def compare_thresholds(
             rendered, seconds = [], []
             for g, k in frames:
                 # Only the per-pixel outputs read here (not the regions nor the pre-fill means).
-                one = {"foveation": fov, "config": config, "bvh": bvh, "diagnostics": ("traced", "eccentricity")}
+                one = {"foveation": fov, "config": config, "bvh": bvh}
+                one["diagnostics"] = ("traced", "eccentricity")
                 frame = render_foveated(scene, rig, gaze=g, key=jax.random.key(k), **one)
                 if frame.stats.compile_seconds > 0:
                     frame = render_foveated(scene, rig, gaze=g, key=jax.random.key(k), **one)
