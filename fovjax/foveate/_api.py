@@ -94,20 +94,23 @@ def fovea_tile(rig, foveation: Foveation, budget: int) -> tuple[int, int] | None
 class FoveatedFrame:
     """A foveated stereo frame: the side-by-side `image` (H, 2W, 3) linear RGB, `stats` (the
     renderer's `FrameStats`: rays actually traced, times), `foveation` (`FoveationStats`), and
-    the per-eye `sample_mask` (2, spp, H, W) of traced samples, `regions` (2, H, W: 0 fovea,
-    1 periphery, 2 outside) and `eccentricity` (2, H, W, degrees)."""
+    the per-eye `sample_mask` (2, spp, H, W) of traced samples, `regions` (2, H, W int8: 0
+    fovea, 1 periphery, 2 outside) and `eccentricity` (2, H, W, degrees): each None when the
+    frame was rendered without it (`render_foveated(diagnostics=)`). `outputs`: the frame
+    program's (`FoveatedOutputs`; its `prefill` is each pixel's mean of its traced samples)."""
 
     image: np.ndarray
     stats: object
     foveation: FoveationStats
-    sample_mask: np.ndarray
-    regions: np.ndarray
-    eccentricity: np.ndarray
+    sample_mask: np.ndarray | None
+    regions: np.ndarray | None
+    eccentricity: np.ndarray | None
     outputs: FoveatedOutputs
 
     @property
     def debug_view(self) -> np.ndarray:
-        """Regions and traced samples per eye (thesis figures 58-59), side by side."""
+        """Regions and traced samples per eye (thesis figures 58-59), side by side (needs the
+        diagnostics of `fovjax.foveate.DEBUG_VIEW_DIAGNOSTICS`)."""
         return np.asarray(region_view(self.outputs))
 
     def save(self, path, **kwargs):
