@@ -8,6 +8,7 @@
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
     python benchmarks/foveation.py --variants --spp 4   # foveated default vs variants, same run
     python benchmarks/foveation.py --variants --spp 1 --which batch   # only variants named so
+    python benchmarks/foveation.py --variants --full --spp 1 --which output  # every per-pixel output returned
     python benchmarks/foveation.py --floor 2097152   # fixed cost of a slot budget, 4,096 live rays
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
