@@ -142,7 +142,11 @@ def blur_and_blend(
             return jax.lax.dynamic_update_slice(out, result, (first, eye * w, 0))
         return jax.lax.dynamic_update_slice(out, result[None], (eye, first, 0, 0))
 
-    return jax.lax.fori_loop(0, e * n_bands, band, jnp.zeros(shape, filled.dtype))
+    # Every element is written by a band, so the loop may start from any values: a broadcast of
+    # one input element is not created (and its memory held) before the input exists, as a
+    # constant zero array would be (XLA hoists it to the program's start).
+    start = jnp.broadcast_to(filled[0, 0, 0, 0], shape)
+    return jax.lax.fori_loop(0, e * n_bands, band, start)
 
 
 def fill_blanks(pix, n, region, foveation):

@@ -520,7 +520,11 @@ def foveated_stereo(
     )
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)
-    init = None
+    # The pixel sums start from zeros made from a count of the trace (a non-negative int, so its
+    # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
+    # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).
+    zero = jnp.minimum(traced.primary, 0)
+    init = (jnp.full((2 * h * w, 3), zero, jnp.float32), jnp.zeros(2 * h * w, bool), zero)
     if grid is not None:
         init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
         if tile is None:
