@@ -524,13 +524,13 @@ def foveated_stereo(
     # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
     # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).
     zero = jnp.minimum(traced.primary, 0)
-    init = (jnp.full((2 * h * w, 3), zero, jnp.float32), jnp.zeros(2 * h * w, bool), zero)
+    init = (jnp.full((2, h, w, 3), zero, jnp.float32), jnp.zeros((2, h, w), bool), zero)
     if grid is not None:
         init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
-        if tile is None:
-            init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
-    if tile is not None:
+    if tile is not None:  # onto the grid's sums or the zeros; flat
         init = tile_sums(traced.tiles[-1], tiles[-1].active, origins, spp=spp, h=h, w=w, init=init)
+    else:
+        init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
     prefill, n_bad, bad_pixel = accumulate(
         traced.total,
         sel,
