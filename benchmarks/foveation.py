@@ -8,6 +8,7 @@
     python benchmarks/foveation.py --speedup       # the done-when ratios (off-centre gaze, medians)
     python benchmarks/foveation.py --variants --spp 4   # foveated default vs variants, same run
     python benchmarks/foveation.py --variants --spp 1 --which batch   # only variants named so
+    python benchmarks/foveation.py --variants --full --spp 1 --which output  # every per-pixel output returned
     python benchmarks/foveation.py --floor 2097152   # fixed cost of a slot budget, 4,096 live rays
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
@@ -39,11 +40,15 @@ import jax.numpy as jnp
 import numpy as np
 
 import fovjax
-from fovjax.foveate import THESIS_PAIRS, Foveation, render_foveated
+from fovjax.foveate import DIAGNOSTICS, THESIS_PAIRS, Foveation, render_foveated
 from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays, scene_scale
 from fovjax.trace import build_bvh
 
 SPPS = (1, 4, 9, 16)
+# The timed foveated frames return the image and the counts only, as a frame loop asks
+# (`render_foveated(diagnostics=())`: no screen-sized mask, regions, eccentricity or pre-fill
+# means; `--variants --which output` times the frame with all of them beside it).
+FRAME = {"diagnostics": ()}
 # Thesis tables 2 and 4 (Sponza, RTX 2060, OptiX, 2560x1024): rays per frame (1e6) and FPS.
 THESIS_RPF = {
     (5.0, 10.0): (4.47, 5.47, 7.13, 9.46),
@@ -373,8 +378,8 @@ def profile(scene, bvh, rig, config, spp, pair, repeats):
     fov_rows = profile_foveated(arrays, bvh, rig, angles, gaze, key, foveation, config, repeats)
     full_rows = profile_full(arrays, bvh, rig, angles, key, spp, config, repeats)
     fov_prog, fov_host, fov_frame = _whole(
-        lambda k: fovjax.render_stereo(
-            scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=config, bvh=bvh
+        lambda k: render_foveated(
+            scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=config, bvh=bvh, **FRAME
         ),
         repeats,
     )
@@ -445,8 +450,8 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         f"vs full, median of {repeats} frames (fresh key each)"
     )
     for spp in spps:
-        fov_render = lambda k, spp=spp: fovjax.render_stereo(  # noqa: E731
-            scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh
+        fov_render = lambda k, spp=spp: render_foveated(  # noqa: E731
+            scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh, **FRAME
         )
         full_render = lambda k, spp=spp: render_stereo(  # noqa: E731
             scene, rig, spp=spp, key=k, config=config, bvh=bvh
@@ -471,7 +476,7 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             fov_ts.append(fov.stats.render_seconds)
             full_ts.append(full.stats.render_seconds)
         fov_t, full_t = 1000 * statistics.median(fov_ts), 1000 * statistics.median(full_ts)
-        first = fovjax.render_stereo(
+        first = render_foveated(
             scene,
             rig,
             gaze=OFF_CENTRE,
@@ -479,6 +484,7 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             key=jax.random.key(99),
             config=config,
             bvh=bvh,
+            **FRAME,
         )
         per_ray = (fov_t / fov.stats.rays) / (full_t / full.stats.rays)
         print(
@@ -503,15 +509,18 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats, which=()):
     import dataclasses
     import resource
 
+    # name: (RenderConfig changes, Foveation changes, render_foveated arguments)
     variants = {
-        "default": ({}, {}),
-        "every bounce in 4096-ray chunks": ({"first_bounce_chunk_size": None}, {}),
+        "default": ({}, {}, FRAME),
+        "every bounce in 4096-ray chunks": ({"first_bounce_chunk_size": None}, {}, FRAME),
         "every bounce in 16384-ray chunks": (
             {"first_bounce_chunk_size": None, "queue_chunk_size": 16384},
             {},
+            FRAME,
         ),
-        "fovea tile + pixel grid (packets)": ({}, {"fovea_tile_deg": pair[0], "grid_tile": True}),
-        "one depth batch of every slot (before)": ({"depth_batch_size": None}, {}),
+        "fovea tile + pixel grid (packets)": ({}, {"fovea_tile_deg": pair[0], "grid_tile": True}, FRAME),
+        "one depth batch of every slot (before)": ({"depth_batch_size": None}, {}, FRAME),
+        "every per-pixel output (before)": ({}, {}, {"diagnostics": DIAGNOSTICS}),
     }
     if which:  # the default and the variants whose names contain any of `which`
         variants = {n: v for n, v in variants.items() if n == "default" or any(w in n for w in which)}
@@ -522,11 +531,11 @@ def variants_table(scene, bvh, rig, config, spps, pair, repeats, which=()):
     for spp in spps:
 
         def render(name, k, spp=spp):
-            c, f = variants[name]
+            c, f, r = variants[name]
             foveation = Foveation.thesis(pair, spp=spp, **f)
             cfg = dataclasses.replace(config, **c)
-            return fovjax.render_stereo(
-                scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=cfg, bvh=bvh
+            return render_foveated(
+                scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=cfg, bvh=bvh, **r
             )
 
         for name in variants:
@@ -725,7 +734,7 @@ def main(argv=None):
             f = foveation_for(pair, spp, args.rule, h)
             rays, t, c, frame = measure(
                 lambda k, f=f: render_foveated(
-                    scene, rig, gaze=gaze, foveation=f, key=k, config=config, bvh=bvh
+                    scene, rig, gaze=gaze, foveation=f, key=k, config=config, bvh=bvh, **FRAME
                 ),
                 args.repeats,
             )

@@ -71,15 +71,18 @@ def test_thresholds_beyond_the_maximum_are_rejected(cornell):
     assert b.stats.compile_seconds == 0.0 and a.foveation.dropped == b.foveation.dropped == 0
 
 
-def test_a_session_with_tracking_loss_compiles_once(tmp_path, capsys):
+@pytest.mark.parametrize("show_samples", [False, True])
+def test_a_session_with_tracking_loss_compiles_once(tmp_path, capsys, show_samples):
     """`fovjax session` over the recording with a 1 s dropout: the tracker holds, widens the
-    fovea step by step to full rendering and recovers, all on one compiled program."""
+    fovea step by step to full rendering and recovers, all on one compiled program; also when
+    it writes the debug view of every frame (the frame program returns its outputs then)."""
     from fovjax.cli import main
 
     clear_compile_cache()
     out = tmp_path / "session"
     args = ["session", "--gaze", f"replay:{RECORDING}", "--seconds", "4", "--fps", "10", "--scene", "cornell"]
     args += ["--width", "40", "--height", "32", "--max-depth", "1", "--no-progress", "-o", str(out)]
+    args += ["--show-samples"] if show_samples else []
     assert main(args) == 0
     capsys.readouterr()
     with open(out / "session.csv", newline="") as fh:
@@ -92,3 +95,5 @@ def test_a_session_with_tracking_loss_compiles_once(tmp_path, capsys):
     assert compile_cache_info() == {"foveated": 1}
     compile_s = np.array([float(r["compile_s"]) for r in rows])
     assert (compile_s[1:] == 0).all() and compile_s[0] > 0
+    assert len(list(out.glob("debug_*.png"))) == (40 if show_samples else 0)
+    assert all(int(r["fovea_pixels"]) > 0 for r in rows)  # the regions the frame returned

@@ -57,6 +57,40 @@ def test_traces_exactly_the_selected_samples_and_no_recompile(atrium_small):
     assert (second.regions != first.regions).any()
 
 
+def test_diagnostics_choose_the_per_pixel_outputs_not_the_frame():
+    """`diagnostics` selects which per-pixel outputs the frame program returns: the image,
+    counts and statistics are the same with none of them; the others are None and the debug
+    view says what it lacks; the regions are int8; a set in any order is one program; an
+    unknown name fails before any compile."""
+    scene = fovjax.scenes.cornell_box()
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=40, eye_height=32)
+    common = {"foveation": Foveation.thesis(0, spp=4), "config": CONFIG, "gaze": ((0.3, 0.4), (0.35, 0.4))}
+    full = render_foveated(scene, rig, key=jax.random.key(3), **common)
+    lean = render_foveated(scene, rig, key=jax.random.key(3), diagnostics=(), **common)
+    np.testing.assert_array_equal(lean.image, full.image)
+    assert lean.foveation == full.foveation and lean.stats.rays == full.stats.rays
+    assert lean.sample_mask is None and lean.regions is None and lean.eccentricity is None
+    assert lean.outputs.prefill is None and lean.outputs.traced is None
+    with pytest.raises(ValueError, match=r"without the diagnostics \['traced', 'region', 'prefill'\]"):
+        _ = lean.debug_view
+    assert full.regions.dtype == np.int8 and set(np.unique(full.regions)) == {0, 1, 2}
+    assert full.sample_mask.shape == (2, 4, 32, 40) and full.outputs.prefill.shape == (2, 32, 40, 3)
+    debug = render_foveated(
+        scene, rig, key=jax.random.key(3), diagnostics=("prefill", "region", "traced"), **common
+    )
+    np.testing.assert_array_equal(debug.debug_view, full.debug_view)
+    np.testing.assert_array_equal(debug.regions, full.regions)
+    assert debug.eccentricity is None
+    traces = fov_api.TRACE_COUNTS["foveated"]
+    again = render_foveated(
+        scene, rig, key=jax.random.key(4), diagnostics=["traced", "prefill", "region"], **common
+    )
+    assert again.stats.compile_seconds == 0.0 and fov_api.TRACE_COUNTS["foveated"] == traces
+    with pytest.raises(ValueError, match=r"unknown diagnostics \['mask'\]"):
+        render_foveated(scene, rig, key=jax.random.key(3), diagnostics=("region", "mask"), **common)
+    assert fov_api.TRACE_COUNTS["foveated"] == traces
+
+
 def test_full_fovea_reproduces_the_full_render(atrium_small):
     scene, rig = atrium_small
     key = jax.random.key(3)

@@ -44,14 +44,23 @@ def _same_frame(tiled, listed):
     assert close.mean() > 0.99, close.mean()
 
 
-@pytest.mark.parametrize("spp", [1, 4])
-def test_tiled_frame_equals_the_sample_list_frame(atrium_small, spp):
+BOTH = {"fovea_tile_deg": 10.0, "grid_tile": True}
+
+
+@pytest.mark.parametrize(
+    "spp, tiles", [(1, BOTH), (4, BOTH), (1, {"fovea_tile_deg": 10.0}), (1, {"grid_tile": True})]
+)
+def test_tiled_frame_equals_the_sample_list_frame(atrium_small, spp, tiles):
+    """Both tiles, the fovea tile alone, the pixel grid alone."""
     scene, rig = atrium_small
     listed_f = Foveation.thesis((10.0, 20.0), spp=spp)
-    tiled_f = Foveation.thesis((10.0, 20.0), spp=spp, fovea_tile_deg=10.0, grid_tile=True)
+    tiled_f = Foveation.thesis((10.0, 20.0), spp=spp, **tiles)
     budget = fov_api._budget_for(rig, np.zeros(3, np.float32), tiled_f)
     tile = fov_api.fovea_tile(rig, tiled_f, budget)
-    assert tile is not None and tile[0] >= 8 and tile[1] >= 8  # the tile path really runs
+    if "fovea_tile_deg" in tiles:
+        assert tile is not None and tile[0] >= 8 and tile[1] >= 8  # the tile path really runs
+    else:
+        assert tile is None
     # An off-centre gaze, then one at a corner (the tile is moved inside the image): one
     # compiled program.
     for i, gaze in enumerate((((0.32, 0.38), (0.28, 0.38)), ((0.02, 0.97), (0.99, 0.01)))):

@@ -237,13 +237,12 @@ def compare_thresholds(
         else:
             rendered, seconds = [], []
             for g, k in frames:
-                frame = render_foveated(
-                    scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
-                )
+                # Only the per-pixel outputs read here (not the regions nor the pre-fill means).
+                one = {"foveation": fov, "config": config, "bvh": bvh}
+                one["diagnostics"] = ("traced", "eccentricity")
+                frame = render_foveated(scene, rig, gaze=g, key=jax.random.key(k), **one)
                 if frame.stats.compile_seconds > 0:
-                    frame = render_foveated(
-                        scene, rig, gaze=g, foveation=fov, key=jax.random.key(k), config=config, bvh=bvh
-                    )
+                    frame = render_foveated(scene, rig, gaze=g, key=jax.random.key(k), **one)
                 rendered.append((frame.image, frame.eccentricity, frame.sample_mask, frame.stats.rays))
                 seconds.append(frame.stats.render_seconds)
         for (g, k), (image, eccentricity, sample_mask, n_rays), t in zip(

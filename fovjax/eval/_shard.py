@@ -292,7 +292,9 @@ def render_foveated_batch(
         arrays = with_texture_mips(arrays)  # texspp: as render_foveated (mip pyramids, host)
     # The static ray budget of render_foveated (cached per rig and configuration).
     budget = budget_for(rig, poses[0], foveation)
+    # The per-pixel outputs a batch returns (not the pre-fill means: no caller reads them).
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget}
+    static["diagnostics"] = ("traced", "region", "eccentricity")
     out, padded, compile_s, render_s, sharding = _run_sharded(
         "foveated",
         (arrays, bvh, rig, program_foveation, shading),

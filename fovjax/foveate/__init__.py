@@ -2,8 +2,9 @@
 budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, sections 4.4.1, 4.5).
 
 `render_foveated` renders one frame. For batches (`fovjax.eval`): `foveated_stereo(scene_arrays,
-bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget)` is the pure frame it
-compiles, `budget_for(rig, head_pose, foveation)` its static ray budget (slots for both eyes),
+bvh, rig, head_pose, gaze, key, foveation, *, spp, jitter, config, budget, diagnostics)` is the
+pure frame it compiles (`diagnostics`: which per-pixel outputs of `DIAGNOSTICS` it returns),
+`budget_for(rig, head_pose, foveation)` its static ray budget (slots for both eyes),
 `check_gaze(gaze)` the per-eye gaze check."""
 
 from ._api import FoveatedFrame as FoveatedFrame
@@ -55,6 +56,8 @@ from ._eccentricity import (
 from ._fill import fill_and_blur as fill_and_blur
 from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
 from ._fill import resolve as resolve
+from ._frame import DEBUG_VIEW_DIAGNOSTICS as DEBUG_VIEW_DIAGNOSTICS
+from ._frame import DIAGNOSTICS as DIAGNOSTICS
 from ._frame import foveated_stereo as foveated_stereo
 from ._sampling import (
     FOVEA as FOVEA,

@@ -20,7 +20,14 @@ from ._config import (
     region_spp,
     uses_texture_lod,
 )
-from ._frame import FoveatedOutputs, FoveationStats, foveated_stereo, region_view
+from ._frame import (
+    DIAGNOSTICS,
+    FoveatedOutputs,
+    FoveationStats,
+    diagnostics_tuple,
+    foveated_stereo,
+    region_view,
+)
 from ._lod import check_levels, lod_needed, prepare_levels
 
 _BUDGETS: dict = {}
@@ -87,20 +94,23 @@ def fovea_tile(rig, foveation: Foveation, budget: int) -> tuple[int, int] | None
 class FoveatedFrame:
     """A foveated stereo frame: the side-by-side `image` (H, 2W, 3) linear RGB, `stats` (the
     renderer's `FrameStats`: rays actually traced, times), `foveation` (`FoveationStats`), and
-    the per-eye `sample_mask` (2, spp, H, W) of traced samples, `regions` (2, H, W: 0 fovea,
-    1 periphery, 2 outside) and `eccentricity` (2, H, W, degrees)."""
+    the per-eye `sample_mask` (2, spp, H, W) of traced samples, `regions` (2, H, W int8: 0
+    fovea, 1 periphery, 2 outside) and `eccentricity` (2, H, W, degrees): each None when the
+    frame was rendered without it (`render_foveated(diagnostics=)`). `outputs`: the frame
+    program's (`FoveatedOutputs`; its `prefill` is each pixel's mean of its traced samples)."""
 
     image: np.ndarray
     stats: object
     foveation: FoveationStats
-    sample_mask: np.ndarray
-    regions: np.ndarray
-    eccentricity: np.ndarray
+    sample_mask: np.ndarray | None
+    regions: np.ndarray | None
+    eccentricity: np.ndarray | None
     outputs: FoveatedOutputs
 
     @property
     def debug_view(self) -> np.ndarray:
-        """Regions and traced samples per eye (thesis figures 58-59), side by side."""
+        """Regions and traced samples per eye (thesis figures 58-59), side by side (needs the
+        diagnostics of `fovjax.foveate.DEBUG_VIEW_DIAGNOSTICS`)."""
         return np.asarray(region_view(self.outputs))
 
     def save(self, path, **kwargs):
@@ -152,6 +162,7 @@ def render_foveated(
     envmap=None,
     bvh=None,
     lod_levels=None,
+    diagnostics=DIAGNOSTICS,
 ) -> FoveatedFrame:
     """Render a foveated stereo frame (see `fovjax.foveate._frame`). `gaze`: per eye (x, y) in
     normalised display coordinates, (0, 0) the top-left of each eye's display; NaN or
@@ -164,7 +175,13 @@ def render_foveated(
 
     `lod_levels`: the scene's levels of detail (`fovjax.scene.lod_levels`) that `Fidelity.lod`
     indexes; None: `lod_levels(scene)` at its default ratios (cached on disk) when a region asks
-    for a level. Only a `Scene` has levels (not a `SceneArrays`)."""
+    for a level. Only a `Scene` has levels (not a `SceneArrays`).
+
+    `diagnostics`: the per-pixel outputs besides the image the frame returns (names of
+    `fovjax.foveate.DIAGNOSTICS`: "traced" → `sample_mask`, "region" → `regions`,
+    "eccentricity", "prefill" → `outputs.prefill`; default all; `DEBUG_VIEW_DIAGNOSTICS` for
+    `debug_view`). A static choice (another set is another compiled program): on a CPU every
+    screen-sized output is fresh memory each frame, so a frame loop asks only for what it reads."""
     from ..render import (
         RenderConfig,
         SceneArrays,
@@ -180,6 +197,7 @@ def render_foveated(
     foveation = foveation or Foveation()
     config = config or RenderConfig()
     gaze = check_gaze(gaze)
+    diagnostics = diagnostics_tuple(diagnostics)
     if rig is None:
         from ..scene import default_camera
 
@@ -209,6 +227,7 @@ def render_foveated(
     # refitted model recompile nothing).
     tile = fovea_tile(rig, foveation, budget)
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget, "tile": tile}
+    static["diagnostics"] = diagnostics
     static["grid"] = foveation.blocks[1] if foveation.grid_tile and uncapped(rig, foveation, budget) else None
     # --- geometry level of detail (lodframe) ---
     lod = None
@@ -251,8 +270,8 @@ def render_foveated(
         image=image,
         stats=stats,
         foveation=fstats,
-        sample_mask=np.asarray(out.traced),
-        regions=np.asarray(out.region),
-        eccentricity=np.asarray(out.eccentricity),
+        sample_mask=None if out.traced is None else np.asarray(out.traced),
+        regions=None if out.region is None else np.asarray(out.region),
+        eccentricity=None if out.eccentricity is None else np.asarray(out.eccentricity),
         outputs=out,
     )

@@ -19,16 +19,6 @@ def gaussian_taps(sigma: float, radius: int = 2) -> np.ndarray:
     return (k / k.sum()).astype(np.float32)
 
 
-def _separable(image: Float[Array, "H W C"], taps: np.ndarray) -> Float[Array, "H W C"]:
-    """Separable convolution with edge-reflecting borders (5 shifted adds per axis)."""
-    r = len(taps) // 2
-    h, w = image.shape[:2]
-    padded = jnp.pad(image, ((r, r), (0, 0), (0, 0)), mode="reflect")
-    image = sum(float(t) * padded[i : i + h] for i, t in enumerate(taps))
-    padded = jnp.pad(image, ((0, 0), (r, r), (0, 0)), mode="reflect")
-    return sum(float(t) * padded[:, i : i + w] for i, t in enumerate(taps))
-
-
 def pull_push(image: Float[Array, "H W C"], valid: Bool[Array, "H W"]) -> Float[Array, "H W C"]:
     """Fill invalid pixels from valid ones (pull-push, Gortler et al. 1996): average valid
     pixels over 2x2 cells level by level up to one cell, then fill each level's empty cells
@@ -124,11 +114,12 @@ def blur_and_blend(
 ) -> Float[Array, "..."]:
     """The 5×5 Gaussian of `fill_and_blur` (σ = foveation.blur_sigma, edge-reflecting borders)
     of each of the E images, blended with the sharp image by eccentricity (or the blur alone
-    with `blur_fovea`), in bands of `BAND_ROWS` rows (a `lax.fori_loop`): the same values as
-    `_separable` over the whole screen, but the only screen-sized array is the result, (E, H,
-    W, 3), or the images side by side (H, E·W, 3) with `side_by_side` (written in place: no
-    copy to lay the eyes out). On a CPU each screen-sized temporary is fresh memory, faulted
-    in on every frame."""
+    with `blur_fovea`), in bands of `BAND_ROWS` rows (a `lax.fori_loop`): the values of the
+    separable convolution over the whole screen (5 shifted adds per axis over reflect-padded
+    copies; tests/test_foveate_blur.py holds it as this function's oracle), but the only
+    screen-sized array is the result, (E, H, W, 3), or the images side by side (H, E·W, 3)
+    with `side_by_side` (written in place: no copy to lay the eyes out). On a CPU each
+    screen-sized temporary is fresh memory, faulted in on every frame."""
     taps = gaussian_taps(foveation.blur_sigma)
     r = len(taps) // 2
     e, h, w, c = filled.shape
@@ -151,7 +142,11 @@ def blur_and_blend(
             return jax.lax.dynamic_update_slice(out, result, (first, eye * w, 0))
         return jax.lax.dynamic_update_slice(out, result[None], (eye, first, 0, 0))
 
-    return jax.lax.fori_loop(0, e * n_bands, band, jnp.zeros(shape, filled.dtype))
+    # Every element is written by a band, so the loop may start from any values: a broadcast of
+    # one input element is not created (and its memory held) before the input exists, as a
+    # constant zero array would be (XLA hoists it to the program's start).
+    start = jnp.broadcast_to(filled[0, 0, 0, 0], shape)
+    return jax.lax.fori_loop(0, e * n_bands, band, start)
 
 
 def fill_blanks(pix, n, region, foveation):

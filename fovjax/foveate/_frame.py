@@ -53,7 +53,32 @@ from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_cl
 SAMPLING_STREAM = 0x5A3
 
 
+# The per-pixel outputs a frame program can return besides its image (`foveated_stereo`'s
+# static `diagnostics`): the traced-sample mask, the regions (int8), the eccentricity and the
+# per-pixel mean of the traced samples before fill and blur. Each is a screen-sized array that
+# a CPU allocates fresh (and the kernel faults in and zeroes) on every frame, so the frame path
+# asks only for those it reads.
+DIAGNOSTICS = ("traced", "region", "eccentricity", "prefill")
+# What `region_view` (the debug view) reads.
+DEBUG_VIEW_DIAGNOSTICS = ("traced", "region", "prefill")
+
+
+def diagnostics_tuple(diagnostics, where: str = "render_foveated") -> tuple[str, ...]:
+    """`diagnostics` (names of `DIAGNOSTICS`, any order, or one name) as the canonical static
+    tuple (`DIAGNOSTICS`' order: the same set is the same compiled program)."""
+    names = (diagnostics,) if isinstance(diagnostics, str) else tuple(diagnostics)
+    unknown = [n for n in names if n not in DIAGNOSTICS]
+    if unknown:
+        raise ValueError(f"{where}: unknown diagnostics {unknown}; expected names from {DIAGNOSTICS}")
+    return tuple(n for n in DIAGNOSTICS if n in names)
+
+
 class FoveatedOutputs(NamedTuple):
+    """A frame program's outputs; the per-pixel `traced` (2, S, H, W), `region` (2, H, W int8:
+    0 fovea, 1 periphery, 2 outside), `eccentricity` (2, H, W degrees) and `prefill` (2, H, W,
+    3: each pixel's mean of its traced samples, before fill and blur) are None unless asked
+    for (`diagnostics`)."""
+
     image: Float[Array, "H W2 3"]
     counts: object  # fovjax.render RayCounts
     primary_by_region: Int[Array, " 3"]
@@ -61,10 +86,10 @@ class FoveatedOutputs(NamedTuple):
     optional: Int[Array, ""]
     dropped: Int[Array, ""]
     padding: Int[Array, ""]
-    traced: Bool[Array, "2 S H W"]
-    region: Int[Array, "2 H W"]
-    eccentricity: Float[Array, "2 H W"]
-    prefill: Float[Array, "2 H W 3"]
+    traced: Bool[Array, "2 S H W"] | None
+    region: Int[Array, "2 H W"] | None
+    eccentricity: Float[Array, "2 H W"] | None
+    prefill: Float[Array, "2 H W 3"] | None
     bad_pixels: Int[Array, ""]
 
 
@@ -407,9 +432,12 @@ def foveated_stereo(
     budget,
     tile=None,
     grid=None,
+    diagnostics=DIAGNOSTICS,
 ):
     """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
-    arguments static. `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
+    arguments static. `diagnostics`: which per-pixel outputs besides the image to return
+    (`DIAGNOSTICS`, in that order; the others are None: a CPU allocates each output fresh every
+    frame). `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
     cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images in packets
     (None: not; only where the budget is every sample, so that their samples are never
     dropped; see `Foveation.fovea_tile_deg`). `lod`: with levels of detail per region
@@ -425,6 +453,7 @@ def foveated_stereo(
     from ..render import RayCounts, pixel_spread_angle
     from ..scene import pixel_sample_positions
 
+    diagnostics = diagnostics_tuple(diagnostics, "foveated_stereo")
     if lod is None and lod_needed(foveation) is not None:  # (lodframe)
         raise ValueError(
             "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
@@ -491,13 +520,17 @@ def foveated_stereo(
     )
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)
-    init = None
+    # The pixel sums start from zeros made from a count of the trace (a non-negative int, so its
+    # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
+    # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).
+    zero = jnp.minimum(traced.primary, 0)
+    init = (jnp.full((2, h, w, 3), zero, jnp.float32), jnp.zeros((2, h, w), bool), zero)
     if grid is not None:
         init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
-        if tile is None:
-            init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
-    if tile is not None:
+    if tile is not None:  # onto the grid's sums or the zeros; flat
         init = tile_sums(traced.tiles[-1], tiles[-1].active, origins, spp=spp, h=h, w=w, init=init)
+    else:
+        init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
     prefill, n_bad, bad_pixel = accumulate(
         traced.total,
         sel,
@@ -522,10 +555,10 @@ def foveated_stereo(
         optional=counts[OPTIONAL],
         dropped=jnp.maximum(wanted - budget, 0),
         padding=jnp.maximum(budget - wanted, 0),
-        traced=mask,
-        region=sel.region,
-        eccentricity=ecc,
-        prefill=prefill,
+        traced=mask if "traced" in diagnostics else None,
+        region=sel.region.astype(jnp.int8) if "region" in diagnostics else None,  # 0, 1, 2: exact
+        eccentricity=ecc if "eccentricity" in diagnostics else None,
+        prefill=prefill if "prefill" in diagnostics else None,
         bad_pixels=jnp.sum(bad_pixel, dtype=jnp.int32),
     )
 
@@ -549,7 +582,14 @@ class FoveationStats:
 def region_view(outputs: FoveatedOutputs, *, dim: float = 0.12) -> Float[Array, "H W2 3"]:
     """The debug view of thesis figures 58–59: each eye right after ray generation — pixels with
     a traced sample in their rendered colour, the others in a dim colour of their region
-    (periphery yellow, outside red) — and the fovea's edge drawn green."""
+    (periphery yellow, outside red) — and the fovea's edge drawn green. Needs the outputs of
+    `DEBUG_VIEW_DIAGNOSTICS`."""
+    missing = [n for n in DEBUG_VIEW_DIAGNOSTICS if getattr(outputs, n) is None]
+    if missing:
+        raise ValueError(
+            f"region_view: the frame was rendered without the diagnostics {missing}; render it with "
+            f"diagnostics including {DEBUG_VIEW_DIAGNOSTICS}"
+        )
     colours = jnp.array([[0.0, 0.0, 0.0], [1.0, 0.8, 0.1], [1.0, 0.15, 0.1]], jnp.float32)
     traced = jnp.any(outputs.traced, axis=1)[..., None]
     shown = jnp.where(traced, outputs.prefill, dim * colours[outputs.region])

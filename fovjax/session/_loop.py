@@ -269,7 +269,7 @@ def run_session(
     ``summary["warnings"]`` says when a source never delivered a sample."""
     from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from ..files import deferred_interrupt, interrupt_flag
-    from ..foveate import Foveation, render_foveated
+    from ..foveate import DEBUG_VIEW_DIAGNOSTICS, Foveation, render_foveated
     from ..render import DEFAULT_CONFIG, SceneArrays, StereoRig, bvh_for, scene_arrays
 
     n_frames = _check_count(frames, seconds, fps)
@@ -324,9 +324,21 @@ def run_session(
         )
         return dataclasses.replace(foveation, fovea_deg=fovea, periphery_deg=periphery)
 
+    # Only the per-pixel outputs the loop reads (the regions: `fovea_pixels`; the debug view's
+    # with `debug`), fixed for the session: one compiled program.
+    diagnostics = ("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",)
+
     def render(gaze_xy, fov, pose, frame_key):
         return render_foveated(
-            arrays, rig, gaze=gaze_xy, foveation=fov, head_pose=pose, key=frame_key, config=config, bvh=bvh
+            arrays,
+            rig,
+            gaze=gaze_xy,
+            foveation=fov,
+            head_pose=pose,
+            key=frame_key,
+            config=config,
+            bvh=bvh,
+            diagnostics=diagnostics,
         )
 
     warmup = clock == "wall" if warmup is None else warmup

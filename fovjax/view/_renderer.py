@@ -204,7 +204,7 @@ class LiveRenderer:
         t0 = time.perf_counter()
         # The same argument kinds as every frame's (a key: jittered; a pose), so the frames reuse it.
         fov = self.foveation(self.fovea_deg, self.periphery_deg)
-        self._render(self._last_gaze, fov, (0.0, 0.0, 0.0), False, self.key)
+        self._render(self._last_gaze, fov, (0.0, 0.0, 0.0), False, self.key, self.debug)
         if self.gaze_source is None:
             self._binocular("left", (0.5, 0.5), (0.0, 0.0, 0.0))
         return time.perf_counter() - t0
@@ -214,8 +214,8 @@ class LiveRenderer:
 
         return binocular_gaze(self.bvh, self.rig, pose, eye, xy)
 
-    def _render(self, gaze, foveation, pose, full, key=None):
-        from ..foveate import render_foveated
+    def _render(self, gaze, foveation, pose, full, key=None, debug=False):
+        from ..foveate import DEBUG_VIEW_DIAGNOSTICS, render_foveated
         from ..render import render_stereo
 
         if full:
@@ -228,6 +228,9 @@ class LiveRenderer:
                 config=self.config,
                 bvh=self.bvh,
             )
+        # Only the per-pixel outputs the frame shows: the regions (the fovea's centre), and the
+        # debug view's while it is on (its first frame compiles that program, as the first
+        # full frame does).
         return render_foveated(
             self.arrays,
             self.rig,
@@ -237,6 +240,7 @@ class LiveRenderer:
             key=key,
             config=self.config,
             bvh=self.bvh,
+            diagnostics=("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",),
         )
 
     def _tracked_gaze(self, now: float):
@@ -304,7 +308,7 @@ class LiveRenderer:
         foveation = self.foveation(fovea, periphery)
         frame_key = jax.random.fold_in(self.key, self.frames)
         t0 = time.perf_counter()
-        frame = self._render(self._last_gaze, foveation, tuple(pose), full, frame_key)
+        frame = self._render(self._last_gaze, foveation, tuple(pose), full, frame_key, debug)
         call_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         debug_image = frame.debug_view if (debug and not full) else None
