@@ -3,7 +3,7 @@ foveation layer (the renderer knows nothing of foveation)."""
 
 from __future__ import annotations
 
-from .foveate import Foveation, render_foveated
+from .foveate import DIAGNOSTICS, Foveation, render_foveated
 from .render import RenderConfig
 from .render import render_stereo as _render_full
 
@@ -20,6 +20,7 @@ def render_stereo(
     config: RenderConfig | None = None,
     envmap=None,
     bvh=None,
+    diagnostics=DIAGNOSTICS,
 ):
     """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
     side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`);
@@ -28,8 +29,8 @@ def render_stereo(
     Foveated: with `foveation=` (a `fovjax.foveate.Foveation`; its `spp` is the frame's) and/or
     `gaze=((lx, ly), (rx, ry))` (normalised display coordinates; default the centres), the frame
     traces only the samples the foveation selects and returns a `fovjax.foveate.FoveatedFrame`
-    (image, stats, per-region counts, sample mask, debug view); see
-    `fovjax.foveate.render_foveated`."""
+    (image, stats, per-region counts, sample mask, debug view; `diagnostics` chooses its
+    per-pixel outputs); see `fovjax.foveate.render_foveated`."""
     config = RenderConfig() if config is None else config
     if foveation is None and gaze is None:
         return _render_full(
@@ -56,4 +57,5 @@ def render_stereo(
         config=config,
         envmap=envmap,
         bvh=bvh,
+        diagnostics=diagnostics,
     )

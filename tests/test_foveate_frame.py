@@ -86,6 +86,12 @@ def test_diagnostics_choose_the_per_pixel_outputs_not_the_frame():
         scene, rig, key=jax.random.key(4), diagnostics=["traced", "prefill", "region"], **common
     )
     assert again.stats.compile_seconds == 0.0 and fov_api.TRACE_COUNTS["foveated"] == traces
+    # The package's entry point passes the choice on (the same program again).
+    entry = fovjax.render_stereo(
+        scene, rig, key=jax.random.key(4), diagnostics=("traced", "prefill", "region"), **common
+    )
+    assert entry.eccentricity is None and entry.stats.compile_seconds == 0.0
+    np.testing.assert_array_equal(entry.image, again.image)
     with pytest.raises(ValueError, match=r"unknown diagnostics \['mask'\]"):
         render_foveated(scene, rig, key=jax.random.key(3), diagnostics=("region", "mask"), **common)
     assert fov_api.TRACE_COUNTS["foveated"] == traces
