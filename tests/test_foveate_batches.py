@@ -85,10 +85,12 @@ def test_tiles_and_batches_give_the_one_batch_frame(atrium_small):
     scene, rig = atrium_small
     gaze, key = ((0.32, 0.38), (0.28, 0.38)), jax.random.key(7)
     tiled = Foveation.thesis((10.0, 20.0), spp=4, fovea_tile_deg=10.0, grid_tile=True)
-    unbatched = RenderConfig(max_depth=2, depth_batch_size=None)
+    # One reflection level: the tiles' reflections join the first batch's queue (deeper levels
+    # in batches: test_batches_give_the_one_batch_radiance).
+    unbatched = RenderConfig(max_depth=1, depth_batch_size=None)
     one = render_foveated(scene, rig, gaze=gaze, foveation=tiled, key=key, config=unbatched)
     # Batches of 2048 slots (chunks of 1024): the tiles' reflections go with the first.
-    config = RenderConfig(max_depth=2, chunk_size=1024, depth_batch_size=2048)
+    config = RenderConfig(max_depth=1, chunk_size=1024, depth_batch_size=2048)
     many = render_foveated(scene, rig, gaze=gaze, foveation=tiled, key=key, config=config)
     assert many.stats.primary_rays == one.stats.primary_rays
     listed = many.stats.primary_rays - int(many.foveation.primary_by_region[0])
