@@ -256,15 +256,21 @@ def test_spp_per_region_traces_exactly_the_kept_subsamples(spheres, rule):
 
 
 def test_spp_budget_shrinks(spheres, spp_plain):
-    everywhere_one = (Fidelity(spp=1),) * 3
-    frame = _spp_frame(spheres, fidelity=everywhere_one)
-    assert frame.foveation.budget == 2 * EYE_W * EYE_H  # every sample a region may take
-    assert spp_plain.foveation.budget == 2 * 4 * EYE_W * EYE_H
+    """The static budget (planned on the host, before any compile) counts only the samples each
+    region's spp may take; one frame checks that the smaller budget drops nothing."""
+    _, rig = spheres
+    level = np.zeros(3, np.float32)
+
+    def budget(fidelity=None, **kwargs):
+        return fov_api._budget_for(rig, level, Foveation.thesis(0, fidelity=fidelity, spp=4, **kwargs))
+
+    assert budget((Fidelity(spp=1),) * 3) == 2 * EYE_W * EYE_H  # every sample a region may take
+    assert spp_plain.foveation.budget == budget() == 2 * 4 * EYE_W * EYE_H
     capped = {"max_periphery_deg": 10.0}
-    plain = _spp_frame(spheres, **capped)
     fewer = _spp_frame(spheres, fidelity=(FULL, Fidelity(spp=1), Fidelity(spp=1)), **capped)
-    assert fewer.foveation.budget < plain.foveation.budget
-    assert fewer.foveation.dropped == 0 and plain.foveation.dropped == 0
+    assert fewer.foveation.budget == budget((FULL, Fidelity(spp=1), Fidelity(spp=1)), **capped)
+    assert fewer.foveation.budget < budget(**capped)
+    assert fewer.foveation.dropped == 0
 
 
 def test_spp_with_image_tiles(spheres):
