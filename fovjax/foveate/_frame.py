@@ -66,7 +66,14 @@ DEBUG_VIEW_DIAGNOSTICS = ("traced", "region", "prefill")
 def diagnostics_tuple(diagnostics, where: str = "render_foveated") -> tuple[str, ...]:
     """`diagnostics` (names of `DIAGNOSTICS`, any order, or one name) as the canonical static
     tuple (`DIAGNOSTICS`' order: the same set is the same compiled program)."""
-    names = (diagnostics,) if isinstance(diagnostics, str) else tuple(diagnostics)
+    if isinstance(diagnostics, str):
+        names = (diagnostics,)
+    elif isinstance(diagnostics, tuple | list | set | frozenset):
+        names = tuple(diagnostics)
+    else:
+        raise ValueError(
+            f"{where}: diagnostics must be names from {DIAGNOSTICS} (a tuple), got {diagnostics!r}"
+        )
     unknown = [n for n in names if n not in DIAGNOSTICS]
     if unknown:
         raise ValueError(f"{where}: unknown diagnostics {unknown}; expected names from {DIAGNOSTICS}")

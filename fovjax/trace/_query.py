@@ -190,27 +190,36 @@ def _raw_query(
     sort=False,
 ):
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
+    order = None
     if sort and backend == "jax" and o.shape[0] > 0:
         # Regroup the rays by origin, trace them as packets, and put the results back.
         order = spatial_order(o, tmax > tmin)
         o, d, tmin, tmax = o[order], d[order], tmin[order], tmax[order]
         level = None if level is None else level[order]
-        t, prim = _raw_query(
-            bvh,
-            o,
-            d,
-            tmin,
-            tmax,
-            level,
-            backend=backend,
-            any_hit=any_hit,
-            packet_size=packet_size,
-            lanes=lanes,
-            packets=packets,
-            steps_per_refill=steps_per_refill,
-        )
-        back = inverse_order(order)
-        return t[back], prim[back]
+    t, prim = _query_backend(
+        bvh,
+        o,
+        d,
+        tmin,
+        tmax,
+        level,
+        backend=backend,
+        any_hit=any_hit,
+        packet_size=packet_size,
+        lanes=lanes,
+        packets=packets,
+        steps_per_refill=steps_per_refill,
+    )
+    if order is None:
+        return t, prim
+    back = inverse_order(order)
+    return t[back], prim[back]
+
+
+def _query_backend(
+    bvh, o, d, tmin, tmax, level, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill
+):
+    """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s jit)."""
     if backend == "embree":
         from ._embree import embree_query
 
