@@ -49,6 +49,15 @@ class BVH(eqx.Module):
     stack_size: int = eqx.field(static=True)
     # A merged BVH (`merge_bvhs`): the item each level's traversal starts at; None: one tree, root 0.
     roots: Int[np.ndarray | Array, " L"] | None = None
+    # A merged BVH: the first face of each level's tree, then the face count (native backends
+    # build one scene per tree from it); None: one tree.
+    first_face: Int[np.ndarray | Array, " L1"] | None = None
+
+    def tree_faces(self) -> np.ndarray:
+        """The first face of each tree and the face count: [0, F] for a single tree."""
+        if self.first_face is None:
+            return np.array([0, self.num_triangles], np.int32)
+        return self.first_face
 
     @property
     def num_levels(self) -> int:
@@ -234,6 +243,7 @@ def merge_bvhs(bvhs) -> BVH:
         host_id=np.int32(host_id),
         stack_size=max(b.stack_size for b in bvhs),
         roots=node_off.astype(np.int32),
+        first_face=np.append(tri_off, sum(tris)).astype(np.int32),
     )
 
 

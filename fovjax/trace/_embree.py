@@ -1,7 +1,12 @@
-"""Embree backend (CPU only), through embreex, called from JAX with `jax.pure_callback`.
+"""Embree backend (CPU): Embree 4 through an XLA FFI call (`_embree_ffi.cc`, built on first use),
+or, where that handler cannot be built, embreex's Python API through `jax.pure_callback`.
 
-Embree's rays start at t = 0, so a ray with tmin > 0 is moved to o + tmin * d and its distances
-shifted back; the same differentiable recomputation as the JAX backend then produces t, u, v.
+The FFI call runs on XLA's buffers and CPU thread pool inside the compiled program: rays in
+16-ray packets (`rtcIntersect16` / `rtcOccluded16`) when they come in a coherent order (tiles,
+sorted), one by one otherwise; `tmin` is Embree's `tnear`; a merged BVH's trees are one Embree
+scene each, chosen per ray (`level=`). The fallback moves a ray with tmin > 0 to o + tmin * d and
+shifts its distances back (embreex's rays start at 0) and supports no `level=`. Either way only
+the face index leaves the backend: t, u, v are recomputed differentiably from it.
 """
 
 from __future__ import annotations
@@ -59,7 +64,32 @@ def embree_trace_host(scene, o, d, tmin, tmax, any_hit):
     return t, prim
 
 
+def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packets: bool):
+    """(t, prim) of flat rays through the Embree FFI handler (which must be registered:
+    `embree_status()`); t = inf and prim = -1 on a miss, prim 0 for an occluded ray."""
+    from ._native import TARGET
+
+    n = o.shape[0]
+    out = (jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.int32))
+    # Every operand is read flat by the handler, so under vmap the frames' rays are one call.
+    call = jax.ffi.ffi_call(TARGET, out, vmap_method="expand_dims")
+    return call(
+        o,
+        d,
+        tmin,
+        tmax,
+        jnp.zeros((0,), jnp.int32) if level is None else jnp.asarray(level, jnp.int32),
+        jnp.asarray(bvh.host_id, jnp.int32),
+        jnp.asarray(bvh.vertices, jnp.float32),
+        jnp.asarray(bvh.faces, jnp.int32),
+        jnp.asarray(bvh.tree_faces(), jnp.int32),
+        any_hit=np.int32(any_hit),
+        packet=np.int32(16 if packets else 0),
+    )
+
+
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):
+    """(t, prim) through embreex's Python API and `jax.pure_callback` (the fallback)."""
     def host(host_id, o, d, tmin, tmax):
         key, vertices, faces = host_geometry(host_id)
         scene = embree_scene(key, vertices, faces)

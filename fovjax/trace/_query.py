@@ -1,4 +1,13 @@
-"""Public ray queries: `closest_hit` and `occluded`, on the JAX or the Embree backend."""
+"""Public ray queries: `closest_hit` and `occluded`, on a native backend or the JAX traversal.
+
+Backends answer one question for a batch of rays: which face each ray hits first (or whether
+anything lies on it). `"embree"` is Embree through an XLA FFI call (CPU), `"warp"` NVIDIA Warp's
+BVH queries (CUDA, and CPU), `"jax"` the `lax.while_loop` traversal of `_traverse.py` (any XLA
+device; the reference every other backend is tested against). `"auto"` (the default) picks per
+platform inside the program (`jax.lax.platform_dependent`): Embree on CPU where its handler
+builds, Warp on CUDA where it is installed, else JAX — so one program lowers for CPU and CUDA.
+t, u, v are recomputed from the hit face in plain JAX, so gradients do not depend on the backend.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +24,7 @@ from ._order import inverse_order, spatial_order
 from ._packet import traverse_packets
 from ._traverse import traverse
 
-BACKENDS = ("jax", "embree")
+BACKENDS = ("auto", "jax", "embree", "warp")
 
 # Traversal tuning, measured with benchmarks/trace_throughput.py on a 2-core CPU: rays (or
 # packets) in flight, and traversal steps between refills of finished lanes.
@@ -191,7 +200,7 @@ def _raw_query(
 ):
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
     order = None
-    if sort and backend == "jax" and o.shape[0] > 0:
+    if sort and o.shape[0] > 0:
         # Regroup the rays by origin, trace them as packets, and put the results back.
         order = spatial_order(o, tmax > tmin)
         o, d, tmin, tmax = o[order], d[order], tmin[order], tmax[order]
@@ -216,14 +225,94 @@ def _raw_query(
     return t[back], prim[back]
 
 
+def _warp_installed() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("warp") is not None
+
+
+def resolve_backend(backend: str, platform: str) -> str:
+    """The backend that `backend` runs on `platform` ("cpu", "cuda", ...): "auto" is Embree on
+    CPU where its FFI handler builds, Warp on CUDA where installed, else the JAX traversal."""
+    if backend != "auto":
+        return backend
+    if platform == "cpu":
+        from ._native import embree_status
+
+        return "embree" if embree_status() else "jax"
+    if platform == "cuda" and _warp_installed():
+        return "warp"
+    return "jax"
+
+
+def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
+    """One line naming the backend `backend` runs on `platform` (default: JAX's default
+    backend) and, where "auto" falls back to the JAX traversal, why."""
+    platform = platform or jax.default_backend()
+    chosen = resolve_backend(backend, platform)
+    if chosen == "embree":
+        from ._native import embree_status
+
+        status = embree_status()
+        if status:
+            return f"embree ({status.reason})"
+        return f"embree (embreex through jax.pure_callback; the FFI handler is unavailable: {status.reason})"
+    if chosen == "warp":
+        return "warp (NVIDIA Warp mesh queries through XLA's FFI)"
+    if backend == "auto" and platform == "cpu":
+        from ._native import embree_status
+
+        return f"jax (the JAX traversal; Embree FFI unavailable: {embree_status().reason})"
+    if backend == "auto":
+        return f"jax (the JAX traversal; no native backend for {platform}: Warp is not installed)"
+    return "jax (the JAX traversal)"
+
+
 def _query_backend(
     bvh, o, d, tmin, tmax, level, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill
 ):
     """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s jit)."""
-    if backend == "embree":
-        from ._embree import embree_query
+    kw = dict(
+        any_hit=any_hit, packet_size=packet_size, lanes=lanes, packets=packets, steps_per_refill=steps_per_refill
+    )
+    if backend != "auto":
+        return _run_backend(backend, bvh, o, d, tmin, tmax, level, split=True, **kw)
+    on_cpu, on_cuda = resolve_backend("auto", "cpu"), resolve_backend("auto", "cuda")
+    if on_cpu == on_cuda == "jax":
+        return _run_backend("jax", bvh, o, d, tmin, tmax, level, split=True, **kw)
 
+    def branch(name, split):
+        def run(o, d, tmin, tmax, *lv):
+            return _run_backend(name, bvh, o, d, tmin, tmax, lv[0] if lv else None, split=split, **kw)
+
+        return run
+
+    args = (o, d, tmin, tmax) + (() if level is None else (level,))
+    # The JAX traversal outside CPU never splits the rays over host devices.
+    return jax.lax.platform_dependent(
+        *args, cpu=branch(on_cpu, True), cuda=branch(on_cuda, False), default=branch("jax", False)
+    )
+
+
+def _run_backend(
+    backend, bvh, o, d, tmin, tmax, level, *, split, any_hit, packet_size, lanes, packets, steps_per_refill
+):
+    if backend == "embree":
+        from ._embree import embree_ffi_query, embree_query
+        from ._native import embree_status
+
+        if embree_status():
+            return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packet_size is not None)
+        if level is not None:
+            raise ValueError(
+                "level= with backend 'embree' needs its FFI handler, which is unavailable: "
+                f"{embree_status().reason}"
+            )
         return embree_query(bvh, o, d, tmin, tmax, any_hit=any_hit)
+    if backend == "warp":
+        from ._warp import warp_query
+
+        return warp_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit)
     stack_size = bvh.stack_size
     roots = bvh.roots
 
@@ -269,7 +358,7 @@ def _query_backend(
         return _mixed_packets(packets_of, per_ray, packet_size, table, num_nodes, o, d, tmin, tmax, root)
 
     level = () if level is None else (level,)
-    devices = _host_devices()
+    devices = _host_devices() if split else None
     if devices is None:
         return run(bvh.table, bvh.num_nodes, o, d, tmin, tmax, *level)
     return _split_over(devices, run, bvh.table, bvh.num_nodes, o, d, tmin, tmax, packet_size or 1, *level)
@@ -297,8 +386,6 @@ def _levels(bvh, level, backend: str, batch, order):
     None when not given."""
     if level is None:
         return None
-    if backend != "jax":
-        raise ValueError(f"level= (a merged BVH's tree per ray) needs backend 'jax', got {backend!r}")
     if bvh.roots is None:
         raise ValueError("level= needs a merged BVH (fovjax.trace.merge_bvhs); this one has one tree")
     lv = jnp.broadcast_to(jnp.asarray(level, jnp.int32), batch).reshape(-1)
@@ -353,7 +440,7 @@ def closest_hit(
     tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
     tmax: float | Float[ArrayLike, "*#batch"] = jnp.inf,
     *,
-    backend: str = "jax",
+    backend: str = "auto",
     packet: Packet = None,
     vertices: Float[ArrayLike, "V 3"] | None = None,
     lanes: int = DEFAULT_LANES,
@@ -413,7 +500,7 @@ def occluded(
     tmax: float | Float[ArrayLike, "*#batch"] = jnp.inf,
     *,
     tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
-    backend: str = "jax",
+    backend: str = "auto",
     packet: Packet = None,
     lanes: int = DEFAULT_LANES,
     packets: int = DEFAULT_PACKETS,

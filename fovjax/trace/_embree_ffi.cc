@@ -1,0 +1,621 @@
+// Embree ray queries as an XLA FFI custom call (CPU): fovjax's `backend="embree"`.
+//
+// One handler answers a batch of rays: the closest hit (face index, distance) or whether anything
+// lies on the ray. It runs inside the compiled frame on XLA's own buffers and thread pool: no host
+// round trip, no copy. Traversal is not differentiated; the Python side recomputes t, u, v from
+// the face index, so gradients do not depend on the backend.
+//
+// Embree itself is the shared library inside the `embreex` wheel, opened with dlopen at run time.
+// This file declares the few Embree 4 calls and ray structs it uses, written from Embree 4.4's
+// documented C API; `fovjax_embree_init` checks the struct sizes against the library before any
+// query runs (a layout mismatch writes past the structs: see `CheckLayout`).
+//
+// Scenes are built on first use from the geometry the call receives (one Embree scene per tree of
+// a merged level-of-detail BVH) and cached by the BVH's host id, so the frame program needs no
+// Python call to set them up; `fovjax_embree_release` frees them.
+
+#include <dlfcn.h>
+
+#include <atomic>
+#include <cmath>
+#include <condition_variable>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace {
+
+// ---- Embree 4 declarations (from the documented C API) ------------------------------------------
+
+using RTCDevice = void*;
+using RTCScene = void*;
+using RTCGeometry = void*;
+
+constexpr unsigned kInvalidId = 0xffffffffu;
+constexpr int kGeometryTriangle = 0;    // RTC_GEOMETRY_TYPE_TRIANGLE
+constexpr int kBufferIndex = 0;         // RTC_BUFFER_TYPE_INDEX
+constexpr int kBufferVertex = 1;        // RTC_BUFFER_TYPE_VERTEX
+constexpr int kFormatUint3 = 0x5003;    // RTC_FORMAT_UINT3
+constexpr int kFormatFloat3 = 0x9003;   // RTC_FORMAT_FLOAT3
+constexpr int kSceneRobust = 1 << 2;    // RTC_SCENE_FLAG_ROBUST: watertight triangle test
+constexpr int kBuildQualityHigh = 2;    // RTC_BUILD_QUALITY_HIGH
+constexpr int kQueryCoherent = 1 << 16; // RTC_RAY_QUERY_FLAG_COHERENT
+constexpr int kDevicePropertyVersion = 0;
+
+// RTC_MAX_INSTANCE_LEVEL_COUNT is 1 and RTC_GEOMETRY_INSTANCE_ARRAY is on in the wheel's build
+// (checked at init: a larger hit struct in the library would write past these).
+struct alignas(16) Ray1 {
+  float org_x, org_y, org_z, tnear, dir_x, dir_y, dir_z, time, tfar;
+  unsigned mask, id, flags;
+};
+struct alignas(16) Hit1 {
+  float ng_x, ng_y, ng_z, u, v;
+  unsigned prim_id, geom_id;
+  unsigned inst_id[1];
+  unsigned inst_prim_id[1];
+};
+struct RayHit1 {
+  Ray1 ray;
+  Hit1 hit;
+};
+struct alignas(64) Ray16 {
+  float org_x[16], org_y[16], org_z[16], tnear[16], dir_x[16], dir_y[16], dir_z[16], time[16],
+      tfar[16];
+  unsigned mask[16], id[16], flags[16];
+};
+struct alignas(64) Hit16 {
+  float ng_x[16], ng_y[16], ng_z[16], u[16], v[16];
+  unsigned prim_id[16], geom_id[16];
+  unsigned inst_id[1][16];
+  unsigned inst_prim_id[1][16];
+};
+struct RayHit16 {
+  Ray16 ray;
+  Hit16 hit;
+};
+// RTCIntersectArguments / RTCOccludedArguments (same layout): flags, feature mask, context,
+// filter, intersect/occluded callback, and minWidthDistanceFactor in builds with RTC_MIN_WIDTH.
+struct QueryArgs {
+  int flags;
+  unsigned feature_mask;
+  void* context;
+  void* filter;
+  void* callback;
+  float min_width_distance_factor;
+  float reserved[7];  // zero: room for fields a newer minor version may read
+};
+
+struct EmbreeApi {
+  RTCDevice (*rtcNewDevice)(const char*);
+  int (*rtcGetDeviceError)(RTCDevice);
+  ptrdiff_t (*rtcGetDeviceProperty)(RTCDevice, int);
+  RTCScene (*rtcNewScene)(RTCDevice);
+  void (*rtcSetSceneFlags)(RTCScene, int);
+  void (*rtcSetSceneBuildQuality)(RTCScene, int);
+  unsigned (*rtcAttachGeometry)(RTCScene, RTCGeometry);
+  void (*rtcCommitScene)(RTCScene);
+  void (*rtcReleaseScene)(RTCScene);
+  RTCGeometry (*rtcNewGeometry)(RTCDevice, int);
+  void (*rtcSetSharedGeometryBuffer)(RTCGeometry, int, unsigned, int, const void*, size_t, size_t,
+                                     size_t);
+  void (*rtcCommitGeometry)(RTCGeometry);
+  void (*rtcReleaseGeometry)(RTCGeometry);
+  void (*rtcIntersect1)(RTCScene, RayHit1*, QueryArgs*);
+  void (*rtcOccluded1)(RTCScene, Ray1*, QueryArgs*);
+  void (*rtcIntersect16)(const int*, RTCScene, RayHit16*, QueryArgs*);
+  void (*rtcOccluded16)(const int*, RTCScene, Ray16*, QueryArgs*);
+};
+
+EmbreeApi g_api;
+RTCDevice g_device = nullptr;
+std::string g_error;
+
+template <typename F>
+bool Load(void* lib, const char* name, F* fn) {
+  *fn = reinterpret_cast<F>(dlsym(lib, name));
+  if (*fn == nullptr) g_error = std::string("Embree library lacks ") + name;
+  return *fn != nullptr;
+}
+
+// ---- scenes -------------------------------------------------------------------------------------
+
+struct NativeScene {
+  std::vector<float> vertices;  // 3 V floats and padding (Embree reads vertices 16 bytes at a time)
+  std::vector<uint32_t> faces;  // 3 F
+  std::vector<int32_t> first_face;  // per tree, and the end
+  std::vector<RTCScene> trees;
+  uint64_t fingerprint = 0;
+  ~NativeScene() {
+    for (RTCScene s : trees) g_api.rtcReleaseScene(s);
+  }
+};
+
+std::mutex g_scenes_mutex;
+std::unordered_map<int32_t, std::shared_ptr<NativeScene>> g_scenes;
+
+uint64_t Mix(uint64_t h, uint64_t x) {
+  h ^= x + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+  return h;
+}
+
+// Sizes and a sample of the geometry: a host id reused for other geometry (another process's
+// numbering cannot reach here, but a caller could hand in other arrays) rebuilds the scene.
+uint64_t Fingerprint(const float* v, int64_t nv, const int32_t* f, int64_t nf, const int32_t* off,
+                     int64_t noff) {
+  uint64_t h = Mix(Mix(0, nv), nf);
+  for (int64_t i = 0; i < noff; ++i) h = Mix(h, static_cast<uint32_t>(off[i]));
+  const int64_t samples = 64;
+  for (int64_t k = 0; k < samples && nv > 0; ++k) {
+    uint32_t bits;
+    std::memcpy(&bits, &v[(k * (3 * nv - 1)) / samples], 4);
+    h = Mix(h, bits);
+  }
+  for (int64_t k = 0; k < samples && nf > 0; ++k) h = Mix(h, static_cast<uint32_t>(f[(k * (3 * nf - 1)) / samples]));
+  return h;
+}
+
+std::shared_ptr<NativeScene> Build(const float* v, int64_t nv, const int32_t* f, int64_t nf,
+                                   const int32_t* off, int64_t noff, uint64_t fingerprint,
+                                   std::string* error) {
+  auto scene = std::make_shared<NativeScene>();
+  scene->fingerprint = fingerprint;
+  scene->vertices.assign(v, v + 3 * nv);
+  scene->vertices.resize(3 * nv + 4, 0.0f);
+  scene->faces.resize(3 * nf);
+  for (int64_t i = 0; i < 3 * nf; ++i) {
+    if (f[i] < 0 || f[i] >= nv) {
+      *error = "face " + std::to_string(i / 3) + " names vertex " + std::to_string(f[i]) +
+               " of " + std::to_string(nv);
+      return nullptr;
+    }
+    scene->faces[i] = static_cast<uint32_t>(f[i]);
+  }
+  scene->first_face.assign(off, off + noff);
+  for (int64_t l = 0; l + 1 < noff; ++l) {
+    int64_t first = off[l], count = off[l + 1] - off[l];
+    if (first < 0 || count < 0 || first + count > nf) {
+      *error = "tree " + std::to_string(l) + " face range is outside the faces";
+      return nullptr;
+    }
+    RTCScene s = g_api.rtcNewScene(g_device);
+    g_api.rtcSetSceneFlags(s, kSceneRobust);
+    g_api.rtcSetSceneBuildQuality(s, kBuildQualityHigh);
+    if (count > 0) {
+      RTCGeometry g = g_api.rtcNewGeometry(g_device, kGeometryTriangle);
+      g_api.rtcSetSharedGeometryBuffer(g, kBufferVertex, 0, kFormatFloat3, scene->vertices.data(), 0,
+                                       12, nv);
+      g_api.rtcSetSharedGeometryBuffer(g, kBufferIndex, 0, kFormatUint3, scene->faces.data(),
+                                       12 * first, 12, count);
+      g_api.rtcCommitGeometry(g);
+      g_api.rtcAttachGeometry(s, g);
+      g_api.rtcReleaseGeometry(g);
+    }
+    g_api.rtcCommitScene(s);
+    scene->trees.push_back(s);
+    if (int code = g_api.rtcGetDeviceError(g_device)) {
+      *error = "Embree error " + std::to_string(code) + " building tree " + std::to_string(l);
+      return nullptr;
+    }
+  }
+  return scene;
+}
+
+std::shared_ptr<NativeScene> GetScene(int32_t id, const float* v, int64_t nv, const int32_t* f,
+                                      int64_t nf, const int32_t* off, int64_t noff,
+                                      std::string* error) {
+  uint64_t fp = Fingerprint(v, nv, f, nf, off, noff);
+  std::lock_guard<std::mutex> lock(g_scenes_mutex);
+  auto it = g_scenes.find(id);
+  if (it != g_scenes.end() && it->second->fingerprint == fp) return it->second;
+  auto scene = Build(v, nv, f, nf, off, noff, fp, error);
+  if (scene) g_scenes[id] = scene;
+  return scene;
+}
+
+// ---- work split over XLA's CPU thread pool -------------------------------------------------------
+
+// Runs body(block) for every block. The calling thread works too; a pool task that starts after
+// every block is claimed returns without touching `body`, so the call never waits for a task
+// the pool has not started (no deadlock when the pool is busy).
+template <typename Body>
+void ParallelFor(ffi::ThreadPool& pool, int64_t blocks, const Body& body) {
+  if (blocks <= 0) return;
+  struct State {
+    std::atomic<int64_t> next{0};
+    std::atomic<int64_t> done{0};
+    int64_t blocks = 0;
+    std::mutex mutex;
+    std::condition_variable finished;
+  };
+  auto state = std::make_shared<State>();
+  state->blocks = blocks;
+  const Body* shared_body = &body;
+  auto run = [state, shared_body]() {
+    for (;;) {
+      int64_t b = state->next.fetch_add(1);
+      if (b >= state->blocks) return;
+      (*shared_body)(b);
+      if (state->done.fetch_add(1) + 1 == state->blocks) {
+        std::lock_guard<std::mutex> lock(state->mutex);
+        state->finished.notify_all();
+      }
+    }
+  };
+  int64_t helpers = std::min<int64_t>(pool.num_threads(), blocks - 1);
+  for (int64_t i = 0; i < helpers; ++i) pool.Schedule([run]() { run(); });
+  run();
+  std::unique_lock<std::mutex> lock(state->mutex);
+  state->finished.wait(lock, [&] { return state->done.load() == state->blocks; });
+}
+
+// ---- the queries ---------------------------------------------------------------------------------
+
+struct Rays {
+  const float* o;
+  const float* d;
+  const float* tmin;
+  const float* tmax;
+  const int32_t* level;  // null: tree 0
+  float* t;
+  int32_t* prim;
+};
+
+inline bool Valid(const Rays& r, int64_t i) {
+  const float* o = r.o + 3 * i;
+  const float* d = r.d + 3 * i;
+  bool finite = std::isfinite(o[0]) && std::isfinite(o[1]) && std::isfinite(o[2]) &&
+                std::isfinite(d[0]) && std::isfinite(d[1]) && std::isfinite(d[2]);
+  return finite && (d[0] != 0.0f || d[1] != 0.0f || d[2] != 0.0f) && r.tmax[i] > r.tmin[i] &&
+         !std::isnan(r.tmin[i]);
+}
+
+inline int32_t TreeOf(const Rays& r, int64_t i, int64_t trees) {
+  if (r.level == nullptr) return 0;
+  int32_t l = r.level[i];
+  return l < 0 ? 0 : (l >= trees ? static_cast<int32_t>(trees - 1) : l);
+}
+
+inline void SetRay1(Ray1& ray, const Rays& r, int64_t i) {
+  ray.org_x = r.o[3 * i];
+  ray.org_y = r.o[3 * i + 1];
+  ray.org_z = r.o[3 * i + 2];
+  ray.tnear = r.tmin[i];
+  ray.dir_x = r.d[3 * i];
+  ray.dir_y = r.d[3 * i + 1];
+  ray.dir_z = r.d[3 * i + 2];
+  ray.time = 0.0f;
+  ray.tfar = r.tmax[i];
+  ray.mask = 0xffffffffu;
+  ray.id = 0;
+  ray.flags = 0;
+}
+
+void Single(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit) {
+  const int64_t trees = static_cast<int64_t>(s.trees.size());
+  for (int64_t i = begin; i < end; ++i) {
+    r.t[i] = INFINITY;
+    r.prim[i] = -1;
+    if (!Valid(r, i)) continue;
+    int32_t l = TreeOf(r, i, trees);
+    if (any_hit) {
+      Ray1 ray;
+      SetRay1(ray, r, i);
+      g_api.rtcOccluded1(s.trees[l], &ray, nullptr);
+      if (ray.tfar == -INFINITY) r.prim[i] = 0;
+    } else {
+      RayHit1 rh;
+      SetRay1(rh.ray, r, i);
+      rh.hit.geom_id = kInvalidId;
+      rh.hit.inst_id[0] = kInvalidId;
+      g_api.rtcIntersect1(s.trees[l], &rh, nullptr);
+      if (rh.hit.geom_id != kInvalidId) {
+        r.t[i] = rh.ray.tfar;
+        r.prim[i] = static_cast<int32_t>(rh.hit.prim_id) + s.first_face[l];
+      }
+    }
+  }
+}
+
+// Rays [begin, begin + 16) as one packet (lanes past `end` or invalid are masked off). A packet
+// whose rays use several trees is traced once per tree, each time with that tree's lanes.
+void Packet16(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit) {
+  const int64_t trees = static_cast<int64_t>(s.trees.size());
+  RayHit16 rh;
+  int valid[16];
+  int32_t tree[16];
+  bool any = false;
+  for (int k = 0; k < 16; ++k) {
+    int64_t i = begin + k;
+    bool ok = i < end && Valid(r, i);
+    valid[k] = ok ? -1 : 0;
+    tree[k] = ok ? TreeOf(r, i, trees) : -1;
+    any |= ok;
+    if (i < end) {
+      r.t[i] = INFINITY;
+      r.prim[i] = -1;
+    }
+    Ray16& ray = rh.ray;
+    ray.org_x[k] = ok ? r.o[3 * i] : 0.0f;
+    ray.org_y[k] = ok ? r.o[3 * i + 1] : 0.0f;
+    ray.org_z[k] = ok ? r.o[3 * i + 2] : 0.0f;
+    ray.tnear[k] = ok ? r.tmin[i] : 0.0f;
+    ray.dir_x[k] = ok ? r.d[3 * i] : 0.0f;
+    ray.dir_y[k] = ok ? r.d[3 * i + 1] : 0.0f;
+    ray.dir_z[k] = ok ? r.d[3 * i + 2] : 1.0f;
+    ray.time[k] = 0.0f;
+    ray.tfar[k] = ok ? r.tmax[i] : -INFINITY;
+    ray.mask[k] = 0xffffffffu;
+    ray.id[k] = k;
+    ray.flags[k] = 0;
+    rh.hit.geom_id[k] = kInvalidId;
+    rh.hit.inst_id[0][k] = kInvalidId;
+  }
+  if (!any) return;
+  QueryArgs args{};
+  args.flags = kQueryCoherent;
+  args.feature_mask = 0xffffffffu;
+  int32_t done_tree = -1;
+  for (int k = 0; k < 16; ++k) {
+    if (tree[k] < 0 || tree[k] == done_tree) continue;
+    int32_t l = tree[k];
+    int lanes[16];
+    for (int j = 0; j < 16; ++j) lanes[j] = tree[j] == l ? -1 : 0;
+    if (any_hit) {
+      g_api.rtcOccluded16(lanes, s.trees[l], &rh.ray, &args);
+    } else {
+      g_api.rtcIntersect16(lanes, s.trees[l], &rh, &args);
+    }
+    for (int j = 0; j < 16; ++j) {
+      if (tree[j] == l) tree[j] = -2 - l;  // traced
+    }
+    done_tree = l;
+  }
+  for (int k = 0; k < 16; ++k) {
+    int64_t i = begin + k;
+    if (!valid[k]) continue;
+    int32_t l = -2 - tree[k];
+    if (any_hit) {
+      if (rh.ray.tfar[k] == -INFINITY) r.prim[i] = 0;
+    } else if (rh.hit.geom_id[k] != kInvalidId) {
+      r.t[i] = rh.ray.tfar[k];
+      r.prim[i] = static_cast<int32_t>(rh.hit.prim_id[k]) + s.first_face[l];
+    }
+  }
+}
+
+ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
+                 ffi::Buffer<ffi::F32> tmin, ffi::Buffer<ffi::F32> tmax, ffi::Buffer<ffi::S32> level,
+                 ffi::Buffer<ffi::S32> scene_id, ffi::Buffer<ffi::F32> vertices,
+                 ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::S32> first_face,
+                 ffi::ResultBuffer<ffi::F32> t, ffi::ResultBuffer<ffi::S32> prim, int32_t any_hit,
+                 int32_t packet) {
+  if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
+  // Every array is read flat, so a batch under vmap ("expand_dims") is one call for all frames.
+  const int64_t n = static_cast<int64_t>(tmin.element_count());
+  if (origins.element_count() != 3 * static_cast<size_t>(n) ||
+      directions.element_count() != 3 * static_cast<size_t>(n) ||
+      tmax.element_count() != static_cast<size_t>(n) || t->element_count() != static_cast<size_t>(n) ||
+      prim->element_count() != static_cast<size_t>(n) ||
+      (level.element_count() != 0 && level.element_count() != static_cast<size_t>(n))) {
+    return ffi::Error::InvalidArgument("fovjax Embree query: ray arrays of different lengths");
+  }
+  if (scene_id.element_count() != 1 || first_face.element_count() < 2 ||
+      vertices.element_count() % 3 != 0 || faces.element_count() % 3 != 0) {
+    return ffi::Error::InvalidArgument(
+        "fovjax Embree query: one scene per call (a BVH batched under vmap is not supported)");
+  }
+  std::string error;
+  auto scene = GetScene(scene_id.typed_data()[0], vertices.typed_data(),
+                        static_cast<int64_t>(vertices.element_count() / 3), faces.typed_data(),
+                        static_cast<int64_t>(faces.element_count() / 3), first_face.typed_data(),
+                        static_cast<int64_t>(first_face.element_count()), &error);
+  if (!scene) return ffi::Error::InvalidArgument("fovjax Embree scene: " + error);
+  Rays r{origins.typed_data(), directions.typed_data(), tmin.typed_data(), tmax.typed_data(),
+         level.element_count() ? level.typed_data() : nullptr, t->typed_data(), prim->typed_data()};
+  const bool occlusion = any_hit != 0;
+  const NativeScene& s = *scene;
+  if (packet == 16) {
+    const int64_t packets = (n + 15) / 16;
+    const int64_t per_block = 64;  // 1024 rays: small next to a frame, large next to a task's cost
+    ParallelFor(pool, (packets + per_block - 1) / per_block, [&](int64_t b) {
+      int64_t last = std::min(packets, (b + 1) * per_block);
+      for (int64_t p = b * per_block; p < last; ++p) Packet16(s, r, 16 * p, n, occlusion);
+    });
+  } else {
+    const int64_t per_block = 1024;
+    ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t b) {
+      Single(s, r, b * per_block, std::min(n, (b + 1) * per_block), occlusion);
+    });
+  }
+  return ffi::Error::Success();
+}
+
+// Traces one triangle into structs surrounded by guard bytes: the library must write the fields
+// this file declares (the hit) and nothing past the end of each struct.
+bool CheckLayout(std::string* error) {
+  float v[12] = {-1, -1, 1, 1, -1, 1, 0, 1, 1, 0, 0, 0};
+  int32_t f[3] = {0, 1, 2};
+  int32_t off[2] = {0, 1};
+  std::string build_error;
+  auto s = Build(v, 3, f, 1, off, 2, 0, &build_error);
+  if (!s) {
+    *error = build_error;
+    return false;
+  }
+  constexpr size_t kGuard = 256;
+  constexpr unsigned char kByte = 0xA5;
+  // Single ray.
+  {
+    alignas(64) unsigned char buffer[sizeof(RayHit1) + kGuard];
+    std::memset(buffer, kByte, sizeof(buffer));
+    auto* rh = reinterpret_cast<RayHit1*>(buffer);
+    rh->ray = Ray1{0, 0, 0, 0, 0, 0, 1, 0, INFINITY, 0xffffffffu, 0, 0};
+    rh->hit.geom_id = kInvalidId;
+    rh->hit.inst_id[0] = kInvalidId;
+    g_api.rtcIntersect1(s->trees[0], rh, nullptr);
+    for (size_t i = sizeof(RayHit1); i < sizeof(buffer); ++i) {
+      if (buffer[i] != kByte) {
+        *error = "rtcIntersect1 wrote past the declared RTCRayHit (the library's layout differs)";
+        return false;
+      }
+    }
+    if (rh->hit.geom_id != 0 || rh->hit.prim_id != 0 || std::fabs(rh->ray.tfar - 1.0f) > 1e-6f) {
+      *error = "rtcIntersect1 did not report the test triangle where declared";
+      return false;
+    }
+  }
+  // A 16-ray packet, every lane aimed at the triangle.
+  {
+    alignas(64) unsigned char buffer[sizeof(RayHit16) + kGuard];
+    std::memset(buffer, kByte, sizeof(buffer));
+    auto* rh = reinterpret_cast<RayHit16*>(buffer);
+    int valid[16];
+    for (int k = 0; k < 16; ++k) {
+      valid[k] = -1;
+      rh->ray.org_x[k] = 0.01f * k - 0.08f;
+      rh->ray.org_y[k] = 0;
+      rh->ray.org_z[k] = 0;
+      rh->ray.tnear[k] = 0;
+      rh->ray.dir_x[k] = 0;
+      rh->ray.dir_y[k] = 0;
+      rh->ray.dir_z[k] = 1;
+      rh->ray.time[k] = 0;
+      rh->ray.tfar[k] = INFINITY;
+      rh->ray.mask[k] = 0xffffffffu;
+      rh->ray.id[k] = k;
+      rh->ray.flags[k] = 0;
+      rh->hit.geom_id[k] = kInvalidId;
+      rh->hit.inst_id[0][k] = kInvalidId;
+    }
+    QueryArgs args{};
+    args.flags = kQueryCoherent;
+    args.feature_mask = 0xffffffffu;
+    g_api.rtcIntersect16(valid, s->trees[0], rh, &args);
+    for (size_t i = sizeof(RayHit16); i < sizeof(buffer); ++i) {
+      if (buffer[i] != kByte) {
+        *error = "rtcIntersect16 wrote past the declared RTCRayHit16 (the library's layout differs)";
+        return false;
+      }
+    }
+    for (int k = 0; k < 16; ++k) {
+      if (rh->hit.geom_id[k] != 0 || rh->hit.prim_id[k] != 0 ||
+          std::fabs(rh->ray.tfar[k] - 1.0f) > 1e-6f) {
+        *error = "rtcIntersect16 did not report the test triangle where declared";
+        return false;
+      }
+    }
+    g_api.rtcOccluded16(valid, s->trees[0], &rh->ray, &args);
+    for (int k = 0; k < 16; ++k) {
+      if (rh->ray.tfar[k] != -INFINITY) {
+        *error = "rtcOccluded16 did not mark the test rays occluded";
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // origins (..., 3)
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // directions (..., 3)
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // tmin
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // tmax
+                                  .Arg<ffi::Buffer<ffi::S32>>()  // tree per ray, or empty
+                                  .Arg<ffi::Buffer<ffi::S32>>()  // the BVH's host id
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // vertices (V, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()  // faces (F, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()  // first face of each tree, and F
+                                  .Ret<ffi::Buffer<ffi::F32>>()  // t (inf: miss)
+                                  .Ret<ffi::Buffer<ffi::S32>>()  // face, -1: miss (0: occluded)
+                                  .Attr<int32_t>("any_hit")
+                                  .Attr<int32_t>("packet"));
+
+extern "C" {
+
+// Opens the Embree library at `path`, makes the device and checks the struct layout.
+// Returns 0, or -1 with the reason in fovjax_embree_error().
+int fovjax_embree_init(const char* path) {
+  if (g_device != nullptr) return 0;
+  void* lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+  if (lib == nullptr) {
+    const char* why = dlerror();
+    g_error = std::string("cannot open ") + path + ": " + (why ? why : "unknown error");
+    return -1;
+  }
+  EmbreeApi api{};
+  bool ok = Load(lib, "rtcNewDevice", &api.rtcNewDevice) &&
+            Load(lib, "rtcGetDeviceError", &api.rtcGetDeviceError) &&
+            Load(lib, "rtcGetDeviceProperty", &api.rtcGetDeviceProperty) &&
+            Load(lib, "rtcNewScene", &api.rtcNewScene) &&
+            Load(lib, "rtcSetSceneFlags", &api.rtcSetSceneFlags) &&
+            Load(lib, "rtcSetSceneBuildQuality", &api.rtcSetSceneBuildQuality) &&
+            Load(lib, "rtcAttachGeometry", &api.rtcAttachGeometry) &&
+            Load(lib, "rtcCommitScene", &api.rtcCommitScene) &&
+            Load(lib, "rtcReleaseScene", &api.rtcReleaseScene) &&
+            Load(lib, "rtcNewGeometry", &api.rtcNewGeometry) &&
+            Load(lib, "rtcSetSharedGeometryBuffer", &api.rtcSetSharedGeometryBuffer) &&
+            Load(lib, "rtcCommitGeometry", &api.rtcCommitGeometry) &&
+            Load(lib, "rtcReleaseGeometry", &api.rtcReleaseGeometry) &&
+            Load(lib, "rtcIntersect1", &api.rtcIntersect1) &&
+            Load(lib, "rtcOccluded1", &api.rtcOccluded1) &&
+            Load(lib, "rtcIntersect16", &api.rtcIntersect16) &&
+            Load(lib, "rtcOccluded16", &api.rtcOccluded16);
+  if (!ok) return -1;
+  g_api = api;
+  RTCDevice device = g_api.rtcNewDevice(nullptr);
+  if (device == nullptr) {
+    g_error = "rtcNewDevice failed";
+    return -1;
+  }
+  ptrdiff_t version = g_api.rtcGetDeviceProperty(device, kDevicePropertyVersion);
+  if (version < 40000 || version >= 50000) {
+    g_error = "need Embree 4, the library is version " + std::to_string(version);
+    return -1;
+  }
+  g_device = device;
+  std::string why;
+  if (!CheckLayout(&why)) {
+    g_device = nullptr;
+    g_error = why;
+    return -1;
+  }
+  return 0;
+}
+
+const char* fovjax_embree_error() { return g_error.c_str(); }
+
+long fovjax_embree_version() {
+  return g_device ? static_cast<long>(g_api.rtcGetDeviceProperty(g_device, kDevicePropertyVersion)) : 0;
+}
+
+// Frees the cached scene of one BVH host id (all of them with -1). Returns how many were freed.
+int fovjax_embree_release(int32_t id) {
+  std::lock_guard<std::mutex> lock(g_scenes_mutex);
+  if (id < 0) {
+    int n = static_cast<int>(g_scenes.size());
+    g_scenes.clear();
+    return n;
+  }
+  return static_cast<int>(g_scenes.erase(id));
+}
+
+int fovjax_embree_cached_scenes() {
+  std::lock_guard<std::mutex> lock(g_scenes_mutex);
+  return static_cast<int>(g_scenes.size());
+}
+
+}  // extern "C"
