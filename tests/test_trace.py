@@ -22,10 +22,21 @@ import fovjax
 from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, hit_geometry, occluded
 
 RTOL, ATOL = 1e-4, 1e-5
-TRAVERSALS = [pytest.param({}, id="single"), pytest.param({"packet": 16}, id="packet16")]
+# Every backend against the same oracles: the JAX traversal (the reference) and Embree through
+# its FFI handler (tests/test_trace_native.py checks the handler built; NVIDIA Warp has its own
+# file, tests/test_trace_warp.py).
+BACKENDS = ["jax", "embree"]
+TRAVERSALS = [
+    pytest.param({"backend": b, **opts}, id=f"{b}-{name}")
+    for b in BACKENDS
+    for name, opts in (("single", {}), ("packet16", {"packet": 16}))
+]
 # packet="sorted" (rays regrouped by origin, then packets) against brute force here; against
 # the one-by-one traversal, ray for ray, in tests/test_trace_sorted.py.
-WITH_SORTED = [*TRAVERSALS, pytest.param({"packet": "sorted"}, id="sorted")]
+WITH_SORTED = [
+    *TRAVERSALS,
+    *(pytest.param({"backend": b, "packet": "sorted"}, id=f"{b}-sorted") for b in BACKENDS),
+]
 
 
 def t_close(a, b):
@@ -93,7 +104,8 @@ def test_occluded_agrees_with_closest_hit(soup, opts):
     assert np.mean(occ == np.isfinite(t_ref)) >= 0.9999
 
 
-def test_batch_shapes_and_invalid_rays(soup):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_batch_shapes_and_invalid_rays(soup, backend):
     V, F, bvh = soup
     rng = np.random.default_rng(4)
     o = rng.uniform(-3, 3, (2, 3, 5, 3)).astype(np.float32)
@@ -101,13 +113,24 @@ def test_batch_shapes_and_invalid_rays(soup):
     d[0, 0, 0] = 0.0
     d[0, 0, 1] = np.nan
     o[0, 0, 2] = np.inf
-    hit = closest_hit(bvh, o, d)
+    # A ray that hits the soup, given an empty interval (tmax == tmin): a miss.
+    t_ref, _, _ = brute_force_closest_hit(V, F, o[1].reshape(-1, 3), d[1].reshape(-1, 3))
+    k = int(np.flatnonzero(np.isfinite(t_ref))[0])
+    o[0, 0, 3], d[0, 0, 3] = o[1].reshape(-1, 3)[k], d[1].reshape(-1, 3)[k]
+    tmin = np.zeros((2, 3, 5), np.float32)
+    tmax = np.full((2, 3, 5), np.inf, np.float32)
+    tmin[0, 0, 3] = tmax[0, 0, 3] = 0.5 * t_ref[k]
+    hit = closest_hit(bvh, o, d, tmin, tmax, backend=backend)
     assert hit.t.shape == hit.prim.shape == hit.u.shape == (2, 3, 5)
-    assert (np.asarray(hit.prim)[0, 0, :3] == -1).all() and np.isinf(np.asarray(hit.t)[0, 0, :3]).all()
+    assert (np.asarray(hit.prim)[0, 0, :4] == -1).all() and np.isinf(np.asarray(hit.t)[0, 0, :4]).all()
     assert not np.isnan(np.asarray(hit.t)).any()
-    flat = closest_hit(bvh, o.reshape(-1, 3), d.reshape(-1, 3))
+    assert np.isfinite(np.asarray(closest_hit(bvh, o[0, 0, 3], d[0, 0, 3], backend=backend).t))
+    flat = closest_hit(
+        bvh, o.reshape(-1, 3), d.reshape(-1, 3), tmin.reshape(-1), tmax.reshape(-1), backend=backend
+    )
     np.testing.assert_array_equal(np.asarray(flat.prim), np.asarray(hit.prim).reshape(-1))
-    assert occluded(bvh, o, d).shape == (2, 3, 5)
+    occ = occluded(bvh, o, d, tmax, tmin=tmin, backend=backend)
+    assert occ.shape == (2, 3, 5) and not np.asarray(occ)[0, 0, :4].any()
 
 
 @pytest.mark.no_typecheck
@@ -144,17 +167,19 @@ def test_annotations_hold_for_numpy_and_broadcast_arguments(soup):
         checked_hit(bvh, np.zeros((4, 2)), np.ones((4, 2)))
 
 
-def test_tile_packets_restore_image_order():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_tile_packets_restore_image_order(backend):
     scene = fovjax.scenes.spheres()
     bvh = build_bvh(scene, cache=False)
     cam = fovjax.Camera.from_pose(fovjax.scenes.default_camera(scene), width=37, height=29)
     o, d = cam.primary_rays()
-    single = closest_hit(bvh, o, d)
-    tiled = closest_hit(bvh, o, d, packet=(8, 8))
+    single = closest_hit(bvh, o, d, backend=backend)
+    tiled = closest_hit(bvh, o, d, packet=(8, 8), backend=backend)
     np.testing.assert_array_equal(np.asarray(single.prim), np.asarray(tiled.prim))
     np.testing.assert_array_equal(np.asarray(single.t), np.asarray(tiled.t))
     np.testing.assert_array_equal(
-        np.asarray(occluded(bvh, o, d)), np.asarray(occluded(bvh, o, d, packet=(8, 8)))
+        np.asarray(occluded(bvh, o, d, backend=backend)),
+        np.asarray(occluded(bvh, o, d, packet=(8, 8), backend=backend)),
     )
 
 
@@ -186,19 +211,21 @@ def test_no_leaks_through_vertices_and_edges(sphere, opts):
         assert (np.asarray(closest_hit(bvh, o_out, -targets, **opts).prim) >= 0).all()
 
 
-def test_axis_parallel_rays(sphere):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_axis_parallel_rays(sphere, backend):
     V, F, bvh = sphere
     axes = np.concatenate([np.eye(3), -np.eye(3)]).astype(np.float32)
     rng = np.random.default_rng(6)
     o = rng.uniform(-0.5, 0.5, (600, 3)).astype(np.float32)
     d = np.repeat(axes, 100, axis=0)
     o[::7, :] = 0.0  # rays starting exactly on the slab planes of the root's children
-    hit = closest_hit(bvh, o, d)
+    hit = closest_hit(bvh, o, d, backend=backend)
     assert (np.asarray(hit.prim) >= 0).all()
     assert_matches_brute_force(V, F, o, d, hit)
 
 
-def test_rays_starting_on_a_surface(sphere):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_rays_starting_on_a_surface(sphere, backend):
     """With tmin > 0, a ray leaving its own surface does not hit it; going inwards it hits the
     far side."""
     V, F, bvh = sphere
@@ -207,14 +234,15 @@ def test_rays_starting_on_a_surface(sphere):
     w = rng.dirichlet(np.ones(3), 500)
     p = np.einsum("nk,nkc->nc", w, V[F[f]]).astype(np.float32)
     n = p / np.linalg.norm(p, axis=1, keepdims=True)
-    out = closest_hit(bvh, p, n, tmin=1e-4)
+    out = closest_hit(bvh, p, n, tmin=1e-4, backend=backend)
     assert (np.asarray(out.prim) == -1).all()
-    inward = closest_hit(bvh, p, -n, tmin=1e-4)
+    inward = closest_hit(bvh, p, -n, tmin=1e-4, backend=backend)
     t = np.asarray(inward.t)
     assert (np.asarray(inward.prim) >= 0).all() and (t > 1.5).all()
 
 
-def test_grazing_rays_match_brute_force(sphere):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_grazing_rays_match_brute_force(sphere, backend):
     V, F, bvh = sphere
     rng = np.random.default_rng(8)
     # Tangent to the unit sphere at random points: most miss, some clip a facet.
@@ -224,10 +252,10 @@ def test_grazing_rays_match_brute_force(sphere):
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     o = (p * 0.999 - 2 * tangent).astype(np.float32)
     d = tangent.astype(np.float32)
-    assert_matches_brute_force(V, F, o, d, closest_hit(bvh, o, d))
+    assert_matches_brute_force(V, F, o, d, closest_hit(bvh, o, d, backend=backend))
 
 
-# --- Embree on every built-in scene ----------------------------------------------------------
+# --- every backend on every built-in scene, against the JAX traversal --------------------------
 
 
 def embree_available():
@@ -259,43 +287,53 @@ def scene_rays(scene, seed):
     return {"camera": (np.asarray(o), np.asarray(d)), "random": (ro, rd)}
 
 
+def assert_same_hits(bvh, o, d, hit, ref, what):
+    """Hit/miss and t agree; the face too wherever the hit is unambiguous. Built-in solids
+    touch (coplanar faces), so where the faces differ, each must lie on the ray at the same
+    distance: a tie, which any tracer may break either way."""
+    t, t_ref = np.asarray(hit.t).reshape(-1), np.asarray(ref.t).reshape(-1)
+    agree = np.isfinite(t) == np.isfinite(t_ref)
+    assert agree.mean() >= 0.9999, f"{what}: hit/miss agreement {agree.mean()}"
+    both = np.isfinite(t) & np.isfinite(t_ref)
+    assert t_close(t[both], t_ref[both]).mean() >= 0.9999
+    prim, prim_ref = np.asarray(hit.prim).reshape(-1), np.asarray(ref.prim).reshape(-1)
+    differ = both & (prim != prim_ref)
+    t_other, _, _ = hit_geometry(bvh.vertices, bvh.faces, prim_ref, o.reshape(-1, 3), d.reshape(-1, 3))
+    tie = t_close(t[differ], np.asarray(t_other)[differ])
+    assert tie.all(), f"{what}: {int((~tie).sum())} unambiguous hits on a different face"
+
+
 @needs_embree
-def test_builtin_scenes_match_embree(builtin):
+def test_builtin_scenes_every_backend_matches_the_jax_traversal(builtin):
     scene, bvh = builtin
     for kind, (o, d) in scene_rays(scene, 9).items():
-        ref = closest_hit(bvh, o, d, backend="embree")
+        ref = closest_hit(bvh, o, d, backend="jax")
+        occ_ref = np.asarray(occluded(bvh, o, d, 5.0, backend="jax")).reshape(-1)
         options = [{}] + ([{"packet": (8, 8)}] if kind == "camera" else [])
         for opts in options:
-            hit = closest_hit(bvh, o, d, **opts)
-            t, t_ref = np.asarray(hit.t).reshape(-1), np.asarray(ref.t).reshape(-1)
-            agree = np.isfinite(t) == np.isfinite(t_ref)
-            assert agree.mean() >= 0.9999, f"{scene.name} {kind} {opts}: hit/miss agreement {agree.mean()}"
-            both = np.isfinite(t) & np.isfinite(t_ref)
-            assert t_close(t[both], t_ref[both]).mean() >= 0.9999
-            # Same face wherever the hit is unambiguous. Built-in solids touch (coplanar faces),
-            # so where the faces differ, each must lie on the ray at the same distance: a tie.
-            prim, prim_ref = np.asarray(hit.prim).reshape(-1), np.asarray(ref.prim).reshape(-1)
-            differ = both & (prim != prim_ref)
-            t_other, _, _ = hit_geometry(
-                bvh.vertices, bvh.faces, prim_ref, o.reshape(-1, 3), d.reshape(-1, 3)
-            )
-            tie = t_close(t[differ], np.asarray(t_other)[differ])
-            assert tie.all(), f"{scene.name} {kind}: {int((~tie).sum())} unambiguous hits on a different face"
-        occ = np.asarray(occluded(bvh, o, d, 5.0)).reshape(-1)
-        occ_ref = np.asarray(occluded(bvh, o, d, 5.0, backend="embree")).reshape(-1)
-        assert np.mean(occ == occ_ref) >= 0.9999
+            hit = closest_hit(bvh, o, d, backend="embree", **opts)
+            assert_same_hits(bvh, o, d, hit, ref, f"{scene.name} {kind} {opts}")
+            occ = np.asarray(occluded(bvh, o, d, 5.0, backend="embree", **opts)).reshape(-1)
+            assert np.mean(occ == occ_ref) >= 0.9999
 
 
 @needs_embree
-def test_embree_backend_under_jit(soup):
+def test_embree_pure_callback_fallback_under_jit(soup):
+    """The fallback where the FFI handler cannot be built: embreex's own API through
+    jax.pure_callback, against brute force."""
     import jax
+
+    from fovjax.trace._embree import embree_query
 
     V, F, bvh = soup
     rng = np.random.default_rng(10)
     o = rng.uniform(-3, 3, (500, 3)).astype(np.float32)
     d = rng.normal(size=(500, 3)).astype(np.float32)
-    f = jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="embree"))
-    assert_matches_brute_force(V, F, o, d, f(o, d))
+    tmin = np.full(500, 0.5, np.float32)
+    tmax = np.full(500, np.inf, np.float32)
+    _, prim = jax.jit(lambda o, d: embree_query(bvh, o, d, tmin, tmax, any_hit=False))(o, d)
+    t, u, v = hit_geometry(bvh.vertices, bvh.faces, prim, o, d)
+    assert_matches_brute_force(V, F, o, d, fovjax.trace.Hit(t, prim, u, v), tmin, tmax)
 
 
 SPLIT_SCRIPT = textwrap.dedent(
@@ -312,13 +350,13 @@ SPLIT_SCRIPT = textwrap.dedent(
     d = rng.normal(size=(999, 3)).astype(np.float32)
     t_ref, _, _ = brute_force_closest_hit(V, F, o, d)
     for packet in (None, 16, "sorted"):
-        hit = jax.jit(lambda o, d: closest_hit(bvh, o, d, packet=packet))(o, d)
+        hit = jax.jit(lambda o, d: closest_hit(bvh, o, d, packet=packet, backend="jax"))(o, d)
         assert len(hit.t.sharding.device_set) == 2, hit.t.sharding  # both devices traced
         t = np.asarray(hit.t)
         assert np.mean(np.isfinite(t) == np.isfinite(t_ref)) >= 0.999
         both = np.isfinite(t) & np.isfinite(t_ref)
         assert np.allclose(t[both], t_ref[both], rtol=1e-4, atol=1e-5)
-        occ = np.asarray(occluded(bvh, o, d, packet=packet))
+        occ = np.asarray(occluded(bvh, o, d, packet=packet, backend="jax"))
         assert np.mean(occ == np.isfinite(t_ref)) >= 0.999
     print("OK")
     """

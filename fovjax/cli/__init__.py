@@ -177,6 +177,31 @@ def _show(value) -> str:
     return repr(value) if isinstance(value, str) else f"{value}"
 
 
+# fovjax.trace.BACKENDS, spelled out so that parsing arguments imports no JAX (tested equal).
+BACKENDS = ("auto", "jax", "embree", "warp")
+
+
+def add_backend(parser: argparse.ArgumentParser) -> None:
+    """`--backend`: the ray-query backend of every command that renders."""
+    parser.add_argument(
+        "--backend",
+        default="auto",
+        choices=BACKENDS,
+        help="ray queries: auto (default: Embree through XLA's FFI on CPU where it builds, Warp on a GPU "
+        "where installed, else the JAX traversal), jax, embree or warp",
+    )
+
+
+def backend(value: str, option: str = "--backend") -> None:
+    """An explicitly named backend whose package is missing fails before anything is built."""
+    import importlib.util
+
+    if value == "embree" and importlib.util.find_spec("embreex") is None:
+        raise ImportError(f"{option} embree needs embreex: pip install 'fovjax[embree]'")
+    if value == "warp" and importlib.util.find_spec("warp") is None:
+        raise ImportError(f"{option} warp needs NVIDIA Warp: pip install 'fovjax[gpu]'")
+
+
 def number(value, option: str, *, gt=None, ge=None, lt=None, le=None, integer: bool = False):
     """`value` is a finite number (an integer with `integer`) within the bounds given."""
     bounds = [(gt, ">", lambda v, b: v > b), (ge, ">=", lambda v, b: v >= b)]

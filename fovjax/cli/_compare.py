@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from fovjax import cli
+
 
 def _pair(text: str) -> tuple[float, float]:
     try:
@@ -55,6 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--criterion", default="flip", help="metric that must stay below --threshold")
     p.add_argument("--threshold", type=float, default=0.05)
     p.add_argument("--max-depth", type=int, default=5)
+    cli.add_backend(p)
     p.add_argument("--no-perceptual", action="store_true", help="skip FovVideoVDP even if installed")
     p.add_argument(
         "--fidelity",
@@ -96,6 +99,7 @@ def validate(args) -> None:
     from fovjax import cli
 
     cli.scene(args.scene)
+    cli.backend(args.backend)
     for fovea, periphery in args.thresholds:
         cli.fovea_periphery(fovea, periphery, "--thresholds")
     cli.squares(args.spp, "--spp")
@@ -155,7 +159,7 @@ def run(args) -> int:
         spp=args.spp,
         gazes=args.gazes,
         keys=args.keys,
-        config=RenderConfig(max_depth=args.max_depth),
+        config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
         shard=args.shard,

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from fovjax import cli
+
 
 def _resolution(text: str) -> tuple[int, int]:
     try:
@@ -21,6 +23,7 @@ def _common(p: argparse.ArgumentParser, output: str) -> None:
     p.add_argument("--width", type=int, default=320, help="pixels per eye")
     p.add_argument("--height", type=int, default=256)
     p.add_argument("--max-depth", type=int, default=2, help="reflection bounces")
+    cli.add_backend(p)
     p.add_argument("--fovea", type=float, default=10.0, help="fovea radius, degrees")
     p.add_argument("--periphery", type=float, default=20.0, help="periphery radius, degrees")
     p.add_argument("--no-progress", action="store_true")
@@ -60,6 +63,7 @@ def validate_failures(args) -> None:
     from fovjax import cli
 
     _validate_common(args)
+    cli.backend(args.backend)
     cli.squares(args.spp, "--spp")
 
 
@@ -74,7 +78,7 @@ def _setup(args):
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
     foveation = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery)
-    return scene, rig, foveation, RenderConfig(max_depth=args.max_depth)
+    return scene, rig, foveation, RenderConfig(max_depth=args.max_depth, backend=args.backend)
 
 
 def run_failures(args) -> int:

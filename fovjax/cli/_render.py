@@ -72,7 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=1280, help="pixels per eye (stereo) or image width (mono)")
     p.add_argument("--height", type=int, default=1024)
     p.add_argument("--triangles", type=int, default=262_000, help="atrium size (triangles)")
-    p.add_argument("--backend", default="jax", choices=("jax", "embree"), help="ray traversal backend")
+    cli.add_backend(p)
     p.add_argument("--exposure", type=float, default=1.0, help="PNG exposure (linear scale before the clip)")
     p.add_argument("--tonemap", default="clip", choices=("clip", "reinhard"), help="PNG tone curve")
     p.add_argument("--preview", action="store_true", help="geometry preview (normal and depth) instead")
@@ -127,6 +127,7 @@ def validate(args) -> Path:
     cli.number(args.height, "--height", ge=1)
     cli.number(args.max_depth, "--max-depth", ge=0)
     cli.number(args.triangles, "--triangles", ge=1)
+    cli.backend(args.backend)
     cli.number(args.exposure, "--exposure", gt=0)
     cli.head_gaze_fovea(args)
     args.envmap_image = None
@@ -171,7 +172,7 @@ def _run(args, out: Path) -> int:
     import fovjax
     from fovjax import render_stereo
     from fovjax.render import RenderConfig, StereoRig, head_rotation, render, scene_arrays
-    from fovjax.trace import build_bvh, last_build_info
+    from fovjax.trace import build_bvh, describe_backend, last_build_info
 
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
     steps = 4
@@ -231,6 +232,7 @@ def _run(args, out: Path) -> int:
     cached = ", BVH from cache" if build["from_cache"] else f", BVH built in {build['seconds']:.2f} s"
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
     platform = jax.devices()[0].platform
+    print(f"ray queries: {describe_backend(config.backend, platform)}")
     if foveated:
         f = frame.foveation
         print(

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fovjax import cli
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -32,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
-    p.add_argument("--backend", default="jax", choices=("jax", "embree"), help="ray traversal backend")
+    cli.add_backend(p)
     p.add_argument(
         "--clock",
         choices=("auto", "virtual", "wall"),
@@ -71,6 +73,7 @@ def validate(args) -> None:
     from fovjax import cli
 
     cli.source_spec(args.gaze, "gaze", "--gaze")
+    cli.backend(args.backend)
     if args.head is not None:
         cli.source_spec(args.head, "head", "--head")
     cli.number(args.fps, "--fps", gt=0)

@@ -13,6 +13,8 @@ import signal
 import socket
 import threading
 
+from fovjax import cli
+
 SCENE_ALIASES = {"cornell": "cornell_box"}
 MAX_EYE_PIXELS = 8192
 
@@ -38,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
-    p.add_argument("--backend", default="jax", choices=("jax", "embree"), help="ray traversal backend")
+    cli.add_backend(p)
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the sampling (default 0)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: any free port)")
@@ -79,8 +81,7 @@ def validate(args) -> None:
         raise cli.UsageError(f"--host {args.host!r}: expected an address to listen on (e.g. 127.0.0.1)")
     cli.number(args.port, "--port", ge=0, le=65535, integer=True)
     _check_listen(args.host, args.port)
-    if args.backend == "embree" and importlib.util.find_spec("embreex") is None:
-        raise ImportError("--backend embree needs embreex: pip install 'fovjax[embree]'")
+    cli.backend(args.backend)
     if importlib.util.find_spec("aiohttp") is None:
         raise ImportError("fovjax view needs aiohttp: pip install 'fovjax[view]'")
 

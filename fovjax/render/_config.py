@@ -38,7 +38,11 @@ class RenderConfig:
       for runs of consecutive rays, or None for one by one; a tile needs rays with at least two
       batch axes laid out as an image). Reflection rays and later shadow rays are incoherent
       and always traced one by one.
-    - `backend`: "jax" (any XLA device) or "embree" (CPU; needs embreex).
+    - `backend`: the ray queries (`fovjax.trace.closest_hit`): "auto" (Embree through XLA's FFI
+      on CPU where its handler builds, Warp on CUDA where installed, else the JAX traversal;
+      chosen per platform inside the program), "jax", "embree" or "warp". Images are the same
+      up to float rounding and ties between faces at equal distance: only the hit face comes
+      from the backend, the rest is recomputed in JAX.
     - `chunk_size`: reflection levels trace and shade their live rays in chunks of this many
       (dead chunks are skipped); larger chunks keep more traversal lanes busy, smaller ones
       waste less on the last, partly filled chunk.
@@ -62,7 +66,7 @@ class RenderConfig:
     bad_color: tuple[float, float, float] = MAGENTA
     ray_offset: float = 1e-5
     packet: int | tuple[int, int] | None = (8, 8)
-    backend: str = "jax"
+    backend: str = "auto"
     chunk_size: int = 32768
     queue_chunk_size: int = 4096
     first_bounce_chunk_size: int | None = 16384

@@ -3,7 +3,10 @@
 - `build_bvh(scene)` — binned SAH on the host, cached on disk;
 - `closest_hit(bvh, origins, directions, tmin, tmax)` → `Hit(t, prim, u, v)`;
 - `occluded(bvh, origins, directions, tmax)` → bool;
-both with `backend="jax"` (default, any XLA device) or `"embree"` (CPU, needs embreex);
+on a backend: `"auto"` (default: Embree through XLA's FFI on CPU, Warp on CUDA, else JAX,
+chosen per platform inside the program), `"embree"`, `"warp"` or `"jax"` (the `while_loop`
+traversal, any XLA device: the reference the others are tested against); `describe_backend()`
+names what "auto" runs and why, `embree_status()` whether the Embree FFI handler built;
 - `merge_bvhs(bvhs)` → one BVH of several trees (levels of detail), queried with `level=` per ray.
 """
 
@@ -12,6 +15,8 @@ from ._bvh import BVH as BVH
 from ._bvh import build_bvh as build_bvh
 from ._bvh import last_build_info as last_build_info
 from ._bvh import merge_bvhs as merge_bvhs
+from ._native import embree_status as embree_status
+from ._native import release_embree_scenes as release_embree_scenes
 from ._query import (
     BACKENDS as BACKENDS,
 )
@@ -25,8 +30,14 @@ from ._query import (
     closest_hit as closest_hit,
 )
 from ._query import (
+    describe_backend as describe_backend,
+)
+from ._query import (
     hit_geometry as hit_geometry,
 )
 from ._query import (
     occluded as occluded,
+)
+from ._query import (
+    resolve_backend as resolve_backend,
 )

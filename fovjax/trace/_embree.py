@@ -90,6 +90,7 @@ def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packet
 
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):
     """(t, prim) through embreex's Python API and `jax.pure_callback` (the fallback)."""
+
     def host(host_id, o, d, tmin, tmax):
         key, vertices, faces = host_geometry(host_id)
         scene = embree_scene(key, vertices, faces)

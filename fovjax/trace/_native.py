@@ -87,7 +87,12 @@ def _build(compiler: str) -> tuple[Path, float]:
 
     version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
     digest = hashlib.sha256()
-    for part in (SOURCE.read_bytes(), jaxlib.__version__.encode(), version.encode(), " ".join(_FLAGS).encode()):
+    for part in (
+        SOURCE.read_bytes(),
+        jaxlib.__version__.encode(),
+        version.encode(),
+        " ".join(_FLAGS).encode(),
+    ):
         digest.update(part)
     out_dir = _native_dir()
     path = out_dir / f"fovjax_embree_ffi-{digest.hexdigest()[:16]}.so"
@@ -101,7 +106,9 @@ def _build(compiler: str) -> tuple[Path, float]:
         cmd = [compiler, *_FLAGS, f"-I{include}", str(SOURCE), "-o", tmp]
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
         if done.returncode != 0:
-            lines = [ln for ln in done.stderr.splitlines() if "error" in ln][:3] or done.stderr.splitlines()[-3:]
+            lines = [ln for ln in done.stderr.splitlines() if "error" in ln][:3] or done.stderr.splitlines()[
+                -3:
+            ]
             raise RuntimeError(f"{Path(compiler).name} failed to compile {SOURCE.name}: " + " | ".join(lines))
         os.replace(tmp, path)  # atomic: a concurrent process never loads half a library
     finally:

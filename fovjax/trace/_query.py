@@ -273,7 +273,11 @@ def _query_backend(
 ):
     """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s jit)."""
     kw = dict(
-        any_hit=any_hit, packet_size=packet_size, lanes=lanes, packets=packets, steps_per_refill=steps_per_refill
+        any_hit=any_hit,
+        packet_size=packet_size,
+        lanes=lanes,
+        packets=packets,
+        steps_per_refill=steps_per_refill,
     )
     if backend != "auto":
         return _run_backend(backend, bvh, o, d, tmin, tmax, level, split=True, **kw)
@@ -302,7 +306,9 @@ def _run_backend(
         from ._native import embree_status
 
         if embree_status():
-            return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packet_size is not None)
+            return embree_ffi_query(
+                bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packet_size is not None
+            )
         if level is not None:
             raise ValueError(
                 "level= with backend 'embree' needs its FFI handler, which is unavailable: "
