@@ -49,6 +49,7 @@ from ._envmap import constant_envmap as constant_envmap
 from ._envmap import envmap_lookup as envmap_lookup
 from ._envmap import latlong_uv as latlong_uv
 from ._envmap import load_envmap as load_envmap
+from ._frame import LOWERING_HOOKS as LOWERING_HOOKS
 from ._frame import TRACE_COUNTS as TRACE_COUNTS
 from ._frame import Frame as Frame
 from ._frame import FrameStats as FrameStats

@@ -53,7 +53,7 @@ class BVH(eqx.Module):
     # build one scene per tree from it); None: one tree.
     first_face: Int[np.ndarray | Array, " L1"] | None = None
 
-    def tree_faces(self) -> np.ndarray:
+    def tree_faces(self):
         """The first face of each tree and the face count: [0, F] for a single tree."""
         if self.first_face is None:
             return np.array([0, self.num_triangles], np.int32)

@@ -11,6 +11,8 @@ the face index leaves the backend: t, u, v are recomputed differentiably from it
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -67,25 +69,61 @@ def embree_trace_host(scene, o, d, tmin, tmax, any_hit):
 def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packets: bool):
     """(t, prim) of flat rays through the Embree FFI handler (which must be registered:
     `embree_status()`); t = inf and prim = -1 on a miss, prim 0 for an occluded ray."""
-    from ._native import TARGET
-
-    n = o.shape[0]
-    out = (jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.int32))
-    # Every operand is read flat by the handler, so under vmap the frames' rays are one call.
-    call = jax.ffi.ffi_call(TARGET, out, vmap_method="expand_dims")
-    return call(
-        o,
-        d,
-        tmin,
-        tmax,
-        jnp.zeros((0,), jnp.int32) if level is None else jnp.asarray(level, jnp.int32),
+    o, d, tmin, tmax = (jax.lax.stop_gradient(x) for x in (o, d, tmin, tmax))  # visibility only
+    level = jnp.zeros((0,), jnp.int32) if level is None else jnp.asarray(level, jnp.int32)
+    scene = (
         jnp.asarray(bvh.host_id, jnp.int32),
         jnp.asarray(bvh.vertices, jnp.float32),
         jnp.asarray(bvh.faces, jnp.int32),
         jnp.asarray(bvh.tree_faces(), jnp.int32),
-        any_hit=np.int32(any_hit),
-        packet=np.int32(16 if packets else 0),
     )
+    return _ffi_call(bool(any_hit), bool(packets))(o, d, tmin, tmax, level, *scene)
+
+
+@functools.cache
+def _ffi_call(any_hit: bool, packets: bool):
+    """The FFI call for one query kind, with a batching rule: under vmap the frames' rays are
+    broadcast to the batch and traced in one call against the one (unbatched) scene."""
+    from ._native import TARGET
+
+    @jax.custom_batching.custom_vmap
+    def call(o, d, tmin, tmax, level, host_id, vertices, faces, first_face):
+        n = tmin.shape[0]
+        out = (jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.int32))
+        ffi = jax.ffi.ffi_call(TARGET, out)
+        return ffi(
+            o,
+            d,
+            tmin,
+            tmax,
+            level,
+            host_id,
+            vertices,
+            faces,
+            first_face,
+            any_hit=np.int32(any_hit),
+            packet=np.int32(16 if packets else 0),
+        )
+
+    @call.def_vmap
+    def _batched(axis_size, in_batched, o, d, tmin, tmax, level, *scene):
+        if any(in_batched[5:]):
+            raise ValueError(
+                "the Embree backend traces against one scene per call: a BVH batched under vmap "
+                "is not supported (batch the rays, not the BVH)"
+            )
+        rays = [o, d, tmin, tmax] + ([level] if level.shape[0] else [])
+        rays = [
+            x if b else jnp.broadcast_to(x, (axis_size, *x.shape))
+            for x, b in zip(rays, in_batched, strict=False)
+        ]
+        n = rays[2].shape[1]
+        flat = [rays[0].reshape(-1, 3), rays[1].reshape(-1, 3), rays[2].reshape(-1), rays[3].reshape(-1)]
+        flat.append(rays[4].reshape(-1) if level.shape[0] else level)
+        t, prim = call(*flat, *scene)
+        return (t.reshape(axis_size, n), prim.reshape(axis_size, n)), (True, True)
+
+    return call
 
 
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):

@@ -1,0 +1,243 @@
+"""The native ray-query backends' plumbing: the Embree FFI handler builds where embreex is installed,
+falls back (and says why) where it cannot, answers per-ray levels of a merged BVH, ties on shared
+edges, batches under vmap, keeps gradients, frees its scenes; and every frame program lowers for
+CUDA without a CPU-only op (no GPU needed).
+
+The hit results themselves are checked against brute force and the JAX traversal for every
+backend in tests/test_trace.py."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fovjax
+from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, merge_bvhs, occluded
+from fovjax.trace._native import cached_embree_scenes, embree_library, embree_status, release_embree_scenes
+
+REQUIRE_EXTRAS = os.environ.get("FOVJAX_REQUIRE_EXTRAS") == "1"
+
+
+def test_backend_names_agree_with_the_command_line():
+    from fovjax import cli
+
+    assert cli.BACKENDS == fovjax.trace.BACKENDS
+
+
+def test_embree_handler_builds_where_embreex_is_installed():
+    if embree_library() is None:
+        if REQUIRE_EXTRAS:
+            pytest.fail("embreex is not installed (FOVJAX_REQUIRE_EXTRAS=1)")
+        pytest.skip("embreex not installed (pip install fovjax[embree])")
+    status = embree_status()
+    assert status, f"the Embree FFI handler did not build or load: {status.reason}"
+    assert status.reason.startswith("Embree 4.")
+    assert fovjax.trace.resolve_backend("auto", "cpu") == "embree"
+    assert fovjax.trace.describe_backend("auto", "cpu").startswith("embree (Embree 4.")
+    assert fovjax.render.RenderConfig().backend == "auto"
+
+
+needs_native = pytest.mark.skipif(
+    not REQUIRE_EXTRAS and not embree_status(),
+    reason=f"Embree FFI handler unavailable: {embree_status().reason}",
+)
+
+FALLBACK_SCRIPT = textwrap.dedent(
+    """
+    import numpy as np
+    import fovjax
+    from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit
+    print("STATUS", fovjax.trace.embree_status().reason)
+    print("AUTO", fovjax.trace.describe_backend("auto", "cpu"))
+    if "{check}" == "trace":
+        rng = np.random.default_rng(0)
+        V = rng.uniform(-1, 1, (60, 3)).astype(np.float32)
+        F = np.arange(60).reshape(20, 3)
+        bvh = build_bvh(vertices=V, faces=F, cache=False)
+        o = rng.uniform(-2, 2, (300, 3)).astype(np.float32)
+        d = rng.normal(size=(300, 3)).astype(np.float32)
+        t_ref, _, _ = brute_force_closest_hit(V, F, o, d)
+        hit = closest_hit(bvh, o, d)
+        print("AGREE", np.mean(np.isfinite(np.asarray(hit.t)) == np.isfinite(t_ref)))
+    """
+)
+
+
+def _fallback(env_extra, check, tmp_path):
+    env = {**os.environ, "FOVJAX_NATIVE_DIR": str(tmp_path / "native"), "JAX_PLATFORMS": "cpu", **env_extra}
+    done = subprocess.run(
+        [sys.executable, "-c", FALLBACK_SCRIPT.replace("{check}", check)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return dict(line.split(" ", 1) for line in done.stdout.splitlines() if " " in line)
+
+
+def test_a_handler_that_cannot_build_falls_back_to_the_jax_traversal_and_says_why(tmp_path):
+    """A compiler that fails: the package still imports and traces (the JAX traversal, correct
+    hits), and 'auto' says in one line why it is not Embree."""
+    out = _fallback({"CXX": "/bin/false"}, "trace", tmp_path)
+    assert out["STATUS"].startswith("could not build the Embree FFI handler: false failed to compile")
+    assert out["AUTO"].startswith("jax (the JAX traversal; Embree FFI unavailable: could not build")
+    assert float(out["AGREE"]) == 1.0
+    assert not list((tmp_path / "native").glob("*.so")), "a failed build left a library behind"
+
+
+def test_the_native_backend_can_be_turned_off(tmp_path):
+    out = _fallback({"FOVJAX_NATIVE": "0"}, "status", tmp_path)
+    assert out["STATUS"] == "turned off by FOVJAX_NATIVE=0"
+    assert out["AUTO"] == "jax (the JAX traversal; Embree FFI unavailable: turned off by FOVJAX_NATIVE=0)"
+
+
+def _soup(seed, n, spread=2.0):
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-spread, spread, (n, 1, 3))
+    V = (centres + rng.normal(0, 0.3, (n, 3, 3))).reshape(-1, 3).astype(np.float32)
+    return V, np.arange(3 * n).reshape(n, 3).astype(np.int32)
+
+
+@needs_native
+@pytest.mark.parametrize("packet", [None, 16], ids=["single", "packet16"])
+def test_levels_of_a_merged_bvh(packet):
+    """Each ray traced only against its level's tree (rays of mixed levels in one packet),
+    `prim` an index into the merged faces: against brute force per level and the JAX traversal."""
+    (V0, F0), (V1, F1) = _soup(0, 120), _soup(1, 40)
+    merged = merge_bvhs(
+        [build_bvh(vertices=V0, faces=F0, cache=False), build_bvh(vertices=V1, faces=F1, cache=False)]
+    )
+    rng = np.random.default_rng(2)
+    n = 3000
+    o = rng.uniform(-3, 3, (n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3)).astype(np.float32)
+    level = rng.integers(0, 2, n).astype(np.int32)
+    hit = closest_hit(merged, o, d, level=level, backend="embree", packet=packet)
+    ref = closest_hit(merged, o, d, level=level, backend="jax", packet=packet)
+    prim = np.asarray(hit.prim)
+    assert (prim == np.asarray(ref.prim)).mean() >= 0.9999
+    for lv, (V, F, first) in enumerate([(V0, F0, 0), (V1, F1, len(F0))]):
+        rays = level == lv
+        t_ref, prim_ref, _ = brute_force_closest_hit(V, F, o[rays], d[rays])
+        expect = np.where(prim_ref >= 0, prim_ref + first, -1)
+        assert (prim[rays] == expect).mean() >= 0.9999
+    occ = np.asarray(occluded(merged, o, d, 2.0, level=level, backend="embree", packet=packet))
+    occ_ref = np.asarray(occluded(merged, o, d, 2.0, level=level, backend="jax", packet=packet))
+    assert (occ == occ_ref).mean() >= 0.9999 and 0.05 < occ.mean() < 0.95
+
+
+@needs_native
+def test_ties_on_shared_edges_and_vertices():
+    """A flat grid of triangles hit exactly on shared edges and vertices: never a leak, the
+    distance exact, and the face one of those that contain the point (a tie either may take)."""
+    k = 6
+    xs = np.linspace(-1, 1, k + 1)
+    X, Y = np.meshgrid(xs, xs)
+    V = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1).astype(np.float32)
+    idx = np.arange(X.size).reshape(k + 1, k + 1)
+    a, b, c, e = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, e], 1), np.stack([a, e, c], 1)]).astype(np.int32)
+    bvh = build_bvh(vertices=V, faces=F, cache=False)
+    inner = V[(np.abs(V[:, 0]) < 1) & (np.abs(V[:, 1]) < 1)]
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    mids = 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])
+    targets = np.concatenate([inner, mids[(np.abs(mids[:, 0]) < 1) & (np.abs(mids[:, 1]) < 1)]])
+    o = (targets + np.array([0.0, 0.0, 2.0], np.float32)).astype(np.float32)
+    d = np.broadcast_to(np.array([0.0, 0.0, -1.0], np.float32), o.shape)
+
+    def contains(prim):  # the target inside face `prim`, barycentrics in float64 with a margin
+        p0, p1, p2 = (V[F[prim]][:, i].astype(np.float64) for i in range(3))
+        m = np.stack([p1 - p0, p2 - p0], -1)[:, :2]
+        uv = np.linalg.solve(m, (targets - p0)[:, :2, None].astype(np.float64))[..., 0]
+        return (uv >= -1e-6).all(1) & (uv.sum(1) <= 1 + 1e-6)
+
+    for backend in ("embree", "jax"):
+        for packet in (None, 16):
+            hit = closest_hit(bvh, o, d, backend=backend, packet=packet)
+            prim, t = np.asarray(hit.prim), np.asarray(hit.t)
+            assert (prim >= 0).all(), f"{backend} {packet}: a ray leaked through a shared edge or vertex"
+            np.testing.assert_allclose(t, 2.0, rtol=0, atol=1e-6)
+            assert contains(prim).all(), f"{backend} {packet}: a face that does not contain the point"
+            assert np.asarray(occluded(bvh, o, d, 3.0, backend=backend, packet=packet)).all()
+
+
+@needs_native
+def test_vmap_gradients_and_the_scene_cache():
+    V, F = _soup(3, 200)
+    bvh = build_bvh(vertices=V, faces=F, cache=False)
+    rng = np.random.default_rng(4)
+    o = rng.uniform(-3, 3, (3, 700, 3)).astype(np.float32)
+    d = rng.normal(size=(3, 700, 3)).astype(np.float32)
+    # Frames under vmap: one call for all of them, the same hits as one call per frame.
+    batched = jax.vmap(lambda o, d: closest_hit(bvh, o, d, backend="embree").prim)(o, d)
+    each = np.stack([np.asarray(closest_hit(bvh, o[i], d[i], backend="embree").prim) for i in range(3)])
+    np.testing.assert_array_equal(np.asarray(batched), each)
+    blocked = jax.vmap(lambda o, d: occluded(bvh, o, d, 1.5, backend="embree"))(o, d)
+    np.testing.assert_array_equal(np.asarray(blocked), np.asarray(occluded(bvh, o, d, 1.5, backend="jax")))
+
+    # Gradients come from the recomputed hit, not from the backend.
+    def loss(origins, backend):
+        hit = closest_hit(bvh, origins, d[0], backend=backend)
+        return jnp.sum(jnp.where(jnp.isfinite(hit.t), hit.t * hit.u, 0.0))
+
+    g_embree = jax.grad(loss)(jnp.asarray(o[0]), "embree")
+    g_jax = jax.grad(loss)(jnp.asarray(o[0]), "jax")
+    np.testing.assert_allclose(np.asarray(g_embree), np.asarray(g_jax), rtol=1e-5, atol=1e-6)
+    assert np.abs(np.asarray(g_embree)).sum() > 0
+
+    # Scenes are built once per BVH, freed on request and rebuilt on next use.
+    assert cached_embree_scenes() >= 1
+    assert release_embree_scenes(int(bvh.host_id)) == 1
+    assert release_embree_scenes(int(bvh.host_id)) == 0
+    again = closest_hit(bvh, o[0], d[0], backend="embree")
+    np.testing.assert_array_equal(np.asarray(again.prim), each[0])
+
+
+def test_every_frame_program_lowers_for_cuda():
+    """Each frame program (full, foveated, an eval batch) exported for CUDA, on this CPU: the
+    backend is chosen per platform inside the program, so the CUDA lowering carries no CPU-only
+    op (no Embree FFI call, no host callback)."""
+    from fovjax.eval import render_foveated_batch
+    from fovjax.foveate import Foveation
+    from fovjax.render import LOWERING_HOOKS, RenderConfig, StereoRig
+
+    exported = {}
+
+    class Exported(Exception):
+        pass
+
+    def export_for_cuda(entry, jitted, args):
+        checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in ("fovjax_embree_query",)]
+        exp = jax.export.export(jitted, platforms=("cuda",), disabled_checks=checks)(*args)
+        exported[entry] = exp.mlir_module()
+        raise Exported  # lowering is the check; nothing needs to compile or run here
+
+    LOWERING_HOOKS.append(export_for_cuda)
+    try:
+        scene = fovjax.scenes.cornell_box()
+        rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=16, eye_height=16)
+        config = RenderConfig(max_depth=1)
+        for call in (
+            lambda: fovjax.render_stereo(scene, rig, config=config),
+            lambda: fovjax.render_stereo(scene, rig, foveation=Foveation(), config=config),
+            lambda: render_foveated_batch(
+                scene, rig, gazes=[((0.5, 0.5), (0.5, 0.5))], keys=[0], config=config
+            ),
+        ):
+            with pytest.raises(Exported):
+                call()
+    finally:
+        LOWERING_HOOKS.remove(export_for_cuda)
+    assert set(exported) == {"stereo", "foveated"} | {e for e in exported if e.startswith("batch")}
+    assert any(e.startswith("batch") for e in exported)
+    for entry, module in exported.items():
+        assert "fovjax_embree_query" not in module, f"{entry}: the Embree call is on the CUDA path"
+        assert "callback" not in module, f"{entry}: a host callback is on the CUDA path"
