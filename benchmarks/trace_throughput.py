@@ -1,4 +1,4 @@
-"""Ray-query throughput: fovjax's JAX traversal against Embree and Mitsuba 3, same rays, one run.
+"""Ray-query throughput: fovjax's backends against Embree and Mitsuba 3, same rays, one run.
 
     python benchmarks/trace_throughput.py              # atrium (262k triangles), 1280x1024
     python benchmarks/trace_throughput.py --quick      # 640x512 and 65k random rays
@@ -6,16 +6,20 @@
     python benchmarks/trace_throughput.py --width 64 --height 48 --random 4096 --repeats 1   # smoke
 
 For each ray set it prints rays per second (median of --repeats timed runs after a warm-up) of
-the JAX backend and of the peers, timed on their own call alone, on arrays prepared beforehand:
+fovjax's backends (--backends; default "auto", what every fovjax call uses — Embree through
+XLA's FFI on this CPU where its handler builds — and "jax", the `while_loop` traversal), each a
+jitted `closest_hit`/`occluded` on device arrays (the hit recomputation included), and of the
+peers, timed on their own call alone, on arrays prepared beforehand:
 - Embree (embreex `EmbreeScene.run`, contiguous float32 arrays): embreex traces one ray at a time
   with `rtcIntersect1`/`rtcOccluded1` on the calling thread and releases the GIL, so "1 thread" is
   one call and "2 threads" is the rays split in two halves, one call per Python thread;
 - Mitsuba 3 (`llvm_ad_rgb`: `scene.ray_intersect_preliminary` / `scene.ray_test`, evaluated with
   `dr.eval`), which uses every core; optional (`pip install 'fovjax[bench]'`; it also needs the
   system's LLVM shared library, from Debian's package libllvm15).
-Then the ratios JAX / peer, compile time, and the hit/miss agreement with Embree (and Mitsuba).
-"paired" is JAX / Embree-1 again, as the median over --repeats pairs of calls made back to back
-(JAX, then Embree-1), so that both see the same momentary load of a shared machine; "CPU time"
+Then the ratios of the first backend (default "auto") to each peer, compile time, the hit/miss
+agreement of every backend with the JAX traversal (the reference), and with Embree and Mitsuba.
+"paired" is first backend / Embree-1 again, as the median over --repeats pairs of calls made back to back
+(fovjax, then Embree-1), so that both see the same momentary load of a shared machine; "CPU time"
 is that ratio in process CPU seconds (each side's own work, not its waits for a core; both run
 their traversal on one thread, XLA:CPU's loop as measured in the notes, embreex on the caller's).
 
@@ -215,12 +219,14 @@ def load_peers(vertices, faces, want):
     return peers
 
 
-def make_jax_query(bvh, any_hit, packet, kw):
+def make_jax_query(bvh, any_hit, packet, kw, backend="auto"):
     if any_hit:
-        return jax.jit(lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet, **kw))
+        return jax.jit(
+            lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet, backend=backend, **kw)
+        )
 
     def query(o, d, a, b):
-        hit = closest_hit(bvh, o, d, a, b, packet=packet, **kw)
+        hit = closest_hit(bvh, o, d, a, b, packet=packet, backend=backend, **kw)
         return hit.t, hit.prim
 
     return jax.jit(query)
@@ -242,7 +248,7 @@ def scene_rays(scene, width, height, n_random, seed):
 
 def shadow_rays(scene, po, pd, bvh):
     """Rays from every primary hit (found by the JAX backend) towards the first light."""
-    hit = closest_hit(bvh, po, pd)
+    hit = closest_hit(bvh, po, pd, backend="jax")
     t = np.asarray(hit.t)
     seen = np.isfinite(t)
     p = (po + pd * np.where(seen, t, 0.0)[:, None]).astype(np.float32)
@@ -268,6 +274,13 @@ def main(argv=None):
         "--rows", nargs="+", default=None, help="subset of: primary random shadow shadow8x8 shadow_sorted"
     )
     ap.add_argument("--lanes", type=int, default=None, help="JAX traversal lanes (default: library default)")
+    ap.add_argument(
+        "--backends",
+        nargs="+",
+        default=["auto", "jax"],
+        choices=list(fovjax.trace.BACKENDS),
+        help="fovjax backends to time (the first is the one the ratios are of; default: auto jax)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
         "--host-devices",
@@ -284,6 +297,9 @@ def main(argv=None):
 
     dev = jax.devices()[0]
     print(f"jax {jax.__version__} on {dev.platform} ({dev.device_kind}), {len(jax.devices())} device(s)")
+    for b in args.backends:
+        print(f"backend {b}: {fovjax.trace.describe_backend(b, dev.platform)}")
+    first = args.backends[0]
     kw = {} if args.lanes is None else {"lanes": args.lanes}
     rows = []
     for name in args.scenes:
@@ -337,23 +353,29 @@ def main(argv=None):
             any_hit = query == "occluded"
             n = int(np.sum(tmax_h > tmin_h))
             arrays = [jnp.asarray(x).reshape(shape + x.shape[1:]) for x in (o, d, tmin_h, tmax_h)]
-            fn = make_jax_query(bvh, any_hit, packet, kw)
-            t0 = time.perf_counter()
-            out = jax.block_until_ready(fn(*arrays))
-            first = time.perf_counter() - t0
-            t_jax = timed(lambda fn=fn, arrays=arrays: jax.block_until_ready(fn(*arrays)), args.repeats)
-            compile_s = max(first - t_jax, 0.0)
-            jax_hit = np.asarray(out if any_hit else out[1] >= 0).reshape(-1)
-            start, dirs, far, valid = prepared_for_peers(o, d, tmin_h, tmax_h)
             r = {
                 "scene": name,
                 "query": query,
                 "rays": kind,
                 "traversal": {None: "one by one", "sorted": "sorted"}.get(packet, "8x8 packets"),
                 "n": n,
-                "jax": n / t_jax / 1e6,
-                "compile": compile_s,
             }
+            fns, hits = {}, {}
+            for b in dict.fromkeys([*args.backends, "jax"]):  # the JAX traversal is the reference
+                fns[b] = fn = make_jax_query(bvh, any_hit, packet, kw, b)
+                t0 = time.perf_counter()
+                out = jax.block_until_ready(fn(*arrays))
+                first_call = time.perf_counter() - t0
+                hits[b] = np.asarray(out if any_hit else out[1] >= 0).reshape(-1)
+                if b not in args.backends:
+                    continue
+                t_b = timed(lambda fn=fn, arrays=arrays: jax.block_until_ready(fn(*arrays)), args.repeats)
+                r[b] = n / t_b / 1e6
+                r[f"compile_{b}"] = max(first_call - t_b, 0.0)
+            for b in args.backends:
+                r[f"agree_jax_{b}"] = float(np.mean(hits[b] == hits["jax"]))
+            fn, jax_hit = fns[first], hits[first]
+            start, dirs, far, valid = prepared_for_peers(o, d, tmin_h, tmax_h)
             for pname, peer in peers.items():
                 configs = [1, 2] if pname == "embree" else [peer.threads]
                 for threads in configs:
@@ -362,7 +384,7 @@ def main(argv=None):
                     fn_p()  # warm-up (Mitsuba compiles its kernel here)
                     r[label] = n / timed(fn_p, args.repeats) / 1e6
                     if label == "embree1":
-                        # JAX and Embree-1 call after call: both see the same load (shared machine).
+                        # fovjax and Embree-1 call after call: both see the same load (shared machine).
                         r["paired_e1"], r["cpu_e1"] = paired_ratio(
                             lambda fn=fn, arrays=arrays: jax.block_until_ready(fn(*arrays)),
                             fn_p,
@@ -370,19 +392,21 @@ def main(argv=None):
                         )
                 r[f"agree_{pname}"] = float(np.mean(peer.hits(start, dirs, far, valid, any_hit) == jax_hit))
             rows.append(r)
-            line = f"  {query:11s} {kind:7s} {r['traversal']:11s} {n:>9,} rays  JAX {r['jax']:6.3f}"
+            line = f"  {query:11s} {kind:7s} {r['traversal']:11s} {n:>9,} rays "
+            line += " ".join(f"{b} {r[b]:6.2f}" for b in args.backends)
             for label, title in (("embree1", "Embree-1"), ("embree2", "Embree-2"), ("mitsuba", "Mitsuba")):
                 if label in r:
-                    line += f"  {title} {r[label]:6.3f}"
-            line += " Mrays/s "
+                    line += f"  {title} {r[label]:6.2f}"
+            line += " Mrays/s; "
             for label, title in (("embree1", "E1"), ("embree2", "E2"), ("mitsuba", "Mi")):
                 if label in r:
-                    line += f" JAX/{title} {r['jax'] / r[label]:5.3f}"
+                    line += f" {first}/{title} {r[first] / r[label]:5.2f}"
             if "paired_e1" in r:
-                line += f" (paired {r['paired_e1']:5.3f}, CPU time {r['cpu_e1']:5.3f})"
-            line += f"  compile {compile_s:4.1f} s"
+                line += f" (paired {r['paired_e1']:5.2f}, CPU time {r['cpu_e1']:5.2f})"
+            line += "; compile " + " ".join(f"{r[f'compile_{b}']:.1f}" for b in args.backends) + " s"
+            line += "; agree-jax " + " ".join(f"{r[f'agree_jax_{b}']:.5f}" for b in args.backends)
             for pname in peers:
-                line += f"  agree-{pname} {r[f'agree_{pname}']:.5f}"
+                line += f" agree-{pname} {r[f'agree_{pname}']:.5f}"
             print(line)
             sys.stdout.flush()
     return rows

@@ -66,9 +66,16 @@ def embree_trace_host(scene, o, d, tmin, tmax, any_hit):
     return t, prim
 
 
-def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packets: bool):
+def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packets: int):
     """(t, prim) of flat rays through the Embree FFI handler (which must be registered:
-    `embree_status()`); t = inf and prim = -1 on a miss, prim 0 for an occluded ray."""
+    `embree_status()`); t = inf and prim = -1 on a miss, prim 0 for an occluded ray.
+    `packets`: 16 (every 16 consecutive rays one packet), -1 (a packet where the 16 rays are
+    coherent, else one by one) or 0 (one by one)."""
+    from ._native import embree_status
+
+    status = embree_status()  # built, loaded and registered once per process
+    if not status:
+        raise RuntimeError(f"the Embree FFI handler is unavailable: {status.reason}")
     o, d, tmin, tmax = (jax.lax.stop_gradient(x) for x in (o, d, tmin, tmax))  # visibility only
     level = jnp.zeros((0,), jnp.int32) if level is None else jnp.asarray(level, jnp.int32)
     scene = (
@@ -77,11 +84,11 @@ def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packet
         jnp.asarray(bvh.faces, jnp.int32),
         jnp.asarray(bvh.tree_faces(), jnp.int32),
     )
-    return _ffi_call(bool(any_hit), bool(packets))(o, d, tmin, tmax, level, *scene)
+    return _ffi_call(bool(any_hit), int(packets))(o, d, tmin, tmax, level, *scene)
 
 
 @functools.cache
-def _ffi_call(any_hit: bool, packets: bool):
+def _ffi_call(any_hit: bool, packets: int):
     """The FFI call for one query kind, with a batching rule: under vmap the frames' rays are
     broadcast to the batch and traced in one call against the one (unbatched) scene."""
     from ._native import TARGET
@@ -102,7 +109,7 @@ def _ffi_call(any_hit: bool, packets: bool):
             faces,
             first_face,
             any_hit=np.int32(any_hit),
-            packet=np.int32(16 if packets else 0),
+            packet=np.int32(packets),
         )
 
     @call.def_vmap

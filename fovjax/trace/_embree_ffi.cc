@@ -393,6 +393,28 @@ void Packet16(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, b
   }
 }
 
+// Whether rays [begin, min(begin + 16, end)) are worth one packet: at least 4 live rays whose
+// directions lie within about 25 degrees of the first's (camera, shadow and flat-mirror rays of
+// neighbouring pixels). Packets of scattered rays trace slower than the rays one by one.
+bool Coherent(const Rays& r, int64_t begin, int64_t end) {
+  const float* first = nullptr;
+  float first_len = 0.0f;
+  int live = 0;
+  for (int64_t i = begin; i < std::min(end, begin + 16); ++i) {
+    if (!Valid(r, i)) continue;
+    const float* d = r.d + 3 * i;
+    float len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (first == nullptr) {
+      first = d;
+      first_len = len;
+    } else if (d[0] * first[0] + d[1] * first[1] + d[2] * first[2] < 0.9f * len * first_len) {
+      return false;
+    }
+    ++live;
+  }
+  return live >= 4;
+}
+
 ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
                  ffi::Buffer<ffi::F32> tmin, ffi::Buffer<ffi::F32> tmax, ffi::Buffer<ffi::S32> level,
                  ffi::Buffer<ffi::S32> scene_id, ffi::Buffer<ffi::F32> vertices,
@@ -424,12 +446,21 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
          level.element_count() ? level.typed_data() : nullptr, t->typed_data(), prim->typed_data()};
   const bool occlusion = any_hit != 0;
   const NativeScene& s = *scene;
-  if (packet == 16) {
+  if (packet != 0) {
+    // 16: every run of 16 consecutive rays is a packet; -1: where the run is coherent, else
+    // its rays one by one.
+    const bool always = packet == 16;
     const int64_t packets = (n + 15) / 16;
     const int64_t per_block = 64;  // 1024 rays: small next to a frame, large next to a task's cost
     ParallelFor(pool, (packets + per_block - 1) / per_block, [&](int64_t b) {
       int64_t last = std::min(packets, (b + 1) * per_block);
-      for (int64_t p = b * per_block; p < last; ++p) Packet16(s, r, 16 * p, n, occlusion);
+      for (int64_t p = b * per_block; p < last; ++p) {
+        if (always || Coherent(r, 16 * p, n)) {
+          Packet16(s, r, 16 * p, n, occlusion);
+        } else {
+          Single(s, r, 16 * p, std::min(n, 16 * p + 16), occlusion);
+        }
+      }
     });
   } else {
     const int64_t per_block = 1024;
@@ -542,7 +573,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
                                   .Ret<ffi::Buffer<ffi::F32>>()  // t (inf: miss)
                                   .Ret<ffi::Buffer<ffi::S32>>()  // face, -1: miss (0: occluded)
                                   .Attr<int32_t>("any_hit")
-                                  .Attr<int32_t>("packet"));
+                                  .Attr<int32_t>("packet"));  // 0, 16 or -1 (where coherent)
 
 extern "C" {
 

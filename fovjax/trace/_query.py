@@ -228,7 +228,10 @@ def _raw_query(
 def _warp_installed() -> bool:
     import importlib.util
 
-    return importlib.util.find_spec("warp") is not None
+    return (
+        importlib.util.find_spec("warp") is not None
+        and importlib.util.find_spec(__package__ + "._warp") is not None
+    )
 
 
 def resolve_backend(backend: str, platform: str) -> str:
@@ -306,9 +309,10 @@ def _run_backend(
         from ._native import embree_status
 
         if embree_status():
-            return embree_ffi_query(
-                bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packet_size is not None
-            )
+            # A packet request: 16-ray packets throughout; one by one: packets only where 16
+            # consecutive rays are coherent (the same hits either way, at Embree's best speed).
+            packets = 16 if packet_size is not None else -1
+            return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packets)
         if level is not None:
             raise ValueError(
                 "level= with backend 'embree' needs its FFI handler, which is unavailable: "
