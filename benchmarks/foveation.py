@@ -668,7 +668,7 @@ def main(argv=None):
     ap.add_argument("--full", action="store_true", help="2 x 1280x1024 (default: 2 x 640x512)")
     ap.add_argument("--spp", type=int, nargs="+", default=list(SPPS))
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--backend", choices=("jax", "embree"), default="jax")
+    ap.add_argument("--backend", choices=fovjax.trace.BACKENDS, default="auto")
     ap.add_argument("--max-depth", type=int, default=5)
     ap.add_argument("--profile", action="store_true", help="per-stage table (first --spp, --pair)")
     ap.add_argument("--pair", type=float, nargs=2, default=(5.0, 10.0), help="fovea, periphery (--profile)")

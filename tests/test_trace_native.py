@@ -93,6 +93,20 @@ def test_a_handler_that_cannot_build_falls_back_to_the_jax_traversal_and_says_wh
     assert not list((tmp_path / "native").glob("*.so")), "a failed build left a library behind"
 
 
+def test_the_handler_compiles_from_source_in_a_fresh_directory(tmp_path):
+    """What a fresh machine does on first use: compile `_embree_ffi.cc` with the system's
+    compiler into the cache directory, load it, check the library's struct layout, register it."""
+    if embree_library() is None:
+        if REQUIRE_EXTRAS:
+            pytest.fail("embreex is not installed (FOVJAX_REQUIRE_EXTRAS=1)")
+        pytest.skip("embreex not installed (pip install fovjax[embree])")
+    out = _fallback({}, "trace", tmp_path)
+    assert out["STATUS"].startswith("Embree 4."), out["STATUS"]
+    assert out["AUTO"].startswith("embree (Embree 4.")
+    assert float(out["AGREE"]) == 1.0
+    assert len(list((tmp_path / "native").glob("fovjax_embree_ffi-*.so"))) == 1
+
+
 def test_the_native_backend_can_be_turned_off(tmp_path):
     out = _fallback({"FOVJAX_NATIVE": "0"}, "status", tmp_path)
     assert out["STATUS"] == "turned off by FOVJAX_NATIVE=0"

@@ -78,35 +78,29 @@ def _tile_order(batch: tuple[int, ...], tile: tuple[int, int]) -> np.ndarray:
     return idx.transpose(axes).reshape(-1)
 
 
-def _prepare(origins, directions, tmin, tmax, packet: Packet):
+def _prepare(origins, directions, tmin, tmax):
+    """Flat rays in the caller's order. A bound given as a scalar stays a scalar: a backend
+    broadcasts it where it needs one per ray (a gather of a broadcast constant, e.g. into tile
+    order, is folded by XLA at compile time: seconds for a frame)."""
     origins = jnp.asarray(origins, jnp.float32)
     directions = jnp.asarray(directions, jnp.float32)
     if origins.shape[-1:] != (3,) or directions.shape[-1:] != (3,):
         raise ValueError(
             f"origins and directions must end in a dimension of 3, got {origins.shape} and {directions.shape}"
         )
-    batch = jnp.broadcast_shapes(origins.shape[:-1], directions.shape[:-1])
+    tmin, tmax = jnp.asarray(tmin, jnp.float32), jnp.asarray(tmax, jnp.float32)
+    batch = jnp.broadcast_shapes(origins.shape[:-1], directions.shape[:-1], tmin.shape, tmax.shape)
     o = jnp.broadcast_to(origins, batch + (3,)).reshape(-1, 3)
     d = jnp.broadcast_to(directions, batch + (3,)).reshape(-1, 3)
-    tmin = jnp.broadcast_to(jnp.asarray(tmin, jnp.float32), batch).reshape(-1)
-    tmax = jnp.broadcast_to(jnp.asarray(tmax, jnp.float32), batch).reshape(-1)
-    order = None
-    if isinstance(packet, tuple | list):
-        order = _tile_order(batch, tuple(packet))
-        src = np.maximum(order, 0)
-        pad = order < 0
-        o, d, tmin, tmax = o[src], jnp.where(pad[:, None], 0.0, d[src]), tmin[src], tmax[src]
-    return batch, o, d, tmin, tmax, order
+
+    def flat(x):
+        return x if x.ndim == 0 else jnp.broadcast_to(x, batch).reshape(-1)
+
+    return batch, o, d, flat(tmin), flat(tmax)
 
 
-def _restore(x, order, n):
-    """Undo `_tile_order` on a traced per-ray result."""
-    if order is None:
-        return x
-    inverse = np.empty(n, np.int64)
-    keep = order >= 0
-    inverse[order[keep]] = np.flatnonzero(keep)
-    return x[inverse]
+def _per_ray(x, n):
+    return jnp.broadcast_to(x, (n,)) if x.ndim == 0 else x
 
 
 def hit_geometry(vertices, faces, prim, origins, directions):
@@ -180,7 +174,17 @@ def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int, 
 
 @functools.partial(
     jax.jit,
-    static_argnames=("backend", "any_hit", "packet_size", "lanes", "packets", "steps_per_refill", "sort"),
+    static_argnames=(
+        "backend",
+        "any_hit",
+        "packet_size",
+        "lanes",
+        "packets",
+        "steps_per_refill",
+        "sort",
+        "tile",
+        "batch",
+    ),
 )
 def _raw_query(
     bvh,
@@ -197,11 +201,18 @@ def _raw_query(
     packets,
     steps_per_refill,
     sort=False,
+    tile=None,
+    batch=None,
 ):
+    """(t, prim) of flat rays in the caller's order. `tmin`/`tmax`: per ray or scalars. `tile`:
+    the rays are an image of `batch` traced as tile-sized packets (on the JAX traversal, which
+    regroups them; native backends take image rows as they come)."""
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
+    n = o.shape[0]
     order = None
-    if sort and o.shape[0] > 0:
+    if sort and n > 0:
         # Regroup the rays by origin, trace them as packets, and put the results back.
+        tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
         order = spatial_order(o, tmax > tmin)
         o, d, tmin, tmax = o[order], d[order], tmin[order], tmax[order]
         level = None if level is None else level[order]
@@ -218,6 +229,8 @@ def _raw_query(
         lanes=lanes,
         packets=packets,
         steps_per_refill=steps_per_refill,
+        tile=tile,
+        batch=batch,
     )
     if order is None:
         return t, prim
@@ -272,7 +285,21 @@ def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
 
 
 def _query_backend(
-    bvh, o, d, tmin, tmax, level, *, backend, any_hit, packet_size, lanes, packets, steps_per_refill
+    bvh,
+    o,
+    d,
+    tmin,
+    tmax,
+    level,
+    *,
+    backend,
+    any_hit,
+    packet_size,
+    lanes,
+    packets,
+    steps_per_refill,
+    tile=None,
+    batch=None,
 ):
     """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s jit)."""
     kw = dict(
@@ -281,6 +308,8 @@ def _query_backend(
         lanes=lanes,
         packets=packets,
         steps_per_refill=steps_per_refill,
+        tile=tile,
+        batch=batch,
     )
     if backend != "auto":
         return _run_backend(backend, bvh, o, d, tmin, tmax, level, split=True, **kw)
@@ -302,8 +331,26 @@ def _query_backend(
 
 
 def _run_backend(
-    backend, bvh, o, d, tmin, tmax, level, *, split, any_hit, packet_size, lanes, packets, steps_per_refill
+    backend,
+    bvh,
+    o,
+    d,
+    tmin,
+    tmax,
+    level,
+    *,
+    split,
+    any_hit,
+    packet_size,
+    lanes,
+    packets,
+    steps_per_refill,
+    tile=None,
+    batch=None,
 ):
+    n = o.shape[0]
+    if backend != "jax":
+        tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
     if backend == "embree":
         from ._embree import embree_ffi_query, embree_query
         from ._native import embree_status
@@ -323,6 +370,11 @@ def _run_backend(
         from ._warp import warp_query
 
         return warp_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit)
+    if tile is not None:
+        return _tiled_jax(
+            bvh, o, d, tmin, tmax, level, split=split, tile=tile, batch=batch, **_jax_kw(locals())
+        )
+    tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
     stack_size = bvh.stack_size
     roots = bvh.roots
 
@@ -374,6 +426,31 @@ def _run_backend(
     return _split_over(devices, run, bvh.table, bvh.num_nodes, o, d, tmin, tmax, packet_size or 1, *level)
 
 
+def _jax_kw(scope):
+    return {k: scope[k] for k in ("any_hit", "packet_size", "lanes", "packets", "steps_per_refill")}
+
+
+def _tiled_jax(bvh, o, d, tmin, tmax, level, *, split, tile, batch, **kw):
+    """The JAX traversal of an image of rays in tile-sized packets: the rays regrouped tile by
+    tile (padding where the image is not a multiple of the tile: empty rays), traced, and the
+    results put back in image order."""
+    order = _tile_order(batch, tile)
+    src = np.maximum(order, 0)
+    pad = order < 0
+    inverse = np.empty(o.shape[0], np.int64)
+    inverse[order[~pad]] = np.flatnonzero(~pad)
+
+    def regroup(x):  # a scalar bound needs no gather
+        return jnp.full(order.shape, x) if x.ndim == 0 else x[src]
+
+    o_t, d_t = o[src], jnp.where(pad[:, None], 0.0, d[src])
+    tmin_t = regroup(tmin)
+    tmax_t = jnp.where(pad, tmin_t, regroup(tmax))  # padding is never live (nor mixes levels)
+    level_t = None if level is None else level[src]
+    t, prim = _run_backend("jax", bvh, o_t, d_t, tmin_t, tmax_t, level_t, split=split, **kw)
+    return t[inverse], prim[inverse]
+
+
 def _mixed_packets(packets_of, per_ray, p: int, table, num_nodes, o, d, tmin, tmax, root):
     """Packets whose live rays (tmax > tmin) all start at one root are traced as packets from
     it; the rays of the others (a packet straddling two levels) one by one, in a second
@@ -391,16 +468,14 @@ def _mixed_packets(packets_of, per_ray, p: int, table, num_nodes, o, d, tmin, tm
     return jnp.where(mixed, t_r, t_p), jnp.where(mixed, prim_r, prim_p)
 
 
-def _levels(bvh, level, backend: str, batch, order):
-    """The per-ray level as flat int32 (tile-ordered like the rays), clipped to the BVH's levels;
-    None when not given."""
+def _levels(bvh, level, batch):
+    """The per-ray level as flat int32, clipped to the BVH's levels; None when not given."""
     if level is None:
         return None
     if bvh.roots is None:
         raise ValueError("level= needs a merged BVH (fovjax.trace.merge_bvhs); this one has one tree")
     lv = jnp.broadcast_to(jnp.asarray(level, jnp.int32), batch).reshape(-1)
-    lv = jnp.clip(lv, 0, bvh.num_levels - 1)
-    return lv if order is None else lv[np.maximum(order, 0)]
+    return jnp.clip(lv, 0, bvh.num_levels - 1)
 
 
 def _query(
@@ -419,10 +494,11 @@ def _query(
     level=None,
 ):
     _check(backend, packet)
-    batch, o, d, tmin_f, tmax_f, order = _prepare(origins, directions, tmin, tmax, packet)
-    level = _levels(bvh, level, backend, batch, order)
-    if level is not None and order is not None:  # tile padding is never live (nor mixes levels)
-        tmax_f = jnp.where(order < 0, tmin_f, tmax_f)
+    batch, o, d, tmin_f, tmax_f = _prepare(origins, directions, tmin, tmax)
+    level = _levels(bvh, level, batch)
+    tile = tuple(packet) if isinstance(packet, tuple | list) else None
+    if tile is not None and len(batch) < 2:
+        raise ValueError(f"a (height, width) packet needs rays with at least 2 batch dimensions, got {batch}")
     sort = packet == "sorted"
     packet_size = None if packet is None else SORTED_PACKET if sort else int(np.prod(packet))
     _, prim = _raw_query(
@@ -439,8 +515,10 @@ def _query(
         packets=packets,
         steps_per_refill=steps_per_refill,
         sort=sort,
+        tile=tile,
+        batch=batch if tile is not None else None,
     )
-    return batch, o, d, prim, order
+    return batch, o, d, prim
 
 
 def closest_hit(
@@ -483,7 +561,7 @@ def closest_hit(
     merged faces. One traversal for any mix of levels; a packet whose rays are not all of one
     level has its rays traced one by one.
     """
-    batch, o, d, prim, order = _query(
+    batch, o, d, prim = _query(
         bvh,
         origins,
         directions,
@@ -499,8 +577,7 @@ def closest_hit(
     )
     verts = bvh.vertices if vertices is None else vertices
     t, u, v = hit_geometry(verts, bvh.faces, prim, o, d)
-    n = int(np.prod(batch))
-    return Hit(*(_restore(x, order, n).reshape(batch) for x in (t, prim, u, v)))
+    return Hit(*(x.reshape(batch) for x in (t, prim, u, v)))
 
 
 def occluded(
@@ -519,7 +596,7 @@ def occluded(
 ) -> Bool[Array, "..."]:
     """Whether anything lies on each ray with tmin < t < tmax (a shadow ray; stops at the
     first hit found, not the nearest). Options (and `level`) as for `closest_hit`."""
-    batch, _, _, prim, order = _query(
+    batch, _, _, prim = _query(
         bvh,
         origins,
         directions,
@@ -533,7 +610,7 @@ def occluded(
         steps_per_refill=steps_per_refill,
         level=level,
     )
-    return _restore(prim >= 0, order, int(np.prod(batch))).reshape(batch)
+    return (prim >= 0).reshape(batch)
 
 
 def brute_force_closest_hit(vertices, faces, origins, directions, tmin=0.0, tmax=np.inf):
