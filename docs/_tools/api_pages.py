@@ -109,11 +109,16 @@ def expected() -> dict[Path, str]:
     return out
 
 
+def main_check() -> list[Path]:
+    """The pages that are missing or differ from what this script writes."""
+    return [p for p, text in expected().items() if not p.exists() or p.read_text() != text]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="exit 1 if a page is missing or stale")
     args = parser.parse_args()
-    stale = [p for p, text in expected().items() if not p.exists() or p.read_text() != text]
+    stale = main_check()
     if args.check:
         for p in stale:
             print(f"stale: {p.relative_to(ROOT)} (run python docs/_tools/api_pages.py)")
