@@ -98,9 +98,11 @@ def versions() -> dict[str, str]:
     return out
 
 
-def write_record(name: str, figures: dict, *, command: str | None = None, note: str | None = None) -> Path | None:
-    """Write `figures` with the run's provenance to `benchmarks/results/<name>-<UTC date>T<time>-<commit>.json`
-    and return the path (None when FOVJAX_BENCH_RECORD=0). `command` defaults to this process's
+def write_record(
+    name: str, figures: dict, *, command: str | None = None, note: str | None = None
+) -> Path | None:
+    """Write `figures` with the run's provenance to
+    `benchmarks/results/<name>-<UTC date>T<time>-<commit>.json` and return the path (None when FOVJAX_BENCH_RECORD=0). `command` defaults to this process's
     command line."""
     if os.environ.get("FOVJAX_BENCH_RECORD", "1") == "0":
         return None

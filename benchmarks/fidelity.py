@@ -4,7 +4,7 @@
     python benchmarks/fidelity.py --triangles 20000 --width 160 --height 128 --spp 4
     python benchmarks/fidelity.py --lod none,1,2 --no-shading   # geometry level of detail only
 
-Texture level of detail and samples per pixel per region (texspp):
+Texture level of detail and samples per pixel per region:
 
     python benchmarks/fidelity.py --full-shading --spp 4 --spp-periphery 1 --spp-outside 1
     python benchmarks/fidelity.py --full-shading --textured --texture-lod auto,auto --reference-spp 16
@@ -68,7 +68,7 @@ def _lod(text):
 
 
 def _textured(scene, metres):
-    """(texspp) `scene` with UVs and one procedural texture on every material (see above)."""
+    """`scene` with UVs and one procedural texture on every material (see above)."""
     import dataclasses
 
     faces = np.asarray(scene.faces)
@@ -116,7 +116,7 @@ def main(argv=None):
     parser.add_argument("--outside-shadows", default="none")
     parser.add_argument("--lod", type=_lod, default=(None, None, None))
     parser.add_argument("--no-shading", action="store_true", help="full shading everywhere (only --lod)")
-    # texspp
+    # texture level of detail and samples per pixel per region
     parser.add_argument("--full-shading", action="store_true", help="full depth and shadows everywhere")
     parser.add_argument("--spp-periphery", type=int, default=None)
     parser.add_argument("--spp-outside", type=int, default=None)

@@ -147,7 +147,8 @@ def render(records: list[dict], *, charts: bool) -> str:
             out.append(f"- command: `{rec['command']}`")
             out.append(f"- date: {when}; commit: {rec.get('commit') or 'not recorded'}")
             gpus = ", ".join(machine.get("gpus") or []) or "none"
-            out.append(f"- machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, GPU: {gpus}; load: {value_text(load)}")
+            cpu, cores = machine.get("cpu", "?"), machine.get("cores", "?")
+            out.append(f"- machine: {cpu}, {cores} cores, GPU: {gpus}; load: {value_text(load)}")
             if rec.get("versions"):
                 out.append(f"- versions: {value_text(rec['versions'])}")
             if rec.get("transcribed"):
@@ -163,7 +164,9 @@ def render(records: list[dict], *, charts: bool) -> str:
                     out.append("| " + " | ".join(cell(v) for v in row) + " |")
                 out.append("")
                 if table.get("chart"):
-                    path = chart(table, f"{slug(stem)}-{i}") if charts else f"images/perf/{slug(stem)}-{i}.png"
+                    path = (
+                        chart(table, f"{slug(stem)}-{i}") if charts else f"images/perf/{slug(stem)}-{i}.png"
+                    )
                     out.append(f"![{table['title']}]({path})\n")
             if figures:
                 for key, value in figures.items():

@@ -20,7 +20,11 @@ API = ROOT / "docs" / "api"
 
 # (module, page, one line on what it is). The order is the reference's.
 PACKAGES = [
-    ("fovjax", "fovjax.md", "The flat public API: the calls most programs need, re-exported from the packages."),
+    (
+        "fovjax",
+        "fovjax.md",
+        "The flat public API: the calls most programs need, re-exported from the packages.",
+    ),
     ("fovjax.scene", "scene.md", "Scenes, cameras, loaders, built-in scenes and geometry level of detail."),
     ("fovjax.scenes", "scenes.md", "The built-in procedural scenes and their default cameras."),
     ("fovjax.files", "files.md", "Images in and out; writes that are complete or absent."),
@@ -80,7 +84,10 @@ def page(module: str, blurb: str) -> str:
         links = ", ".join(f"[`{module}.{m}`]({pages[f'{module}.{m}']})" for m in modules)
         lines += [f"Subpackages re-exported here: {links}.", ""]
     for name in LAZY.get(module, []):
-        lines += [f"`{module}.{name}` is [`fovjax.eval.{name}`](eval.md#fovjax.eval.{name}), imported on first use.", ""]
+        lines += [
+            f"`{module}.{name}` is [`fovjax.eval.{name}`](eval.md#fovjax.eval.{name}), imported on use.",
+            "",
+        ]
     lines += [f"::: {module}", "    options:", "      members:"]
     lines += [f"        - {n}" for n in names]
     return "\n".join(lines) + "\n"

@@ -54,7 +54,7 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
         foveation.eye_display_mm,
         foveation.pixel_pitch_mm,
         foveation.ray_budget,
-        region_spp(foveation),  # texspp
+        region_spp(foveation),  # texture level of detail and samples per pixel per region
         # Any acuity callable: scalar parameters or arrays (a tabulated curve, a batch of fits).
         tuple(
             (np.shape(x), tuple(np.asarray(x).reshape(-1).tolist()))
@@ -216,7 +216,7 @@ def render_foveated(
         if isinstance(scene, SceneArrays)
         else scene_arrays(scene, envmap=envmap, background=config.background)
     )
-    if uses_texture_lod(foveation):  # texspp: mip pyramids on the host, once per texture
+    if uses_texture_lod(foveation):  # mip pyramids on the host, once per texture
         arrays = with_texture_mips(arrays)
     jitter = key is not None
     key = key if jitter else jax.random.key(0)
@@ -229,7 +229,7 @@ def render_foveated(
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget, "tile": tile}
     static["diagnostics"] = diagnostics
     static["grid"] = foveation.blocks[1] if foveation.grid_tile and uncapped(rig, foveation, budget) else None
-    # --- geometry level of detail (lodframe) ---
+    # --- geometry level of detail ---
     lod = None
     top = lod_needed(foveation)
     if top is not None:

@@ -53,7 +53,7 @@ def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[A
 
 @functools.lru_cache(maxsize=16)
 def subsample_rank(spp: int) -> np.ndarray:
-    """(texspp) The rank of each of a pixel's `spp` sub-samples in the order a region with fewer
+    """The rank of each of a pixel's `spp` sub-samples in the order a region with fewer
     samples per pixel keeps them (`Fidelity.spp`: a pixel keeps the sub-samples of rank < its
     region's spp). Sub-sample s lies in cell (s % n, s // n) of the pixel's n x n grid
     (`fovjax.scene.pixel_sample_positions`); the order starts with sub-sample 0 (the one the
@@ -75,7 +75,7 @@ def subsample_rank(spp: int) -> np.ndarray:
 
 
 def allowed_samples(region: Int[ArrayLike, "H W"], foveation) -> Bool[Array, "S H W"] | None:
-    """(texspp) Which sub-samples a pixel may trace under its region's `Fidelity.spp` (rank
+    """Which sub-samples a pixel may trace under its region's `Fidelity.spp` (rank
     below the region's samples per pixel), or None where every region takes every sub-sample."""
     spp = region_spp(foveation)
     if spp is None:
@@ -142,7 +142,7 @@ def sample_classes(
         optional = jnp.zeros_like(mandatory)
     cls = jnp.where(mandatory, MANDATORY, jnp.where(optional, OPTIONAL, SKIPPED)).astype(jnp.int32)
     allowed = allowed_samples(region, foveation)
-    if allowed is not None:  # texspp: beyond the region's samples per pixel, nothing is traced
+    if allowed is not None:  # beyond the region's samples per pixel, nothing is traced
         cls = jnp.where(allowed, cls, SKIPPED)
     return cls, region
 
