@@ -101,9 +101,18 @@ def versions() -> dict[str, str]:
 def write_record(
     name: str, figures: dict, *, command: str | None = None, note: str | None = None
 ) -> Path | None:
-    """Write `figures` with the run's provenance to
-    `benchmarks/results/<name>-<UTC date>T<time>-<commit>.json` and return the path (None when FOVJAX_BENCH_RECORD=0). `command` defaults to this process's
-    command line."""
+    """Write `figures` with the run's provenance to a new record and return its path.
+
+    Args:
+        name: the benchmark's name (lower case, digits, underscores); the file is
+            `benchmarks/results/<name>-<UTC date and time>-<commit>.json`.
+        figures: the measured values, JSON-ready (see the module docstring for `tables`).
+        command: the command line to record; defaults to this process's.
+        note: what a reader should know about the run (load, what else ran).
+
+    Returns:
+        The record's path, or None when FOVJAX_BENCH_RECORD=0.
+    """
     if os.environ.get("FOVJAX_BENCH_RECORD", "1") == "0":
         return None
     if not re.fullmatch(r"[a-z0-9_]+", name):
