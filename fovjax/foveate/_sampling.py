@@ -11,9 +11,19 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._config import region_spp
 
-FOVEA, PERIPHERY, OUTSIDE = 0, 1, 2
+FOVEA = 0
+"""Region code of the fovea (eccentricity ≤ `fovea_deg`) in `FoveatedFrame.regions`."""
+PERIPHERY = 1
+"""Region code of the periphery (`fovea_deg` < eccentricity ≤ `periphery_deg`)."""
+OUTSIDE = 2
+"""Region code of everything beyond the periphery."""
 # Compaction order: samples that must be traced, then the probabilistic extras, then the rest.
-MANDATORY, OPTIONAL, SKIPPED = 0, 1, 2
+MANDATORY = 0
+"""Sample class: always traced (the fovea's samples, the blocks' top-left pixels)."""
+OPTIONAL = 1
+"""Sample class: traced with the acuity model's probability."""
+SKIPPED = 2
+"""Sample class: never traced (filled from its block)."""
 
 
 def regions(ecc: Float[Array, "H W"], foveation) -> Int[Array, "H W"]:
