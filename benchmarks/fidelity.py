@@ -36,6 +36,7 @@ import statistics
 
 import jax
 import numpy as np
+from _record import write_record
 
 import fovjax
 from fovjax.foveate import Fidelity, Foveation, render_foveated
@@ -178,16 +179,36 @@ def main(argv=None):
             f"{name:10} primary rays plain {by_region[0][r]:7,} fidelity {by_region[1][r]:7,}; "
             f"mean |difference| {diff[regions == r].mean():.4f}"
         )
+    title = (
+        f"atrium {args.triangles} triangles, 2×{args.width}×{args.height}, SPP {args.spp}, "
+        f"max depth {config.max_depth}; fidelity {fidelity}"
+    )
+    rows = [
+        [name, s.primary_rays, s.shadow_rays, s.reflection_rays, s.rays]
+        + [round(1e3 * t, 2), round(s.compile_seconds, 2)]
+        for name, s, t in (("plain", plain.stats, t_plain), ("fidelity", lod.stats, t_lod))
+    ]
+    cols = ["", "primary", "shadow", "reflection", "rays", "frame ms", "compile s"]
+    figures = {
+        "tables": [{"title": title, "columns": cols, "rows": rows}],
+        "rays_vs_plain": round(lod.stats.rays / plain.stats.rays, 4),
+        "speedup": round(t_plain / t_lod, 3),
+        "mean_abs_diff": {name: round(float(diff[regions == r].mean()), 5) for r, name in enumerate(names)},
+    }
     if args.reference_spp:
         reference = fovjax.render.render_stereo(
             scene, rig, spp=args.reference_spp, key=jax.random.key(0), config=config
         ).image
         print(f"mean |difference| from the full frame at SPP {args.reference_spp}:")
+        errors = {}
         for r, name in enumerate(names):
             err = [np.abs(f.image - reference).mean(axis=-1)[regions == r].mean() for f in (plain, lod)]
             print(f"{name:10} plain {err[0]:.4f} fidelity {err[1]:.4f}")
+            errors[name] = [round(float(e), 5) for e in err]
+        figures[f"mean_abs_diff_from_full_spp{args.reference_spp}_plain_fidelity"] = errors
     with open("/proc/loadavg") as f:
         print(f"load average: {f.read().strip()}")
+    write_record("fidelity", figures)
 
 
 if __name__ == "__main__":
