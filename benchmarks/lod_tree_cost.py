@@ -1,7 +1,7 @@
 """What a coarser level of detail costs a ray: each LOD level's BVH cost, against the same
 scene tessellated to the same triangle count (well-shaped triangles), no timing. (Written when
 coarse levels traced slower than level 0 — fans of slivers; welding and Delaunay flips in
-`fovjax.scene._lod` fixed that: README, "Geometry level of detail per region".)
+`fovjax.scene._lod` fixed that: docs/concepts/scenes.md, "Level of detail".)
 
     python benchmarks/lod_tree_cost.py                  # atrium 262k, its cached LOD levels
     python benchmarks/lod_tree_cost.py --rays 500       # fewer host-traced rays (faster)

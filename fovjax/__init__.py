@@ -44,7 +44,7 @@ __version__ = "0.1.0"
 def __getattr__(name: str):
     """`fovjax.plan_fidelity` (from `fovjax.eval`, imported on first use: `import fovjax` stays
     free of the metrics' dependencies). It lives in eval, not foveate, because it judges plans
-    by image metrics and the core packages never import eval (README, "Architecture")."""
+    by image metrics and the core packages never import eval (docs/concepts/architecture.md)."""
     if name == "plan_fidelity":
         from .eval import plan_fidelity
 

@@ -248,7 +248,7 @@ class Foveation(eqx.Module):
       top-left pixels, each sub-sample kept with probability P(ω); "thesis-measured" — the
       sampling the thesis's Table 2 implies (not its text): every sub-sample of the pixels
       within `periphery_deg`, one sample per pixel beyond it at any SPP, no draws (see
-      `Foveation.thesis_measured` and the README section "Thesis fidelity: Table 2");
+      `Foveation.thesis_measured` and docs/thesis.md);
     - `blur_sigma`: σ of the 5×5 Gaussian of the fill pass (pixels); `blur_fovea`: blur every
       pixel (the all-pixel reading of thesis 4.5) instead of keeping the fovea sharp;
     - `eccentricity`: "angle" (default; the angle between the pixel's ray and the gaze ray) or
@@ -270,7 +270,7 @@ class Foveation(eqx.Module):
       row and column (where every outside block's top-left lies), a pixel's sub-samples side
       by side. Only when the budget is every sample (`max_periphery_deg` and `ray_budget`
       None). Off by default: on a 2-core CPU they measured at most ~5% faster frames at 1.6-2.7x
-      the compile time (README, "Foveated rendering").
+      the compile time (records on docs/performance.md, "Foveated frames").
     - `fidelity`: None (full fidelity everywhere) or a `Fidelity` per region, (fovea,
       periphery, outside): reflection depth and shadow rays per region, and texture
       level of detail and samples per pixel per region (regions move with the gaze without a

@@ -55,7 +55,7 @@ def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[A
 
     Why: the thesis's Table 2 is exactly linear in SPP, rays = a + b·SPP, with b / b_full the
     share of pixels within ω1 and a the pixels beyond ω1 at about one sample each; see the
-    README section "Thesis fidelity: Table 2"."""
+    docs/thesis.md, "Table 2: what its ray counts imply"."""
     inside = (region != OUTSIDE)[None]
     first = (jnp.arange(spp) == 0)[:, None, None]
     return inside | first
