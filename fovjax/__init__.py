@@ -38,7 +38,18 @@ from .scene import vfov_from_hfov as vfov_from_hfov
 from .session import full_eccentricity as full_eccentricity
 from .session import run_session as run_session
 
-__version__ = "0.1.0"
+
+def _version() -> str:
+    """The installed distribution's version: one place, `pyproject.toml`."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fovjax")
+    except PackageNotFoundError:  # a source tree on sys.path without an install
+        return "0+unknown"
+
+
+__version__ = _version()
 
 
 def __getattr__(name: str):
