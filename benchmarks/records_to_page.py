@@ -1,6 +1,6 @@
 """Turn the benchmark records (benchmarks/results/*.json) into the documentation's Performance page.
 
-    python benchmarks/records_to_page.py           # rewrite docs/performance.md and its charts
+    python benchmarks/records_to_page.py           # rewrite docs/performance.md, its charts, docs/_generated/
     python benchmarks/records_to_page.py --check   # exit 1 if the page is stale
 
 The page quotes the records only: one section per benchmark, one subsection per record (newest
@@ -21,6 +21,9 @@ ROOT = HERE.parent
 RESULTS = HERE / "results"
 PAGE = ROOT / "docs" / "performance.md"
 CHARTS = ROOT / "docs" / "images" / "perf"
+# Each record's tables alone, for other pages to include (`--8<-- "docs/_generated/<stem>.md"`,
+# e.g. docs/thesis.md): pages quote records, not copies of their numbers.
+GENERATED = ROOT / "docs" / "_generated"
 
 # Sections in this order; a benchmark not listed goes last, under its own name.
 SECTIONS = [
@@ -128,6 +131,26 @@ def chart(table: dict, name: str) -> str | None:
     return f"images/perf/{name}.png"
 
 
+def tables_md(rec: dict) -> str:
+    """A record's tables as Markdown, with a line naming the record."""
+    stem = rec["_file"].removesuffix(".json")
+    out = []
+    for table in rec["figures"].get("tables", []):
+        out.append(f"{table['title']}\n")
+        out.append("| " + " | ".join(table["columns"]) + " |")
+        out.append("|" + "---|" * len(table["columns"]))
+        out += ["| " + " | ".join(cell(v) for v in row) + " |" for row in table["rows"]]
+        out.append("")
+    anchor = slug(stem)
+    source = f"benchmarks/results/{rec['_file']}"
+    out.append(f"*From the record [`{stem}`](performance.md#{anchor}) (`{source}`).*")
+    return "\n".join(out) + "\n"
+
+
+def generated(records: list[dict]) -> dict[Path, str]:
+    return {GENERATED / f"{r['_file'].removesuffix('.json')}.md": tables_md(r) for r in records}
+
+
 def render(records: list[dict], *, charts: bool) -> str:
     out = [HEAD]
     order = {name: i for i, (name, _) in enumerate(SECTIONS)}
@@ -143,7 +166,7 @@ def render(records: list[dict], *, charts: bool) -> str:
             machine = rec.get("machine", {})
             load = machine.get("load_average_stated", machine.get("load_average"))
             when = rec.get("date") or "date not stated"
-            out.append(f"### `{stem}`\n")
+            out.append(f"### `{stem}` {{#{slug(stem)}}}\n")
             out.append(f"- command: `{rec['command']}`")
             out.append(f"- date: {when}; commit: {rec.get('commit') or 'not recorded'}")
             gpus = ", ".join(machine.get("gpus") or []) or "none"
@@ -181,6 +204,9 @@ def stale() -> list[str]:
     """What is out of date: the page, or a chart it names that is missing."""
     text = render(load(), charts=False)
     problems = [] if PAGE.exists() and PAGE.read_text() == text else [str(PAGE.relative_to(ROOT))]
+    for path, md in generated(load()).items():
+        if not path.exists() or path.read_text() != md:
+            problems.append(str(path.relative_to(ROOT)))
     for name in re.findall(r"\]\((images/perf/[^)]+)\)", text):
         if not (ROOT / "docs" / name).exists():
             problems.append(name)
@@ -196,7 +222,13 @@ def main() -> int:
         for p in problems:
             print(f"stale: {p} (run python benchmarks/records_to_page.py)")
         return 1 if problems else 0
-    PAGE.write_text(render(load(), charts=True))
+    records = load()
+    PAGE.write_text(render(records, charts=True))
+    GENERATED.mkdir(exist_ok=True)
+    for old in GENERATED.glob("*.md"):
+        old.unlink()
+    for path, md in generated(records).items():
+        path.write_text(md)
     print(f"wrote {PAGE.relative_to(ROOT)}")
     return 0
 
