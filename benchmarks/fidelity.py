@@ -4,7 +4,7 @@
     python benchmarks/fidelity.py --triangles 20000 --width 160 --height 128 --spp 4
     python benchmarks/fidelity.py --lod none,1,2 --no-shading   # geometry level of detail only
 
-Texture level of detail and samples per pixel per region (texspp):
+Texture level of detail and samples per pixel per region:
 
     python benchmarks/fidelity.py --full-shading --spp 4 --spp-periphery 1 --spp-outside 1
     python benchmarks/fidelity.py --full-shading --textured --texture-lod auto,auto --reference-spp 16
@@ -36,6 +36,7 @@ import statistics
 
 import jax
 import numpy as np
+from _record import write_record
 
 import fovjax
 from fovjax.foveate import Fidelity, Foveation, render_foveated
@@ -68,7 +69,7 @@ def _lod(text):
 
 
 def _textured(scene, metres):
-    """(texspp) `scene` with UVs and one procedural texture on every material (see above)."""
+    """`scene` with UVs and one procedural texture on every material (see above)."""
     import dataclasses
 
     faces = np.asarray(scene.faces)
@@ -116,7 +117,7 @@ def main(argv=None):
     parser.add_argument("--outside-shadows", default="none")
     parser.add_argument("--lod", type=_lod, default=(None, None, None))
     parser.add_argument("--no-shading", action="store_true", help="full shading everywhere (only --lod)")
-    # texspp
+    # texture level of detail and samples per pixel per region
     parser.add_argument("--full-shading", action="store_true", help="full depth and shadows everywhere")
     parser.add_argument("--spp-periphery", type=int, default=None)
     parser.add_argument("--spp-outside", type=int, default=None)
@@ -178,16 +179,36 @@ def main(argv=None):
             f"{name:10} primary rays plain {by_region[0][r]:7,} fidelity {by_region[1][r]:7,}; "
             f"mean |difference| {diff[regions == r].mean():.4f}"
         )
+    title = (
+        f"atrium {args.triangles} triangles, 2×{args.width}×{args.height}, SPP {args.spp}, "
+        f"max depth {config.max_depth}; fidelity {fidelity}"
+    )
+    rows = [
+        [name, s.primary_rays, s.shadow_rays, s.reflection_rays, s.rays]
+        + [round(1e3 * t, 2), round(s.compile_seconds, 2)]
+        for name, s, t in (("plain", plain.stats, t_plain), ("fidelity", lod.stats, t_lod))
+    ]
+    cols = ["", "primary", "shadow", "reflection", "rays", "frame ms", "compile s"]
+    figures = {
+        "tables": [{"title": title, "columns": cols, "rows": rows}],
+        "rays_vs_plain": round(lod.stats.rays / plain.stats.rays, 4),
+        "speedup": round(t_plain / t_lod, 3),
+        "mean_abs_diff": {name: round(float(diff[regions == r].mean()), 5) for r, name in enumerate(names)},
+    }
     if args.reference_spp:
         reference = fovjax.render.render_stereo(
             scene, rig, spp=args.reference_spp, key=jax.random.key(0), config=config
         ).image
         print(f"mean |difference| from the full frame at SPP {args.reference_spp}:")
+        errors = {}
         for r, name in enumerate(names):
             err = [np.abs(f.image - reference).mean(axis=-1)[regions == r].mean() for f in (plain, lod)]
             print(f"{name:10} plain {err[0]:.4f} fidelity {err[1]:.4f}")
+            errors[name] = [round(float(e), 5) for e in err]
+        figures[f"mean_abs_diff_from_full_spp{args.reference_spp}_plain_fidelity"] = errors
     with open("/proc/loadavg") as f:
         print(f"load average: {f.read().strip()}")
+    write_record("fidelity", figures)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ import statistics
 
 import jax
 import numpy as np
+from _record import write_record
 
 import fovjax
 from fovjax.eval._plan import _interval, _Judge  # the planner's own judge: same frames, same FLIP
@@ -91,9 +92,11 @@ def main(argv=None) -> None:
     frames = [(np.array([g, g], np.float32), k) for g in GAZES for k in args.keys]
     judge = _Judge(scene, rig, config, frames, references, "flip", bvh, {})
     print(f"{'configuration':40} {'FLIP mean [95%]':>26} {'rays/frame':>11}")
+    judged = {}
     for name, foveation in configs.items():
         ev = judge(foveation)
         m = _interval(ev.metric)
+        judged[name] = (f"{m[0]:.4f} [{m[1]:.4f}, {m[2]:.4f}]", round(statistics.mean(ev.rays)))
         print(f"{name:40} {m[0]:.4f} [{m[1]:.4f}, {m[2]:.4f}] {statistics.mean(ev.rays):>11,.0f}", flush=True)
     times: dict = {name: [] for name in configs}
     for _ in range(args.repeats):
@@ -101,11 +104,24 @@ def main(argv=None) -> None:
             for name, foveation in configs.items():
                 times[name].append(judge.render(foveation, gaze, key).stats.render_seconds)
     plain = statistics.median(times["plain foveation, blocks (2, 4)"])
+    rows = []
     for name in configs:
         t = statistics.median(times[name])
         print(f"{name:40} {1e3 * t:8.0f} ms/frame  {plain / t:.2f}x plain's speed")
+        rows.append([name, judged[name][0], judged[name][1], round(1e3 * t, 1), round(plain / t, 3)])
     with open("/proc/loadavg") as fh:
-        print(f"load average at the end: {' '.join(fh.read().split()[:3])}")
+        end_load = " ".join(fh.read().split()[:3])
+        print(f"load average at the end: {end_load}")
+    title = (
+        f"atrium {args.triangles} triangles, 2×{args.width}×{args.height}, SPP {args.spp}, thesis 5°/10°, "
+        f"gazes {GAZES} × keys {args.keys}, {args.repeats} repeats"
+    )
+    cols = ["configuration", "FLIP mean [95%]", "rays / frame", "ms / frame", "vs plain"]
+    write_record(
+        "fidelity_density",
+        {"tables": [{"title": title, "columns": cols, "rows": rows}]},
+        note=f"load average at the start {load}, at the end {end_load}",
+    )
 
 
 if __name__ == "__main__":

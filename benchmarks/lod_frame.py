@@ -25,6 +25,7 @@ import statistics
 
 import jax
 import numpy as np
+from _record import write_record
 
 import fovjax
 from fovjax.foveate import Fidelity, Foveation, render_foveated
@@ -87,12 +88,29 @@ def main(argv=None) -> None:
     outside = np.concatenate([first["plain"].regions[0], first["plain"].regions[1]], axis=1) > 0
     print(f"2 x {args.width}x{args.height}, SPP 1, {args.repeats} x {len(GAZES)} frames each, alternating")
     print(f"{'configuration':24} {'ms':>8} {'vs plain':>9} {'rays':>9} {'|diff| P+O':>11}")
+    rows = []
     for name in configs:
         ms = statistics.median(times[name])
         diff = np.abs(first[name].image - first["plain"].image).mean(axis=-1)[outside].mean()
         print(f"{name:24} {1e3 * ms:8.1f} {plain / ms:8.2f}x {first[name].stats.rays:9,} {diff:11.4f}")
+        rows.append(
+            [name, round(1e3 * ms, 1), round(plain / ms, 3), first[name].stats.rays, round(float(diff), 5)]
+        )
     with open("/proc/loadavg") as f:
         print(f"load average: {f.read().strip()}")
+    title = (
+        f"Geometry LOD in a frame: 2×{args.width}×{args.height}, SPP 1, {args.repeats} × {len(GAZES)} frames "
+        "each, alternating, median ms"
+    )
+    cols = ["configuration", "ms", "vs plain", "rays", "|diff| P+O"]
+    write_record(
+        "lod_frame",
+        {
+            "tables": [{"title": title, "columns": cols, "rows": rows}],
+            "levels_triangles": list(levels.triangles),
+            "levels_error_m": [round(e, 5) for e in levels.errors],
+        },
+    )
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """What a coarser level of detail costs a ray: each LOD level's BVH cost, against the same
 scene tessellated to the same triangle count (well-shaped triangles), no timing. (Written when
 coarse levels traced slower than level 0 — fans of slivers; welding and Delaunay flips in
-`fovjax.scene._lod` fixed that: README, "Geometry level of detail per region".)
+`fovjax.scene._lod` fixed that: docs/concepts/scenes.md, "Level of detail".)
 
     python benchmarks/lod_tree_cost.py                  # atrium 262k, its cached LOD levels
     python benchmarks/lod_tree_cost.py --rays 500       # fewer host-traced rays (faster)
@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from _record import write_record
 
 import fovjax
 from fovjax.scene import lod_levels
@@ -124,7 +125,7 @@ def _rays(scene, n: int, seed: int = 0):
     return np.repeat(eye[None], n, axis=0), d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def row(name: str, scene, error, origins, dirs) -> None:
+def row(name: str, scene, error, origins, dirs) -> list:
     tri = np.asarray(scene.vertices, np.float32)[np.asarray(scene.faces)]
     t64 = tri.astype(np.float64)
     edge = np.linalg.norm(np.roll(t64, -1, axis=1) - t64, axis=2).max(axis=1)
@@ -139,6 +140,15 @@ def row(name: str, scene, error, origins, dirs) -> None:
         f"{np.percentile(edge, 99):>7.2f} {inner:>7.1f} {leaf:>6.1f} {inner + leaf:>7.1f} {steps:>7.1f}",
         flush=True,
     )
+    return [
+        name,
+        len(tri),
+        None if error is None else round(float(error), 5),
+        f"{np.median(shape):.1f} / {np.percentile(shape, 90):.1f}",
+        f"{np.percentile(edge, 99):.2f} m",
+        f"{inner:.1f} + {leaf:.1f} = {inner + leaf:.1f}",
+        round(float(steps), 2),
+    ]
 
 
 def main(argv=None) -> None:
@@ -154,12 +164,20 @@ def main(argv=None) -> None:
         f"{'scene':<22} {'tris':>8} {'error':>8} {'shape':>6} {'p90':>6} {'p99 edge':>7} "
         f"{'SAH in':>7} {'leaf':>6} {'SAH':>7} {'steps':>7}"
     )
+    rows = []
     for i, (level, error) in enumerate(zip(levels.scenes, levels.errors, strict=True)):
-        row(f"level {i} ({levels.ratios[i]:g})", level, error, origins, dirs)
+        rows.append(row(f"level {i} ({levels.ratios[i]:g})", level, error, origins, dirs))
     for n in levels.triangles[1:]:
         if n < atrium_min_triangles():
             continue
-        row(f"atrium(triangles={n})", fovjax.scenes.atrium(triangles=n), None, origins, dirs)
+        rows.append(row(f"atrium(triangles={n})", fovjax.scenes.atrium(triangles=n), None, origins, dirs))
+    cols = ["tree", "triangles", "error (m)", "shape median / p90", "p99 longest edge", "SAH inner + leaf"]
+    table = {
+        "title": f"Each level's tree: shape, SAH cost, steps per ray ({args.rays} camera rays, host-traced)",
+        "columns": [*cols, "steps per ray"],
+        "rows": rows,
+    }
+    write_record("lod_tree_cost", {"tables": [table]})
 
 
 if __name__ == "__main__":

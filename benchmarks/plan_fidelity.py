@@ -26,6 +26,8 @@ import argparse
 import time
 from pathlib import Path
 
+from _record import write_record
+
 import fovjax
 from fovjax.eval import default_options, plan_fidelity
 from fovjax.foveate import Foveation
@@ -125,6 +127,7 @@ def main(argv=None):
         f"atrium {args.triangles} triangles, 2 x {args.width}x{args.height}, thesis 5°/10°, "
         f"max_depth {config.max_depth}, gazes {GAZES} x keys {args.keys}; load average {' '.join(load)}"
     )
+    rows = []
     for spp in args.spp:
         options = default_options(config.max_depth, len(scene.lights), spp, first=args.step)
         print(f"options per region (dearest first): {options}")
@@ -160,8 +163,42 @@ def main(argv=None):
             f"{plan.speedup:.2f}x plain's speed\nplan: {plan.describe_plan()}",
         )
         print(f"wrote {path}\n", flush=True)
+        rows.append(
+            [
+                spp,
+                args.threshold,
+                plan.describe_plan(),
+                round(plan.plain_cost["ms_per_frame"], 1),
+                round(plan.plan_cost["ms_per_frame"], 1),
+                round(plan.speedup, 3),
+                round(plan.plan_cost["rays_per_frame"] / plan.plain_cost["rays_per_frame"], 4),
+                "{:.4f} [{:.4f}, {:.4f}]".format(*plan.plain_metric),
+                "{:.4f} [{:.4f}, {:.4f}]".format(*plan.plan_metric),
+            ]
+        )
     with open("/proc/loadavg") as fh:
-        print(f"load average at the end: {' '.join(fh.read().split()[:3])}")
+        end_load = " ".join(fh.read().split()[:3])
+        print(f"load average at the end: {end_load}")
+    title = (
+        f"Planned fidelity: atrium {args.triangles:,} triangles, 2×{args.width}×{args.height}, 5°/10°, "
+        f"gazes {GAZES} × keys {args.keys}, densities {args.densities}"
+    )
+    cols = [
+        "SPP",
+        "threshold",
+        "plan",
+        "plain ms",
+        "planned ms",
+        "speed",
+        "rays",
+        "FLIP plain",
+        "FLIP planned",
+    ]
+    write_record(
+        "plan_fidelity",
+        {"tables": [{"title": title, "columns": cols, "rows": rows}]},
+        note=f"load average at the start {' '.join(load)}, at the end {end_load}",
+    )
 
 
 if __name__ == "__main__":

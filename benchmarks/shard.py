@@ -48,6 +48,7 @@ def main(argv=None) -> int:
 
     import jax
     import numpy as np
+    from _record import write_record
 
     import fovjax
     from fovjax.eval import render_foveated_batch, render_stereo_batch
@@ -129,18 +130,32 @@ def main(argv=None) -> int:
         f"spp {args.spp}, max depth {args.max_depth}, fovea {args.fovea[0]:g}/{args.fovea[1]:g}, "
         f"median of {args.repeats}"
     )
+    columns, results = [], {}
     for kind, one_by_one, batch in kinds:
         print(kind)
         single = measure("one by one (render_*)", one_by_one)
         unsharded = measure("batch, 1 device (vmap)", batch(devices[:1]))
         sharded = measure(f"batch, shard_map over {len(devices)} devices", batch(devices))
+        ways = {"one by one": single, "batch, 1 device (vmap)": unsharded, "batch, shard_map": sharded}
         if args.auto:
-            measure(f"batch, jit-partitioned over {len(devices)}", batch(devices, "auto"))
+            ways['batch, partition="auto"'] = measure(
+                f"batch, jit-partitioned over {len(devices)}", batch(devices, "auto")
+            )
+        columns.append(kind)
+        for way, ms in ways.items():
+            results.setdefault(way, {})[kind] = round(ms, 2)
         print(
             f"  ratios: one-by-one / sharded {single / sharded:.2f}x, "
             f"1-device batch / sharded {unsharded / sharded:.2f}x, one-by-one / 1-device batch "
             f"{single / unsharded:.2f}x"
         )
+    title = (
+        f"ms per frame: atrium {args.triangles:,} triangles, {n} frames of 2×{args.width}×{args.height}, "
+        f"SPP {args.spp}, depth {args.max_depth}, fovea {args.fovea[0]:g}/{args.fovea[1]:g}, "
+        f"{len(devices)} {devices[0].platform} devices, median of {args.repeats}"
+    )
+    rows = [[way, *(by_kind.get(k) for k in columns)] for way, by_kind in results.items()]
+    write_record("shard", {"tables": [{"title": title, "columns": ["", *columns], "rows": rows}]})
     return 0
 
 

@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _record import write_record
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -191,6 +193,24 @@ def main() -> None:
         f"  ratios: viewer fps / bare fps = {v['fps'] * bare_ms / 1000:.2f}; "
         f"latency / bare frame = {v['latency_ms'] / bare_ms:.2f}"
     )
+    cols = [
+        "per eye",
+        "viewer fps",
+        "latency median (p90) ms",
+        "server frame ms",
+        "bare render_stereo ms (fps)",
+    ]
+    row = [
+        f"2×{args.width}×{args.height} ({args.seconds:g} s)",
+        round(v["fps"], 2),
+        f"{v['latency_ms']:.0f} ({v['latency_p90_ms']:.0f})",
+        round(v["server_frame_ms"], 1),
+        f"{bare_ms:.0f} ({1000 / bare_ms:.1f})",
+        round(interval / v["server_frame_ms"], 3),
+    ]
+    title = f"The live viewer: {args.scene}, 5°/10°, SPP 1, mouse moved every {args.interval:g} s"
+    table = {"title": title, "columns": [*cols, "frame interval / server frame"], "rows": [row]}
+    write_record("view_latency", {"tables": [table], "first_frame_s": round(v["first_frame_s"], 1)})
 
 
 if __name__ == "__main__":

@@ -38,13 +38,24 @@ from .scene import vfov_from_hfov as vfov_from_hfov
 from .session import full_eccentricity as full_eccentricity
 from .session import run_session as run_session
 
-__version__ = "0.1.0"
+
+def _version() -> str:
+    """The installed distribution's version: one place, `pyproject.toml`."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fovjax")
+    except PackageNotFoundError:  # a source tree on sys.path without an install
+        return "0+unknown"
+
+
+__version__ = _version()
 
 
 def __getattr__(name: str):
     """`fovjax.plan_fidelity` (from `fovjax.eval`, imported on first use: `import fovjax` stays
     free of the metrics' dependencies). It lives in eval, not foveate, because it judges plans
-    by image metrics and the core packages never import eval (README, "Architecture")."""
+    by image metrics and the core packages never import eval (docs/concepts/architecture.md)."""
     if name == "plan_fidelity":
         from .eval import plan_fidelity
 

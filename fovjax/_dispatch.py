@@ -22,15 +22,44 @@ def render_stereo(
     bvh=None,
     diagnostics=DIAGNOSTICS,
 ):
-    """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
-    side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`);
-    other arguments as `fovjax.render.render`. Returns a `fovjax.render.Frame`.
+    """Render one stereo frame of the thesis's HMD: both eyes side by side, full or foveated.
 
-    Foveated: with `foveation=` (a `fovjax.foveate.Foveation`; its `spp` is the frame's) and/or
-    `gaze=((lx, ly), (rx, ry))` (normalised display coordinates; default the centres), the frame
-    traces only the samples the foveation selects and returns a `fovjax.foveate.FoveatedFrame`
-    (image, stats, per-region counts, sample mask, debug view; `diagnostics` chooses its
-    per-pixel outputs); see `fovjax.foveate.render_foveated`."""
+    Without `foveation` and `gaze` this is the full render (`fovjax.render.render_stereo`); with
+    either, only the samples the foveation selects are traced (`fovjax.foveate.render_foveated`).
+
+    Args:
+        scene: a `fovjax.Scene` (or the `SceneArrays` of one, with `bvh`).
+        rig: the `fovjax.render.StereoRig`; default the thesis HMD at the scene's default
+            viewpoint.
+        gaze: per eye (x, y) in normalised display coordinates, ((lx, ly), (rx, ry)); default the
+            display centres. Given alone, foveates with `Foveation(spp=spp)`.
+        foveation: a `fovjax.foveate.Foveation`; its `spp` is the frame's.
+        head_pose: (yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`; default straight.
+        spp: samples per pixel, a perfect square (default 1; must agree with `foveation.spp`).
+        key: the frame's `jax.random` key (jitter and sampling draws); None for cell centres and a
+            fixed sampling pattern.
+        config: the `fovjax.render.RenderConfig` (default `RenderConfig()`).
+        envmap: an environment map for rays that miss (a path or an array).
+        bvh: a prebuilt BVH (default: built, or loaded from the disk cache).
+        diagnostics: foveated frames only: which per-pixel outputs to return (names of
+            `fovjax.foveate.DIAGNOSTICS`); each set is its own compiled program.
+
+    Returns:
+        A `fovjax.render.Frame`, or a `fovjax.foveate.FoveatedFrame` when foveated (image,
+        stats, per-region counts, sample mask, regions, eccentricity, debug view).
+
+    Raises:
+        ValueError: `spp` disagrees with `foveation.spp`, or a bad gaze, SPP or threshold.
+
+    Example:
+        ```python
+        scene = fovjax.scenes.cornell_box()
+        rig = fovjax.StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=64, eye_height=48)
+        full = fovjax.render_stereo(scene, rig, key=jax.random.key(0))
+        fov = fovjax.render_stereo(scene, rig, gaze=((0.4, 0.5), (0.6, 0.5)),
+                                   foveation=Foveation(fovea_deg=5, periphery_deg=10))
+        ```
+    """
     config = RenderConfig() if config is None else config
     if foveation is None and gaze is None:
         return _render_full(

@@ -1,4 +1,4 @@
-"""The layout's rules, read from the source with `ast` (README, "Architecture").
+"""The layout's rules, read from the source with `ast` (docs/concepts/architecture.md).
 
 Every `import` and `from ... import` in every module of `fovjax` is resolved to the package it
 reaches (`fovjax.<package>`; the top-level modules belong to the package `fovjax` itself), then:
@@ -8,7 +8,8 @@ reaches (`fovjax.<package>`; the top-level modules belong to the package `fovjax
 (b) the core packages never import the application layer (the CLI, the session loop, eval, the
     viewer, or the `fovjax` top level that re-exports all of them);
 (c) `render` never imports `foveate` (foveation is built on the full renderer, not inside it);
-(d) every import between packages is one the table `MAY_IMPORT` allows (README's table).
+(d) every import between packages is one the table `MAY_IMPORT` allows (the table of
+    docs/concepts/architecture.md).
 
 Imports inside functions count as much as those at the top of a file.
 """
@@ -153,7 +154,8 @@ def violations() -> dict[str, list[str]]:
 
 def test_every_package_has_a_place_in_the_table():
     packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
-    assert packages == set(MAY_IMPORT) - {ROOT}, "a new package needs a row in MAY_IMPORT and README"
+    message = "a new package needs a row in MAY_IMPORT and docs/concepts/architecture.md"
+    assert packages == set(MAY_IMPORT) - {ROOT}, message
     assert set(CORE) | set(APPLICATION) == set(MAY_IMPORT)
     for core in CORE:  # the table itself keeps the layers apart
         assert not MAY_IMPORT[core] & set(APPLICATION), core

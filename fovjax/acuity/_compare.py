@@ -127,10 +127,28 @@ def compare(
     condition: str | None = None,
     solver: str = "levenberg_marquardt",
 ) -> Comparison:
-    """Fit every model in `models` (names, classes or instances) and rank them.
+    """Fit every model in `models` and rank them by AIC, with leave-one-out errors beside it.
 
-    `fixed` maps a model name to the parameters held fixed for it (e.g. {"linear_mar": {"a": 1}}).
     A model whose fit fails is listed with its error and excluded from the choice.
+
+    Args:
+        data: `AcuityData`.
+        models: names, classes or instances of the families to compare.
+        fixed: per model name, the parameters held fixed for it, e.g.
+            ``{"linear_mar": {"a": 1.0}}``.
+        condition: the condition to fit when the data hold several.
+        solver: the least-squares solver of every fit (see `fit`).
+
+    Returns:
+        A `Comparison`: `scores` (a `CandidateScore` per model, sorted by AIC, failed fits last: k,
+        AIC, AICc, BIC, LOO RMSE, Δ to the best, the fit or its error), `chosen` (the simplest
+        model within ΔAIC < 2 of the best) and `best_aic`.
+
+    Example:
+        ```python
+        cmp = fa.compare(data, ("exponential", "linear_mar"), fixed={"exponential": {"c": 0.0}})
+        print(cmp.chosen)
+        ```
     """
     data = _single_condition(_as_data(data), condition)
     fixed = fixed or {}

@@ -637,16 +637,37 @@ def fit(
 ) -> FitResult:
     """Fit an acuity model by (weighted) least squares with optimistix.
 
-    `data`: `AcuityData` (one condition, or pick one with `condition`). `model`: a family name
-    ("exponential", "linear_mar", "power_mar"), class or instance. `solver`: "levenberg_marquardt"
-    (default), "gauss_newton", "dogleg" or "bfgs". `init`: starting values (model or dict); by
-    default they come from the data (`initial_guess`). `fixed`: parameters held at given values.
-
     Weighting: rows with `sd` are weighted by 1/se² (se = sd/√n) and the covariance is
     (JᵀWJ)⁻¹ (standard errors taken as known); without `sd` the fit is unweighted and the
     covariance is s²(JᵀJ)⁻¹ with s² = RSS/(n − k).
 
-    Raises a `FitError` subclass (see the module docstring) rather than return an unconverged fit.
+    Args:
+        data: `AcuityData` (one condition, or pick one with `condition`).
+        model: a family name ("exponential", "linear_mar", "power_mar"), class or instance.
+        solver: "levenberg_marquardt" (default), "gauss_newton", "dogleg" or "bfgs".
+        init: starting values (model or dict); by default they come from the data
+            (`initial_guess`).
+        fixed: parameters held at given values, e.g. ``{"c": 0.0}``.
+        condition: the condition to fit when the data hold several.
+        max_steps: the solver's step limit.
+        rtol: the solver's relative tolerance.
+        atol: the solver's absolute tolerance.
+        level: the confidence level of the intervals.
+
+    Returns:
+        A converged, checked `FitResult` (model, covariance, residuals, metrics, iterations).
+
+    Raises:
+        FitError: a subclass (`StepLimitError`, `DivergenceError`, `StalledError`,
+            `IdentifiabilityError`, `TooFewPointsError`) naming the solver and what to try, rather
+            than an unconverged fit.
+
+    Example:
+        ```python
+        data = fa.load_csv("data/ashraf2025/resolution_limit_achromatic_mean.csv")
+        result = fa.fit(data, "exponential", fixed={"c": 0.0})
+        result.model(10.0)                    # relative acuity at 10°, jittable
+        ```
     """
     family = model_family(model)
     data = _single_condition(_as_data(data), condition)

@@ -138,31 +138,57 @@ def compare_thresholds(
     fidelity: str | None = None,
     plan_criterion: tuple[str, float] = ("flip", 0.01),
 ) -> Comparison:
-    """Render every (threshold pair × spp × acuity model) foveated, for every gaze and key, and
-    the full render for every key (it does not depend on gaze); measure rays per frame, ms per
-    frame (median over renders, compile excluded), the speed-up over full, and PSNR, SSIM, FLIP
-    (extra [flip]) and, with `perceptual` (default: when pyfvvdp is installed), FovVideoVDP JOD
-    at the gaze point, each with a 95% Student-t interval over gaze × key. Names the cheapest
-    configuration (by ms per frame) whose `criterion` metric's interval stays below the
-    threshold (above it for PSNR, SSIM, JOD). `models`: acuity models for P(ω) (default: the
-    thesis's). `config`: the `RenderConfig` of every render (default: `render_stereo`'s).
+    """Compare fovea thresholds: cost against image error for every configuration.
 
-    A metric with fewer than two finite samples for a configuration (one gaze × key, or PSNR of
-    identical frames but one) has no interval (`_lo`/`_hi` NaN), so it cannot meet the criterion;
-    `{metric}_n` counts the finite samples.
+    Renders every (threshold pair × spp × acuity model) foveated, for every gaze and key, and the
+    full render for every key (it does not depend on gaze); measures rays per frame, ms per frame
+    (median over renders, compile excluded), the speed-up over full, and PSNR, SSIM, FLIP and
+    FovVideoVDP JOD at the gaze point, each with a 95% Student-t interval over gaze × key. A metric
+    with fewer than two finite samples for a configuration has no interval (`_lo`/`_hi` NaN), so
+    it cannot meet the criterion; `{metric}_n` counts the finite samples.
 
-    `shard=True` renders each configuration's frames (every gaze × key; the full render's every
-    key) in one program, vmapped and sharded over `devices` (default `jax.devices()`, every
-    host's under `jax.distributed`; see `render_foveated_batch`). Its ms per frame is then the
-    batch's wall time over its frames, not a median of single frames, and includes what
-    batching costs (each device's frames wait for its slowest; see `fovjax.eval._shard`); the
-    images, rays and metrics are those of `shard=False`.
+    Args:
+        scene: the `Scene`.
+        rig: the `StereoRig`.
+        thresholds: (fovea, periphery) pairs in degrees; default the thesis's five.
+        spp: samples per pixel to compare.
+        models: acuity models for P(ω) (default: the thesis's).
+        gazes: gaze points, (x, y) for both eyes or one per eye.
+        keys: seeds of the frames' keys.
+        config: the `RenderConfig` of every render (default: `render_stereo`'s).
+        criterion: (metric, threshold): the cheapest configuration (by ms per frame) whose metric's
+            whole interval stays below the threshold (above it for PSNR, SSIM and JOD) is chosen.
+        perceptual: measure FovVideoVDP (default: when pyfvvdp is installed).
+        rule: the sampling rule of every foveation.
+        progress: print a line per configuration.
+        bvh: a prebuilt BVH.
+        shard: render each configuration's frames in one program, vmapped and sharded over
+            `devices` (default `jax.devices()`, every host's under `jax.distributed`; see
+            `render_foveated_batch`). Its ms per frame is then the batch's wall time over its
+            frames and includes what batching costs; images, rays and metrics are those of
+            `shard=False`.
+        devices: the devices of a sharded sweep.
+        fidelity: "auto" also plans each configuration per region with `plan_fidelity` (the
+            cheapest `Fidelity` per region adding at most `plan_criterion` per 5° ring over plain
+            foveation) and measures it: a record labelled "... planned" with `planned` True and the
+            plan in `fidelity` (plain records: `planned` False, `fidelity` "full").
+        plan_criterion: the criterion of those plans.
 
-    `fidelity="auto"`: each configuration also planned per region by `plan_fidelity` (the
-    cheapest `Fidelity` per region adding at most `plan_criterion` per 5° ring over plain
-    foveation, judged on the same gazes and keys) and measured like the others: a record
-    labelled "... planned" with `planned` True and the plan in `fidelity` (plain records:
-    `planned` False, `fidelity` "full"); the charts mark planned points apart."""
+    Returns:
+        A `Comparison`: `records` (one per configuration), `rings` (error per 5° ring), `choice`,
+        `full` (the full render's cost), `plans`; `write(dir)` writes the CSV and the charts.
+
+    Raises:
+        MissingExtraError: the criterion's metric needs an extra that is not installed.
+        ValueError: a bad threshold pair, SPP, gaze or criterion.
+
+    Example:
+        ```python
+        cmp = fe.compare_thresholds(scene, rig, thresholds=[(5, 10), (12.5, 25)], spp=[1, 4])
+        cmp.write("out/compare")
+        print(cmp.choice)
+        ```
+    """
     from ..foveate import Foveation, render_foveated
     from ..render import RenderConfig, render_stereo
     from ._plan import _check_criterion, plan_fidelity

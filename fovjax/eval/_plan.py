@@ -3,7 +3,7 @@ whose error per 5° eccentricity ring, against the full render, stays within a c
 
 Why here and not `fovjax.foveate.plan_fidelity`: the plan is judged by image metrics (FLIP,
 `error_by_eccentricity`), which live in `eval`, and the core packages (foveate, render, trace,
-scene, acuity, devices) never import the application layer (README, "Architecture";
+scene, acuity, devices) never import the application layer (docs/concepts/architecture.md;
 tests/test_architecture.py). So the planner sits with the metrics and returns a plain
 `fovjax.foveate.Foveation` that the core renders like any other.
 
@@ -54,7 +54,7 @@ DEFAULT_PLAN_GAZES = ((0.35, 0.45), (0.3, 0.4), (0.7, 0.65))
 # {"spp": 1} where it measures: the one place the default grid is defined (a field that needs
 # a renderer input beyond what `render_foveated` finds itself also needs `render_kwargs`).
 # {"spp": 1} sits after depth 1: on the atrium at SPP 4 it was the one step that bought speed at
-# equal FLIP (periphery at 1 SPP + depth 1: 1.19x, README "Planning the fidelity"); geometry LOD
+# equal FLIP (periphery at 1 SPP + depth 1; docs/performance.md, "Planned fidelity"); geometry LOD
 # measured no faster there and texture LOD buys no speed on the CPU, so neither is a default step.
 DEFAULT_STEPS: tuple[dict, ...] = (
     {"max_depth": 2},

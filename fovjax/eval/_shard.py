@@ -289,7 +289,7 @@ def render_foveated_batch(
     poses = _head_poses(head_poses, n)
     arrays, bvh, rig = _scene_inputs(scene, rig, config, envmap, bvh)
     if foveation.fidelity is not None and any(f.texture_lod is not None for f in foveation.fidelity):
-        arrays = with_texture_mips(arrays)  # texspp: as render_foveated (mip pyramids, host)
+        arrays = with_texture_mips(arrays)  # as render_foveated (mip pyramids, host)
     # The static ray budget of render_foveated (cached per rig and configuration).
     budget = budget_for(rig, poses[0], foveation)
     # The per-pixel outputs a batch returns (not the pre-fill means: no caller reads them).

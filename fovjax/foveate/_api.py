@@ -54,7 +54,7 @@ def _budget_for(rig, head_pose, foveation: Foveation) -> int:
         foveation.eye_display_mm,
         foveation.pixel_pitch_mm,
         foveation.ray_budget,
-        region_spp(foveation),  # texspp
+        region_spp(foveation),  # texture level of detail and samples per pixel per region
         # Any acuity callable: scalar parameters or arrays (a tabulated curve, a batch of fits).
         tuple(
             (np.shape(x), tuple(np.asarray(x).reshape(-1).tolist()))
@@ -164,24 +164,41 @@ def render_foveated(
     lod_levels=None,
     diagnostics=DIAGNOSTICS,
 ) -> FoveatedFrame:
-    """Render a foveated stereo frame (see `fovjax.foveate._frame`). `gaze`: per eye (x, y) in
-    normalised display coordinates, (0, 0) the top-left of each eye's display; NaN or
-    off-screen gaze is rejected here (the tracking layer decides fallbacks). `key`: the frame's
-    PRNG key (sub-pixel jitter and sampling draws); None renders pixel-cell centres and a fixed
-    sampling pattern. Compiled once per configuration (resolution, spp, render config, scene
-    array shapes, the foveation's static options); a new gaze, head pose, key, or fovea and
-    periphery thresholds within `foveation.max_periphery_deg` reuse it. A frame whose samples
-    overflow a capped budget warns (the dropped blocks are filled by pull-push).
+    """Render a foveated stereo frame (thesis chapter 4; the steps in `fovjax.foveate._frame`).
 
-    `lod_levels`: the scene's levels of detail (`fovjax.scene.lod_levels`) that `Fidelity.lod`
-    indexes; None: `lod_levels(scene)` at its default ratios (cached on disk) when a region asks
-    for a level. Only a `Scene` has levels (not a `SceneArrays`).
+    Compiled once per configuration (resolution, spp, render config, scene array shapes, the
+    foveation's static options); a new gaze, head pose, key, or fovea and periphery thresholds
+    within `foveation.max_periphery_deg` reuse the program. A frame whose samples overflow a
+    capped budget warns (the blocks left without a sample are filled by pull-push).
 
-    `diagnostics`: the per-pixel outputs besides the image the frame returns (names of
-    `fovjax.foveate.DIAGNOSTICS`: "traced" → `sample_mask`, "region" → `regions`,
-    "eccentricity", "prefill" → `outputs.prefill`; default all; `DEBUG_VIEW_DIAGNOSTICS` for
-    `debug_view`). A static choice (another set is another compiled program): on a CPU every
-    screen-sized output is fresh memory each frame, so a frame loop asks only for what it reads."""
+    Args:
+        scene: a `fovjax.Scene` or its `SceneArrays`.
+        rig: the `StereoRig` (default: the thesis HMD at the scene's default viewpoint).
+        gaze: per eye (x, y) in normalised display coordinates, (0, 0) the top-left of each eye's
+            display. NaN or off-screen gaze is rejected here (the tracking layer decides
+            fallbacks).
+        foveation: the `Foveation` (default `Foveation()`).
+        head_pose: (yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`.
+        key: the frame's PRNG key (sub-pixel jitter and sampling draws); None renders pixel-cell
+            centres and a fixed sampling pattern.
+        config: the `fovjax.render.RenderConfig`.
+        envmap: an environment map for rays that miss.
+        bvh: a prebuilt BVH.
+        lod_levels: the scene's levels of detail (`fovjax.scene.lod_levels`) that `Fidelity.lod`
+            indexes; None: `lod_levels(scene)` at its default ratios (cached on disk) when a region
+            asks for a level. Only a `Scene` has levels (not a `SceneArrays`).
+        diagnostics: the per-pixel outputs besides the image (names of `DIAGNOSTICS`: "traced" →
+            `sample_mask`, "region" → `regions`, "eccentricity", "prefill" → `outputs.prefill`;
+            default all; `DEBUG_VIEW_DIAGNOSTICS` for `debug_view`). A static choice (another set
+            is another compiled program): on a CPU every screen-sized output is fresh memory each
+            frame, so a frame loop asks only for what it reads.
+
+    Returns:
+        The `FoveatedFrame`.
+
+    Raises:
+        ValueError: a bad gaze (naming the eye and the value) or foveation.
+    """
     from ..render import (
         RenderConfig,
         SceneArrays,
@@ -216,7 +233,7 @@ def render_foveated(
         if isinstance(scene, SceneArrays)
         else scene_arrays(scene, envmap=envmap, background=config.background)
     )
-    if uses_texture_lod(foveation):  # texspp: mip pyramids on the host, once per texture
+    if uses_texture_lod(foveation):  # mip pyramids on the host, once per texture
         arrays = with_texture_mips(arrays)
     jitter = key is not None
     key = key if jitter else jax.random.key(0)
@@ -229,7 +246,7 @@ def render_foveated(
     static = {"spp": foveation.spp, "jitter": jitter, "config": config, "budget": budget, "tile": tile}
     static["diagnostics"] = diagnostics
     static["grid"] = foveation.blocks[1] if foveation.grid_tile and uncapped(rig, foveation, budget) else None
-    # --- geometry level of detail (lodframe) ---
+    # --- geometry level of detail ---
     lod = None
     top = lod_needed(foveation)
     if top is not None:

@@ -25,7 +25,7 @@ def _gaze_counts(camera, gaze, foveation):
     p = foveation.probability(ecc)
     fovea = region == FOVEA
     spp = foveation.spp
-    allowed = allowed_samples(region, foveation)  # texspp: None, or (spp, H, W)
+    allowed = allowed_samples(region, foveation)  # None, or (spp, H, W)
     if foveation.rule == "thesis-measured":
         wanted = thesis_measured_mandatory(region, spp)
         wanted = wanted if allowed is None else wanted & allowed
@@ -37,7 +37,7 @@ def _gaze_counts(camera, gaze, foveation):
     else:
         mandatory = fovea
         chance = jnp.where(~fovea & is_tl, p, 0.0)
-    if allowed is not None:  # texspp: each pixel's own number of sub-samples
+    if allowed is not None:  # each pixel's own number of sub-samples
         k = jnp.sum(allowed, axis=0).astype(jnp.float32)
         counts = [jnp.sum(mandatory * k), jnp.sum(chance * k), jnp.sum(chance * (1 - chance) * k)]
         return jnp.stack(counts).astype(jnp.float32)

@@ -73,11 +73,11 @@ class Fidelity(eqx.Module):
       cannot resolve at the region's inner eccentricity (see `fovjax.foveate._lod`). The region's
       rays, their shadow rays and reflections are traced against that level and shaded with its
       normals, UVs and materials.
-    - `texture_lod` (texspp): None (texture lookups at full resolution, level 0), an integer
+    - `texture_lod`: None (texture lookups at full resolution, level 0), an integer
       level >= 0 of the texture's box-filtered mip pyramid (level l: texels 2^l times as wide),
       or "auto": the level of the ray's footprint (a ray cone, see `fovjax.render.ShadingClasses`)
       widened by the region's sample spacing (its block edge);
-    - `spp` (texspp): samples per pixel at most (None: the frame's `Foveation.spp`; an integer
+    - `spp`: samples per pixel at most (None: the frame's `Foveation.spp`; an integer
       1..the frame's spp): a pixel of the region traces only its first `spp` sub-samples in a
       well-spread order (`fovjax.foveate.subsample_rank`), and the static slot budget shrinks.
 
@@ -87,13 +87,13 @@ class Fidelity(eqx.Module):
     # `object`, not `int | None`: a wrong value gets this class's ValueError, not a type-check error.
     max_depth: object = eqx.field(static=True, default=None)
     shadows: str = eqx.field(static=True, default="all")
-    # --- geometry level of detail (lodframe) ---
+    # --- geometry level of detail ---
     lod: object = eqx.field(static=True, default=None)
     # --- end geometry level of detail ---
-    # ---- texspp: texture level of detail and samples per pixel per region ----
+    # ---- texture level of detail and samples per pixel per region ----
     texture_lod: object = eqx.field(static=True, default=None)
     spp: object = eqx.field(static=True, default=None)
-    # ---- end texspp ----
+    # ---- end texture level of detail ----
 
     def __check_init__(self):
         depth = self.max_depth
@@ -103,7 +103,7 @@ class Fidelity(eqx.Module):
             raise ValueError(f"Fidelity.max_depth must be None or an integer >= 0, got {depth!r}")
         if self.shadows not in SHADOW_MODES:
             raise ValueError(f"Fidelity.shadows must be one of {SHADOW_MODES}, got {self.shadows!r}")
-        # --- geometry level of detail (lodframe) ---
+        # --- geometry level of detail ---
         lod = self.lod
         if not (
             lod is None
@@ -113,7 +113,7 @@ class Fidelity(eqx.Module):
         ):
             raise ValueError(f"Fidelity.lod must be None, a level index >= 0 or 'auto', got {lod!r}")
         # --- end geometry level of detail ---
-        # ---- texspp ----
+        # ---- texture level of detail and samples per region ----
         lod = self.texture_lod
         if lod is not None and lod != "auto" and not _is_int(lod, low=0):
             raise ValueError(
@@ -121,7 +121,7 @@ class Fidelity(eqx.Module):
             )
         if self.spp is not None and not _is_int(self.spp, low=1):
             raise ValueError(f"Fidelity.spp must be None or an integer >= 1, got {self.spp!r}")
-        # ---- end texspp ----
+        # ---- end texture level of detail ----
 
 
 def _is_int(x, *, low: int) -> bool:
@@ -133,7 +133,7 @@ REGION_NAMES = ("fovea", "periphery", "outside")
 
 
 def region_spp(foveation) -> tuple[int, int, int] | None:
-    """(texspp) Samples per pixel of each region (fovea, periphery, outside), or None where
+    """Samples per pixel of each region (fovea, periphery, outside), or None where
     every region takes the frame's `spp` (the program without per-region sample counts)."""
     if foveation.fidelity is None:
         return None
@@ -142,7 +142,7 @@ def region_spp(foveation) -> tuple[int, int, int] | None:
 
 
 def max_region_spp(foveation) -> int:
-    """(texspp) The most samples a pixel of any region traces: the frame's spp unless every
+    """The most samples a pixel of any region traces: the frame's spp unless every
     region's `Fidelity.spp` is below it (then every-sample budgets shrink to it)."""
     spp = region_spp(foveation)
     return foveation.spp if spp is None else max(spp)
@@ -167,7 +167,7 @@ def shading_classes(foveation, config):
             )
         depths.append(depth)
     shadows = [modes[f.shadows] for f in foveation.fidelity]
-    texture = _texture_tables(foveation)  # texspp
+    texture = _texture_tables(foveation)  # texture level of detail and samples per pixel per region
     if (
         all(d == config.max_depth for d in depths)
         and all(m == SHADOWS_ALL for m in shadows)
@@ -201,7 +201,7 @@ def program_fidelity(foveation, config):
     return dataclasses.replace(foveation, fidelity=shaped), classes
 
 
-# ---- texspp: texture level of detail tables ----
+# ---- texture level of detail tables ----
 def _texture_tables(foveation):
     """(texture_level, texture_cone) of `ShadingClasses` per region, or (None, None) where no
     region sets `texture_lod`. "auto": level 0 plus the ray cone of the region's sample spacing
@@ -221,7 +221,7 @@ def uses_texture_lod(foveation) -> bool:
     return foveation.fidelity is not None and any(f.texture_lod is not None for f in foveation.fidelity)
 
 
-# ---- end texspp ----
+# ---- end texture level of detail ----
 
 
 def _angle(x):
@@ -248,7 +248,7 @@ class Foveation(eqx.Module):
       top-left pixels, each sub-sample kept with probability P(ω); "thesis-measured" — the
       sampling the thesis's Table 2 implies (not its text): every sub-sample of the pixels
       within `periphery_deg`, one sample per pixel beyond it at any SPP, no draws (see
-      `Foveation.thesis_measured` and the README section "Thesis fidelity: Table 2");
+      `Foveation.thesis_measured` and docs/thesis.md);
     - `blur_sigma`: σ of the 5×5 Gaussian of the fill pass (pixels); `blur_fovea`: blur every
       pixel (the all-pixel reading of thesis 4.5) instead of keeping the fovea sharp;
     - `eccentricity`: "angle" (default; the angle between the pixel's ray and the gaze ray) or
@@ -270,9 +270,9 @@ class Foveation(eqx.Module):
       row and column (where every outside block's top-left lies), a pixel's sub-samples side
       by side. Only when the budget is every sample (`max_periphery_deg` and `ray_budget`
       None). Off by default: on a 2-core CPU they measured at most ~5% faster frames at 1.6-2.7x
-      the compile time (README, "Foveated rendering").
+      the compile time (records on docs/performance.md, "Foveated frames").
     - `fidelity`: None (full fidelity everywhere) or a `Fidelity` per region, (fovea,
-      periphery, outside): reflection depth and shadow rays per region, and (texspp) texture
+      periphery, outside): reflection depth and shadow rays per region, and texture
       level of detail and samples per pixel per region (regions move with the gaze without a
       recompile; reflection depth, shadow mode and texture level per region are traced tables
       (`program_fidelity`: a new one compiles nothing); a region's `spp` and `lod` are static).
@@ -353,7 +353,7 @@ class Foveation(eqx.Module):
                 "Foveation.fidelity must be None or three Fidelity (fovea, periphery, outside), "
                 f"got {self.fidelity!r}"
             )
-        if self.fidelity is not None:  # texspp: a region never takes more samples than the frame
+        if self.fidelity is not None:  # a region never takes more samples than the frame
             for name, f in zip(REGION_NAMES, self.fidelity, strict=True):
                 if f.spp is not None and f.spp > self.spp:
                     raise ValueError(

@@ -59,7 +59,7 @@ def thesis_pixel_pitch_mm(
 
     A flat display at D spanning the same 64° would have a pitch of 2·D·tan(32°)/1024 =
     0.0293 mm, i.e. 14.3 pixels per degree at its centre; the thesis's regions are larger,
-    see the README section "Thesis fidelity: Table 2"."""
+    see docs/thesis.md, "Table 2: what its ray counts imply"."""
     return float(eye_display_mm * np.tan(np.deg2rad(display_vfov_deg / rows)))
 
 

@@ -461,7 +461,7 @@ def foveated_stereo(
     from ..scene import pixel_sample_positions
 
     diagnostics = diagnostics_tuple(diagnostics, "foveated_stereo")
-    if lod is None and lod_needed(foveation) is not None:  # (lodframe)
+    if lod is None and lod_needed(foveation) is not None:
         raise ValueError(
             "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
             "merged scene, BVH and LODTables (render_foveated prepares them)"
@@ -469,7 +469,7 @@ def foveated_stereo(
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
-    every = 2 * max_region_spp(foveation) * h * w  # texspp: every sample a region may trace
+    every = 2 * max_region_spp(foveation) * h * w  # every sample a region may trace
     if (tile is not None or grid is not None) and budget < every:
         raise ValueError(f"image tiles need a budget of every sample ({every}), got {budget}")
     origins = None if tile is None else tile_origins(gaze, tile, h, w)
@@ -499,10 +499,10 @@ def foveated_stereo(
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
     classes = shading_classes(foveation, config) if shading is None else shading
-    if classes is not None and classes.texture_cone is not None:  # texspp: cones in radians
+    if classes is not None and classes.texture_cone is not None:  # cones in radians
         spread = pixel_spread_angle(rig.vfov_deg(), h)
         classes = classes._replace(texture_cone=jnp.asarray(classes.texture_cone) * spread)
-    # --- geometry level of detail (lodframe) ---
+    # --- geometry level of detail ---
     scale = None
     if lod is not None:
         from ..render import scene_scale

@@ -11,9 +11,19 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._config import region_spp
 
-FOVEA, PERIPHERY, OUTSIDE = 0, 1, 2
+FOVEA = 0
+"""Region code of the fovea (eccentricity ≤ `fovea_deg`) in `FoveatedFrame.regions`."""
+PERIPHERY = 1
+"""Region code of the periphery (`fovea_deg` < eccentricity ≤ `periphery_deg`)."""
+OUTSIDE = 2
+"""Region code of everything beyond the periphery."""
 # Compaction order: samples that must be traced, then the probabilistic extras, then the rest.
-MANDATORY, OPTIONAL, SKIPPED = 0, 1, 2
+MANDATORY = 0
+"""Sample class: always traced (the fovea's samples, the blocks' top-left pixels)."""
+OPTIONAL = 1
+"""Sample class: traced with the acuity model's probability."""
+SKIPPED = 2
+"""Sample class: never traced (filled from its block)."""
 
 
 def regions(ecc: Float[Array, "H W"], foveation) -> Int[Array, "H W"]:
@@ -45,7 +55,7 @@ def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[A
 
     Why: the thesis's Table 2 is exactly linear in SPP, rays = a + b·SPP, with b / b_full the
     share of pixels within ω1 and a the pixels beyond ω1 at about one sample each; see the
-    README section "Thesis fidelity: Table 2"."""
+    docs/thesis.md, "Table 2: what its ray counts imply"."""
     inside = (region != OUTSIDE)[None]
     first = (jnp.arange(spp) == 0)[:, None, None]
     return inside | first
@@ -53,7 +63,7 @@ def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[A
 
 @functools.lru_cache(maxsize=16)
 def subsample_rank(spp: int) -> np.ndarray:
-    """(texspp) The rank of each of a pixel's `spp` sub-samples in the order a region with fewer
+    """The rank of each of a pixel's `spp` sub-samples in the order a region with fewer
     samples per pixel keeps them (`Fidelity.spp`: a pixel keeps the sub-samples of rank < its
     region's spp). Sub-sample s lies in cell (s % n, s // n) of the pixel's n x n grid
     (`fovjax.scene.pixel_sample_positions`); the order starts with sub-sample 0 (the one the
@@ -75,7 +85,7 @@ def subsample_rank(spp: int) -> np.ndarray:
 
 
 def allowed_samples(region: Int[ArrayLike, "H W"], foveation) -> Bool[Array, "S H W"] | None:
-    """(texspp) Which sub-samples a pixel may trace under its region's `Fidelity.spp` (rank
+    """Which sub-samples a pixel may trace under its region's `Fidelity.spp` (rank
     below the region's samples per pixel), or None where every region takes every sub-sample."""
     spp = region_spp(foveation)
     if spp is None:
@@ -142,7 +152,7 @@ def sample_classes(
         optional = jnp.zeros_like(mandatory)
     cls = jnp.where(mandatory, MANDATORY, jnp.where(optional, OPTIONAL, SKIPPED)).astype(jnp.int32)
     allowed = allowed_samples(region, foveation)
-    if allowed is not None:  # texspp: beyond the region's samples per pixel, nothing is traced
+    if allowed is not None:  # beyond the region's samples per pixel, nothing is traced
         cls = jnp.where(allowed, cls, SKIPPED)
     return cls, region
 

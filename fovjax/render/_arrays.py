@@ -39,7 +39,7 @@ class SceneArrays(eqx.Module):
     light_kind: Int[np.ndarray | Array, " L"]
     ambient: Float[np.ndarray | Array, " 3"]
     environment: Float[np.ndarray | Array, "He We 3"]
-    # texspp: each texture's mip pyramid (`with_texture_mips`), for texture level of detail.
+    # each texture's mip pyramid (`with_texture_mips`), for texture level of detail.
     texture_mips: tuple | None = None
 
     @property

@@ -86,8 +86,11 @@ def render_stereo_image(
     spp: int = 1,
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
-) -> Float[Array, "H 2*W 3"]:
-    """The side-by-side stereo image (linear RGB) for a head pose. Pure; jittable."""
+) -> Float[Array, "H W2 3"]:
+    """The side-by-side stereo image (linear RGB) for a head pose. Pure; jittable.
+
+    The width W2 is twice the rig's eye width (no argument carries the eye width as an array
+    axis, so the annotation cannot say `2*W`: jaxtyping rejects an axis it has not bound)."""
     rays = stereo_sample_rays(rig, head_pose, spp, key)
     result = radiance(_as_arrays(scene), bvh, rays.origins, rays.directions, config=config)
     return side_by_side(resolve(result.rgb, result.bad, bad_color=config.bad_color)[0])

@@ -1,4 +1,4 @@
-"""Texture level of detail (texspp): box-filtered mip pyramids and lookups at a mip level.
+"""Texture level of detail : box-filtered mip pyramids and lookups at a mip level.
 
 A texture of H x W texels has levels l = 0 .. L-1 of max(1, H >> l) x max(1, W >> l) texels
 (L: down to 1 x 1). Level l is the box filter of level 0 over the UV footprint of each of its

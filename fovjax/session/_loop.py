@@ -243,30 +243,61 @@ def run_session(
     bvh=None,
     wait: float | None = None,
 ) -> SessionResult:
-    """Render `frames` (or `seconds` × `fps`) foveated stereo frames of `scene` following the
-    `gaze` source and optionally a `head` source (a spec such as "synthetic:scanpath:0",
-    "replay:FILE", "serial:PORT", "pupil:HOST:PORT", or an unopened `fovjax.devices` source).
+    """Render a session: foveated stereo frames following a gaze source (and a head source).
 
-    `rig`: a `StereoRig` (default: the scene's default camera at the rig's default size).
-    `foveation`: the `Foveation` when tracking is good (default `Foveation()`). `policy` (a
-    `FallbackPolicy`) or `tracker` (a `GazeTracker`, e.g. with smoothing): the fallback. `key`:
-    the PRNG key (default key 0), folded with the frame number unless `fresh_key_per_frame` is
-    False. `clock`: "virtual", "wall" or None (wall for live devices, else virtual; module
-    docstring). `warmup`: compile every widening level before the first frame (default: on the
-    wall clock only).
+    Sources are opened before anything is compiled. Each frame feeds the samples that arrived to
+    the `GazeTracker`; while the gaze is stale the fovea is held, then widened towards full quality,
+    and narrowed again when good samples return. Every widening level runs on one compiled
+    program. Ctrl-C ends the session early; the frames so far are kept and logged
+    (``summary["interrupted"]``); every file written is complete.
 
-    With `out`: `out/frame_00000.png`..., `out/session.csv` (one row per frame),
-    `out/session.json` (``{"summary": ..., "frames": [...]}``), with `debug=True` the regions /
-    samples view `out/debug_00000.png`..., with `video=True` `out/session.mp4` (needs the
-    `video` extra, imageio-ffmpeg). Ctrl-C ends the session early; the frames so far are kept
-    and logged (``summary["interrupted"]``); every file written is complete (frames are not
-    cut by an interrupt, the log is written to a temporary name and renamed).
+    Args:
+        scene: the `Scene`.
+        rig: the `StereoRig` (default: the scene's default camera at the rig's default size).
+        gaze: a spec ("synthetic:scanpath:0", "replay:FILE", "serial:PORT", "pupil:HOST:PORT",
+            ...) or an unopened `fovjax.devices` source.
+        head: a head-pose source or spec, or None (head still).
+        foveation: the `Foveation` when tracking is good (default `Foveation()`).
+        frames: how many frames; or `seconds` × `fps`.
+        seconds: the session's length in seconds (instead of `frames`).
+        fps: frames per second of the session's clock.
+        out: a directory for `frame_00000.png`..., `session.csv` (one row per frame) and
+            `session.json` (``{"summary": ..., "frames": [...]}``); None writes nothing.
+        key: the PRNG key (default key 0), folded with the frame number unless
+            `fresh_key_per_frame` is False.
+        fresh_key_per_frame: a new sampling pattern every frame.
+        clock: "virtual" (frame k at k/fps, sources paced on the same clock: deterministic),
+            "wall", or None (wall for live devices, else virtual).
+        policy: the `FallbackPolicy` of the default tracker.
+        tracker: a `GazeTracker` (e.g. with smoothing) instead of the default one.
+        config: the `RenderConfig`.
+        envmap: an environment map for rays that miss.
+        video: also write `session.mp4` (the `video` extra).
+        debug: also write the regions and samples view, `debug_00000.png`...
+        warmup: compile every widening level before the first frame (default: on the wall clock
+            only).
+        progress: print progress.
+        bvh: a prebuilt BVH.
+        wait: seconds a live device may take to connect (default
+            `fovjax.devices.DEFAULT_CONNECT_TIMEOUT`).
 
-    Sources are opened before anything is compiled: a live device given as a spec that does
-    not connect within `wait` seconds (default `fovjax.devices.DEFAULT_CONNECT_TIMEOUT`) raises
-    a `DeviceError` naming the spec, the device and the reason. Each frame logs its sources'
-    state (`SessionFrame`); ``summary["sources"]`` has each source's final state and
-    ``summary["warnings"]`` says when a source never delivered a sample."""
+    Returns:
+        A `SessionResult`: the frames' `SessionFrame` rows (tracking state, widening, latency,
+        gaze, thresholds, rays, times, each source's state) and the summary
+        (``summary["sources"]``, ``summary["warnings"]`` when a source never delivered a sample).
+
+    Raises:
+        DeviceError: a live device did not connect within `wait` seconds (naming the spec, the
+            device and the reason).
+        ValueError: a bad spec or argument.
+
+    Example:
+        ```python
+        result = fovjax.run_session(scene, rig, gaze="replay:data/recordings/synthetic_scanpath_seed0.jsonl",
+                                    frames=30, fps=30, out="out/session")
+        print(result.summary["tracking_states"])
+        ```
+    """
     from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from ..files import deferred_interrupt, interrupt_flag
     from ..foveate import DEBUG_VIEW_DIAGNOSTICS, Foveation, render_foveated
