@@ -28,11 +28,8 @@ import api_pages  # noqa: E402
 import run_page  # noqa: E402
 
 TUTORIALS = sorted((DOCS / "tutorials").glob("*.md"))
-# Internal branch names and session talk the repository must not carry. The files another change
-# is rewriting are listed apart until it lands (and one test file whose name still carries one).
+# Internal branch names and session talk the repository must not carry.
 FORBIDDEN = re.compile(r"this session|pix12|out12|lod16|texspp|lodframe")
-PENDING = {"fovjax/render/_integrator.py", "fovjax/render/_config.py", "tests/test_fidelity_texspp.py"}
-PENDING_DIRS = ("fovjax/trace/",)
 
 
 def need(module: str):
@@ -101,7 +98,7 @@ def test_no_internal_branch_names():
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
     found = []
     for name in files:
-        if name in PENDING or name.startswith(PENDING_DIRS) or name == "tests/test_docs.py":
+        if name == "tests/test_docs.py":
             continue
         path = ROOT / name
         try:

@@ -87,7 +87,7 @@ class ShadingClasses(NamedTuple):
     class's rays, their shadow rays and their reflections are traced against; shading then
     reads that level's triangles, normals, UVs and materials (the hit's `prim` indexes them).
 
-    Texture level of detail (texspp; None: every lookup bilinear at full resolution): class k's
+    Texture level of detail (None: every lookup bilinear at full resolution): class k's
     diffuse-texture lookups are trilinear in the scene's mip pyramids (`with_texture_mips`) at
     level `texture_level[k]`, plus, where `texture_cone[k]` > 0, the level of a ray cone of that
     spread angle (radians; `fovjax.render._mips`: λ = ½·log2(t_a / p_a) + log2(α·t / |n·d|),
@@ -98,10 +98,10 @@ class ShadingClasses(NamedTuple):
     max_depth: Int[Array, " K"]
     shadows: Int[Array, " K"]
     level: Int[Array, " K"] | None = None
-    # ---- texspp ----
+    # ---- texture level of detail ----
     texture_level: Float[Array, " K"] | None = None
     texture_cone: Float[Array, " K"] | None = None
-    # ---- end texspp ----
+    # ---- end texture level of detail ----
 
 
 def _tested_lights(scene, classes: ShadingClasses, cls):
@@ -178,7 +178,7 @@ def surface_at(scene: SceneArrays, hit: Hit, directions: Float[Array, "*batch 3"
 
 
 def diffuse_color(scene: SceneArrays, material, uv, lod=None):
-    """Kd, times the material's texture at `uv` where it has one. `lod` (texspp): None (level 0,
+    """Kd, times the material's texture at `uv` where it has one. `lod` (texture level of detail): None (level 0,
     bilinear), or (fixed level, auto, λ without the texture size) per ray, looked up trilinearly
     in `scene.texture_mips` (see `ShadingClasses`)."""
     kd = scene.kd[material]
@@ -189,7 +189,7 @@ def diffuse_color(scene: SceneArrays, material, uv, lod=None):
     for i, texture in enumerate(scene.textures):
         if lod is None:
             value = bilinear_wrap(jnp.asarray(texture, jnp.float32), uv)
-        else:  # texspp
+        else:  # a level of detail per ray
             level = mip_level(np.shape(texture), *lod)
             value = mip_lookup(jnp.asarray(scene.texture_mips[i], jnp.float32), np.shape(texture), level, uv)
         factor = jnp.where((index == i)[..., None], value, factor)
@@ -343,7 +343,7 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
             blocked = blocked & tested
         n_shadow = jnp.sum(traced.wanted, dtype=jnp.int32)
     lod = None
-    if fidelity is not None and classes.texture_level is not None and scene.textures:  # texspp
+    if fidelity is not None and classes.texture_level is not None and scene.textures:
         lod = _texture_lod(scene, classes, cls, hit, d, surface)
     contribution, nxt = _finish_shading(
         scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn, lod=lod
@@ -352,7 +352,7 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
 
 
 def _texture_lod(scene, classes: ShadingClasses, cls, hit, d, surface):
-    """(texspp) Each ray's texture level of detail from its class: (fixed level, auto, λ
+    """Each ray's texture level of detail from its class: (fixed level, auto, λ
     without the texture size), for `diffuse_color`."""
     if scene.texture_mips is None:
         raise ValueError("texture levels of detail need the scene's mip pyramids: with_texture_mips(arrays)")
