@@ -178,9 +178,9 @@ def surface_at(scene: SceneArrays, hit: Hit, directions: Float[Array, "*batch 3"
 
 
 def diffuse_color(scene: SceneArrays, material, uv, lod=None):
-    """Kd, times the material's texture at `uv` where it has one. `lod` (texture level of detail): None (level 0,
-    bilinear), or (fixed level, auto, λ without the texture size) per ray, looked up trilinearly
-    in `scene.texture_mips` (see `ShadingClasses`)."""
+    """Kd, times the material's texture at `uv` where it has one. `lod` (texture level of
+    detail): None (level 0, bilinear), or (fixed level, auto, λ without the texture size) per
+    ray, looked up trilinearly in `scene.texture_mips` (see `ShadingClasses`)."""
     kd = scene.kd[material]
     if not scene.textures:
         return kd
