@@ -32,12 +32,15 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   `--backend` as fovjax's ray-query backend: the frame's `stats.render_seconds` (the compiled
   program's wall time) and the wall time around the call; compile times printed apart.
 
-Then the ratios (fovjax foveated / Mitsuba full, fovjax full / Mitsuba full; > 1 means slower
-than Mitsuba), the ray counts of Mitsuba against fovjax's full frame (primary, shadow,
-reflection; they agree up to ties and float rounding), and the PSNR of Mitsuba's image against
-fovjax's full frame (`fovjax.eval.psnr`: sRGB-encoded, clipped, peak 1); 40 dB or more is
-expected, and below it the script says where the images differ. `--json PATH` writes every figure
-with the command, date, git commit and machine.
+After the warm-ups the three frames are timed in turn, --repeats rounds, so that all three see the
+same momentary load of a shared machine; each row also gives the median wall time of the whole call
+and the process CPU time of the frame (every thread's: the work done, which a loaded machine's
+waits for a core do not inflate). Then the ratios (fovjax foveated / Mitsuba full, fovjax full /
+Mitsuba full; > 1 means slower than Mitsuba; also in CPU time), the ray counts of Mitsuba
+against fovjax's full frame (primary, shadow, reflection; they agree up to ties and float
+rounding), and the PSNR of Mitsuba's image against fovjax's full frame (`fovjax.eval.psnr`:
+sRGB-encoded, clipped, peak 1); 40 dB or more is expected, and below it the script says where the
+images differ. `--json PATH` writes every figure with the command, date, git commit and machine.
 
 Needs Mitsuba 3 (`pip install 'fovjax[bench]'`) and, for its LLVM backend, the system's LLVM
 shared library, version 16 or later (Dr.Jit 1.5 needs it for `dr.maximum`/`dr.atan2`; Debian
@@ -459,28 +462,19 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
     h, w = rig.height, rig.width
     out = {"spp": spp, "width": rig.eye_width, "height": rig.eye_height}
 
-    # -- fovjax full: the reference image --
+    # Warm-ups first (each compiles), then the three frames in turn, `repeats` rounds, so that
+    # all three see the same momentary load of a shared machine.
     def full():
         return fovjax.render_stereo(scene, rig, spp=spp, config=config, bvh=bvh)
 
     t0 = time.perf_counter()
     frame = full()
-    first_wall = time.perf_counter() - t0
+    out["fovjax_full_first_wall_s"] = time.perf_counter() - t0
     out["fovjax_full_compile_s"] = frame.stats.compile_seconds
-    out["fovjax_full_first_wall_s"] = first_wall
     reference = frame.image
     fj_counts = _fovjax_counts(frame.stats)
-    render_s, wall_s = [], []
-    for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        f = full()
-        wall_s.append(time.perf_counter() - t0)
-        render_s.append(f.stats.render_seconds)
-    out["fovjax_full_ms"] = _median_ms(render_s)
-    out["fovjax_full_wall_ms"] = _median_ms(wall_s)
-    out["fovjax_full_rays"] = fj_counts
+    runs = {"fovjax_full": full}
 
-    # -- fovjax foveated --
     if not args.no_foveated:
         foveation = Foveation(fovea_deg=args.fovea[0], periphery_deg=args.fovea[1], spp=spp)
 
@@ -493,17 +487,9 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
         f = foveated()
         out["fovjax_foveated_first_wall_s"] = time.perf_counter() - t0
         out["fovjax_foveated_compile_s"] = f.stats.compile_seconds
-        render_s, wall_s = [], []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            f = foveated()
-            wall_s.append(time.perf_counter() - t0)
-            render_s.append(f.stats.render_seconds)
-        out["fovjax_foveated_ms"] = _median_ms(render_s)
-        out["fovjax_foveated_wall_ms"] = _median_ms(wall_s)
-        out["fovjax_foveated_rays"] = _fovjax_counts(f.stats)
+        runs["fovjax_foveated"] = foveated
 
-    # -- Mitsuba full, on fovjax's own camera rays --
+    # Mitsuba, on fovjax's own camera rays.
     rays = stereo_sample_rays(rig, None, spp, None)
     t0 = time.perf_counter()
     prepared = integrator.prepare(np.asarray(rays.origins), np.asarray(rays.directions))
@@ -512,16 +498,33 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
     t0 = time.perf_counter()
     image, mi_counts = integrator.frame(prepared)
     out["mitsuba_warmup_s"] = time.perf_counter() - t0
-    times = []
+    last = {}
+
+    def mitsuba_full():
+        last["mitsuba"] = integrator.frame(prepared)
+
+    runs = {"mitsuba_full": mitsuba_full, **runs}
+    timed = {name: {"ms": [], "wall": [], "cpu": []} for name in runs}
     for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        image, mi_counts = integrator.frame(prepared)
-        times.append(time.perf_counter() - t0)
-    out["mitsuba_full_ms"] = _median_ms(times)
-    out["mitsuba_compile_s"] = max(out["mitsuba_warmup_s"] - statistics.median(times), 0.0)
+        for name, fn in runs.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            result = fn()
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            # fovjax: the compiled program's own time; Mitsuba: its frame (rays in -> image).
+            timed[name]["ms"].append(wall if result is None else result.stats.render_seconds)
+            timed[name]["wall"].append(wall)
+            timed[name]["cpu"].append(cpu)
+            if result is not None:
+                out[f"{name}_rays"] = _fovjax_counts(result.stats)
+    for name, t in timed.items():
+        out[f"{name}_ms"] = _median_ms(t["ms"])
+        out[f"{name}_wall_ms"] = _median_ms(t["wall"])
+        out[f"{name}_cpu_ms"] = _median_ms(t["cpu"])
+    image, mi_counts = last["mitsuba"]
+    out["mitsuba_compile_s"] = max(out["mitsuba_warmup_s"] - out["mitsuba_full_ms"] / 1000, 0.0)
     out["mitsuba_full_rays"] = mi_counts
     test = integrator.to_numpy(image, h, w)
-    del prepared, image
+    last.clear()
 
     value = psnr(test, reference).value
     out["psnr_db"] = value
@@ -539,30 +542,31 @@ def report(r, args) -> None:
         f"\nSPP {spp}, 2 x {w}x{h}, max depth {args.max_depth}, "
         f"median of {args.repeats} frames after a warm-up"
     )
-    rows = [("Mitsuba full", r["mitsuba_full_ms"], None, r["mitsuba_full_rays"])]
-    rows.append(("fovjax full", r["fovjax_full_ms"], r["fovjax_full_wall_ms"], r["fovjax_full_rays"]))
+    names = [("Mitsuba full", "mitsuba_full"), ("fovjax full", "fovjax_full")]
     if "fovjax_foveated_ms" in r:
-        label = f"fovjax foveated {args.fovea[0]:g}°/{args.fovea[1]:g}°"
-        rows.append((label, r["fovjax_foveated_ms"], r["fovjax_foveated_wall_ms"], r["fovjax_foveated_rays"]))
+        names.append((f"fovjax foveated {args.fovea[0]:g}°/{args.fovea[1]:g}°", "fovjax_foveated"))
     print(
-        f"  {'frame':28s} {'ms/frame':>10s} {'wall ms':>10s} {'rays/frame':>12s} {'Mrays/s':>8s}   "
-        "primary / shadow / reflection"
+        f"  {'frame':28s} {'ms/frame':>9s} {'wall ms':>9s} {'CPU ms':>9s} {'rays/frame':>11s} "
+        f"{'Mrays/s':>8s}   primary / shadow / reflection"
     )
-    for label, ms, wall, counts in rows:
+    for label, key in names:
+        counts, ms = r[f"{key}_rays"], r[f"{key}_ms"]
         n = _rays(counts)
-        wall_text = "-" if wall is None else f"{wall:,.0f}"
         print(
-            f"  {label:28s} {ms:10,.1f} {wall_text:>10s} {n:12,} {n / ms / 1e3:8.2f}   "
-            f"{counts['primary']:,} / {counts['shadow']:,} / {counts['reflection']:,}"
+            f"  {label:28s} {ms:9,.1f} {r[f'{key}_wall_ms']:9,.0f} {r[f'{key}_cpu_ms']:9,.0f} {n:11,} "
+            f"{n / ms / 1e3:8.2f}   {counts['primary']:,} / {counts['shadow']:,} / {counts['reflection']:,}"
         )
-    mi_ms = r["mitsuba_full_ms"]
-    ratios = []
-    if "fovjax_foveated_ms" in r:
-        r["ratio_foveated_over_mitsuba"] = r["fovjax_foveated_ms"] / mi_ms
-        ratios.append(f"fovjax foveated / Mitsuba full {r['ratio_foveated_over_mitsuba']:.2f}")
-    r["ratio_full_over_mitsuba"] = r["fovjax_full_ms"] / mi_ms
-    ratios.append(f"fovjax full / Mitsuba full {r['ratio_full_over_mitsuba']:.2f}")
-    print("  time ratios (> 1: slower than Mitsuba): " + "; ".join(ratios))
+    ratios, cpu_ratios = [], []
+    for label, key in reversed(names[1:]):
+        r[f"ratio_{key}_over_mitsuba"] = r[f"{key}_ms"] / r["mitsuba_full_ms"]
+        r[f"cpu_ratio_{key}_over_mitsuba"] = r[f"{key}_cpu_ms"] / r["mitsuba_full_cpu_ms"]
+        ratios.append(f"{label} / Mitsuba full {r[f'ratio_{key}_over_mitsuba']:.2f}")
+        cpu_ratios.append(f"{r[f'cpu_ratio_{key}_over_mitsuba']:.2f}")
+    print(
+        "  time ratios (> 1: slower than Mitsuba): "
+        + "; ".join(ratios)
+        + f" (in CPU time: {' and '.join(cpu_ratios)})"
+    )
     compile_text = f"fovjax full {r['fovjax_full_compile_s']:.1f} s"
     if "fovjax_foveated_compile_s" in r:
         compile_text += f", foveated {r['fovjax_foveated_compile_s']:.1f} s"
@@ -607,6 +611,8 @@ def main(argv=None) -> dict | None:
     ap.add_argument("--no-foveated", action="store_true", help="skip the foveated frame")
     ap.add_argument("--json", type=Path, default=None, help="write every figure to this JSON file")
     args = ap.parse_args(argv)
+    if args.repeats < 1 or args.max_depth < 0 or args.width < 1 or args.height < 1:
+        ap.error("--repeats, --width and --height must be positive and --max-depth >= 0")
     if args.quick:
         args.width, args.height = 320, 256
 
