@@ -443,8 +443,8 @@ def explain_difference(test, reference, mi_counts, fj_counts) -> list[str]:
     lines.append(
         f"{int(off.sum()):,} of {diff.size:,} pixels ({100 * off.mean():.3f}%) differ by more than 1/255 "
         f"(sRGB); largest {diff.max():.3f} at pixel (row {y}, column {x}): Mitsuba "
-        f"{np.round(np.asarray(test)[y, x], 4).tolist()}, "
-        f"fovjax {np.round(np.asarray(reference)[y, x], 4).tolist()}"
+        f"{np.round(np.asarray(test, np.float64)[y, x], 4).tolist()}, "
+        f"fovjax {np.round(np.asarray(reference, np.float64)[y, x], 4).tolist()}"
     )
     if not np.isfinite(np.asarray(test)).all():
         lines.append("Mitsuba's image holds NaN or inf")
