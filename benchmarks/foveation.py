@@ -422,6 +422,15 @@ def profile(scene, bvh, rig, config, spp, pair, repeats):
         f"{fov_prog / full_prog:.1%} "
         f"of the time; cost per ray foveated / full = {(fov_prog / fr) / (full_prog / rr):.2f}x"
     )
+    return {
+        "profile": {"foveated_ms": fov_rows, "full_ms": full_rows},
+        "fused_program_ms": {"foveated": fov_prog, "full": full_prog},
+        "rays": {"foveated": fr, "full": rr},
+        "backend": config.backend,
+        "eye": [rig.eye_width, rig.eye_height],
+        "spp": spp,
+        "pair": pair,
+    }
 
 
 def _program_memory() -> str:
@@ -449,6 +458,7 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
         f"at gaze {OFF_CENTRE} "
         f"vs full, median of {repeats} frames (fresh key each)"
     )
+    rows = []
     for spp in spps:
         fov_render = lambda k, spp=spp: render_foveated(  # noqa: E731
             scene, rig, gaze=OFF_CENTRE, foveation=f_of(spp), key=k, config=config, bvh=bvh, **FRAME
@@ -498,6 +508,23 @@ def speedup_table(scene, bvh, rig, config, spps, pair, repeats):
             f"full {statistics.median(full_faults):,.0f}"
         )
         sys.stdout.flush()
+        rows.append(
+            {
+                "spp": spp,
+                "foveated_ms": fov_t,
+                "full_ms": full_t,
+                "foveated_rays": fov.stats.rays,
+                "full_rays": full.stats.rays,
+                "speedup": full_t / fov_t,
+                "cost_per_ray_foveated_over_full": per_ray,
+                "compile_s": {
+                    "foveated": warm[0].stats.compile_seconds,
+                    "full": warm[1].stats.compile_seconds,
+                },
+                "frames_ms": {"foveated": [1000 * t for t in fov_ts], "full": [1000 * t for t in full_ts]},
+            }
+        )
+    return {"speedup": rows, "backend": config.backend, "eye": [rig.eye_width, rig.eye_height], "pair": pair}
 
 
 def variants_table(scene, bvh, rig, config, spps, pair, repeats, which=()):
@@ -795,4 +822,8 @@ def main(argv=None):
 
 if __name__ == "__main__":
     np.set_printoptions(linewidth=200)
-    main()
+    out = main()
+    if isinstance(out, dict) and ("speedup" in out or "profile" in out):
+        from _record import write_record
+
+        write_record("foveation", out)

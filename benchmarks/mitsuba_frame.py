@@ -707,4 +707,8 @@ def _json_default(x):
 
 
 if __name__ == "__main__":
-    main()
+    from _record import write_record
+
+    figures = main()
+    if figures is not None:  # None: skipped (no mitsuba or no libLLVM)
+        write_record("mitsuba_frame", json.loads(json.dumps(figures, default=_json_default)))

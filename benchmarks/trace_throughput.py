@@ -15,7 +15,7 @@ peers, timed on their own call alone, on arrays prepared beforehand:
   one call and "2 threads" is the rays split in two halves, one call per Python thread;
 - Mitsuba 3 (`llvm_ad_rgb`: `scene.ray_intersect_preliminary` / `scene.ray_test`, evaluated with
   `dr.eval`), which uses every core; optional (`pip install 'fovjax[bench]'`; it also needs the
-  system's LLVM shared library, from Debian's package libllvm15).
+  system's LLVM shared library >= 16, from Debian's package libllvm19).
 Then the ratios of the first backend (default "auto") to each peer, compile time, the hit/miss
 agreement of every backend with the JAX traversal (the reference), and with Embree and Mitsuba.
 "paired" is first backend / Embree-1 again, as the median over --repeats pairs of calls made back to back
@@ -52,7 +52,9 @@ from fovjax.scene import Camera
 from fovjax.trace import build_bvh, closest_hit, last_build_info, occluded
 
 MITSUBA_VARIANT = "llvm_ad_rgb"
-LLVM_PACKAGE = "libllvm15 (Debian: apt-get install libllvm15, or set DRJIT_LIBLLVM_PATH)"
+LLVM_PACKAGE = (
+    "libllvm19 (Dr.Jit needs libLLVM >= 16; Debian: apt-get install libllvm19, or set DRJIT_LIBLLVM_PATH)"
+)
 
 
 def timed(fn, repeats):
@@ -413,4 +415,6 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from _record import write_record
+
+    write_record("trace_throughput", {"rows": main()})
