@@ -38,16 +38,14 @@ keyed by it), so the HLO of two traces of the same function differs by that numb
 cache is unaffected, but a persistent-compilation-cache hit needs the same trace order.
 """
 
-from __future__ import annotations
-
 import functools
 import threading
+import typing
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._bvh import BVH, _HOST_GEOMETRY, host_geometry, host_level_faces
+from ._bvh import _HOST_GEOMETRY, BVH, host_geometry, host_level_faces
 
 # (device alias, geometry key) -> (wp.Mesh, its points, indices and groups arrays).
 _MESHES: dict[tuple[str, str], tuple] = {}
@@ -121,7 +119,11 @@ def _id_table(wp, device, host_id: int | None):
         return cached[1]
 
 
+# Not type-checked by the tests' jaxtyping/beartype import hook: Warp's annotations are its own
+# (`wp.array(dtype=...)` instances), and they are evaluated here, eagerly (no `from __future__
+# import annotations` in this module: Warp evaluates them against the function's closure).
 @functools.cache
+@typing.no_type_check
 def _callables():
     """The two FFI callables (closest, any hit), made once per process on first use."""
     wp = _require_warp()
@@ -148,16 +150,10 @@ def _callables():
         a = tmin[i]
         b = tmax[i]
         start = oi + a * di
-        ok = (
-            b > a
-            and wp.isfinite(oi)
-            and wp.isfinite(di)
-            and wp.length_sq(di) > 0.0
-            and wp.isfinite(start)
-        )
+        ok = b > a and wp.isfinite(oi) and wp.isfinite(di) and wp.length_sq(di) > 0.0 and wp.isfinite(start)
         if not ok:
             mesh = wp.uint64(0)
-        root = int(-1)
+        root = -1
         lv = level[wp.min(i, level.shape[0] - 1)]
         if mesh != wp.uint64(0) and lv >= 0:
             root = wp.mesh_get_group_root(mesh, lv)
@@ -205,7 +201,7 @@ def _callables():
             if wp.mesh_query_ray_anyhit(mesh, start, d[i], far, root):
                 prim_out[i] = 0
 
-    def make(kernel):
+    def make(kernel, name):
         def query(
             host_id: wp.array(dtype=wp.int32),
             o: wp.array(dtype=wp.vec3),
@@ -228,12 +224,21 @@ def _callables():
                 device=device,
             )
 
-        query.__name__ = query.__qualname__ = f"fovjax_warp_{kernel.key.split('.')[-1].strip('_')}"
+        # The FFI target is named after this (Warp appends "_0").
+        query.__name__ = query.__qualname__ = name
         # NONE: the Python side runs on every call (it may build a mesh and upload the id table),
         # so it must not be frozen into a CUDA graph.
-        return jax_callable(query, num_outputs=2, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential")
+        return jax_callable(
+            query, num_outputs=2, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential"
+        )
 
-    return make(_closest_kernel), make(_anyhit_kernel)
+    return make(_closest_kernel, "fovjax_warp_closest"), make(_anyhit_kernel, "fovjax_warp_anyhit")
+
+
+def ffi_target_names() -> tuple[str, str]:
+    """The XLA FFI target names of the closest-hit and any-hit calls (registered for "cpu" and
+    "CUDA" on first use), e.g. for `jax.export`'s `DisabledSafetyChecks.custom_call`."""
+    return tuple(c.name for c in _callables())
 
 
 def warp_query(bvh: BVH, o, d, tmin, tmax, level=None, *, any_hit: bool):
