@@ -26,10 +26,11 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from trace_throughput import scene_rays, shadow_rays  # noqa: E402
+
 import fovjax  # noqa: E402
 from fovjax.trace import build_bvh, closest_hit, hit_geometry, occluded  # noqa: E402
 from fovjax.trace._warp import warp_query  # noqa: E402
-from trace_throughput import scene_rays, shadow_rays  # noqa: E402
 
 
 def timed(fn, repeats):
@@ -47,6 +48,52 @@ def first_and_timed(fn, repeats):
     first = time.perf_counter() - t0
     t = timed(fn, repeats)
     return out, t, max(first - t, 0.0)
+
+
+def bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, repeats):
+    """Time both backends on one ray set and print its line."""
+    n = len(o)
+    flat = [jnp.asarray(x) for x in (o, d, tmin, tmax)]
+    shaped = [x.reshape(shape + x.shape[1:]) for x in flat]
+    if any_hit:
+        jax_fn = jax.jit(lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet))
+
+        def warp_fn(bvh, o, d, a, b):
+            return warp_query(bvh, o, d, a, b, None, any_hit=True)[1] >= 0
+    else:
+
+        def jax_fn(o, d, a, b):
+            hit = closest_hit(bvh, o, d, a, b, packet=packet)
+            return hit.t, hit.prim
+
+        jax_fn = jax.jit(jax_fn)
+
+        def warp_fn(bvh, o, d, a, b):
+            t_warp, prim = warp_query(bvh, o, d, a, b, None, any_hit=False)
+            t, _, _ = hit_geometry(bvh.vertices, bvh.faces, prim, o, d)
+            return t_warp, prim, t  # Warp's own t, compared below; t as closest_hit returns it
+
+    warp_fn = jax.jit(warp_fn)
+    out_j, t_j, c_j = first_and_timed(lambda: jax_fn(*shaped), repeats)
+    out_w, t_w, c_w = first_and_timed(lambda: warp_fn(bvh, *flat), repeats)
+    if any_hit:
+        hj, hw = np.asarray(out_j).reshape(-1), np.asarray(out_w)
+        t_note = ""
+    else:
+        hj, hw = np.asarray(out_j[1]).reshape(-1) >= 0, np.asarray(out_w[1]) >= 0
+        tj, tw = np.asarray(out_j[0]).reshape(-1), np.asarray(out_w[0])
+        both = hj & hw
+        rel = np.abs(tw[both] - tj[both]) / np.maximum(np.abs(tj[both]), 1e-6)
+        p999 = np.percentile(rel, 99.9) if both.any() else 0.0
+        t_note = f"  Warp's own t vs JAX's: rel. diff p99.9 {p999:.1e}"
+    agree = float(np.mean(hj == hw))
+    r = {"rays": kind, "n": n, "jax": n / t_j / 1e6, "warp": n / t_w / 1e6, "agree": agree}
+    print(
+        f"  {'occluded' if any_hit else 'closest_hit':11s} {kind:7s} {n:>9,} rays  "
+        f"JAX {r['jax']:7.3f}  Warp {r['warp']:7.3f} Mrays/s  Warp/JAX {r['warp'] / r['jax']:5.2f}  "
+        f"compile JAX {c_j:4.1f} s, Warp {c_w:4.1f} s (incl. mesh build)  hit/miss agree {agree:.5f}" + t_note
+    )
+    return r
 
 
 def main(argv=None):
@@ -86,48 +133,8 @@ def main(argv=None):
             packet, shape, any_hit = None, (len(o),), True
         else:
             raise SystemExit(f"unknown row {kind!r} (primary, random, shadow)")
-        n = len(o)
-        flat = [jnp.asarray(x) for x in (o, d, tmin, tmax)]
-        shaped = [x.reshape(shape + x.shape[1:]) for x in flat]
-        if any_hit:
-            jax_fn = jax.jit(lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet))
-
-            def warp_fn(bvh, o, d, a, b):
-                return warp_query(bvh, o, d, a, b, None, any_hit=True)[1] >= 0
-        else:
-
-            def jax_fn(o, d, a, b):
-                hit = closest_hit(bvh, o, d, a, b, packet=packet)
-                return hit.t, hit.prim
-
-            jax_fn = jax.jit(jax_fn)
-
-            def warp_fn(bvh, o, d, a, b):
-                _, prim = warp_query(bvh, o, d, a, b, None, any_hit=False)
-                t, _, _ = hit_geometry(bvh.vertices, bvh.faces, prim, o, d)
-                return t, prim
-
-        warp_fn = jax.jit(warp_fn)
-        out_j, t_j, c_j = first_and_timed(lambda: jax_fn(*shaped), args.repeats)
-        out_w, t_w, c_w = first_and_timed(lambda: warp_fn(bvh, *flat), args.repeats)
-        if any_hit:
-            hj, hw = np.asarray(out_j).reshape(-1), np.asarray(out_w)
-            t_note = ""
-        else:
-            hj, hw = np.asarray(out_j[1]).reshape(-1) >= 0, np.asarray(out_w[1]) >= 0
-            tj, tw = np.asarray(out_j[0]).reshape(-1), np.asarray(out_w[0])
-            both = hj & hw
-            rel = np.abs(tw[both] - tj[both]) / np.maximum(np.abs(tj[both]), 1e-6)
-            t_note = f"  t rel. diff p99.9 {np.percentile(rel, 99.9) if both.any() else 0.0:.1e}"
-        agree = float(np.mean(hj == hw))
-        r = {"rays": kind, "n": n, "jax": n / t_j / 1e6, "warp": n / t_w / 1e6, "agree": agree}
+        r = bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, args.repeats)
         rows.append(r)
-        print(
-            f"  {'occluded' if any_hit else 'closest_hit':11s} {kind:7s} {n:>9,} rays  "
-            f"JAX {r['jax']:7.3f}  Warp {r['warp']:7.3f} Mrays/s  Warp/JAX {r['warp'] / r['jax']:5.2f}  "
-            f"compile JAX {c_j:4.1f} s, Warp {c_w:4.1f} s (incl. mesh build)  hit/miss agree {agree:.5f}"
-            + t_note
-        )
         sys.stdout.flush()
     return rows
 

@@ -210,15 +210,18 @@ def test_ties_on_shared_edges_and_vertices():
 
 def test_new_scene_same_shapes_reuses_the_program(soup):
     """A second geometry of the same array shapes: no retrace (so no recompile), and its own mesh."""
-    V2, F2 = _soup(5)
-    bvh2 = build_bvh(vertices=V2, faces=F2, cache=False)
+    V, F, bvh = soup
+    V2 = (V + np.float32([0.25, -0.5, 0.125])).astype(np.float32)  # moved: the same tree shape
+    bvh2 = build_bvh(vertices=V2, faces=F, cache=False)
+    assert np.shape(bvh2.table) == np.shape(bvh.table)
     o, d, tmin, tmax = _rays(3)
-    warp_both(soup[2], o, d, tmin, tmax)
+    warp_both(bvh, o, d, tmin, tmax)
     size = warp_both._cache_size()
     t, prim, _ = warp_both(bvh2, o, d, tmin, tmax)
-    if np.shape(bvh2.table) == np.shape(soup[2].table):
-        assert warp_both._cache_size() == size
-    _check_closest(V2, F2, o, d, tmin, tmax, t, prim)
+    assert warp_both._cache_size() == size
+    _check_closest(V2, F, o, d, tmin, tmax, t, prim)
+    t1, prim1, _ = warp_both(bvh, o, d, tmin, tmax)  # and back: each scene keeps its own mesh
+    _check_closest(V, F, o, d, tmin, tmax, t1, prim1)
 
 
 def test_level_on_a_merged_bvh_traces_only_that_level():

@@ -42,6 +42,7 @@ import functools
 import threading
 import typing
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -51,6 +52,8 @@ from ._bvh import _HOST_GEOMETRY, BVH, host_geometry, host_level_faces
 _MESHES: dict[tuple[str, str], tuple] = {}
 # device alias -> (number of host ids it covers, ids tuple, wp.array of uint64 mesh ids).
 _TABLES: dict[str, tuple] = {}
+# Replaced id tables (8 bytes per geometry each), kept until release_meshes().
+_RETIRED: list = []
 _LOCK = threading.RLock()
 
 # Distances beyond this are "no limit" (Warp's max_t must be finite for its slab tests).
@@ -74,9 +77,11 @@ def warp_available() -> bool:
 
 
 def release_meshes() -> None:
-    """Free every cached Warp mesh (and id table); the next query rebuilds what it needs."""
+    """Free every cached Warp mesh (and id table); the next query rebuilds what it needs. Call it
+    with no query in flight (after `jax.block_until_ready` on their results)."""
     with _LOCK:
         _TABLES.clear()
+        _RETIRED.clear()
         _MESHES.clear()
 
 
@@ -114,6 +119,9 @@ def _id_table(wp, device, host_id: int | None):
         )
         cached = _TABLES.get(device.alias)
         if cached is None or cached[0] != ids:
+            if cached is not None:
+                # A kernel queued earlier on the stream may still read the old table: keep it.
+                _RETIRED.append(cached[1])
             table = wp.array(np.array(ids or (0,), np.uint64), dtype=wp.uint64, device=device)
             cached = _TABLES[device.alias] = (ids, table)
         return cached[1]
@@ -245,8 +253,11 @@ def warp_query(bvh: BVH, o, d, tmin, tmax, level=None, *, any_hit: bool):
     """(t, prim) of flat rays (o, d: float32 (n, 3); tmin, tmax: float32 (n,); level: int32 (n,) or
     None) against `bvh`'s build-time geometry, on Warp's device for the platform being lowered."""
     closest, anyhit = _callables()
-    o = jnp.asarray(o, jnp.float32)
-    d = jnp.asarray(d, jnp.float32)
+    # Which face is hit is not differentiated (the hit is recomputed from it): no gradient into
+    # the FFI call, which has no derivative rule.
+    o = jax.lax.stop_gradient(jnp.asarray(o, jnp.float32))
+    d = jax.lax.stop_gradient(jnp.asarray(d, jnp.float32))
+    tmin, tmax = jax.lax.stop_gradient(tmin), jax.lax.stop_gradient(tmax)
     n = o.shape[0]
     tmin = jnp.broadcast_to(jnp.asarray(tmin, jnp.float32), (n,))
     tmax = jnp.broadcast_to(jnp.asarray(tmax, jnp.float32), (n,))
