@@ -50,14 +50,11 @@ from ._bvh import _HOST_GEOMETRY, BVH, host_geometry, host_level_faces
 
 # (device alias, geometry key) -> (wp.Mesh, its points, indices and groups arrays).
 _MESHES: dict[tuple[str, str], tuple] = {}
-# device alias -> (number of host ids it covers, ids tuple, wp.array of uint64 mesh ids).
+# device alias -> (mesh id per host id, 0 where none is built; that tuple as a wp.array of uint64).
 _TABLES: dict[str, tuple] = {}
 # Replaced id tables (8 bytes per geometry each), kept until release_meshes().
 _RETIRED: list = []
 _LOCK = threading.RLock()
-
-# Distances beyond this are "no limit" (Warp's max_t must be finite for its slab tests).
-FAR = 1e37
 
 
 def _require_warp():
@@ -165,6 +162,7 @@ def _callables():
         lv = level[wp.min(i, level.shape[0] - 1)]
         if mesh != wp.uint64(0) and lv >= 0:
             root = wp.mesh_get_group_root(mesh, lv)
+        # An infinite tmax is "no limit": Warp's max_t stays finite.
         return mesh, start, wp.min(b - a, 1.0e37), root
 
     @wp.kernel
