@@ -88,7 +88,7 @@ if [[ $TINY == 1 ]]; then
     limit=600
 else
     # One ray per pixel of both eyes (2 x 1280 x 1024 = 2560 x 1024), 2M random rays; no CPU peers.
-    warp_args=(--width 2560 --height 1024 --random 2097152 --repeats 3)
+    warp_args=(--width 2560 --height 1024 --random 2097152 --repeats 3 --warp-bvh sah lbvh)
     trace_args=(--width 2560 --height 1024 --random 2097152 --repeats 3 --peers)
     fov_args=(--full --spp 1 4 --repeats 3)
     limit=220

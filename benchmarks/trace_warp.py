@@ -2,6 +2,7 @@
 
     python benchmarks/trace_warp.py                     # atrium, 1280x1024 primary, 262k random
     python benchmarks/trace_warp.py --rows primary      # primary rays only
+    python benchmarks/trace_warp.py --warp-bvh sah lbvh # Warp's two mesh BVH builders (lbvh: CUDA)
     python benchmarks/trace_warp.py --width 64 --height 48 --random 4096 --repeats 1   # smoke
 
 Both sides run inside `jax.jit` on the default JAX device (a GPU where one is visible, else the CPU,
@@ -29,7 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from trace_throughput import scene_rays, shadow_rays  # noqa: E402
 
 import fovjax  # noqa: E402
-from fovjax.trace import build_bvh, closest_hit, hit_geometry, occluded  # noqa: E402
+from fovjax.trace import (  # noqa: E402
+    _warp,  # noqa: E402
+    build_bvh,
+    closest_hit,
+    hit_geometry,
+    occluded,
+)
 from fovjax.trace._warp import warp_query  # noqa: E402
 
 
@@ -50,7 +57,7 @@ def first_and_timed(fn, repeats):
     return out, t, max(first - t, 0.0)
 
 
-def bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, repeats):
+def bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, repeats, builders):
     """Time both backends on one ray set and print its line."""
     n = len(o)
     flat = [jnp.asarray(x) for x in (o, d, tmin, tmax)]
@@ -75,24 +82,31 @@ def bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, repeats):
 
     warp_fn = jax.jit(warp_fn)
     out_j, t_j, c_j = first_and_timed(lambda: jax_fn(*shaped), repeats)
-    out_w, t_w, c_w = first_and_timed(lambda: warp_fn(bvh, *flat), repeats)
-    if any_hit:
-        hj, hw = np.asarray(out_j).reshape(-1), np.asarray(out_w)
+    r = {"rays": kind, "n": n, "jax": n / t_j / 1e6}
+    hj = np.asarray(out_j if any_hit else out_j[1] >= 0).reshape(-1)
+    for builder in builders:
+        # The same compiled program for every builder (the mesh id is not part of it): only the
+        # first call after the release builds the mesh.
+        _warp.BVH_CONSTRUCTOR = builder
+        _warp.release_meshes()
+        out_w, t_w, c_w = first_and_timed(lambda: warp_fn(bvh, *flat), repeats)
         t_note = ""
-    else:
-        hj, hw = np.asarray(out_j[1]).reshape(-1) >= 0, np.asarray(out_w[1]) >= 0
-        tj, tw = np.asarray(out_j[0]).reshape(-1), np.asarray(out_w[0])
-        both = hj & hw
-        rel = np.abs(tw[both] - tj[both]) / np.maximum(np.abs(tj[both]), 1e-6)
-        p999 = np.percentile(rel, 99.9) if both.any() else 0.0
-        t_note = f"  Warp's own t vs JAX's: rel. diff p99.9 {p999:.1e}"
-    agree = float(np.mean(hj == hw))
-    r = {"rays": kind, "n": n, "jax": n / t_j / 1e6, "warp": n / t_w / 1e6, "agree": agree}
-    print(
-        f"  {'occluded' if any_hit else 'closest_hit':11s} {kind:7s} {n:>9,} rays  "
-        f"JAX {r['jax']:7.3f}  Warp {r['warp']:7.3f} Mrays/s  Warp/JAX {r['warp'] / r['jax']:5.2f}  "
-        f"compile JAX {c_j:4.1f} s, Warp {c_w:4.1f} s (incl. mesh build)  hit/miss agree {agree:.5f}" + t_note
-    )
+        hw = np.asarray(out_w if any_hit else out_w[1] >= 0)
+        if not any_hit:
+            tj, tw = np.asarray(out_j[0]).reshape(-1), np.asarray(out_w[0])
+            both = hj & hw
+            rel = np.abs(tw[both] - tj[both]) / np.maximum(np.abs(tj[both]), 1e-6)
+            p999 = np.percentile(rel, 99.9) if both.any() else 0.0
+            t_note = f"  Warp's own t vs JAX's: rel. diff p99.9 {p999:.1e}"
+        agree = float(np.mean(hj == hw))
+        r[f"warp_{builder}"], r[f"agree_{builder}"] = n / t_w / 1e6, agree
+        print(
+            f"  {'occluded' if any_hit else 'closest_hit':11s} {kind:7s} {n:>9,} rays  "
+            f"JAX {r['jax']:7.3f}  Warp ({builder}) {r[f'warp_{builder}']:7.3f} Mrays/s  "
+            f"Warp/JAX {r[f'warp_{builder}'] / r['jax']:5.2f}  compile JAX {c_j:4.1f} s, "
+            f"Warp {c_w:4.1f} s (incl. mesh build)  hit/miss agree {agree:.5f}" + t_note
+        )
+        sys.stdout.flush()
     return r
 
 
@@ -105,6 +119,13 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rows", nargs="+", default=["primary", "random", "shadow"])
+    ap.add_argument(
+        "--warp-bvh",
+        nargs="+",
+        default=[_warp.BVH_CONSTRUCTOR],
+        choices=["sah", "lbvh", "median"],
+        help="Warp's mesh BVH builder(s) to time (each a Warp column)",
+    )
     args = ap.parse_args(argv)
 
     dev = jax.devices()[0]
@@ -133,9 +154,8 @@ def main(argv=None):
             packet, shape, any_hit = None, (len(o),), True
         else:
             raise SystemExit(f"unknown row {kind!r} (primary, random, shadow)")
-        r = bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, args.repeats)
+        r = bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, args.repeats, args.warp_bvh)
         rows.append(r)
-        sys.stdout.flush()
     return rows
 
 

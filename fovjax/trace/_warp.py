@@ -52,6 +52,10 @@ from ._bvh import _HOST_GEOMETRY, BVH, host_geometry, host_level_faces
 _MESHES: dict[tuple[str, str], tuple] = {}
 # device alias -> (mesh id per host id, 0 where none is built; that tuple as a wp.array of uint64).
 _TABLES: dict[str, tuple] = {}
+# Warp's BVH builder for the meshes: "sah" (Warp's default on CPU; on CUDA Warp defaults to "lbvh",
+# faster to build, slower to trace — the scenes here are built once and traced many times).
+# benchmarks/trace_warp.py --warp-bvh compares them.
+BVH_CONSTRUCTOR = "sah"
 # Replaced id tables (8 bytes per geometry each), kept until release_meshes().
 _RETIRED: list = []
 _LOCK = threading.RLock()
@@ -85,7 +89,7 @@ def release_meshes() -> None:
 def _mesh(wp, device, host_id: int):
     """The cached `wp.Mesh` of this host geometry on `device` (built on the current stream)."""
     key, vertices, faces = host_geometry(host_id)
-    slot = (device.alias, key)
+    slot = (device.alias, key)  # the builder is not in the key: release_meshes() after changing it
     entry = _MESHES.get(slot)
     if entry is None:
         points = wp.array(np.ascontiguousarray(vertices, np.float32), dtype=wp.vec3, device=device)
@@ -95,7 +99,7 @@ def _mesh(wp, device, host_id: int):
         if counts is not None:
             per_face = np.repeat(np.arange(len(counts), dtype=np.int32), counts)
             groups = wp.array(per_face, dtype=wp.int32, device=device)
-        mesh = wp.Mesh(points=points, indices=indices, groups=groups)
+        mesh = wp.Mesh(points=points, indices=indices, groups=groups, bvh_constructor=BVH_CONSTRUCTOR)
         entry = _MESHES[slot] = (mesh, points, indices, groups)
     return entry[0]
 
