@@ -1,11 +1,17 @@
 #!/usr/bin/env bash
 # The trace and foveation benchmarks at the thesis's resolution (2 x 1280x1024) on a CUDA machine,
-# in under 8 minutes: prints Mrays/s (benchmarks/trace_throughput.py) and frames per second
-# (benchmarks/foveation.py --full).
+# in at most 11 minutes (each of the three stops at 220 s): prints Mrays/s of the Warp and JAX
+# backends on the atrium's rays (benchmarks/trace_warp.py), of the JAX backend against its peers
+# (benchmarks/trace_throughput.py), and frames per second (benchmarks/foveation.py --full).
 #
 #   bash benchmarks/gpu.sh --fetch-wheels     # on a machine with PyPI: fill benchmarks/wheels/
 #   bash benchmarks/gpu.sh                    # on the GPU machine (no network), from the repo root
 #   bash benchmarks/gpu.sh --tiny --no-install   # a quick check of the script on any machine
+#   bash benchmarks/gpu.sh --tiny --no-install --warp-only   # just the Warp/JAX rows (Warp on CPU)
+#
+# Warp (warp-lang, the [gpu] extra) is a ~150 MB binary wheel: --fetch-wheels puts it in
+# benchmarks/wheels/warp/ (apart from the small wheels, so those can be carried alone); it is
+# installed from there when the machine has no warp, and without either the Warp rows say so.
 #
 # The GPU machines this project may be lent hold jax with its CUDA plugin, equinox, optimistix and
 # lineax, and cannot download anything. The project's other pure-Python dependencies travel as
@@ -19,6 +25,7 @@ PY=${PYTHON:-python}
 WHEELS=benchmarks/wheels
 TINY=0
 INSTALL=1
+WARP_ONLY=0
 # Pure-Python runtime dependencies of fovjax (pyproject.toml) beyond jax/equinox/optimistix/lineax.
 PURE_DEPS=(trimesh emcee pyserial jaxtyping wadler_lindig imageio tqdm)
 
@@ -27,13 +34,15 @@ while [[ $# -gt 0 ]]; do
         --fetch-wheels)
             mkdir -p "$WHEELS"
             "$PY" -m pip download --no-deps --only-binary=:all: -d "$WHEELS" "${PURE_DEPS[@]}"
-            ls -l "$WHEELS"
+            "$PY" -m pip download --no-deps --only-binary=:all: -d "$WHEELS/warp" "warp-lang>=1.19"
+            ls -l "$WHEELS" "$WHEELS/warp"
             exit 0
             ;;
         --tiny) TINY=1 ;;
         --no-install) INSTALL=0 ;;
+        --warp-only) WARP_ONLY=1 ;;
         --wheels) WHEELS=$2; shift ;;
-        *) echo "gpu.sh: unknown option $1 (expected --fetch-wheels, --tiny, --no-install, --wheels DIR)" >&2; exit 2 ;;
+        *) echo "gpu.sh: unknown option $1 (expected --fetch-wheels, --tiny, --no-install, --warp-only, --wheels DIR)" >&2; exit 2 ;;
     esac
     shift
 done
@@ -53,6 +62,10 @@ if [[ $INSTALL == 1 ]]; then
     else
         "$PY" -m pip install -q --no-index --no-deps "${wheels[@]}"
     fi
+    warp_wheels=("$WHEELS"/warp/*.whl)
+    if ! "$PY" -c "import warp" 2>/dev/null && [[ ${#warp_wheels[@]} -gt 0 ]]; then
+        "$PY" -m pip install -q --no-index --no-deps "${warp_wheels[@]}"
+    fi
     # No build isolation: pip would try to download setuptools. The PYTHONPATH below covers a
     # machine without setuptools too.
     "$PY" -m pip install -q --no-deps --no-build-isolation -e . ||
@@ -69,15 +82,27 @@ if d.platform != "gpu":
 EOF
 
 if [[ $TINY == 1 ]]; then
+    warp_args=(--width 64 --height 48 --random 4096 --repeats 1)
     trace_args=(--width 64 --height 48 --random 4096 --repeats 1 --rows primary random --peers)
     fov_args=(--spp 1 --repeats 1)
     limit=600
 else
     # One ray per pixel of both eyes (2 x 1280 x 1024 = 2560 x 1024), 2M random rays; no CPU peers.
+    warp_args=(--width 2560 --height 1024 --random 2097152 --repeats 3 --warp-bvh sah lbvh)
     trace_args=(--width 2560 --height 1024 --random 2097152 --repeats 3 --peers)
     fov_args=(--full --spp 1 4 --repeats 3)
     limit=220
 fi
+
+echo
+echo "== Warp and JAX backends, the atrium's primary, random and shadow rays (Mrays/s) =="
+if "$PY" -c "import warp" 2>/dev/null; then
+    timeout "$limit" "$PY" benchmarks/trace_warp.py "${warp_args[@]}" ||
+        echo "gpu.sh: Warp benchmark stopped (exit $?)"
+else
+    echo "gpu.sh: warp-lang is not installed (pip install 'fovjax[gpu]', or --fetch-wheels): no Warp rows"
+fi
+[[ $WARP_ONLY == 1 ]] && exit 0
 
 echo
 echo "== ray queries (Mrays/s) =="

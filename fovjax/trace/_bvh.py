@@ -32,6 +32,9 @@ FORMAT_VERSION = 2
 # shapes reuses the compiled traversal instead of recompiling.
 _HOST_GEOMETRY: list[tuple[str, np.ndarray, np.ndarray]] = []
 _HOST_ID: dict[str, int] = {}
+# For a merged BVH's key: the number of faces of each of its trees, in order (native backends that
+# build their own acceleration structure per level need it; the merged faces hold no level).
+_HOST_LEVEL_FACES: dict[str, np.ndarray] = {}
 
 
 class BVH(eqx.Module):
@@ -235,6 +238,7 @@ def merge_bvhs(bvhs) -> BVH:
     if host_id is None:
         host_id = _HOST_ID[key] = len(_HOST_GEOMETRY)
         _HOST_GEOMETRY.append((key, vertices, faces))
+    _HOST_LEVEL_FACES[key] = np.asarray(tris, np.int64)
     return BVH(
         table=table,
         vertices=vertices,
@@ -260,3 +264,10 @@ def host_geometry(host_id: int | np.integer | np.ndarray | Array) -> tuple[str, 
         raise ValueError(
             f"BVH host id {int(host_id)} is unknown in this process; build it with build_bvh()"
         ) from None
+
+
+def host_level_faces(host_id: int | np.integer | np.ndarray | Array) -> np.ndarray | None:
+    """Faces per tree of the merged BVH with this host id, in level order (they are consecutive in
+    its merged faces); None for a single-tree BVH."""
+    key, _, _ = host_geometry(host_id)
+    return _HOST_LEVEL_FACES.get(key)

@@ -1,0 +1,279 @@
+"""NVIDIA Warp backend: `wp.Mesh` + `mesh_query_ray` / `mesh_query_ray_anyhit`, inside the program.
+
+`warp_query(bvh, o, d, tmin, tmax, level, any_hit=...)` is one XLA FFI call (Warp's `jax_callable`,
+which registers the same target for XLA's CPU and CUDA platforms), so the program picks the Warp
+device from the platform it is lowered for: one traced function lowers for `platforms=("cpu",)` and
+`("cuda",)` alike, and a CUDA export needs no GPU on the exporting machine. On CPU Warp runs the
+kernel on one thread (no SIMD); on a GPU it is the fast path.
+
+Design:
+- **Meshes** are built from the BVH's build-time geometry (`host_geometry(bvh.host_id)`), once per
+  geometry key and Warp device, and cached in this module (`_MESHES`); `release_meshes()` frees
+  them. They live as long as the process's host geometry registry otherwise (like the Embree
+  scenes): a BVH has no hook that says when it is gone. A merged LOD BVH (`merge_bvhs`) becomes
+  one *grouped* mesh, group l = tree l's faces, and a ray of level l is traced from
+  `mesh_get_group_root(mesh, l)`: only its level's triangles, `prim` indexing the merged faces.
+- **The mesh id reaches the kernel at run time, not compile time.** The FFI operands are the BVH's
+  `host_id` (an int32 array leaf) and the rays; the Python side of the call (run on every call:
+  graph mode NONE) makes sure the mesh exists and passes the kernel a per-device table of mesh ids
+  (`wp.array` of uint64, not a JAX operand: JAX without x64 has no uint64 arrays), which the kernel
+  indexes with `host_id[0]`. So a new scene with the same array shapes reuses the compiled program
+  (nothing about the scene is a constant in it); on CUDA the host id is never copied to the host
+  (no stream sync): every registered geometry gets its mesh on that device when the table is
+  first needed after it was registered.
+- **Ordering**: the mesh build, the table upload and the query kernel are issued from the same
+  FFI call on XLA's own stream (Warp runs the callable under that stream), so the build always
+  completes before the query; nothing else writes the meshes (there is no refit here: traversal
+  geometry is the build-time geometry, as for the other backends).
+- Warp has no `tmin`: a ray starts at `o + tmin * d` with `max_t = tmax - tmin` (clamped to 1e37)
+  and `tmin` is added back to its distance, as in the Embree path. Rays with a NaN/inf component, a
+  zero direction, `tmax <= tmin` (or NaN bounds), or a non-finite start point miss.
+
+Returns `(t, prim)` as the other backends' raw query: prim int32 (-1 on a miss; for `any_hit` 0 if
+anything lies on the ray), t float32 (the hit distance where prim >= 0, else `tmax`; for `any_hit`,
+`tmax`). Warp is imported on first use: importing this module never needs it.
+
+Each traced call adds a Warp `call_id` attribute to the program (Warp keeps per-trace descriptors
+keyed by it), so the HLO of two traces of the same function differs by that number: jit's own
+cache is unaffected, but a persistent-compilation-cache hit needs the same trace order.
+"""
+
+import functools
+import threading
+import typing
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._bvh import _HOST_GEOMETRY, BVH, host_geometry, host_level_faces
+
+# (device alias, geometry key) -> (wp.Mesh, its points, indices and groups arrays).
+_MESHES: dict[tuple[str, str], tuple] = {}
+# device alias -> (mesh id per host id, 0 where none is built; that tuple as a wp.array of uint64).
+_TABLES: dict[str, tuple] = {}
+# Warp's BVH builder for the meshes: "sah" (Warp's default on CPU; on CUDA Warp defaults to "lbvh",
+# faster to build, slower to trace — the scenes here are built once and traced many times).
+# benchmarks/trace_warp.py --warp-bvh compares them.
+BVH_CONSTRUCTOR = "sah"
+# Replaced id tables (8 bytes per geometry each), kept until release_meshes().
+_RETIRED: list = []
+_LOCK = threading.RLock()
+
+
+def _require_warp():
+    try:
+        import warp  # noqa: F401
+    except ImportError as exc:
+        raise ImportError("the Warp backend needs warp-lang: pip install 'fovjax[gpu]'") from exc
+    return warp
+
+
+def warp_available() -> bool:
+    try:
+        _require_warp()
+    except ImportError:
+        return False
+    return True
+
+
+def release_meshes() -> None:
+    """Free every cached Warp mesh (and id table); the next query rebuilds what it needs. Call it
+    with no query in flight (after `jax.block_until_ready` on their results)."""
+    with _LOCK:
+        _TABLES.clear()
+        _RETIRED.clear()
+        _MESHES.clear()
+
+
+def _mesh(wp, device, host_id: int):
+    """The cached `wp.Mesh` of this host geometry on `device` (built on the current stream)."""
+    key, vertices, faces = host_geometry(host_id)
+    slot = (device.alias, key)  # the builder is not in the key: release_meshes() after changing it
+    entry = _MESHES.get(slot)
+    if entry is None:
+        points = wp.array(np.ascontiguousarray(vertices, np.float32), dtype=wp.vec3, device=device)
+        indices = wp.array(np.ascontiguousarray(faces, np.int32).reshape(-1), dtype=wp.int32, device=device)
+        counts = host_level_faces(host_id)
+        groups = None
+        if counts is not None:
+            per_face = np.repeat(np.arange(len(counts), dtype=np.int32), counts)
+            groups = wp.array(per_face, dtype=wp.int32, device=device)
+        mesh = wp.Mesh(points=points, indices=indices, groups=groups, bvh_constructor=BVH_CONSTRUCTOR)
+        entry = _MESHES[slot] = (mesh, points, indices, groups)
+    return entry[0]
+
+
+def _id_table(wp, device, host_id: int | None):
+    """The uint64 mesh-id table the kernel indexes by host id, on `device`.
+
+    With `host_id` (CPU: the operand is host memory, read for free) only that geometry's mesh is
+    ensured; with None (CUDA: the operand stays on the device) every registered geometry's is."""
+    with _LOCK:
+        n = len(_HOST_GEOMETRY)
+        wanted = range(n) if host_id is None else [host_id] if 0 <= host_id < n else []
+        for h in wanted:
+            _mesh(wp, device, h)
+        ids = tuple(
+            int(e[0].id) if (e := _MESHES.get((device.alias, _HOST_GEOMETRY[h][0]))) is not None else 0
+            for h in range(n)
+        )
+        cached = _TABLES.get(device.alias)
+        if cached is None or cached[0] != ids:
+            if cached is not None:
+                # A kernel queued earlier on the stream may still read the old table: keep it.
+                _RETIRED.append(cached[1])
+            table = wp.array(np.array(ids or (0,), np.uint64), dtype=wp.uint64, device=device)
+            cached = _TABLES[device.alias] = (ids, table)
+        return cached[1]
+
+
+# Not type-checked by the tests' jaxtyping/beartype import hook: Warp's annotations are its own
+# (`wp.array(dtype=...)` instances), and they are evaluated here, eagerly (no `from __future__
+# import annotations` in this module: Warp evaluates them against the function's closure).
+@functools.cache
+@typing.no_type_check
+def _callables():
+    """The two FFI callables (closest, any hit), made once per process on first use."""
+    wp = _require_warp()
+    from warp import JaxCallableGraphMode, jax_callable
+
+    @wp.func
+    def _setup(
+        meshes: wp.array(dtype=wp.uint64),
+        host_id: wp.array(dtype=wp.int32),
+        i: int,
+        o: wp.array(dtype=wp.vec3),
+        d: wp.array(dtype=wp.vec3),
+        tmin: wp.array(dtype=wp.float32),
+        tmax: wp.array(dtype=wp.float32),
+        level: wp.array(dtype=wp.int32),
+    ):
+        # -> (mesh id or 0 for "skip this ray", start, max_t, root)
+        h = host_id[0]
+        mesh = wp.uint64(0)
+        if h >= 0 and h < meshes.shape[0]:
+            mesh = meshes[h]
+        oi = o[i]
+        di = d[i]
+        a = tmin[i]
+        b = tmax[i]
+        start = oi + a * di
+        ok = b > a and wp.isfinite(oi) and wp.isfinite(di) and wp.length_sq(di) > 0.0 and wp.isfinite(start)
+        if not ok:
+            mesh = wp.uint64(0)
+        root = -1
+        lv = level[wp.min(i, level.shape[0] - 1)]
+        if mesh != wp.uint64(0) and lv >= 0:
+            root = wp.mesh_get_group_root(mesh, lv)
+        # An infinite tmax is "no limit": Warp's max_t stays finite.
+        return mesh, start, wp.min(b - a, 1.0e37), root
+
+    @wp.kernel
+    def _closest_kernel(
+        meshes: wp.array(dtype=wp.uint64),
+        host_id: wp.array(dtype=wp.int32),
+        o: wp.array(dtype=wp.vec3),
+        d: wp.array(dtype=wp.vec3),
+        tmin: wp.array(dtype=wp.float32),
+        tmax: wp.array(dtype=wp.float32),
+        level: wp.array(dtype=wp.int32),
+        t_out: wp.array(dtype=wp.float32),
+        prim_out: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        mesh, start, far, root = _setup(meshes, host_id, i, o, d, tmin, tmax, level)
+        t_out[i] = tmax[i]
+        prim_out[i] = -1
+        if mesh != wp.uint64(0):
+            q = wp.mesh_query_ray(mesh, start, d[i], far, root)
+            if q.result:
+                t_out[i] = q.t + tmin[i]
+                prim_out[i] = q.face
+
+    @wp.kernel
+    def _anyhit_kernel(
+        meshes: wp.array(dtype=wp.uint64),
+        host_id: wp.array(dtype=wp.int32),
+        o: wp.array(dtype=wp.vec3),
+        d: wp.array(dtype=wp.vec3),
+        tmin: wp.array(dtype=wp.float32),
+        tmax: wp.array(dtype=wp.float32),
+        level: wp.array(dtype=wp.int32),
+        t_out: wp.array(dtype=wp.float32),
+        prim_out: wp.array(dtype=wp.int32),
+    ):
+        i = wp.tid()
+        mesh, start, far, root = _setup(meshes, host_id, i, o, d, tmin, tmax, level)
+        t_out[i] = tmax[i]
+        prim_out[i] = -1
+        if mesh != wp.uint64(0):
+            if wp.mesh_query_ray_anyhit(mesh, start, d[i], far, root):
+                prim_out[i] = 0
+
+    def make(kernel, name):
+        def query(
+            host_id: wp.array(dtype=wp.int32),
+            o: wp.array(dtype=wp.vec3),
+            d: wp.array(dtype=wp.vec3),
+            tmin: wp.array(dtype=wp.float32),
+            tmax: wp.array(dtype=wp.float32),
+            level: wp.array(dtype=wp.int32),
+            t_out: wp.array(dtype=wp.float32),
+            prim_out: wp.array(dtype=wp.int32),
+        ):
+            device = o.device
+            # On CPU the operand is host memory: read the one id; on CUDA leave it on the device.
+            h = int(host_id.numpy()[0]) if device.is_cpu else None
+            meshes = _id_table(wp, device, h)
+            wp.launch(
+                kernel,
+                dim=o.shape[0],
+                inputs=[meshes, host_id, o, d, tmin, tmax, level],
+                outputs=[t_out, prim_out],
+                device=device,
+            )
+
+        # The FFI target is named after this (Warp appends "_0").
+        query.__name__ = query.__qualname__ = name
+        # NONE: the Python side runs on every call (it may build a mesh and upload the id table),
+        # so it must not be frozen into a CUDA graph.
+        return jax_callable(
+            query, num_outputs=2, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential"
+        )
+
+    return make(_closest_kernel, "fovjax_warp_closest"), make(_anyhit_kernel, "fovjax_warp_anyhit")
+
+
+def ffi_target_names() -> tuple[str, str]:
+    """The XLA FFI target names of the closest-hit and any-hit calls (registered for "cpu" and
+    "CUDA" on first use), e.g. for `jax.export`'s `DisabledSafetyChecks.custom_call`."""
+    return tuple(c.name for c in _callables())
+
+
+def warp_query(bvh: BVH, o, d, tmin, tmax, level=None, *, any_hit: bool):
+    """(t, prim) of flat rays (o, d: float32 (n, 3); tmin, tmax: float32 (n,); level: int32 (n,) or
+    None) against `bvh`'s build-time geometry, on Warp's device for the platform being lowered."""
+    closest, anyhit = _callables()
+    # Which face is hit is not differentiated (the hit is recomputed from it): no gradient into
+    # the FFI call, which has no derivative rule.
+    o = jax.lax.stop_gradient(jnp.asarray(o, jnp.float32))
+    d = jax.lax.stop_gradient(jnp.asarray(d, jnp.float32))
+    tmin, tmax = jax.lax.stop_gradient(tmin), jax.lax.stop_gradient(tmax)
+    n = o.shape[0]
+    tmin = jnp.broadcast_to(jnp.asarray(tmin, jnp.float32), (n,))
+    tmax = jnp.broadcast_to(jnp.asarray(tmax, jnp.float32), (n,))
+    if level is None:
+        # No level: a single tree traces from its root (-1); a merged BVH's level 0, as in the JAX
+        # traversal (which starts at item 0, tree 0's root).
+        lv = jnp.full((1,), -1 if bvh.roots is None else 0, jnp.int32)
+    else:
+        if bvh.roots is None:
+            raise ValueError("level= needs a merged BVH (fovjax.trace.merge_bvhs); this one has one tree")
+        lv = jnp.clip(jnp.broadcast_to(jnp.asarray(level, jnp.int32), (n,)), 0, bvh.num_levels - 1)
+    if n == 0:
+        return jnp.zeros((0,), jnp.float32), jnp.zeros((0,), jnp.int32)
+    host_id = jnp.reshape(jnp.asarray(bvh.host_id, jnp.int32), (1,))
+    call = anyhit if any_hit else closest
+    t, prim = call(host_id, o, d, tmin, tmax, lv, output_dims=(n,))
+    return t, prim
