@@ -229,7 +229,12 @@ def test_every_frame_program_lowers_for_cuda():
         pass
 
     def export_for_cuda(entry, jitted, args):
-        checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in ("fovjax_embree_query",)]
+        targets = ["fovjax_embree_query"]
+        if fovjax.trace.resolve_backend("auto", "cuda") == "warp":
+            from fovjax.trace._warp import ffi_target_names
+
+            targets += ffi_target_names()
+        checks = [jax.export.DisabledSafetyCheck.custom_call(t) for t in targets]
         exp = jax.export.export(jitted, platforms=("cuda",), disabled_checks=checks)(*args)
         exported[entry] = exp.mlir_module()
         raise Exported  # lowering is the check; nothing needs to compile or run here

@@ -63,9 +63,12 @@ _LOCK = threading.RLock()
 
 def _require_warp():
     try:
-        import warp  # noqa: F401
+        import warp
     except ImportError as exc:
         raise ImportError("the Warp backend needs warp-lang: pip install 'fovjax[gpu]'") from exc
+    # No start-up banner (nor its "CUDA driver not found" line on a CPU machine) in a command's
+    # output; Warp reads this when it initialises.
+    warp.config.quiet = True
     return warp
 
 
