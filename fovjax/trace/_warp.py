@@ -39,6 +39,7 @@ cache is unaffected, but a persistent-compilation-cache hit needs the same trace
 """
 
 import functools
+import logging
 import threading
 import typing
 
@@ -66,9 +67,10 @@ def _require_warp():
         import warp
     except ImportError as exc:
         raise ImportError("the Warp backend needs warp-lang: pip install 'fovjax[gpu]'") from exc
-    # No start-up banner (nor its "CUDA driver not found" line on a CPU machine) in a command's
-    # output; Warp reads this when it initialises.
-    warp.config.quiet = True
+    # No start-up banner in a command's output (Warp reads this when it initialises; Warp 1.19's
+    # native "CUDA driver not found" line on a CPU machine is printed regardless).
+    if warp.config.log_level < logging.WARNING:
+        warp.config.log_level = logging.WARNING
     return warp
 
 
