@@ -545,6 +545,7 @@ bool CheckLayout(std::string* error) {
         return false;
       }
     }
+    for (int k = 0; k < 16; ++k) rh->ray.tfar[k] = INFINITY;  // the hits above set tfar to 1
     g_api.rtcOccluded16(valid, s->trees[0], &rh->ray, &args);
     for (int k = 0; k < 16; ++k) {
       if (rh->ray.tfar[k] != -INFINITY) {
