@@ -69,8 +69,9 @@ def embree_trace_host(scene, o, d, tmin, tmax, any_hit):
 def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packets: int):
     """(t, prim) of flat rays through the Embree FFI handler (which must be registered:
     `embree_status()`); t = inf and prim = -1 on a miss, prim 0 for an occluded ray.
-    `packets`: 16 (every 16 consecutive rays one packet), -1 (a packet where the 16 rays are
-    coherent, else one by one) or 0 (one by one)."""
+    `packets`: 1 (every run of consecutive rays one packet of the CPU's native width: 8 with AVX2,
+    16 with AVX-512), -1 (a packet where its rays are coherent, else one by one) or 0 (one by
+    one)."""
     from ._native import embree_status
 
     status = embree_status()  # built, loaded and registered once per process

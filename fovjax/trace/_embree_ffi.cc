@@ -68,20 +68,23 @@ struct RayHit1 {
   Ray1 ray;
   Hit1 hit;
 };
-struct alignas(64) Ray16 {
-  float org_x[16], org_y[16], org_z[16], tnear[16], dir_x[16], dir_y[16], dir_z[16], time[16],
-      tfar[16];
-  unsigned mask[16], id[16], flags[16];
+// RTCRay4/8/16 and RTCHit4/8/16: W lanes of each field, aligned to 4 W bytes.
+template <int W>
+struct alignas(4 * W) RayW {
+  float org_x[W], org_y[W], org_z[W], tnear[W], dir_x[W], dir_y[W], dir_z[W], time[W], tfar[W];
+  unsigned mask[W], id[W], flags[W];
 };
-struct alignas(64) Hit16 {
-  float ng_x[16], ng_y[16], ng_z[16], u[16], v[16];
-  unsigned prim_id[16], geom_id[16];
-  unsigned inst_id[1][16];
-  unsigned inst_prim_id[1][16];
+template <int W>
+struct alignas(4 * W) HitW {
+  float ng_x[W], ng_y[W], ng_z[W], u[W], v[W];
+  unsigned prim_id[W], geom_id[W];
+  unsigned inst_id[1][W];
+  unsigned inst_prim_id[1][W];
 };
-struct RayHit16 {
-  Ray16 ray;
-  Hit16 hit;
+template <int W>
+struct RayHitW {
+  RayW<W> ray;
+  HitW<W> hit;
 };
 // RTCIntersectArguments / RTCOccludedArguments (same layout): flags, feature mask, context,
 // filter, intersect/occluded callback, and minWidthDistanceFactor in builds with RTC_MIN_WIDTH.
@@ -112,11 +115,28 @@ struct EmbreeApi {
   void (*rtcReleaseGeometry)(RTCGeometry);
   void (*rtcIntersect1)(RTCScene, RayHit1*, QueryArgs*);
   void (*rtcOccluded1)(RTCScene, Ray1*, QueryArgs*);
-  void (*rtcIntersect16)(const int*, RTCScene, RayHit16*, QueryArgs*);
-  void (*rtcOccluded16)(const int*, RTCScene, Ray16*, QueryArgs*);
+  // Packets of 4, 8 and 16 rays (the same signature, W lanes).
+  void (*rtcIntersectW[3])(const int*, RTCScene, void*, QueryArgs*);
+  void (*rtcOccludedW[3])(const int*, RTCScene, void*, QueryArgs*);
 };
 
 EmbreeApi g_api;
+
+// The packet width this CPU traces natively (Embree emulates wider packets: a 16-ray call on
+// an AVX2 machine measured no faster than 16 single rays), set at init.
+int g_width = 8;
+
+constexpr int WidthIndex(int w) { return w == 4 ? 0 : (w == 8 ? 1 : 2); }
+
+template <int W>
+void IntersectW(const int* valid, RTCScene scene, RayHitW<W>* rh, QueryArgs* args) {
+  g_api.rtcIntersectW[WidthIndex(W)](valid, scene, rh, args);
+}
+template <int W>
+void OccludedW(const int* valid, RTCScene scene, RayW<W>* ray, QueryArgs* args) {
+  g_api.rtcOccludedW[WidthIndex(W)](valid, scene, ray, args);
+}
+
 RTCDevice g_device = nullptr;
 std::string g_error;
 
@@ -326,15 +346,16 @@ void Single(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, boo
   }
 }
 
-// Rays [begin, begin + 16) as one packet (lanes past `end` or invalid are masked off). A packet
+// Rays [begin, begin + W) as one packet (lanes past `end` or invalid are masked off). A packet
 // whose rays use several trees is traced once per tree, each time with that tree's lanes.
-void Packet16(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit) {
+template <int W>
+void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit) {
   const int64_t trees = static_cast<int64_t>(s.trees.size());
-  RayHit16 rh;
-  int valid[16];
-  int32_t tree[16];
+  RayHitW<W> rh;
+  int valid[W];
+  int32_t tree[W];
   bool any = false;
-  for (int k = 0; k < 16; ++k) {
+  for (int k = 0; k < W; ++k) {
     int64_t i = begin + k;
     bool ok = i < end && Valid(r, i);
     valid[k] = ok ? -1 : 0;
@@ -344,7 +365,7 @@ void Packet16(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, b
       r.t[i] = INFINITY;
       r.prim[i] = -1;
     }
-    Ray16& ray = rh.ray;
+    RayW<W>& ray = rh.ray;
     ray.org_x[k] = ok ? r.o[3 * i] : 0.0f;
     ray.org_y[k] = ok ? r.o[3 * i + 1] : 0.0f;
     ray.org_z[k] = ok ? r.o[3 * i + 2] : 0.0f;
@@ -365,22 +386,22 @@ void Packet16(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, b
   args.flags = kQueryCoherent;
   args.feature_mask = 0xffffffffu;
   int32_t done_tree = -1;
-  for (int k = 0; k < 16; ++k) {
+  for (int k = 0; k < W; ++k) {
     if (tree[k] < 0 || tree[k] == done_tree) continue;
     int32_t l = tree[k];
-    int lanes[16];
-    for (int j = 0; j < 16; ++j) lanes[j] = tree[j] == l ? -1 : 0;
+    int lanes[W];
+    for (int j = 0; j < W; ++j) lanes[j] = tree[j] == l ? -1 : 0;
     if (any_hit) {
-      g_api.rtcOccluded16(lanes, s.trees[l], &rh.ray, &args);
+      OccludedW<W>(lanes, s.trees[l], &rh.ray, &args);
     } else {
-      g_api.rtcIntersect16(lanes, s.trees[l], &rh, &args);
+      IntersectW<W>(lanes, s.trees[l], &rh, &args);
     }
-    for (int j = 0; j < 16; ++j) {
+    for (int j = 0; j < W; ++j) {
       if (tree[j] == l) tree[j] = -2 - l;  // traced
     }
     done_tree = l;
   }
-  for (int k = 0; k < 16; ++k) {
+  for (int k = 0; k < W; ++k) {
     int64_t i = begin + k;
     if (!valid[k]) continue;
     int32_t l = -2 - tree[k];
@@ -393,14 +414,14 @@ void Packet16(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, b
   }
 }
 
-// Whether rays [begin, min(begin + 16, end)) are worth one packet: at least 4 live rays whose
+// Whether rays [begin, min(begin + w, end)) are worth one packet: at least w / 4 live rays whose
 // directions lie within about 25 degrees of the first's (camera, shadow and flat-mirror rays of
 // neighbouring pixels). Packets of scattered rays trace slower than the rays one by one.
-bool Coherent(const Rays& r, int64_t begin, int64_t end) {
+bool Coherent(const Rays& r, int64_t begin, int64_t end, int w) {
   const float* first = nullptr;
   float first_len = 0.0f;
   int live = 0;
-  for (int64_t i = begin; i < std::min(end, begin + 16); ++i) {
+  for (int64_t i = begin; i < std::min(end, begin + w); ++i) {
     if (!Valid(r, i)) continue;
     const float* d = r.d + 3 * i;
     float len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
@@ -412,7 +433,24 @@ bool Coherent(const Rays& r, int64_t begin, int64_t end) {
     }
     ++live;
   }
-  return live >= 4;
+  return live >= w / 4;
+}
+
+template <int W>
+void Packets(ffi::ThreadPool& pool, const NativeScene& s, const Rays& r, int64_t n, bool occlusion,
+             bool always) {
+  const int64_t packets = (n + W - 1) / W;
+  const int64_t per_block = 1024 / W;  // 1024 rays: small next to a frame, large next to a task's cost
+  ParallelFor(pool, (packets + per_block - 1) / per_block, [&](int64_t b) {
+    int64_t last = std::min(packets, (b + 1) * per_block);
+    for (int64_t p = b * per_block; p < last; ++p) {
+      if (always || Coherent(r, W * p, n, W)) {
+        PacketW<W>(s, r, W * p, n, occlusion);
+      } else {
+        Single(s, r, W * p, std::min(n, W * p + W), occlusion);
+      }
+    }
+  });
 }
 
 ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
@@ -447,21 +485,16 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
   const bool occlusion = any_hit != 0;
   const NativeScene& s = *scene;
   if (packet != 0) {
-    // 16: every run of 16 consecutive rays is a packet; -1: where the run is coherent, else
-    // its rays one by one.
-    const bool always = packet == 16;
-    const int64_t packets = (n + 15) / 16;
-    const int64_t per_block = 64;  // 1024 rays: small next to a frame, large next to a task's cost
-    ParallelFor(pool, (packets + per_block - 1) / per_block, [&](int64_t b) {
-      int64_t last = std::min(packets, (b + 1) * per_block);
-      for (int64_t p = b * per_block; p < last; ++p) {
-        if (always || Coherent(r, 16 * p, n)) {
-          Packet16(s, r, 16 * p, n, occlusion);
-        } else {
-          Single(s, r, 16 * p, std::min(n, 16 * p + 16), occlusion);
-        }
-      }
-    });
+    // 1: every run of W consecutive rays is a packet (W: the CPU's native width); -1: where the
+    // run is coherent, else its rays one by one.
+    const bool always = packet == 1;
+    if (g_width == 16) {
+      Packets<16>(pool, s, r, n, occlusion, always);
+    } else if (g_width == 8) {
+      Packets<8>(pool, s, r, n, occlusion, always);
+    } else {
+      Packets<4>(pool, s, r, n, occlusion, always);
+    }
   } else {
     const int64_t per_block = 1024;
     ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t b) {
@@ -469,6 +502,61 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
     });
   }
   return ffi::Error::Success();
+}
+
+template <int W>
+bool CheckPacket(const std::shared_ptr<NativeScene>& s, std::string* error) {
+  constexpr size_t kGuard = 256;
+  constexpr unsigned char kByte = 0xA5;
+  {
+    alignas(64) unsigned char buffer[sizeof(RayHitW<W>) + kGuard];
+    std::memset(buffer, kByte, sizeof(buffer));
+    auto* rh = reinterpret_cast<RayHitW<W>*>(buffer);
+    int valid[W];
+    for (int k = 0; k < W; ++k) {
+      valid[k] = -1;
+      rh->ray.org_x[k] = 0.01f * k - 0.005f * W;
+      rh->ray.org_y[k] = 0;
+      rh->ray.org_z[k] = 0;
+      rh->ray.tnear[k] = 0;
+      rh->ray.dir_x[k] = 0;
+      rh->ray.dir_y[k] = 0;
+      rh->ray.dir_z[k] = 1;
+      rh->ray.time[k] = 0;
+      rh->ray.tfar[k] = INFINITY;
+      rh->ray.mask[k] = 0xffffffffu;
+      rh->ray.id[k] = k;
+      rh->ray.flags[k] = 0;
+      rh->hit.geom_id[k] = kInvalidId;
+      rh->hit.inst_id[0][k] = kInvalidId;
+    }
+    QueryArgs args{};
+    args.flags = kQueryCoherent;
+    args.feature_mask = 0xffffffffu;
+    IntersectW<W>(valid, s->trees[0], rh, &args);
+    for (size_t i = sizeof(RayHitW<W>); i < sizeof(buffer); ++i) {
+      if (buffer[i] != kByte) {
+        *error = "rtcIntersect" + std::to_string(W) + " wrote past the declared RTCRayHit" + std::to_string(W) + " (the library's layout differs)";
+        return false;
+      }
+    }
+    for (int k = 0; k < W; ++k) {
+      if (rh->hit.geom_id[k] != 0 || rh->hit.prim_id[k] != 0 ||
+          std::fabs(rh->ray.tfar[k] - 1.0f) > 1e-6f) {
+        *error = "rtcIntersect" + std::to_string(W) + " did not report the test triangle where declared";
+        return false;
+      }
+    }
+    for (int k = 0; k < W; ++k) rh->ray.tfar[k] = INFINITY;  // the hits above set tfar to 1
+    OccludedW<W>(valid, s->trees[0], &rh->ray, &args);
+    for (int k = 0; k < W; ++k) {
+      if (rh->ray.tfar[k] != -INFINITY) {
+        *error = "rtcOccluded" + std::to_string(W) + " did not mark the test rays occluded";
+        return false;
+      }
+    }
+  }
+  return true;
 }
 
 // Traces one triangle into structs surrounded by guard bytes: the library must write the fields
@@ -505,56 +593,8 @@ bool CheckLayout(std::string* error) {
       return false;
     }
   }
-  // A 16-ray packet, every lane aimed at the triangle.
-  {
-    alignas(64) unsigned char buffer[sizeof(RayHit16) + kGuard];
-    std::memset(buffer, kByte, sizeof(buffer));
-    auto* rh = reinterpret_cast<RayHit16*>(buffer);
-    int valid[16];
-    for (int k = 0; k < 16; ++k) {
-      valid[k] = -1;
-      rh->ray.org_x[k] = 0.01f * k - 0.08f;
-      rh->ray.org_y[k] = 0;
-      rh->ray.org_z[k] = 0;
-      rh->ray.tnear[k] = 0;
-      rh->ray.dir_x[k] = 0;
-      rh->ray.dir_y[k] = 0;
-      rh->ray.dir_z[k] = 1;
-      rh->ray.time[k] = 0;
-      rh->ray.tfar[k] = INFINITY;
-      rh->ray.mask[k] = 0xffffffffu;
-      rh->ray.id[k] = k;
-      rh->ray.flags[k] = 0;
-      rh->hit.geom_id[k] = kInvalidId;
-      rh->hit.inst_id[0][k] = kInvalidId;
-    }
-    QueryArgs args{};
-    args.flags = kQueryCoherent;
-    args.feature_mask = 0xffffffffu;
-    g_api.rtcIntersect16(valid, s->trees[0], rh, &args);
-    for (size_t i = sizeof(RayHit16); i < sizeof(buffer); ++i) {
-      if (buffer[i] != kByte) {
-        *error = "rtcIntersect16 wrote past the declared RTCRayHit16 (the library's layout differs)";
-        return false;
-      }
-    }
-    for (int k = 0; k < 16; ++k) {
-      if (rh->hit.geom_id[k] != 0 || rh->hit.prim_id[k] != 0 ||
-          std::fabs(rh->ray.tfar[k] - 1.0f) > 1e-6f) {
-        *error = "rtcIntersect16 did not report the test triangle where declared";
-        return false;
-      }
-    }
-    for (int k = 0; k < 16; ++k) rh->ray.tfar[k] = INFINITY;  // the hits above set tfar to 1
-    g_api.rtcOccluded16(valid, s->trees[0], &rh->ray, &args);
-    for (int k = 0; k < 16; ++k) {
-      if (rh->ray.tfar[k] != -INFINITY) {
-        *error = "rtcOccluded16 did not mark the test rays occluded";
-        return false;
-      }
-    }
-  }
-  return true;
+  // Packets of every width, every lane aimed at the triangle.
+  return CheckPacket<4>(s, error) && CheckPacket<8>(s, error) && CheckPacket<16>(s, error);
 }
 
 }  // namespace
@@ -574,7 +614,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
                                   .Ret<ffi::Buffer<ffi::F32>>()  // t (inf: miss)
                                   .Ret<ffi::Buffer<ffi::S32>>()  // face, -1: miss (0: occluded)
                                   .Attr<int32_t>("any_hit")
-                                  .Attr<int32_t>("packet"));  // 0, 16 or -1 (where coherent)
+                                  .Attr<int32_t>("packet"));  // 0, 1 or -1 (where coherent)
 
 extern "C" {
 
@@ -604,8 +644,12 @@ int fovjax_embree_init(const char* path) {
             Load(lib, "rtcReleaseGeometry", &api.rtcReleaseGeometry) &&
             Load(lib, "rtcIntersect1", &api.rtcIntersect1) &&
             Load(lib, "rtcOccluded1", &api.rtcOccluded1) &&
-            Load(lib, "rtcIntersect16", &api.rtcIntersect16) &&
-            Load(lib, "rtcOccluded16", &api.rtcOccluded16);
+            Load(lib, "rtcIntersect4", &api.rtcIntersectW[0]) &&
+            Load(lib, "rtcIntersect8", &api.rtcIntersectW[1]) &&
+            Load(lib, "rtcIntersect16", &api.rtcIntersectW[2]) &&
+            Load(lib, "rtcOccluded4", &api.rtcOccludedW[0]) &&
+            Load(lib, "rtcOccluded8", &api.rtcOccludedW[1]) &&
+            Load(lib, "rtcOccluded16", &api.rtcOccludedW[2]);
   if (!ok) return -1;
   g_api = api;
   RTCDevice device = g_api.rtcNewDevice(nullptr);
@@ -619,6 +663,8 @@ int fovjax_embree_init(const char* path) {
     return -1;
   }
   g_device = device;
+  // RTC_DEVICE_PROPERTY_NATIVE_RAY16/8/4_SUPPORTED
+  g_width = g_api.rtcGetDeviceProperty(device, 34) ? 16 : g_api.rtcGetDeviceProperty(device, 33) ? 8 : 4;
   std::string why;
   if (!CheckLayout(&why)) {
     g_device = nullptr;
@@ -629,6 +675,8 @@ int fovjax_embree_init(const char* path) {
 }
 
 const char* fovjax_embree_error() { return g_error.c_str(); }
+
+int fovjax_embree_packet_width() { return g_width; }
 
 long fovjax_embree_version() {
   return g_device ? static_cast<long>(g_api.rtcGetDeviceProperty(g_device, kDevicePropertyVersion)) : 0;

@@ -153,12 +153,15 @@ def _load() -> NativeStatus:
     jax.ffi.register_ffi_target(TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeQuery), platform="cpu")
     _state["lib"] = lib
     version = lib.fovjax_embree_version()
+    width = lib.fovjax_embree_packet_width()
     return NativeStatus(
         True,
-        f"Embree {version // 10000}.{version // 100 % 100}.{version % 100} through XLA's FFI",
+        f"Embree {version // 10000}.{version // 100 % 100}.{version % 100} through XLA's FFI, "
+        f"{width}-ray packets",
         library=str(path),
         compile_seconds=seconds,
         embree=library,
+        packet_width=width,
     )
 
 

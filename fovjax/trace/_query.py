@@ -356,9 +356,9 @@ def _run_backend(
         from ._native import embree_status
 
         if embree_status():
-            # A packet request: 16-ray packets throughout; one by one: packets only where 16
-            # consecutive rays are coherent (the same hits either way, at Embree's best speed).
-            packets = 16 if packet_size is not None else -1
+            # A packet request: packets of the CPU's native width throughout; one by one:
+            # packets only where consecutive rays are coherent (the same hits either way).
+            packets = 1 if packet_size is not None else -1
             return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packets)
         if level is not None:
             raise ValueError(
