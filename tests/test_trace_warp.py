@@ -53,7 +53,8 @@ def warp_levels(bvh, o, d, tmin, tmax, level):
 
 
 def jax_query(bvh, o, d, tmin, tmax, level=None, any_hit=False):
-    return _raw_query(bvh, o, d, tmin, tmax, level, backend="jax", any_hit=any_hit, **JAX_OPTS)
+    t, prim, _, _ = _raw_query(bvh, o, d, tmin, tmax, level, backend="jax", any_hit=any_hit, **JAX_OPTS)
+    return t, prim
 
 
 def _soup(seed, n_tris=300):

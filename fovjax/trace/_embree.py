@@ -67,8 +67,9 @@ def embree_trace_host(scene, o, d, tmin, tmax, any_hit):
 
 
 def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packets: int):
-    """(t, prim) of flat rays through the Embree FFI handler (which must be registered:
-    `embree_status()`); t = inf and prim = -1 on a miss, prim 0 for an occluded ray.
+    """(t, prim, u, v) of flat rays through the Embree FFI handler (Embree's own distance and
+    barycentrics of the hit; t = inf, prim = -1 and u = v = 0 on a miss; prim 0 for an occluded
+    ray, whose t, u, v mean nothing).
     `packets`: 1 (every run of consecutive rays one packet of the CPU's native width: 8 with AVX2,
     16 with AVX-512), -1 (a packet where its rays are coherent, else one by one) or 0 (one by
     one)."""
@@ -97,7 +98,8 @@ def _ffi_call(any_hit: bool, packets: int):
     @jax.custom_batching.custom_vmap
     def call(o, d, tmin, tmax, level, host_id, vertices, faces, first_face):
         n = tmin.shape[0]
-        out = (jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.int32))
+        f32, i32 = jax.ShapeDtypeStruct((n,), jnp.float32), jax.ShapeDtypeStruct((n,), jnp.int32)
+        out = (f32, i32, f32, f32)
         ffi = jax.ffi.ffi_call(TARGET, out)
         return ffi(
             o,
@@ -128,8 +130,8 @@ def _ffi_call(any_hit: bool, packets: int):
         n = rays[2].shape[1]
         flat = [rays[0].reshape(-1, 3), rays[1].reshape(-1, 3), rays[2].reshape(-1), rays[3].reshape(-1)]
         flat.append(rays[4].reshape(-1) if level.shape[0] else level)
-        t, prim = call(*flat, *scene)
-        return (t.reshape(axis_size, n), prim.reshape(axis_size, n)), (True, True)
+        out = call(*flat, *scene)
+        return tuple(x.reshape(axis_size, n) for x in out), (True,) * 4
 
     return call
 

@@ -288,6 +288,8 @@ struct Rays {
   const int32_t* level;  // null: tree 0
   float* t;
   int32_t* prim;
+  float* u;  // barycentrics of the hit (0 on a miss and for occlusion)
+  float* v;
 };
 
 inline bool Valid(const Rays& r, int64_t i) {
@@ -325,6 +327,7 @@ void Single(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, boo
   for (int64_t i = begin; i < end; ++i) {
     r.t[i] = INFINITY;
     r.prim[i] = -1;
+    r.u[i] = r.v[i] = 0.0f;
     if (!Valid(r, i)) continue;
     int32_t l = TreeOf(r, i, trees);
     if (any_hit) {
@@ -341,6 +344,8 @@ void Single(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, boo
       if (rh.hit.geom_id != kInvalidId) {
         r.t[i] = rh.ray.tfar;
         r.prim[i] = static_cast<int32_t>(rh.hit.prim_id) + s.first_face[l];
+        r.u[i] = rh.hit.u;
+        r.v[i] = rh.hit.v;
       }
     }
   }
@@ -364,6 +369,7 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
     if (i < end) {
       r.t[i] = INFINITY;
       r.prim[i] = -1;
+      r.u[i] = r.v[i] = 0.0f;
     }
     RayW<W>& ray = rh.ray;
     ray.org_x[k] = ok ? r.o[3 * i] : 0.0f;
@@ -410,6 +416,8 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
     } else if (rh.hit.geom_id[k] != kInvalidId) {
       r.t[i] = rh.ray.tfar[k];
       r.prim[i] = static_cast<int32_t>(rh.hit.prim_id[k]) + s.first_face[l];
+      r.u[i] = rh.hit.u[k];
+      r.v[i] = rh.hit.v[k];
     }
   }
 }
@@ -457,7 +465,8 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
                  ffi::Buffer<ffi::F32> tmin, ffi::Buffer<ffi::F32> tmax, ffi::Buffer<ffi::S32> level,
                  ffi::Buffer<ffi::S32> scene_id, ffi::Buffer<ffi::F32> vertices,
                  ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::S32> first_face,
-                 ffi::ResultBuffer<ffi::F32> t, ffi::ResultBuffer<ffi::S32> prim, int32_t any_hit,
+                 ffi::ResultBuffer<ffi::F32> t, ffi::ResultBuffer<ffi::S32> prim,
+                 ffi::ResultBuffer<ffi::F32> u, ffi::ResultBuffer<ffi::F32> v, int32_t any_hit,
                  int32_t packet) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   // Every array is read flat, so a batch under vmap ("expand_dims") is one call for all frames.
@@ -465,7 +474,8 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
   if (origins.element_count() != 3 * static_cast<size_t>(n) ||
       directions.element_count() != 3 * static_cast<size_t>(n) ||
       tmax.element_count() != static_cast<size_t>(n) || t->element_count() != static_cast<size_t>(n) ||
-      prim->element_count() != static_cast<size_t>(n) ||
+      prim->element_count() != static_cast<size_t>(n) || u->element_count() != static_cast<size_t>(n) ||
+      v->element_count() != static_cast<size_t>(n) ||
       (level.element_count() != 0 && level.element_count() != static_cast<size_t>(n))) {
     return ffi::Error::InvalidArgument("fovjax Embree query: ray arrays of different lengths");
   }
@@ -481,7 +491,8 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
                         static_cast<int64_t>(first_face.element_count()), &error);
   if (!scene) return ffi::Error::InvalidArgument("fovjax Embree scene: " + error);
   Rays r{origins.typed_data(), directions.typed_data(), tmin.typed_data(), tmax.typed_data(),
-         level.element_count() ? level.typed_data() : nullptr, t->typed_data(), prim->typed_data()};
+         level.element_count() ? level.typed_data() : nullptr, t->typed_data(), prim->typed_data(),
+         u->typed_data(), v->typed_data()};
   const bool occlusion = any_hit != 0;
   const NativeScene& s = *scene;
   if (packet != 0) {
@@ -613,6 +624,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
                                   .Arg<ffi::Buffer<ffi::S32>>()  // first face of each tree, and F
                                   .Ret<ffi::Buffer<ffi::F32>>()  // t (inf: miss)
                                   .Ret<ffi::Buffer<ffi::S32>>()  // face, -1: miss (0: occluded)
+                                  .Ret<ffi::Buffer<ffi::F32>>()  // u
+                                  .Ret<ffi::Buffer<ffi::F32>>()  // v
                                   .Attr<int32_t>("any_hit")
                                   .Attr<int32_t>("packet"));  // 0, 1 or -1 (where coherent)
 

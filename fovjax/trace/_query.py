@@ -204,7 +204,8 @@ def _raw_query(
     tile=None,
     batch=None,
 ):
-    """(t, prim) of flat rays in the caller's order. `tmin`/`tmax`: per ray or scalars. `tile`:
+    """(t, prim, u, v) of flat rays in the caller's order (not differentiated: `closest_hit` adds
+    the derivatives). `tmin`/`tmax`: per ray or scalars. `tile`:
     the rays are an image of `batch` traced as tile-sized packets (on the JAX traversal, which
     regroups them; native backends take image rows as they come)."""
     o, d = jax.lax.stop_gradient(o), jax.lax.stop_gradient(d)
@@ -216,7 +217,7 @@ def _raw_query(
         order = spatial_order(o, tmax > tmin)
         o, d, tmin, tmax = o[order], d[order], tmin[order], tmax[order]
         level = None if level is None else level[order]
-    t, prim = _query_backend(
+    hits = _query_backend(
         bvh,
         o,
         d,
@@ -233,9 +234,9 @@ def _raw_query(
         batch=batch,
     )
     if order is None:
-        return t, prim
+        return hits
     back = inverse_order(order)
-    return t[back], prim[back]
+    return tuple(x[back] for x in hits)
 
 
 def _warp_installed() -> bool:
@@ -352,14 +353,61 @@ def _run_backend(
     if backend != "jax":
         tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
     if backend == "embree":
-        from ._embree import embree_ffi_query, embree_query
         from ._native import embree_status
 
         if embree_status():
+            from ._embree import embree_ffi_query
+
             # A packet request: packets of the CPU's native width throughout; one by one:
             # packets only where consecutive rays are coherent (the same hits either way).
-            packets = 1 if packet_size is not None else -1
-            return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=packets)
+            mode = 1 if packet_size is not None else -1
+            return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=mode)
+    t, prim = _face_query(
+        backend,
+        bvh,
+        o,
+        d,
+        tmin,
+        tmax,
+        level,
+        split=split,
+        any_hit=any_hit,
+        packet_size=packet_size,
+        lanes=lanes,
+        packets=packets,
+        steps_per_refill=steps_per_refill,
+        tile=tile,
+        batch=batch,
+    )
+    # Backends that return only the face: its distance and barycentrics in closed form.
+    t, u, v = hit_geometry(bvh.vertices, bvh.faces, prim, o, d)
+    return t, prim, u, v
+
+
+def _face_query(
+    backend,
+    bvh,
+    o,
+    d,
+    tmin,
+    tmax,
+    level,
+    *,
+    split,
+    any_hit,
+    packet_size,
+    lanes,
+    packets,
+    steps_per_refill,
+    tile=None,
+    batch=None,
+):
+    """(t, prim) of the rays on a backend that returns the face only."""
+    n = o.shape[0]
+    if backend == "embree":
+        from ._embree import embree_query
+        from ._native import embree_status
+
         if level is not None:
             raise ValueError(
                 "level= with backend 'embree' needs its FFI handler, which is unavailable: "
@@ -447,7 +495,7 @@ def _tiled_jax(bvh, o, d, tmin, tmax, level, *, split, tile, batch, **kw):
     tmin_t = regroup(tmin)
     tmax_t = jnp.where(pad, tmin_t, regroup(tmax))  # padding is never live (nor mixes levels)
     level_t = None if level is None else level[src]
-    t, prim = _run_backend("jax", bvh, o_t, d_t, tmin_t, tmax_t, level_t, split=split, **kw)
+    t, prim = _face_query("jax", bvh, o_t, d_t, tmin_t, tmax_t, level_t, split=split, **kw)
     return t[inverse], prim[inverse]
 
 
@@ -501,7 +549,7 @@ def _query(
         raise ValueError(f"a (height, width) packet needs rays with at least 2 batch dimensions, got {batch}")
     sort = packet == "sorted"
     packet_size = None if packet is None else SORTED_PACKET if sort else int(np.prod(packet))
-    _, prim = _raw_query(
+    hits = _raw_query(
         bvh,
         o,
         d,
@@ -518,7 +566,27 @@ def _query(
         tile=tile,
         batch=batch if tile is not None else None,
     )
-    return batch, o, d, prim
+    return batch, o, d, hits
+
+
+@jax.custom_jvp
+def _backend_geometry(vertices, faces, prim, o, d, t, u, v):
+    """The backend's own (t, u, v) of the hit face, with the derivatives of `hit_geometry`: a
+    native backend's distance and barycentrics need no recomputation, but the gradients are
+    the same closed form whatever the backend."""
+    return t, u, v
+
+
+@_backend_geometry.defjvp
+def _backend_geometry_jvp(primals, tangents):
+    vertices, faces, prim, o, d, t, u, v = primals
+    dvertices, _, _, do, dd, *_ = tangents
+    _, out = jax.jvp(
+        lambda vs, o, d: hit_geometry(vs, faces, prim, o, d),
+        (jnp.asarray(vertices, jnp.float32), o, d),
+        (dvertices, do, dd),
+    )
+    return (t, u, v), out
 
 
 def closest_hit(
@@ -561,7 +629,7 @@ def closest_hit(
     merged faces. One traversal for any mix of levels; a packet whose rays are not all of one
     level has its rays traced one by one.
     """
-    batch, o, d, prim = _query(
+    batch, o, d, (t_b, prim, u_b, v_b) = _query(
         bvh,
         origins,
         directions,
@@ -575,8 +643,12 @@ def closest_hit(
         steps_per_refill=steps_per_refill,
         level=level,
     )
-    verts = bvh.vertices if vertices is None else vertices
-    t, u, v = hit_geometry(verts, bvh.faces, prim, o, d)
+    if vertices is None:  # the build-time geometry the backend traced: its own t, u, v
+        t, u, v = _backend_geometry(
+            jnp.asarray(bvh.vertices, jnp.float32), bvh.faces, prim, o, d, t_b, u_b, v_b
+        )
+    else:
+        t, u, v = hit_geometry(vertices, bvh.faces, prim, o, d)
     return Hit(*(x.reshape(batch) for x in (t, prim, u, v)))
 
 
@@ -596,7 +668,7 @@ def occluded(
 ) -> Bool[Array, "..."]:
     """Whether anything lies on each ray with tmin < t < tmax (a shadow ray; stops at the
     first hit found, not the nearest). Options (and `level`) as for `closest_hit`."""
-    batch, _, _, prim = _query(
+    batch, _, _, (_, prim, _, _) = _query(
         bvh,
         origins,
         directions,
