@@ -41,6 +41,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     p.add_argument("--small", type=_resolution, default=(128, 96), help="per-eye resolution of high_spp")
     p.add_argument("--spp", type=int, nargs="+", default=[1, 16], help="samples per pixel for high_spp")
+    p.add_argument(
+        "--acuity-fit",
+        metavar="JSON",
+        default=None,
+        help="the fitted linear-MAR curve the acuity models compare (a `fovjax fit` record; default the "
+        "repository's fits/published_linear_mar.json, E2 2.35°); a missing file is an error",
+    )
     p.set_defaults(func=run_failures)
 
 
@@ -58,9 +65,12 @@ def _validate_common(args) -> None:
 def validate_failures(args) -> None:
     """Every argument of `fovjax failures`, before anything is rendered."""
     from fovjax import cli
+    from fovjax.eval import FITTED_MAR
 
     _validate_common(args)
     cli.squares(args.spp, "--spp")
+    fit = FITTED_MAR if args.acuity_fit is None else args.acuity_fit
+    cli.input_file(fit, "--acuity-fit", suffixes=(".json",), text=True)
 
 
 def _setup(args):
@@ -79,9 +89,11 @@ def _setup(args):
 
 def run_failures(args) -> int:
     from fovjax import cli
-    from fovjax.eval import failure_cases
+    from fovjax.eval import default_models, failure_cases
 
     validate_failures(args)
+    models = default_models(args.acuity_fit)
+    print(f"acuity models: {', '.join(models)}")
     scene, rig, foveation, config = _setup(args)
     report = failure_cases(
         scene,
@@ -91,6 +103,7 @@ def run_failures(args) -> int:
         config=config,
         small_resolution=args.small,
         high_spp_values=args.spp,
+        models=models,
         progress=not args.no_progress,
     )
     with cli.deferred_interrupt():

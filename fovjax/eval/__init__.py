@@ -44,6 +44,7 @@ from ._failures import (
     CASES as FAILURE_CASES,
 )
 from ._failures import (
+    FITTED_MAR,
     AcuityTerms,
     EqualBudget,
     FailureCase,
@@ -240,6 +241,7 @@ __all__ = [
     "verdict_from_jods",
     "video_study",
     "FAILURE_CASES",
+    "FITTED_MAR",
     "AcuityTerms",
     "EqualBudget",
     "FailureCase",
