@@ -1,24 +1,15 @@
 """fovjax.eval metrics against known values: identical images, a constant offset, a known shift,
 SSIM by hand and against scikit-image's published implementation (values hard-coded here)."""
 
-import importlib
 import math
-import os
 import sys
 
+import _extras
 import numpy as np
 import pytest
 
 import fovjax
 import fovjax.eval as fe
-
-
-def need(module: str, reason: str):
-    """The optional module, or a skip; a failure instead where CI installs every extra
-    (FOVJAX_REQUIRE_EXTRAS=1 in .ci/run), so a broken install cannot pass as a skip."""
-    if os.environ.get("FOVJAX_REQUIRE_EXTRAS") == "1":
-        return importlib.import_module(module)
-    return pytest.importorskip(module, reason=reason)
 
 
 def srgb(x):
@@ -280,7 +271,7 @@ def test_error_by_eccentricity_empty_rings_and_bad_maps():
 
 
 def test_flip_known_values():
-    need("flip_evaluator", "flip-evaluator not installed (extra [flip])")
+    _extras.require("flip_evaluator")
     a = pattern()
     zero = fe.flip(a, a.copy(), ppd=fe.pixels_per_degree(1280, 90.0))
     assert zero.value == 0.0 and zero.name == "FLIP"
@@ -327,8 +318,8 @@ def checker_scene(h=96, w=128):
 
 
 def test_fovvdp_known_values():
-    need("torch", "torch not installed (extra [fvvdp]; install a CPU torch first)")
-    need("pyfvvdp", "pyfvvdp not installed (extra [fvvdp])")
+    _extras.require("torch")
+    _extras.require("pyfvvdp")
     test, ref = checker_scene()
     display = fe.HmdDisplay(128, 96, 90.0)
     same = fe.fovvdp(ref, ref.copy(), display)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import _extras
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -211,8 +212,8 @@ def test_envmap_mapping_along_the_six_axes():
     )
 
 
+@_extras.needs("cv2")
 def test_envmap_loads_from_hdr_and_ldr_files(tmp_path):
-    pytest.importorskip("cv2")
     env = np.random.default_rng(0).uniform(0, 4, (4, 8, 3)).astype(np.float32)
     fovjax.save_image(tmp_path / "sky.exr", env)
     np.testing.assert_array_equal(fovjax.render.load_envmap(tmp_path / "sky.exr"), env)
@@ -465,7 +466,7 @@ def test_png_is_tone_mapped_srgb_and_exr_is_linear(tmp_path):
     np.testing.assert_array_equal(png[0, 1], [255, 10, 127])  # clipped; linear toe; 0.214 → 0.4995
     fovjax.save_image(tmp_path / "b.png", image, tonemap_curve="reinhard")
     assert iio.imread(tmp_path / "b.png")[0, 1, 0] < 255  # 2 → 2/3, not clipped
-    pytest.importorskip("cv2")
+    _extras.require("cv2")
     fovjax.save_image(tmp_path / "a.exr", image)
     np.testing.assert_array_equal(fovjax.load_image(tmp_path / "a.exr"), image)
     with pytest.raises(ValueError, match="NaN"):
@@ -473,7 +474,7 @@ def test_png_is_tone_mapped_srgb_and_exr_is_linear(tmp_path):
 
 
 def test_cli_render_stereo_spheres(tmp_path, capsys):
-    pytest.importorskip("embreex")  # the Embree backend compiles in a second: a quick end-to-end run
+    _extras.require("embreex")  # the Embree backend compiles in a second: a quick end-to-end run
     from fovjax.cli import main
 
     out = tmp_path / "s.png"
