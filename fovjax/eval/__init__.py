@@ -133,6 +133,7 @@ from ._stability import (
     temporal_stability,
 )
 from ._study import (
+    COMPARISON_COLUMNS,
     MAJORITY_TESTS,
     STUDY_METRICS,
     THESIS_LEVEL,
@@ -140,6 +141,7 @@ from ._study import (
     default_metric,
     difference_from_comparison,
     observers_from_comparison,
+    read_comparison,
     study_majorities,
 )
 from ._video_study import (
@@ -214,6 +216,8 @@ __all__ = [
     "psnr",
     "ramp_trials",
     "read_csv",
+    "read_comparison",
+    "COMPARISON_COLUMNS",
     "read_responses",
     "run_study",
     "slider_trial",
