@@ -13,7 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Render frames of a foveated stereo session: PNG frames, session.csv (per-frame "
         "tracking state, latency, thresholds, rays, times) and session.json (the same plus a summary). "
         "Gaze sources: replay:FILE[@SPEED], synthetic:scanpath[:SEED], synthetic:pursuit, "
-        "synthetic:fixed[:X,Y], serial:PORT[@BAUD], pupil:HOST:PORT, viewpoint[:LIB]; head sources: "
+        "synthetic:fixed[:X,Y], serial:PORT[@BAUD], pupil:HOST:PORT, "
+        "viewpoint[:LIB][@raw] (smoothed gaze, as the thesis, unless @raw); head sources: "
         "replay:FILE, synthetic:sway, serial:PORT, intersense[:LIB]. When the gaze goes stale the "
         "fovea is held, then widened step by step up to the whole screen, and narrowed again once "
         "good samples return.",
