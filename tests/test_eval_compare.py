@@ -29,6 +29,7 @@ FIELDS = {
     "periphery_deg",
     "spp",
     "model",
+    "regions",
     "rays_per_frame",
     "ms_per_frame",
     "speedup",

@@ -310,3 +310,17 @@ def test_argument_errors(tmp_path, monkeypatch, capsys, argv, message):
         main(["study", *argv, "-o", str(tmp_path / "out")])
     assert err.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("regions", [None, "angle", "thesis"])
+def test_study_says_when_the_thesis_column_is_not_like_for_like(tmp_path, capsys, regions):
+    """The thesis's 12.5°/25° was found on its own regions; a table of exact-angle regions
+    (fovjax compare's default, or an older table without the column) is flagged beside it."""
+    rows = make_table("jod")
+    if regions is not None:
+        rows = [{**r, "regions": regions} for r in rows]
+    argv = ["study", "--comparison", str(write_table(tmp_path, rows)), "-o", str(tmp_path / "out")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    flagged = "not the thesis's reading: the thesis column is not like-for-like" in out
+    assert flagged == (regions != "thesis"), out

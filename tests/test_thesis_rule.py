@@ -222,3 +222,79 @@ def test_acuity_comparisons_refuse_the_rule():
     )
     with pytest.raises(ValueError, match="thesis-measured"):
         equal_budget_foveations(rig, Foveation(rule="thesis-measured"), {"thesis": THESIS_MODEL})
+
+
+def test_regions_choice_of_every_command_that_renders_foveated_frames():
+    """`--regions angle|thesis` on every such command (angle by default, thesis for the video
+    study, whose levels are compared with the thesis's participants), and its help says what
+    each reading is."""
+    from fovjax.cli import build_parser
+    from fovjax.foveate import REGION_READINGS
+
+    parser = build_parser()
+    commands = {
+        "render": [],
+        "compare": [],
+        "failures": [],
+        "stability": [],
+        "session": ["--gaze", "synthetic:fixed", "--frames", "1", "-o", "x"],
+        "view": [],
+        "inspect": ["cornell"],
+    }
+    for command, extra in commands.items():
+        assert parser.parse_args([command, *extra]).regions == "angle", command
+        for reading in REGION_READINGS:
+            assert parser.parse_args([command, *extra, "--regions", reading]).regions == reading
+    video = parser.parse_args(["study", "--video", "--regions", "angle"])
+    assert video.regions == "angle"
+    from fovjax.cli._video_study import VIDEO_DEFAULTS
+
+    assert VIDEO_DEFAULTS["regions"] == "thesis"
+    sub = parser._subparsers._group_actions[0].choices
+    for command in [*commands, "study"]:
+        (action,) = [a for a in sub[command]._actions if "--regions" in a.option_strings]
+        assert tuple(action.choices) == REGION_READINGS
+        assert "16 px/°" in action.help and "like-for-like" in action.help
+
+
+def test_thesis_regions_are_the_table_2_reading_at_any_resolution(camera):
+    """with_regions(..., "thesis") is `Foveation.thesis_measured`'s region reading (planar, D =
+    24 mm, the SX111's pitch for the eye's rows) with the foveation's own rule; on the 90° rig a
+    threshold covers more pixels than under "angle"."""
+    from fovjax.foveate import with_regions
+
+    base = Foveation.thesis(2, spp=4)
+    thesis = with_regions(base, "thesis", H)
+    measured = Foveation.thesis_measured(2, eye_height=H, spp=4)
+    assert (thesis.eccentricity, thesis.eye_display_mm, thesis.pixel_pitch_mm) == (
+        measured.eccentricity,
+        measured.eye_display_mm,
+        measured.pixel_pitch_mm,
+    )
+    assert thesis.rule == "either" and with_regions(thesis, "angle", H).eccentricity == "angle"
+    gaze = np.array([0.5, 0.5])
+    inside = {
+        name: int((np.asarray(eccentricity_map(camera, gaze, f)) <= 10.0).sum())
+        for name, f in (("angle", base), ("thesis", thesis))
+    }
+    assert inside["thesis"] > 1.5 * inside["angle"], inside
+    with pytest.raises(ValueError, match="regions must be one of"):
+        with_regions(base, "planar", H)
+
+
+def test_strict_is_the_both_conditions_reading(camera):
+    """rule="strict" is the paragraph's "If both conditions are met": beyond the fovea a
+    sub-sample is traced only at a block's top-left pixel and only if its draw is below P(ω)."""
+    f = Foveation.thesis(0, spp=4, rule="strict")
+    ecc = eccentricity_map(camera, np.array([0.4, 0.55]), f)
+    key = jax.random.key(5)
+    cls, region = map(np.asarray, sample_classes(ecc, f, key))
+    u = np.asarray(jax.random.uniform(key, (4, H, W)))
+    p = np.asarray(f.probability(ecc))
+    ty, tx, _ = top_left(region, f)
+    is_tl = np.zeros((H, W), bool)
+    is_tl[np.asarray(ty), np.asarray(tx)] = True
+    fovea = np.broadcast_to(region == FOVEA, (4, H, W))
+    expect = np.where(fovea, MANDATORY, np.where(is_tl[None] & (u < p), OPTIONAL, SKIPPED))
+    np.testing.assert_array_equal(cls, expect)
+    assert "both conditions" in Foveation.__doc__ and "either of which" in Foveation.__doc__

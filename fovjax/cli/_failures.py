@@ -25,6 +25,9 @@ def _common(p: argparse.ArgumentParser, output: str) -> None:
     p.add_argument("--periphery", type=float, default=20.0, help="periphery radius, degrees")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("-o", "--output", default=output)
+    from fovjax import cli
+
+    cli.add_regions(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -83,7 +86,9 @@ def _setup(args):
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
-    foveation = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery)
+    from fovjax import cli
+
+    foveation = cli.regions(Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery), args, args.height)
     return scene, rig, foveation, RenderConfig(max_depth=args.max_depth)
 
 

@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=640, help="pixels per eye (default 640)")
     p.add_argument("--height", type=int, default=512, help="pixels per eye (default 512)")
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
+    from fovjax import cli
+
+    cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
@@ -139,7 +142,9 @@ def run(args) -> int:
             rig,
             gaze=args.gaze,
             head=args.head,
-            foveation=Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp),
+            foveation=cli.regions(
+                Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
+            ),
             frames=args.frames,
             seconds=args.seconds,
             fps=args.fps,

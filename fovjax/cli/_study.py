@@ -237,6 +237,15 @@ def run(args) -> int:
                 f"note: every level is seen (d > {diff.threshold:g}); the slider stops at the "
                 "highest level, which is not an equivalence"
             )
+        readings = sorted({str(r.get("regions") or "angle") for r in table})
+        if readings != ["thesis"]:
+            # The thesis's 12.5°/25° was chosen on its own regions, about twice the pixels per
+            # threshold of fovjax's exact-angle ones on the 90° rig: not the same levels.
+            print(
+                f"note: the table's regions are {'/'.join(readings)} (a table without a regions column "
+                "is angle), not the thesis's reading: the thesis column is not like-for-like; "
+                "`fovjax compare --regions thesis` makes it so"
+            )
         print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
         responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)
         with cli.deferred_interrupt():
