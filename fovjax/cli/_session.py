@@ -12,7 +12,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render a foveated stereo sequence following a gaze (and head) source",
         description="Render frames of a foveated stereo session: PNG frames, session.csv (per-frame "
         "tracking state, latency, thresholds, rays, times) and session.json (the same plus a summary). "
-        "Gaze sources: replay:FILE[@SPEED], synthetic:scanpath[:SEED], synthetic:pursuit, "
+        "Gaze sources: replay:FILE[@SPEED], synthetic:scanpath[:SEED], synthetic:pursuit "
+        "(synthetic gaze: 120 Hz, noise-free, an idealised tracker; the thesis's ran at 60/30 Hz with "
+        "0.25-1° accuracy), "
         "synthetic:fixed[:X,Y], serial:PORT[@BAUD], pupil:HOST:PORT, "
         "viewpoint[:LIB][@raw] (smoothed gaze, as the thesis, unless @raw); head sources: "
         "replay:FILE, synthetic:sway, serial:PORT, intersense[:LIB]. When the gaze goes stale the "

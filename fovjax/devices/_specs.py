@@ -3,6 +3,8 @@
 Gaze specs::
 
     synthetic:scanpath[:SEED]      fixations and main-sequence saccades (seed 0 by default)
+                                   (synthetic gaze: 120 Hz and noise-free unless `rate` is given,
+                                   an idealised tracker; the thesis's ran at 60/30 Hz, 0.25-1° accuracy)
     synthetic:fixed[:X,Y]          one fixed point (default the display centre)
     synthetic:pursuit              smooth pursuit around the display centre
     replay:FILE[@SPEED]            a .jsonl/.csv recording, real time or SPEED x ("fast": unpaced)
@@ -60,7 +62,14 @@ def _build(spec, kind, duration, clock, rate, paced, dropouts, connect_timeout) 
     if scheme.startswith("viewpoint@"):  # viewpoint@raw: the default library, a reading chosen
         scheme, rest = "viewpoint", scheme[len("viewpoint") :]
     if scheme == "synthetic":
-        from ._synthetic import FixedPoints, Scanpath, SmoothPursuit, SyntheticGazeSource, SyntheticHeadSource
+        from ._synthetic import (
+            DEFAULT_GAZE_RATE,
+            FixedPoints,
+            Scanpath,
+            SmoothPursuit,
+            SyntheticGazeSource,
+            SyntheticHeadSource,
+        )
 
         model_name, _, arg = rest.partition(":")
         if kind == "head":
@@ -98,7 +107,7 @@ def _build(spec, kind, duration, clock, rate, paced, dropouts, connect_timeout) 
             model,
             duration=duration,
             clock=clock,
-            rate=rate or 120.0,
+            rate=rate or DEFAULT_GAZE_RATE,
             speed=1.0 if paced else None,
             dropouts=dropouts,
         )
