@@ -14,6 +14,7 @@ import sys
 import tempfile
 import types
 
+import _extras
 import pytest
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
@@ -54,6 +55,19 @@ def pytest_configure(config):
         "no_typecheck: the test checks the package's own validation of bad arguments (its ValueError "
         "and message), which the annotation check would otherwise preempt with a TypeError",
     )
+    config.addinivalue_line(
+        "markers",
+        "extras(*modules): the test needs these optional extras' modules (tests/_extras.py `needs`)",
+    )
+
+
+@pytest.fixture(autouse=True)
+def _required_extras(request):
+    """A test marked by `_extras.needs` gets its modules through `_extras.require`: a skip that
+    names the extra, or a failure with FOVJAX_REQUIRE_EXTRAS=1."""
+    for mark in request.node.iter_markers("extras"):
+        for module in mark.args:
+            _extras.require(module)
 
 
 @pytest.fixture(autouse=True)

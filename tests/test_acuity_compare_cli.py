@@ -107,7 +107,7 @@ def test_cli_choices_match_the_package():
 def test_fit_command_reports_bad_data(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("eccentricity_deg,acuity,sd,n,condition,source\n0,1,,,c,s\n2,0,,,c,s\n")
-    assert main(["fit", str(bad), "-o", str(tmp_path / "x")]) == 1
+    assert main(["fit", str(bad), "-o", str(tmp_path / "x")]) == 2  # a bad input file
     assert "bad.csv:3: acuity = 0 must be > 0" in capsys.readouterr().err
     assert not (tmp_path / "x.json").exists()
 

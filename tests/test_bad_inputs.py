@@ -66,6 +66,46 @@ def files(tmp_path):
     table.write_text("\n".join(rows) + "\n")
     jod = tmp_path / "jod.csv"
     jod.write_text(table.read_text().replace("flip", "jod").replace("-0.2", "10.5").replace("0.01", "9.5"))
+    # Comparison tables each with one bad cell on line 4 (the level 10/20 row), or a bad header.
+    lines = table.read_text().splitlines()
+    bad_tables = {}
+    for name, (column, value) in {
+        "fovea_five": ("fovea_deg", "five"),
+        "periphery_small": ("periphery_deg", "2"),
+        "fovea_negative": ("fovea_deg", "-10"),
+        "spp_four": ("spp", "four"),
+        "spp_half": ("spp", "4.5"),
+        "spp_zero": ("spp", "0"),
+        "flip_text": ("flip", "low"),
+        "flip_inf": ("flip", "inf"),
+    }.items():
+        header = lines[0].split(",")
+        cells = lines[3].split(",")
+        cells[header.index(column)] = value
+        path = tmp_path / f"{name}.csv"
+        path.write_text("\n".join([*lines[:3], ",".join(cells), *lines[4:]]) + "\n")
+        bad_tables[name] = str(path)
+    good_table = tmp_path / "good_table.csv"
+    good_table.write_text(table.read_text().replace("-0.2", "0.01"))
+    short_row = tmp_path / "short_row.csv"
+    short_row.write_text("\n".join([*lines[:3], "10/20 spp4,10,20,4", *lines[4:]]) + "\n")
+    no_spp = tmp_path / "no_spp.csv"
+    no_spp.write_text(table.read_text().replace(",spp,", ",samples,"))
+    no_metric = tmp_path / "no_metric.csv"
+    no_metric.write_text(table.read_text().replace(",flip", ",psnr"))
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    fit_five = tmp_path / "fit_five.csv"
+    fit_five.write_text("eccentricity_deg,acuity,sd,n,condition,source\n0,1,,,c,s\nfive,0.5,,,c,s\n")
+    responses_five = tmp_path / "responses_five.csv"
+    responses_five.write_text(
+        "participant,test,trial,condition,fovea_deg,periphery_deg,order,direction,step,answer,time_s\n"
+        "p1,pair,1,x,five,10,,,,same,\n"
+    )
+    recording_five = tmp_path / "recording_five.csv"
+    recording_five.write_text(
+        "t,device_time,lx,ly,lq,lv,rx,ry,rq,rv\n0,0,0.5,0.5,1,1,0.5,0.5,1,1\n0.1,0.1,five,0.5,1,1,0.5,0.5,1,1\n"
+    )
     a_file = tmp_path / "a_file"
     a_file.write_text("not a folder")
     recording_bin = tmp_path / "bin.jsonl"
@@ -91,6 +131,15 @@ def files(tmp_path):
         "bad_hdr": str(bad_hdr),
         "not_recording": str(not_recording),
         "tmp": str(tmp_path),
+        **bad_tables,
+        "good_table": str(good_table),
+        "short_row": str(short_row),
+        "no_spp": str(no_spp),
+        "no_metric": str(no_metric),
+        "empty": str(empty),
+        "fit_five": str(fit_five),
+        "responses_five": str(responses_five),
+        "recording_five": str(recording_five),
     }
 
 
@@ -254,7 +303,7 @@ ROWS = [
     ("study --comparison /no/such.csv -o {tmp}/st", 2, "/no/such.csv: no such file"),
     ("study --comparison {table} --threshold -1 -o {tmp}/st", 2, "--threshold -1"),
     ("study --comparison {table} --spp 3 -o {tmp}/st", 2, "--spp 3"),
-    ("study --comparison {table} --spp 9 -o {tmp}/st", 2, "no rows at spp 9"),
+    ("study --comparison {good_table} --spp 9 -o {tmp}/st", 2, "no rows at spp 9"),
     ("study --comparison {table} --observers 0 -o {tmp}/st", 2, "--observers: must be >= 1"),
     ("study --comparison {table} --noise-sd nan -o {tmp}/st", 2, "'nan'"),
     ("study --comparison {table} --metric psnr -o {tmp}/st", 2, "invalid choice: 'psnr'"),
@@ -262,6 +311,31 @@ ROWS = [
     ("study --comparison {table} -o {a_file}", 2, "not a folder"),
     ("study --responses {binary} -o {tmp}/st", 2, "binary.csv:3: not a text file"),
     ("study --responses {scene_txt} -o {tmp}/st", 2, "'.txt'"),
+    # every cell of a comparison table the study reads, FILE:LINE (issue 28: "five" was accepted)
+    ("study --comparison {fovea_five} -o {tmp}/st", 2, "{fovea_five}:4: fovea_deg is 'five', not a number"),
+    (
+        "study --comparison {periphery_small} -o {tmp}/st",
+        2,
+        "{periphery_small}:4: fovea_deg 10.0, periphery_deg 2: expected 0 <= fovea",
+    ),
+    (
+        "study --comparison {fovea_negative} -o {tmp}/st",
+        2,
+        "{fovea_negative}:4: fovea_deg -10, periphery_deg 20.0: expected 0 <= fovea",
+    ),
+    ("study --comparison {spp_four} -o {tmp}/st", 2, "{spp_four}:4: spp is 'four', not a whole number"),
+    ("study --comparison {spp_half} -o {tmp}/st", 2, "{spp_half}:4: spp is '4.5', not a whole number"),
+    ("study --comparison {spp_zero} -o {tmp}/st", 2, "{spp_zero}:4: spp is '0', not a whole number >= 1"),
+    ("study --comparison {flip_text} -o {tmp}/st", 2, "{flip_text}:4: flip is 'low', not a number"),
+    ("study --comparison {flip_inf} -o {tmp}/st", 2, "{flip_inf}:4: flip is 'inf', not a number"),
+    ("study --comparison {table} -o {tmp}/st", 2, "{table}:5: flip is -0.2, outside its scale [0, 1]"),
+    ("study --comparison {short_row} -o {tmp}/st", 2, "{short_row}:4: 4 fields, the header has 5"),
+    ("study --comparison {no_spp} -o {tmp}/st", 2, "{no_spp}:1: no column 'spp'"),
+    ("study --comparison {no_metric} -o {tmp}/st", 2, "{no_metric}:1: neither a 'jod' nor a 'flip' column"),
+    ("study --comparison {empty} -o {tmp}/st", 2, "{empty}:1: empty file"),
+    ("study --responses {responses_five} -o {tmp}/st", 2, "{responses_five}:2: field 'fovea_deg': bad value"),
+    ("fit {fit_five} -o {tmp}/f", 2, "{fit_five}:3: eccentricity_deg = 'five' is not a number"),
+    ("view --gaze replay:{recording_five}", 2, "{recording_five}:3: field lx='five' is not a number"),
     # -- failures / stability ----------------------------------------------------------------
     ("failures --cases nothing", 2, "invalid choice: 'nothing'"),
     ("failures --spp 1 5 -o {tmp}/fl", 2, "--spp 5"),

@@ -7,6 +7,7 @@ import socket
 import time
 from pathlib import Path
 
+import _extras
 import numpy as np
 import pytest
 from fakes.clock import FakeClock
@@ -48,8 +49,7 @@ SHIPPED = {
 @pytest.mark.parametrize("name", sorted(SHIPPED))
 def test_shipped_recordings_are_labelled_and_regenerate(name, tmp_path, capsys):
     shipped = RECORDINGS / name
-    if not shipped.exists():
-        pytest.skip(f"{shipped} not present")
+    assert shipped.is_file(), f"{shipped}: the recording ships with the repository"
     recording = load_recording(shipped)
     assert recording.metadata["synthetic"] is True and "SYNTHETIC" in recording.metadata["note"]
     out = tmp_path / name
@@ -97,7 +97,7 @@ def _closed_port() -> int:
 )
 def test_unreachable_device_fails_within_its_connect_timeout(spec, names, monkeypatch):
     if spec.startswith("pupil"):
-        pytest.importorskip("zmq")
+        _extras.require("zmq")
     if "invalid" in spec:  # the resolver's answer, without depending on this machine's DNS
 
         def no_such_host(host, *args, **kwargs):
@@ -139,8 +139,7 @@ def test_record_unreachable_device_names_it_and_the_wait_option(tmp_path, capsys
 
 def test_fallback_on_the_dropout_recording_widens_then_recovers():
     path = RECORDINGS / "synthetic_scanpath_seed1_dropout.csv"
-    if not path.exists():
-        pytest.skip(f"{path} not present")
+    assert path.is_file(), f"{path}: the recording ships with the repository"
     clock = FakeClock(0.0)
     policy = FallbackPolicy()
     tracker = GazeTracker(policy, predictor=None)

@@ -4,10 +4,11 @@ import math
 import threading
 import time
 
+import _extras
 import pytest
 
-zmq = pytest.importorskip("zmq", reason="pyzmq missing (optional extra 'pupil')")
-msgpack = pytest.importorskip("msgpack", reason="msgpack missing (optional extra 'pupil')")
+zmq = _extras.require("zmq", module_level=True)
+msgpack = _extras.require("msgpack", module_level=True)
 
 from fovjax.devices import PupilSource, gaze_from_pupil_datum  # noqa: E402
 

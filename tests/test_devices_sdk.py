@@ -108,6 +108,35 @@ def test_viewpoint_fresh_data_callback_quality_codes_and_eyes(build):
         assert s.left.valid and not s.right.valid  # EYE_A is now the left eye, EYE_B still code 5
 
 
+def test_viewpoint_reads_the_smoothed_gaze_point_by_default_as_the_thesis(build):
+    """The thesis's callback reads VPX_GetGazePointSmoothed2; the unfiltered point is a choice
+    (smoothed=False, or the spec's @raw)."""
+    from fovjax.devices import source_from_spec
+
+    path = build("fake_vpx")
+    fake = ctypes.CDLL(str(path))
+    fake.fake_set_eye.argtypes = [ctypes.c_int, ctypes.c_float, ctypes.c_float, ctypes.c_int, ctypes.c_double]
+    fake.fake_set_smoothed.argtypes = [ctypes.c_int, ctypes.c_float, ctypes.c_float]
+    sources = {
+        "default": ViewPointSource(path),
+        "spec": source_from_spec(f"viewpoint:{path}"),
+        "spec @smoothed": source_from_spec(f"viewpoint:{path}@smoothed"),
+        "smoothed=False": ViewPointSource(path, smoothed=False),
+        "spec @raw": source_from_spec(f"viewpoint:{path}@raw"),
+    }
+    for n, (name, source) in enumerate(sources.items()):
+        with source:
+            for eye in (EYE_A, EYE_B):
+                fake.fake_set_eye(eye, 0.5, 0.5, 0, float(n + 1))
+                fake.fake_set_smoothed(eye, 0.25, 0.75)
+            fake.fake_fire(VPX_DAT_FRESH, EYE_A)
+            sample = source.read(timeout=1.0)
+        want = (0.5, 0.5) if "raw" in name or "False" in name else (0.25, 0.75)
+        assert sample.right.xy == want and sample.left.xy == want, name
+    with pytest.raises(ValueError, match="ViewPoint reading 'median' is not 'smoothed' or 'raw'"):
+        source_from_spec("viewpoint@median")
+
+
 def test_viewpoint_side_by_side_mapping_follows_figure_45():
     w, h = 2000, 1000
     assert viewpoint_to_side_by_side(0.0, 0.0, EYE_A, w, h) == (1000.0, 1000.0)

@@ -143,3 +143,26 @@ def test_drain_hands_out_each_due_sample_once():
     times = [round(s.timestamp, 6) for s in got]
     assert times == sorted(set(times)) and len(times) == 101 - 10
     assert SyntheticGazeSource(FixedPoints(), speed=None).open().drain() == []
+
+
+def test_synthetic_gaze_defaults_are_the_stated_idealised_tracker():
+    """The synthetic gaze source samples at 120 Hz without noise by default, twice the thesis's
+    fastest ViewPoint rate and without its 0.25-1° error: a stated choice (the source's
+    docstring, the spec list, `fovjax session --help`), pinned here so a change has to move the
+    statement too; a thesis-like tracker is a keyword away."""
+    import inspect
+
+    from fovjax.cli import build_parser
+    from fovjax.devices import SyntheticGazeSource, _specs, _synthetic, source_from_spec
+
+    for spec in ("synthetic:scanpath", "synthetic:pursuit", "synthetic:fixed"):
+        source = source_from_spec(spec, duration=0.1)
+        assert (source.rate, source.noise_sd) == (120.0, 0.0) == (_synthetic.DEFAULT_GAZE_RATE, 0.0)
+    assert source_from_spec("synthetic:scanpath", rate=60.0, duration=0.1).rate == 60.0
+    defaults = inspect.signature(SyntheticGazeSource).parameters
+    assert (defaults["rate"].default, defaults["noise_sd"].default) == (120.0, 0.0)
+    stated = "the thesis's ViewPoint tracker ran at 60 or 30 Hz (selectable) with 0.25°-1.0° accuracy"
+    assert stated in " ".join(SyntheticGazeSource.__doc__.split())
+    assert "the thesis's ran at 60/30 Hz, 0.25-1° accuracy" in " ".join(_specs.__doc__.split())
+    session = build_parser()._subparsers._group_actions[0].choices["session"]
+    assert "idealised tracker; the thesis's ran at 60/30 Hz" in session.description

@@ -3,9 +3,9 @@ intervals, the choice checked by hand against the records, the CSV and charts, t
 
 from __future__ import annotations
 
-import importlib.util
 import math
 
+import _extras
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -19,8 +19,9 @@ THRESHOLDS = [(5, 10), (15, 30)]
 GAZES = [(0.5, 0.5), (0.3, 0.4)]
 KEYS = [0, 1]
 CONFIG = RenderConfig(max_depth=0)  # no reflections: the shortest compile
-HAS_FLIP = importlib.util.find_spec("flip_evaluator") is not None
-HAS_FVVDP = importlib.util.find_spec("pyfvvdp") is not None
+# What `fovjax compare` records depends on the metrics installed; in CI (every extra) both are.
+HAS_FLIP = _extras.have("flip_evaluator")
+HAS_FVVDP = _extras.have("pyfvvdp")
 
 FIELDS = {
     "config",
@@ -28,6 +29,7 @@ FIELDS = {
     "periphery_deg",
     "spp",
     "model",
+    "regions",
     "rays_per_frame",
     "ms_per_frame",
     "speedup",
@@ -168,7 +170,7 @@ def test_cli_compare(scene_rig, tmp_path, capsys):
     assert (out / "rings.png").is_file()
 
 
-@pytest.mark.skipif(not HAS_FLIP, reason="--fidelity auto plans by FLIP (extra [flip])")
+@_extras.needs("flip_evaluator")  # --fidelity auto plans by FLIP
 def test_cli_compare_fidelity_auto(scene_rig, tmp_path, capsys):
     """A planned configuration beside plain foveation: its own record (planned, with the plan),
     the plan printed, both on the charts. A loose per-ring threshold: the plan drops every

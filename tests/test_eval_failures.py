@@ -201,6 +201,38 @@ def test_bad_inputs_raise_clear_errors(tiny):
         equal_budget_foveations(rig, Foveation(10.0, 20.0), {"thesis": THESIS_MODEL, "zero": Constant(0.0)})
 
 
+def test_default_models_load_the_fitted_linear_mar_curve():
+    """The second default model is the repository's fit (E2 2.35°), not Song et al.'s 2.72°."""
+    from fovjax.acuity import read_fit
+    from fovjax.eval import FITTED_MAR, default_models
+
+    assert FITTED_MAR.is_file(), FITTED_MAR
+    fitted = read_fit(FITTED_MAR)["params"]["e2"]
+    models = default_models()
+    mars = {name: m for name, m in models.items() if isinstance(m, LinearMAR)}
+    assert list(mars) == [f"linear MAR fit (E2 {fitted:.2f}°)"] == ["linear MAR fit (E2 2.35°)"]
+    (mar,) = mars.values()
+    assert float(mar.e2) == pytest.approx(fitted, rel=1e-6) and float(mar.a) == 1.0
+    assert list(models)[0] == "thesis exponential" and models["thesis exponential"] is THESIS_MODEL
+
+
+def test_a_missing_or_wrong_fit_is_an_error(tmp_path, capsys):
+    from fovjax.cli import main
+    from fovjax.eval import default_models
+
+    missing = tmp_path / "no_fit.json"
+    with pytest.raises(FileNotFoundError, match="no_fit.json: no such file"):
+        default_models(missing)
+    exponential = fovjax.eval.FITTED_MAR.parent / "yavuz2009_exponential.json"
+    with pytest.raises(ValueError, match="Exponential fit; the acuity models need a linear-MAR fit"):
+        default_models(exponential)
+    # The command refuses before rendering anything: one line, exit 2.
+    assert main(["failures", "--acuity-fit", str(missing), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"fovjax failures: error: --acuity-fit {missing}: no such file", err
+    assert not (tmp_path / "out").exists()
+
+
 def test_cli_registers_failures_and_stability():
     from fovjax.cli import _failures as _cli_failures
     from fovjax.cli import _stability as _cli_stability

@@ -269,9 +269,11 @@ def test_non_finite_metric_value_names_the_row(tmp_path, capsys, bad):
     index = next(i for i, r in enumerate(rows) if r["fovea_deg"] == 12.5 and r["spp"] == 4)
     rows[index]["jod"] = bad
     csv_path = write_table(tmp_path, rows)
-    message = rf"{re.escape(str(csv_path))}: row {index + 1} \(config '12\.5/25 spp4'\): jod is"
+    # FILE:LINE (the header is line 1): an empty cell when the study needs it, anything else at once.
+    message = rf"{re.escape(str(csv_path))}:{index + 2}\b.*: jod is"
     assert_refused(["study", "--comparison", str(csv_path), "-o", str(tmp_path / "out")], message, capsys)
-    # A bad value in a row the study does not use (spp 1) is no error.
+    # A bad value in a row the study does not use (spp 1) is no error to the API (the command
+    # checks every row of the file it reads).
     rows[index]["jod"] = 9.3
     rows[index + 2]["jod"] = bad
     assert rows[index + 2]["spp"] == 1
@@ -308,3 +310,17 @@ def test_argument_errors(tmp_path, monkeypatch, capsys, argv, message):
         main(["study", *argv, "-o", str(tmp_path / "out")])
     assert err.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("regions", [None, "angle", "thesis"])
+def test_study_says_when_the_thesis_column_is_not_like_for_like(tmp_path, capsys, regions):
+    """The thesis's 12.5°/25° was found on its own regions; a table of exact-angle regions
+    (fovjax compare's default, or an older table without the column) is flagged beside it."""
+    rows = make_table("jod")
+    if regions is not None:
+        rows = [{**r, "regions": regions} for r in rows]
+    argv = ["study", "--comparison", str(write_table(tmp_path, rows)), "-o", str(tmp_path / "out")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    flagged = "not the thesis's reading: the thesis column is not like-for-like" in out
+    assert flagged == (regions != "thesis"), out

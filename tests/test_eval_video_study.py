@@ -7,11 +7,10 @@ SX111's field of view at any resolution, and bad arguments are refused before an
 Rendered on the Cornell box at 2 x 32x32, 4 frames (one module-scoped sequence)."""
 
 import dataclasses
-import importlib
 import math
-import os
 import re
 
+import _extras
 import numpy as np
 import pytest
 
@@ -22,14 +21,6 @@ from fovjax.cli import main
 
 TINY = {"eye_width": 32, "eye_height": 32, "frames": 4, "fps": 60.0, "gaze": "fixed", "seed": 3}
 LIGHT, HEAVY = (15.0, 30.0), (5.0, 10.0)
-
-
-def need(module: str, reason: str):
-    """The optional module, or a skip; a failure instead where CI installs every extra
-    (FOVJAX_REQUIRE_EXTRAS=1 in .ci/run), so a broken install cannot pass as a skip."""
-    if os.environ.get("FOVJAX_REQUIRE_EXTRAS") == "1":
-        return importlib.import_module(module)
-    return pytest.importorskip(module, reason=reason)
 
 
 class Rendered(BaseException):
@@ -53,7 +44,7 @@ def sequence(scene):
 
 @pytest.fixture(scope="module")
 def study(scene, sequence):
-    need("pyfvvdp", "FovVideoVDP needs the [fvvdp] extra")
+    _extras.require("pyfvvdp")
     return fe.video_study(scene, sequence=sequence)
 
 
@@ -134,7 +125,13 @@ def test_write_and_cli_print_the_verdict_beside_the_thesis(tmp_path, capsys, stu
     assert main([*argv, "--gaze", "fixed", "--seed", "3", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "full render against itself: 10.000 JOD" in text
-    assert re.search(r"^\s+pair\s.*12\.5°/25°$", text, re.M), text
+    # Each test's line: the majority the observers gave (the API's, same sequence and observers)
+    # beside the thesis's; the thesis column alone is the same whatever the study found.
+    levels = dict(fe.APPENDIX_LEVELS)
+    for test, fovea in study.majorities.items():
+        accepts = "none (no level has a majority)" if fovea is None else f"{fovea:g}°/{levels[fovea]:g}°"
+        row = re.search(rf"^\s*{test}  (.+?)\s+12\.5°/25°$", text, re.M)
+        assert row is not None and row.group(1) == accepts, (test, accepts, text)
     written = fe.read_csv(out / "video_study.csv")
     # The command renders the same sequence as the API: the same JODs.
     assert [r["jod"] for r in written] == pytest.approx([float(study.jods[lv]) for lv in fe.APPENDIX_LEVELS])

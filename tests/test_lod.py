@@ -9,10 +9,9 @@ out by hand from the thesis model V(ω) = a·exp(−ω/b) + c.
 
 from __future__ import annotations
 
-import importlib
 import math
-import os
 
+import _extras
 import jax
 import numpy as np
 import pytest
@@ -26,9 +25,7 @@ from fovjax.trace import build_bvh, closest_hit, last_build_info
 
 def _need_fast_simplification():
     """The `[lod]` extra, or a skip; a failure where CI installs every extra."""
-    if os.environ.get("FOVJAX_REQUIRE_EXTRAS") == "1":
-        return importlib.import_module("fast_simplification")
-    return pytest.importorskip("fast_simplification", reason="pip install 'fovjax[lod]'")
+    return _extras.require("fast_simplification")
 
 
 @pytest.fixture(autouse=True)

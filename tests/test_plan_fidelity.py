@@ -8,6 +8,7 @@ programs: the full render, plain foveation and three fidelity configurations."""
 
 from __future__ import annotations
 
+import _extras
 import jax
 import numpy as np
 import pytest
@@ -25,7 +26,7 @@ from fovjax.eval import (
 from fovjax.foveate import Fidelity, Foveation, render_foveated
 from fovjax.render import RenderConfig, StereoRig, render_stereo
 
-pytest.importorskip("flip_evaluator")
+_extras.require("flip_evaluator", module_level=True)
 
 CONFIG = RenderConfig(max_depth=2)  # the spheres' mirror material needs bounces
 GAZES = [(0.4, 0.5)]

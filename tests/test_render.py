@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import _extras
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -88,6 +89,50 @@ def test_lit_sphere_centre_pixel_by_hand(oracle):
     np.testing.assert_allclose(frame.image[SIZE // 2, SIZE // 2], expected, atol=2e-5)
     assert frame.stats.primary_rays == SIZE * SIZE
     assert frame.stats.bad_pixels == 0
+
+
+def test_specular_is_not_scaled_by_n_dot_l_a_stated_departure(oracle):
+    """fovjax.render's docstring states it: per light Kd·(n·l) + Ks·(n·h)^Ns, where the thesis's
+    §4.4.3 scales both terms by n·l. A light 80° from the normal at the sphere's front pole
+    (n·l = 0.17), Kd = 0, Ns = 1: the highlight is Ks·(n·h), six times the thesis's."""
+    scene, bvh = oracle
+    base = scene_arrays(scene)
+    p, n, view = np.array([0.0, 1.0, 1.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
+    to_light = np.array([0.0, np.sin(np.radians(80.0)), np.cos(np.radians(80.0))])
+    light = (p + 9.0 * to_light)[None].astype(np.float32)  # above the pole: nothing in between
+    arrays = arrays_with(
+        scene,
+        kd=material(base, "kd", SPHERE, 0.0),
+        kr=material(base, "kr", SPHERE, 0.0),
+        ns=material(base, "ns", SPHERE, 1.0),
+        light_position=light,
+    )
+    camera = fovjax.Camera.look_at((0.0, 1.0, 6.0), (0.0, 1.0, 0.0), vfov_deg=30.0, width=SIZE, height=SIZE)
+    pixel = np.asarray(fovjax.render(arrays, camera, config=CONFIG, bvh=bvh).image[SIZE // 2, SIZE // 2])
+    ambient = np.asarray(arrays.ka, np.float64)[SPHERE] * np.asarray(arrays.ambient, np.float64)
+    half = to_light - view
+    n_dot_h, n_dot_l = float(n @ half / np.linalg.norm(half)), float(n @ to_light)
+    ks = np.asarray(arrays.ks, np.float64)[SPHERE]
+    np.testing.assert_allclose(pixel, ambient + ks * n_dot_h, atol=2e-5)
+    thesis = ambient + ks * n_dot_h * n_dot_l
+    assert np.all(pixel - thesis > 0.2)
+
+
+def test_default_miss_colour_is_the_constant_background_a_stated_departure():
+    """Without an environment map a miss sees RenderConfig.background (the thesis's OptiX
+    "bg color"), not an environment map as the thesis's miss program samples: stated in
+    fovjax.render's docstring and `fovjax render --envmap`'s help."""
+    from fovjax.cli import build_parser
+
+    assert RenderConfig().background == fovjax.render.THESIS_BACKGROUND == (0.34, 0.55, 0.85)
+    environment = np.asarray(scene_arrays(oracle_scene()).environment)
+    np.testing.assert_array_equal(environment.reshape(-1, 3), np.float32([fovjax.render.THESIS_BACKGROUND]))
+    doc = " ".join(fovjax.render.__doc__.split())
+    assert "the thesis's miss program (§4.4.4) samples an environment map" in doc
+    assert "the specular term is not multiplied by n·l" in doc
+    render_parser = build_parser()._subparsers._group_actions[0].choices["render"]
+    (envmap,) = [a for a in render_parser._actions if "--envmap" in a.option_strings]
+    assert "constant background colour" in envmap.help and "not an environment map" in envmap.help
 
 
 def test_shadowed_point_under_occluder_is_ambient_only(oracle):
@@ -211,8 +256,8 @@ def test_envmap_mapping_along_the_six_axes():
     )
 
 
+@_extras.needs("cv2")
 def test_envmap_loads_from_hdr_and_ldr_files(tmp_path):
-    pytest.importorskip("cv2")
     env = np.random.default_rng(0).uniform(0, 4, (4, 8, 3)).astype(np.float32)
     fovjax.save_image(tmp_path / "sky.exr", env)
     np.testing.assert_array_equal(fovjax.render.load_envmap(tmp_path / "sky.exr"), env)
@@ -465,7 +510,7 @@ def test_png_is_tone_mapped_srgb_and_exr_is_linear(tmp_path):
     np.testing.assert_array_equal(png[0, 1], [255, 10, 127])  # clipped; linear toe; 0.214 → 0.4995
     fovjax.save_image(tmp_path / "b.png", image, tonemap_curve="reinhard")
     assert iio.imread(tmp_path / "b.png")[0, 1, 0] < 255  # 2 → 2/3, not clipped
-    pytest.importorskip("cv2")
+    _extras.require("cv2")
     fovjax.save_image(tmp_path / "a.exr", image)
     np.testing.assert_array_equal(fovjax.load_image(tmp_path / "a.exr"), image)
     with pytest.raises(ValueError, match="NaN"):
@@ -473,7 +518,7 @@ def test_png_is_tone_mapped_srgb_and_exr_is_linear(tmp_path):
 
 
 def test_cli_render_stereo_spheres(tmp_path, capsys):
-    pytest.importorskip("embreex")  # the Embree backend compiles in a second: a quick end-to-end run
+    _extras.require("embreex")  # the Embree backend compiles in a second: a quick end-to-end run
     from fovjax.cli import main
 
     out = tmp_path / "s.png"

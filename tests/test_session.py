@@ -14,6 +14,7 @@ import re
 import warnings
 from pathlib import Path
 
+import _extras
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -274,7 +275,7 @@ def test_unreachable_device_fails_before_compiling(scene, rig, monkeypatch):
 
 
 def test_video(scene, rig, tmp_path):
-    pytest.importorskip("imageio_ffmpeg", reason="the 'video' extra (imageio-ffmpeg) is not installed")
+    _extras.require("imageio_ffmpeg")
     result = session(scene, rig, gaze=f"replay:{SCANPATH}", frames=3, out=tmp_path, video=True)
     assert result.video == tmp_path / "session.mp4"
     with warnings.catch_warnings():  # reading runs ffmpeg too (fork + exec)

@@ -130,18 +130,58 @@ def test_sx111_pitch_gives_16_pixels_per_degree():
     assert ecc[512, 640 + 16] == pytest.approx(16.5 / 16, rel=2e-3)
 
 
-def test_sx111_regions_cover_the_thesis_shares():
-    """The shares of pixels within ω1 (gaze at the centre, 1280×1024) under the SX111 reading
-    are within 3.5 points of Table 2's b / b_full (6.4, 14.4, 25.6, 39.6, 54.5 %), where the
-    exact angle on a 90° display gives about half of them."""
-    cam = fovjax.Camera.look_at((0, 0, 0), (0, 0, -1), vfov_deg=77.3196, width=1280, height=1024)
-    thesis = np.array([0.333, 0.748, 1.335, 2.066, 2.838]) / 5.212 * 100
-    f = Foveation.thesis_measured(0)
-    ecc = np.asarray(eccentricity_map(cam, np.array([0.5, 0.5]), f))
-    shares = np.array([(ecc <= t).mean() * 100 for t in (10, 15, 20, 25, 30)])
-    np.testing.assert_allclose(shares, thesis, atol=3.5)
-    exact = np.asarray(eccentricity_map(cam, np.array([0.5, 0.5]), Foveation()))
-    assert ((exact <= 10).mean() * 100) < 0.6 * thesis[0]
+SX111_THRESHOLDS = (10, 15, 20, 25, 30)
+# Table 2's b / b_full: the share of a frame's rays within ω1 at SPP 1 (5°/10° ... 15°/30°).
+THESIS_SHARES = np.array([0.333, 0.748, 1.335, 2.066, 2.838]) / 5.212 * 100
+
+
+def _shares(camera, foveation) -> np.ndarray:
+    ecc = np.asarray(eccentricity_map(camera, np.array([0.5, 0.5]), foveation))
+    return np.array([(ecc <= t).mean() * 100 for t in SX111_THRESHOLDS])
+
+
+@pytest.fixture(scope="module")
+def sx111_camera():
+    return fovjax.Camera.look_at((0, 0, 0), (0, 0, -1), vfov_deg=77.3196, width=1280, height=1024)
+
+
+def test_sx111_regions_are_the_planar_discs_at_16_pixels_per_degree(sx111_camera):
+    """What the reading guarantees, independently of any measurement: with the pitch
+    p = D·tan(1/16°), eq. 4-5 (ω = 2·atan(r·p / 2D) for a pixel r pixels from the gaze point)
+    puts ω <= t exactly on the disc of radius R(t) = 2·tan(t/2) / tan(1/16°) pixels, so the share
+    within t is the number of pixel centres in that disc. That count is bounded by areas: the unit
+    squares around counted centres are disjoint and lie within R + √2/2, and they cover the disc
+    of radius R - √2/2 (a point there is within √2/2 of a centre, which is then within R). So
+    π(R - √2/2)² <= count <= π(R + √2/2)² whenever the disc stays on the 1280×1024 display
+    (R(30°) = 491 < 512)."""
+    shares = _shares(sx111_camera, Foveation.thesis_measured(0))
+    pixels = 1280 * 1024
+    for t, share in zip(SX111_THRESHOLDS, shares, strict=True):
+        radius = 2 * np.tan(np.radians(t / 2)) / np.tan(np.radians(1 / 16))
+        assert radius + 1 < 512
+        low, high = (np.pi * (radius + s * np.sqrt(0.5)) ** 2 / pixels * 100 for s in (-1, 1))
+        assert low <= share <= high, (t, low, share, high)
+
+
+def test_sx111_reading_is_nearer_the_thesis_shares_than_every_other_reading(sx111_camera):
+    """The thesis does not give the scale its regions used; Table 2's b / b_full (the share of
+    rays within ω1: 6.4, 14.4, 25.6, 39.6, 54.5 %) is what identifies it. The claim that can fail
+    is therefore comparative, not a tolerance: at every threshold the SX111 reading (16 px/°) is
+    nearer the thesis's share than each other display model the thesis's numbers allow — a flat
+    display at D = 24 mm spanning the SX111's 64° over 1024 rows (14.3 px/° at its centre), the
+    planar formula at the 90° rig's pitch, and fovjax's default exact angle on the 90° rig."""
+    sx111 = _shares(sx111_camera, Foveation.thesis_measured(0))
+    others = {
+        "flat 64° display": Foveation.thesis_measured(
+            0, pixel_pitch_mm=2 * 24.0 * np.tan(np.radians(32.0)) / 1024
+        ),
+        "planar at the 90° rig's pitch": Foveation.thesis_measured(0, pixel_pitch_mm=0.0375),
+        "exact angle, 90° rig": Foveation(),
+    }
+    for name, foveation in others.items():
+        other = _shares(sx111_camera, foveation)
+        nearer = np.abs(sx111 - THESIS_SHARES) < np.abs(other - THESIS_SHARES)
+        assert nearer.all(), (name, sx111, other, THESIS_SHARES)
 
 
 def test_rendered_frame_traces_the_planned_samples():
@@ -182,3 +222,79 @@ def test_acuity_comparisons_refuse_the_rule():
     )
     with pytest.raises(ValueError, match="thesis-measured"):
         equal_budget_foveations(rig, Foveation(rule="thesis-measured"), {"thesis": THESIS_MODEL})
+
+
+def test_regions_choice_of_every_command_that_renders_foveated_frames():
+    """`--regions angle|thesis` on every such command (angle by default, thesis for the video
+    study, whose levels are compared with the thesis's participants), and its help says what
+    each reading is."""
+    from fovjax.cli import build_parser
+    from fovjax.foveate import REGION_READINGS
+
+    parser = build_parser()
+    commands = {
+        "render": [],
+        "compare": [],
+        "failures": [],
+        "stability": [],
+        "session": ["--gaze", "synthetic:fixed", "--frames", "1", "-o", "x"],
+        "view": [],
+        "inspect": ["cornell"],
+    }
+    for command, extra in commands.items():
+        assert parser.parse_args([command, *extra]).regions == "angle", command
+        for reading in REGION_READINGS:
+            assert parser.parse_args([command, *extra, "--regions", reading]).regions == reading
+    video = parser.parse_args(["study", "--video", "--regions", "angle"])
+    assert video.regions == "angle"
+    from fovjax.cli._video_study import VIDEO_DEFAULTS
+
+    assert VIDEO_DEFAULTS["regions"] == "thesis"
+    sub = parser._subparsers._group_actions[0].choices
+    for command in [*commands, "study"]:
+        (action,) = [a for a in sub[command]._actions if "--regions" in a.option_strings]
+        assert tuple(action.choices) == REGION_READINGS
+        assert "16 px/°" in action.help and "like-for-like" in action.help
+
+
+def test_thesis_regions_are_the_table_2_reading_at_any_resolution(camera):
+    """with_regions(..., "thesis") is `Foveation.thesis_measured`'s region reading (planar, D =
+    24 mm, the SX111's pitch for the eye's rows) with the foveation's own rule; on the 90° rig a
+    threshold covers more pixels than under "angle"."""
+    from fovjax.foveate import with_regions
+
+    base = Foveation.thesis(2, spp=4)
+    thesis = with_regions(base, "thesis", H)
+    measured = Foveation.thesis_measured(2, eye_height=H, spp=4)
+    assert (thesis.eccentricity, thesis.eye_display_mm, thesis.pixel_pitch_mm) == (
+        measured.eccentricity,
+        measured.eye_display_mm,
+        measured.pixel_pitch_mm,
+    )
+    assert thesis.rule == "either" and with_regions(thesis, "angle", H).eccentricity == "angle"
+    gaze = np.array([0.5, 0.5])
+    inside = {
+        name: int((np.asarray(eccentricity_map(camera, gaze, f)) <= 10.0).sum())
+        for name, f in (("angle", base), ("thesis", thesis))
+    }
+    assert inside["thesis"] > 1.5 * inside["angle"], inside
+    with pytest.raises(ValueError, match="regions must be one of"):
+        with_regions(base, "planar", H)
+
+
+def test_strict_is_the_both_conditions_reading(camera):
+    """rule="strict" is the paragraph's "If both conditions are met": beyond the fovea a
+    sub-sample is traced only at a block's top-left pixel and only if its draw is below P(ω)."""
+    f = Foveation.thesis(0, spp=4, rule="strict")
+    ecc = eccentricity_map(camera, np.array([0.4, 0.55]), f)
+    key = jax.random.key(5)
+    cls, region = map(np.asarray, sample_classes(ecc, f, key))
+    u = np.asarray(jax.random.uniform(key, (4, H, W)))
+    p = np.asarray(f.probability(ecc))
+    ty, tx, _ = top_left(region, f)
+    is_tl = np.zeros((H, W), bool)
+    is_tl[np.asarray(ty), np.asarray(tx)] = True
+    fovea = np.broadcast_to(region == FOVEA, (4, H, W))
+    expect = np.where(fovea, MANDATORY, np.where(is_tl[None] & (u < p), OPTIONAL, SKIPPED))
+    np.testing.assert_array_equal(cls, expect)
+    assert "both conditions" in Foveation.__doc__ and "either of which" in Foveation.__doc__

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import textwrap
 
+import _extras
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -152,7 +153,7 @@ def test_annotations_hold_for_numpy_and_broadcast_arguments(soup):
     """closest_hit and occluded under jaxtyping's runtime checker: NumPy arrays, a direction
     broadcast against many origins and scalar or per-ray bounds are what the annotations admit,
     and the result has the broadcast batch shape; a trailing dimension other than 3 is refused."""
-    beartype = pytest.importorskip("beartype").beartype
+    beartype = _extras.require("beartype").beartype
     from jaxtyping import TypeCheckError, jaxtyped
 
     _, _, bvh = soup
@@ -258,17 +259,7 @@ def test_grazing_rays_match_brute_force(sphere, backend):
 # --- every backend on every built-in scene, against the JAX traversal --------------------------
 
 
-def embree_available():
-    try:
-        import embreex  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_embree = pytest.mark.skipif(
-    not embree_available(), reason="embreex not installed (pip install fovjax[embree])"
-)
+needs_embree = _extras.needs("embreex")
 
 
 @pytest.fixture(scope="module", params=["cornell_box", "spheres", "atrium"])

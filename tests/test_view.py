@@ -20,10 +20,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import _extras
 import numpy as np
 import pytest
 
-aiohttp = pytest.importorskip("aiohttp", reason="the view extra (aiohttp) is not installed")
+aiohttp = _extras.require("aiohttp", module_level=True)
 
 from fovjax.cli import main  # noqa: E402
 from fovjax.view import ACTIONS, MAX_MESSAGE_BYTES, MessageError, parse_message  # noqa: E402
@@ -126,9 +127,9 @@ def test_debug_shows_the_traceback_of_a_bad_argument():
 def test_a_missing_extra_is_exit_status_1(args, missing, named, capsys, monkeypatch, tmp_path):
     import importlib.util
 
-    find_spec = importlib.util.find_spec
+    installed = importlib.util.find_spec
     monkeypatch.setattr(
-        importlib.util, "find_spec", lambda name, *a: None if name == missing else find_spec(name, *a)
+        importlib.util, "find_spec", lambda name, *a: None if name == missing else installed(name, *a)
     )
     monkeypatch.chdir(tmp_path)
     assert main(["view", "--port", "0", *args]) == 1
@@ -397,11 +398,10 @@ def _decode(jpeg: bytes) -> np.ndarray:
 
 def _chromium():
     """A headless Chromium through selenium, or the reason there is none."""
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        return None, "selenium is not installed (the dev extra installs it)"
+    _extras.require("selenium")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
     binary = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
     driver_path = shutil.which("chromedriver")
     if binary is None or driver_path is None:

@@ -259,6 +259,33 @@ def display_point(xy, option: str) -> None:
         )
 
 
+REGIONS_HELP = (
+    "how eccentricity is measured for the fovea/periphery regions: angle (fovjax's reading: the exact "
+    "angle between a pixel's ray and the gaze ray on the rig's own field of view) or thesis (the reading "
+    "behind the thesis's Table 2: planar eq. 4-5 at the SX111's 16 px/°, scaled to the eye's rows; on "
+    "the 90° rig a threshold then covers about twice the pixels, and a thesis level such as 12.5°/25° "
+    "compares like-for-like with the thesis's participants only under it)"
+)
+
+
+def add_regions(parser, default: str = "angle") -> None:
+    """The `--regions angle|thesis` option of every command that renders foveated frames
+    (`fovjax.foveate.with_regions`)."""
+    parser.add_argument(
+        "--regions",
+        choices=("angle", "thesis"),
+        default=default,
+        help=f"{REGIONS_HELP} (default {default})",
+    )
+
+
+def regions(foveation, args, eye_height: int):
+    """`foveation` with the regions `--regions` chose, for eyes of `eye_height` rows."""
+    from ..foveate import with_regions
+
+    return with_regions(foveation, args.regions, eye_height)
+
+
 def head_gaze_fovea(args) -> None:
     """The frame options `render` and `inspect` share: `--head` (yaw, pitch, roll), `--gaze`
     (both eyes' display points) and `--fovea`/`--periphery`."""

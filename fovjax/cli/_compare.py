@@ -85,6 +85,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "ID 0..N-1, HOST:PORT the address of process 0; implies --shard, process 0 writes the results",
     )
     p.add_argument("-o", "--output", default="out/compare")
+    from fovjax import cli
+
+    cli.add_regions(p)
     p.set_defaults(func=run)
 
 
@@ -162,6 +165,7 @@ def run(args) -> int:
         config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
+        regions=args.regions,
         shard=args.shard,
         fidelity=args.fidelity,
         plan_criterion=("flip", args.fidelity_threshold),

@@ -28,6 +28,9 @@ def _common(p: argparse.ArgumentParser, output: str) -> None:
     p.add_argument("--periphery", type=float, default=20.0, help="periphery radius, degrees")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("-o", "--output", default=output)
+    from fovjax import cli
+
+    cli.add_regions(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,6 +47,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     p.add_argument("--small", type=_resolution, default=(128, 96), help="per-eye resolution of high_spp")
     p.add_argument("--spp", type=int, nargs="+", default=[1, 16], help="samples per pixel for high_spp")
+    p.add_argument(
+        "--acuity-fit",
+        metavar="JSON",
+        default=None,
+        help="the fitted linear-MAR curve the acuity models compare (a `fovjax fit` record; default the "
+        "repository's fits/published_linear_mar.json, E2 2.35°); a missing file is an error",
+    )
     p.set_defaults(func=run_failures)
 
 
@@ -61,10 +71,13 @@ def _validate_common(args) -> None:
 def validate_failures(args) -> None:
     """Every argument of `fovjax failures`, before anything is rendered."""
     from fovjax import cli
+    from fovjax.eval import FITTED_MAR
 
     _validate_common(args)
     cli.backend(args.backend)
     cli.squares(args.spp, "--spp")
+    fit = FITTED_MAR if args.acuity_fit is None else args.acuity_fit
+    cli.input_file(fit, "--acuity-fit", suffixes=(".json",), text=True)
 
 
 def _setup(args):
@@ -77,15 +90,19 @@ def _setup(args):
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
-    foveation = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery)
+    from fovjax import cli
+
+    foveation = cli.regions(Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery), args, args.height)
     return scene, rig, foveation, RenderConfig(max_depth=args.max_depth, backend=args.backend)
 
 
 def run_failures(args) -> int:
     from fovjax import cli
-    from fovjax.eval import failure_cases
+    from fovjax.eval import default_models, failure_cases
 
     validate_failures(args)
+    models = default_models(args.acuity_fit)
+    print(f"acuity models: {', '.join(models)}")
     scene, rig, foveation, config = _setup(args)
     report = failure_cases(
         scene,
@@ -95,6 +112,7 @@ def run_failures(args) -> int:
         config=config,
         small_resolution=args.small,
         high_spp_values=args.spp,
+        models=models,
         progress=not args.no_progress,
     )
     with cli.deferred_interrupt():

@@ -151,9 +151,8 @@ def run_fit(args) -> int:
     ref = args.mar_reference if args.mar_reference == "fovea" else float(args.mar_reference)
     try:
         data = load_csv(args.data, mar_reference_arcmin=ref)
-    except AcuityDataError as err:
-        print(f"fovjax fit: {err}", file=sys.stderr)
-        return 1
+    except AcuityDataError as err:  # a bad input file: FILE:LINE, exit status 2
+        raise cli.UsageError(str(err)) from None
     if args.condition is not None and args.condition not in data.conditions:
         raise cli.UsageError(
             f"--condition {args.condition!r}: {args.data} has no such condition "
@@ -166,7 +165,9 @@ def run_fit(args) -> int:
         )
     try:
         result = fit(data, args.model, solver=args.solver, fixed=fixed, condition=args.condition)
-    except (AcuityDataError, FitError) as err:
+    except AcuityDataError as err:  # the data cannot fit this model (too few points, ...): the input
+        raise cli.UsageError(str(err)) from None
+    except FitError as err:  # the solver failed on valid data
         print(f"fovjax fit: {err}", file=sys.stderr)
         return 1
     print(result.summary())

@@ -35,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--head", type=_head, default=(0.0, 0.0, 0.0), metavar="YAW,PITCH,ROLL", help="head pose in degrees"
     )
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
+    cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
     p.add_argument("--max-depth", type=int, default=3, help="deepest reflection depth to split (default 3)")
     p.add_argument("--ring", type=float, default=5.0, help="eccentricity ring width in degrees (default 5)")
@@ -77,7 +78,7 @@ def run(args) -> int:
         scene,
         rig,
         args.gaze,
-        Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery),
+        cli.regions(Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery), args, args.height),
         head_pose=args.head,
         max_depth=args.max_depth,
         ring_deg=args.ring,

@@ -14,7 +14,8 @@ def register(subparsers) -> None:
             "Record every sample of a tracking source until --seconds of sample time, --samples, "
             "the end of the source, or Ctrl-C (which flushes everything received). Source specs: "
             "synthetic:scanpath[:SEED] | synthetic:fixed[:X,Y] | synthetic:pursuit | synthetic:sway (head) | "
-            "replay:FILE[@SPEED|@fast] | serial:PORT[@BAUD] | pupil:HOST:PORT | viewpoint[:LIB] | "
+            "replay:FILE[@SPEED|@fast] | serial:PORT[@BAUD] | pupil:HOST:PORT | "
+            "viewpoint[:LIB][@raw] (smoothed unless @raw) | "
             "intersense[:LIB] (head)."
         ),
     )

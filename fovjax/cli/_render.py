@@ -67,7 +67,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="YAW,PITCH,ROLL",
         help="head pose in degrees (InertiaCube convention: yaw right, pitch up, roll right ear down)",
     )
-    p.add_argument("--envmap", default=None, help="lat-long environment map (.hdr, .exr, .png, ...)")
+    p.add_argument(
+        "--envmap",
+        default=None,
+        help="lat-long environment map (.hdr, .exr, .png, ...) that rays which miss every surface see (the "
+        "thesis's miss program samples one); without it they see the constant background colour "
+        "(0.34, 0.55, 0.85), the thesis's OptiX 'bg color', not an environment map",
+    )
+    from fovjax import cli
+
+    cli.add_regions(p)
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5, as the thesis)")
     p.add_argument("--width", type=int, default=1280, help="pixels per eye (stereo) or image width (mono)")
     p.add_argument("--height", type=int, default=1024)
@@ -195,6 +204,7 @@ def _run(args, out: Path) -> int:
             from fovjax.foveate import Foveation
 
             fov = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp)
+            fov = cli.regions(fov, args, args.height)
             frame = render_stereo(
                 arrays,
                 rig,

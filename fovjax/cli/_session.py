@@ -14,8 +14,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render a foveated stereo sequence following a gaze (and head) source",
         description="Render frames of a foveated stereo session: PNG frames, session.csv (per-frame "
         "tracking state, latency, thresholds, rays, times) and session.json (the same plus a summary). "
-        "Gaze sources: replay:FILE[@SPEED], synthetic:scanpath[:SEED], synthetic:pursuit, "
-        "synthetic:fixed[:X,Y], serial:PORT[@BAUD], pupil:HOST:PORT, viewpoint[:LIB]; head sources: "
+        "Gaze sources: replay:FILE[@SPEED], synthetic:scanpath[:SEED], synthetic:pursuit "
+        "(synthetic gaze: 120 Hz, noise-free, an idealised tracker; the thesis's ran at 60/30 Hz with "
+        "0.25-1° accuracy), "
+        "synthetic:fixed[:X,Y], serial:PORT[@BAUD], pupil:HOST:PORT, "
+        "viewpoint[:LIB][@raw] (smoothed gaze, as the thesis, unless @raw); head sources: "
         "replay:FILE, synthetic:sway, serial:PORT, intersense[:LIB]. When the gaze goes stale the "
         "fovea is held, then widened step by step up to the whole screen, and narrowed again once "
         "good samples return.",
@@ -31,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=640, help="pixels per eye (default 640)")
     p.add_argument("--height", type=int, default=512, help="pixels per eye (default 512)")
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
+    from fovjax import cli
+
+    cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
@@ -141,7 +147,9 @@ def run(args) -> int:
             rig,
             gaze=args.gaze,
             head=args.head,
-            foveation=Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp),
+            foveation=cli.regions(
+                Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
+            ),
             frames=args.frames,
             seconds=args.seconds,
             fps=args.fps,

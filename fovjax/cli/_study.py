@@ -79,7 +79,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     source.add_argument(
         "--comparison",
         metavar="DIR_OR_CSV",
-        help="comparison.csv written by `fovjax compare` (or its folder)",
+        help="comparison.csv written by `fovjax compare` (or its folder); every row is checked first "
+        "(fovea_deg, periphery_deg, spp and the jod/flip cells), a bad cell is FILE:LINE and exit 2",
     )
     source.add_argument(
         "--responses", metavar="FILE", nargs="+", help="results files (.csv/.jsonl, RESULT_FIELDS columns)"
@@ -159,7 +160,7 @@ def run(args) -> int:
         THESIS_LEVEL,
         default_metric,
         observers_from_comparison,
-        read_csv,
+        read_comparison,
         read_responses,
         run_study,
         study_majorities,
@@ -195,7 +196,7 @@ def run(args) -> int:
         print(f"read {len(responses)} answers from {participants} participant(s) in {files} file(s)")
     else:
         csv_path = _comparison_csv(args.comparison, parser)
-        table = read_csv(csv_path)
+        table, lines = read_comparison(csv_path)
         metric = args.metric
         if metric is None:
             metric = default_metric(table)
@@ -216,6 +217,7 @@ def run(args) -> int:
             threshold=args.threshold,
             levels=levels,
             where=str(csv_path),
+            lines=lines,
         )
         diff = observers[0].difference
         model = "" if diff.model is None else f", model {diff.model}"
@@ -234,6 +236,15 @@ def run(args) -> int:
             print(
                 f"note: every level is seen (d > {diff.threshold:g}); the slider stops at the "
                 "highest level, which is not an equivalence"
+            )
+        readings = sorted({str(r.get("regions") or "angle") for r in table})
+        if readings != ["thesis"]:
+            # The thesis's 12.5°/25° was chosen on its own regions, about twice the pixels per
+            # threshold of fovjax's exact-angle ones on the 90° rig: not the same levels.
+            print(
+                f"note: the table's regions are {'/'.join(readings)} (a table without a regions column "
+                "is angle), not the thesis's reading: the thesis column is not like-for-like; "
+                "`fovjax compare --regions thesis` makes it so"
             )
         print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
         responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)

@@ -27,6 +27,7 @@ VIDEO_DEFAULTS = {
     "fps": 60.0,
     "gaze": "scanpath",
     "rule": "either",
+    "regions": "thesis",
     "keys": "fresh",
     "walk_speed": 1.0,
     "peak_luminance": 100.0,
@@ -47,6 +48,13 @@ def add_arguments(p) -> None:
     g.add_argument("--fps", type=float, help="frames per second (default 60, the SX111's rate)")
     g.add_argument("--gaze", choices=("scanpath", "fixed"), help="scanpath (default) or the display centre")
     g.add_argument("--rule", choices=SAMPLING_RULES, help="the foveation's sampling rule (default either)")
+    from fovjax import cli
+
+    g.add_argument(
+        "--regions",
+        choices=("angle", "thesis"),
+        help=f"{cli.REGIONS_HELP} (default thesis here, so the majority compares with the thesis's)",
+    )
     g.add_argument(
         "--keys", choices=("fresh", "fixed"), help="sampling key: new every frame (default) or the same"
     )
@@ -99,7 +107,8 @@ def run(args) -> int:
     seconds = args.frames / args.fps
     print(
         f"video study: {args.scene}, {args.frames} frames at {args.fps:g} fps ({seconds:.3g} s), "
-        f"2 x {args.width}x{args.height}, SPP {spp}, gaze {args.gaze}, rule {args.rule}, keys {args.keys}, "
+        f"2 x {args.width}x{args.height}, SPP {spp}, gaze {args.gaze}, rule {args.rule}, "
+        f"regions {args.regions}, keys {args.keys}, "
         f"walk {args.walk_speed:g} m/s, peak {args.peak_luminance:g} cd/m²"
     )
     start = time.perf_counter()
@@ -112,6 +121,7 @@ def run(args) -> int:
         spp=spp,
         gaze=args.gaze,
         rule=args.rule,
+        regions=args.regions,
         keys=args.keys,
         walk_speed=args.walk_speed,
         seed=seed,

@@ -37,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=320, help="pixels per eye (default 320)")
     p.add_argument("--height", type=int, default=256, help="pixels per eye (default 256)")
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
+    from fovjax import cli
+
+    cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
@@ -136,7 +139,9 @@ def _run(args) -> int:
     renderer = LiveRenderer(
         scene,
         rig,
-        Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp),
+        cli.regions(
+            Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
+        ),
         config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
         gaze=None if args.gaze == "mouse" else args.gaze,
         head=None if args.head == "keys" else args.head,

@@ -3,12 +3,15 @@
 Gaze specs::
 
     synthetic:scanpath[:SEED]      fixations and main-sequence saccades (seed 0 by default)
+                                   (synthetic gaze: 120 Hz and noise-free unless `rate` is given,
+                                   an idealised tracker; the thesis's ran at 60/30 Hz, 0.25-1° accuracy)
     synthetic:fixed[:X,Y]          one fixed point (default the display centre)
     synthetic:pursuit              smooth pursuit around the display centre
     replay:FILE[@SPEED]            a .jsonl/.csv recording, real time or SPEED x ("fast": unpaced)
     serial:PORT[@BAUD]             the fovjax line protocol on a serial port / pyserial URL
     pupil:HOST:PORT                Pupil Remote (the 'pupil' extra)
-    viewpoint[:LIBRARY]            ViewPoint SDK library
+    viewpoint[:LIBRARY][@raw]      ViewPoint SDK library; its smoothed gaze point (as the thesis),
+                                   or with @raw the unfiltered one (@smoothed: the default, said)
 Head specs: ``synthetic:sway``, ``replay:FILE``, ``serial:PORT[@BAUD]``, ``intersense[:LIBRARY]``.
 """
 
@@ -56,8 +59,17 @@ def _build(spec, kind, duration, clock, rate, paced, dropouts, connect_timeout) 
     if kind not in ("gaze", "head"):
         raise ValueError(f"source_from_spec: kind must be 'gaze' or 'head', got {kind!r}")
     scheme, _, rest = spec.partition(":")
+    if scheme.startswith("viewpoint@"):  # viewpoint@raw: the default library, a reading chosen
+        scheme, rest = "viewpoint", scheme[len("viewpoint") :]
     if scheme == "synthetic":
-        from ._synthetic import FixedPoints, Scanpath, SmoothPursuit, SyntheticGazeSource, SyntheticHeadSource
+        from ._synthetic import (
+            DEFAULT_GAZE_RATE,
+            FixedPoints,
+            Scanpath,
+            SmoothPursuit,
+            SyntheticGazeSource,
+            SyntheticHeadSource,
+        )
 
         model_name, _, arg = rest.partition(":")
         if kind == "head":
@@ -95,7 +107,7 @@ def _build(spec, kind, duration, clock, rate, paced, dropouts, connect_timeout) 
             model,
             duration=duration,
             clock=clock,
-            rate=rate or 120.0,
+            rate=rate or DEFAULT_GAZE_RATE,
             speed=1.0 if paced else None,
             dropouts=dropouts,
         )
@@ -167,7 +179,15 @@ def _build(spec, kind, duration, clock, rate, paced, dropouts, connect_timeout) 
             raise ValueError(f"source spec {spec!r}: ViewPoint gives gaze, not {kind}")
         from ._viewpoint import ViewPointSource
 
-        return ViewPointSource(rest or None, clock=clock)
+        library, at, reading = rest.rpartition("@")
+        if not at:
+            library, reading = rest, "smoothed"
+        if reading not in ("smoothed", "raw"):
+            raise ValueError(
+                f"source spec {spec!r}: ViewPoint reading {reading!r} is not 'smoothed' or 'raw' "
+                "(viewpoint[:LIBRARY][@smoothed|@raw])"
+            )
+        return ViewPointSource(library or None, smoothed=reading == "smoothed", clock=clock)
     if scheme == "intersense":
         if kind != "head":
             raise ValueError(f"source spec {spec!r}: InterSense gives head pose, not {kind}")

@@ -196,6 +196,11 @@ class Scanpath(GazeModel):
         ]
 
 
+# The synthetic gaze source's default sampling rate (Hz): an idealised tracker, twice the
+# thesis's fastest ViewPoint setting (60 Hz; see `SyntheticGazeSource`).
+DEFAULT_GAZE_RATE = 120.0
+
+
 class SyntheticGazeSource(PacedSource):
     """Gaze samples at `rate` Hz from a `GazeModel`, both eyes at the model's point (each eye's
     display shows the fixated point at the same normalised place when `vergence_offset` is 0; a
@@ -207,6 +212,12 @@ class SyntheticGazeSource(PacedSource):
     all -- a silent tracker, for exercising the fallback. Pacing as in every `PacedSource`:
     ``speed=1.0`` real time on `clock`, ``None`` as fast as read with timestamps
     ``start_time + i / rate``.
+
+    The defaults are an idealised tracker, not the thesis's: 120 Hz (`DEFAULT_GAZE_RATE`) and
+    no noise, where the thesis's ViewPoint tracker ran at 60 or 30 Hz (selectable) with
+    0.25°-1.0° accuracy (§2.1.3). For that tracker pass ``rate=60`` (or 30) and a `noise_sd` of
+    the accuracy in normalised units (degrees over the display's field of view, e.g.
+    0.5 / 64 vertically on the SX111).
     """
 
     kind = "gaze"
@@ -215,7 +226,7 @@ class SyntheticGazeSource(PacedSource):
         self,
         model: GazeModel,
         *,
-        rate: float = 120.0,
+        rate: float = DEFAULT_GAZE_RATE,
         duration: float | None = None,
         noise_sd: float = 0.0,
         vergence_offset: float = 0.0,

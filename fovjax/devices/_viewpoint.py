@@ -118,6 +118,11 @@ class ViewPointSource(Source[GazeSample]):
     `max_quality_code` (2 by default, the thesis's rule) and its point is finite. A message whose
     two data times equal the previous sample's is not emitted twice. Samples are stamped with
     `clock()` when the callback runs; ViewPoint's data time of the right eye is ``device_time``.
+
+    `smoothed` (default True, as the thesis): the gaze point is ViewPoint's smoothed one,
+    ``VPX_GetGazePointSmoothed2``, which is what the thesis's callback reads (its smoothing is
+    configured in ViewPoint itself); False reads the unfiltered ``VPX_GetGazePoint2`` (less lag,
+    more jitter). The source spec chooses with ``viewpoint[:LIBRARY][@smoothed|@raw]``.
     """
 
     kind = "gaze"
@@ -127,7 +132,7 @@ class ViewPointSource(Source[GazeSample]):
         library_path: str | os.PathLike | None = None,
         *,
         max_quality_code: int = 2,
-        smoothed: bool = False,
+        smoothed: bool = True,
         eye_a: str = "right",
         flip_y: bool = False,
         clock: Clock = time.monotonic,

@@ -44,6 +44,7 @@ from ._failures import (
     CASES as FAILURE_CASES,
 )
 from ._failures import (
+    FITTED_MAR,
     AcuityTerms,
     EqualBudget,
     FailureCase,
@@ -132,6 +133,7 @@ from ._stability import (
     temporal_stability,
 )
 from ._study import (
+    COMPARISON_COLUMNS,
     MAJORITY_TESTS,
     STUDY_METRICS,
     THESIS_LEVEL,
@@ -139,6 +141,7 @@ from ._study import (
     default_metric,
     difference_from_comparison,
     observers_from_comparison,
+    read_comparison,
     study_majorities,
 )
 from ._video_study import (
@@ -213,6 +216,8 @@ __all__ = [
     "psnr",
     "ramp_trials",
     "read_csv",
+    "read_comparison",
+    "COMPARISON_COLUMNS",
     "read_responses",
     "run_study",
     "slider_trial",
@@ -240,6 +245,7 @@ __all__ = [
     "verdict_from_jods",
     "video_study",
     "FAILURE_CASES",
+    "FITTED_MAR",
     "AcuityTerms",
     "EqualBudget",
     "FailureCase",

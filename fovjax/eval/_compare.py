@@ -131,6 +131,7 @@ def compare_thresholds(
     criterion: tuple[str, float] = DEFAULT_CRITERION,
     perceptual: bool | None = None,
     rule: str = "either",
+    regions: str = "angle",
     progress: bool = True,
     bvh=None,
     shard: bool = False,
@@ -173,6 +174,10 @@ def compare_thresholds(
             foveation) and measures it: a record labelled "... planned" with `planned` True and the
             plan in `fidelity` (plain records: `planned` False, `fidelity` "full").
         plan_criterion: the criterion of those plans.
+        regions: the region reading (`fovjax.foveate.with_regions`, recorded per row): "angle"
+            (fovjax's exact-angle regions, the default) or "thesis" (the thesis's Table 2
+            reading; the one under which the thesis levels compare like-for-like with its
+            participants' answers).
 
     Returns:
         A `Comparison`: `records` (one per configuration), `rings` (error per 5° ring), `choice`,
@@ -189,11 +194,13 @@ def compare_thresholds(
         print(cmp.choice)
         ```
     """
-    from ..foveate import Foveation, render_foveated
+    from ..foveate import REGION_READINGS, Foveation, render_foveated, with_regions
     from ..render import RenderConfig, render_stereo
     from ._plan import _check_criterion, plan_fidelity
     from ._shard import render_foveated_batch, render_stereo_batch
 
+    if regions not in REGION_READINGS:
+        raise ValueError(f"compare_thresholds: regions {regions!r}: expected one of {REGION_READINGS}")
     if fidelity not in (None, "auto"):
         raise ValueError(f"compare_thresholds: fidelity {fidelity!r}: expected None or 'auto'")
     if fidelity == "auto":
@@ -322,6 +329,7 @@ def compare_thresholds(
     for s, (fovea, periphery), model in configs:
         kwargs = {} if model is None else {"acuity": model}
         fov = Foveation(fovea_deg=float(fovea), periphery_deg=float(periphery), spp=s, rule=rule, **kwargs)
+        fov = with_regions(fov, regions, rig.eye_height)
         model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
         label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
         fields = {
@@ -329,6 +337,7 @@ def compare_thresholds(
             "periphery_deg": float(periphery),
             "spp": s,
             "model": model_name,
+            "regions": regions,
         }
         planned = {"planned": False, "fidelity": "full"} if fidelity == "auto" else {}
         evaluate(s, fov, label, {**fields, **planned})

@@ -48,8 +48,6 @@ APPENDIX_LEVELS: tuple[tuple[float, float], ...] = (
     (12.5, 25.0),
     (15.0, 30.0),
 )
-PAIR_GAP_S = 0.5  # black between the two renders of a pair
-RAMP_STEP_S = 5.0  # duration of one ramp step
 TESTS = ("pair", "ramp", "slider")
 PAIR_ORDERS = ("reference_first", "foveated_first")
 RAMP_DIRECTIONS = ("up", "down")

@@ -15,15 +15,17 @@ over the level's rows at one spp (and one acuity model, when the table has sever
 
 from __future__ import annotations
 
+import csv
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ._compare import DEFAULT_CRITERION
 from ._metrics import JND_JOD
-from ._pareto import as_records
+from ._pareto import _parse, as_records
 from ._protocols import (
     APPENDIX_LEVELS,
     RAMP_DIRECTIONS,
@@ -127,12 +129,14 @@ def difference_from_comparison(
     threshold: float | None = None,
     levels=APPENDIX_LEVELS,
     where: str = "comparison table",
+    lines: Sequence[int] | None = None,
 ) -> LevelDifference:
     """For every study level (fovea, periphery), the mean of `metric` over the table's rows at
     that level, `spp` and `model` (needed only when the table has several models), turned into
     the difference d of `STUDY_METRICS`. `metric` defaults to `default_metric(table)`;
     `threshold` to the metric's default. `where` names the table in error messages (e.g. its
-    path). ValueErrors name what is missing: a level (with the levels and spp values the table
+    path), and `lines` (from `read_comparison`) each record's line in it, so a bad row is
+    FILE:LINE. ValueErrors name what is missing: a level (with the levels and spp values the table
     has), the metric column (with the columns), a model, or a row with a non-finite value."""
     records = as_records(table)
     if not records:
@@ -188,22 +192,91 @@ def difference_from_comparison(
             except (TypeError, ValueError):
                 x = math.nan
             label = f" (config {r['config']!r})" if "config" in r else ""
+            row_at = f"{where}:{lines[i]}" if lines is not None else f"{where}: row {i + 1}"
             if not math.isfinite(x):
                 raise ValueError(
-                    f"{where}: row {i + 1}{label}: {metric} is {v!r}, not a finite number "
+                    f"{row_at}{label}: {metric} is {v!r}, not a finite number "
                     f"(level {_level_label(*level)}, {which})"
                 )
             lo, hi = METRIC_SCALES[metric]
             if not lo - 1e-6 <= x <= hi + 1e-6:
                 scale = f"[{lo:g}, {hi:g}]" if math.isfinite(lo) else f"at most {hi:g}"
                 raise ValueError(
-                    f"{where}: row {i + 1}{label}: {metric} is {v!r}, outside its scale {scale} "
+                    f"{row_at}{label}: {metric} is {v!r}, outside its scale {scale} "
                     f"(level {_level_label(*level)}, {which})"
                 )
             values.append(x)
         means[level] = float(np.mean(values))
         counts[level] = len(values)
     return LevelDifference(metric, threshold, int(spp), model, means, counts)
+
+
+# The columns of a comparison table the study reads, and what each must hold.
+COMPARISON_COLUMNS = ("fovea_deg", "periphery_deg", "spp")
+
+
+def _cell_number(text: str, where: str, column: str, expected: str, *, whole: bool = False) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or (whole and not value.is_integer()):
+        raise ValueError(f"{where}: {column} is {text!r}, not {expected}")
+    return value
+
+
+def read_comparison(path) -> tuple[list[dict], list[int]]:
+    """Read a `fovjax compare` table (comparison.csv) for the study, checking every cell the
+    study reads before any is used: the columns `COMPARISON_COLUMNS` and a metric column ("jod"
+    or "flip"); per row fovea_deg and periphery_deg numbers of degrees with
+    0 <= fovea <= periphery <= 180, spp a whole number >= 1, and each metric cell empty (not
+    measured) or a number within its scale (`METRIC_SCALES`). Returns the records (cells as
+    `read_csv` gives them) and each record's line in the file. A bad table is a ValueError
+    naming FILE:LINE, the column, the value and what was expected."""
+    path = Path(path)
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        header = reader.fieldnames
+        if not header:
+            raise ValueError(f"{path}:1: empty file; expected a comparison table (`fovjax compare`)")
+        missing = [c for c in COMPARISON_COLUMNS if c not in header]
+        if missing:
+            raise ValueError(
+                f"{path}:1: no column {', '.join(map(repr, missing))} (columns: {list(header)}); "
+                "expected a comparison table written by `fovjax compare`"
+            )
+        if not any(m in header for m in METRIC_SCALES):
+            raise ValueError(f"{path}:1: neither a 'jod' nor a 'flip' column (columns: {list(header)})")
+        records, lines = [], []
+        for row in reader:
+            line = reader.line_num  # where the row ends: its line, for a row without quoted newlines
+            where = f"{path}:{line}"
+            if None in row or any(v is None for v in row.values()):
+                fields = len(header) + len(row.get(None) or ()) - sum(v is None for v in row.values())
+                raise ValueError(f"{where}: {fields} fields, the header has {len(header)}")
+            fovea = _cell_number(row["fovea_deg"], where, "fovea_deg", "a number of degrees")
+            periphery = _cell_number(row["periphery_deg"], where, "periphery_deg", "a number of degrees")
+            if not 0 <= fovea <= periphery <= 180:
+                raise ValueError(
+                    f"{where}: fovea_deg {row['fovea_deg']}, periphery_deg {row['periphery_deg']}: "
+                    "expected 0 <= fovea <= periphery <= 180 degrees"
+                )
+            spp = _cell_number(row["spp"], where, "spp", "a whole number of samples per pixel", whole=True)
+            if spp < 1:
+                raise ValueError(f"{where}: spp is {row['spp']!r}, not a whole number >= 1")
+            for metric, (lo, hi) in METRIC_SCALES.items():
+                text = row.get(metric)
+                if text is None or text == "":
+                    continue
+                x = _cell_number(text, where, metric, "a number")
+                if not lo - 1e-6 <= x <= hi + 1e-6:
+                    scale = f"[{lo:g}, {hi:g}]" if math.isfinite(lo) else f"at most {hi:g}"
+                    raise ValueError(f"{where}: {metric} is {text}, outside its scale {scale}")
+            records.append({k: _parse(v) for k, v in row.items()})
+            lines.append(line)
+    if not records:
+        raise ValueError(f"{path}: header only, no rows")
+    return records, lines
 
 
 def observer_seeds(n: int, seed: int | None) -> list[int | None]:
@@ -225,6 +298,7 @@ def observers_from_comparison(
     threshold: float | None = None,
     levels=APPENDIX_LEVELS,
     where: str = "comparison table",
+    lines: Sequence[int] | None = None,
 ) -> list[MetricObserver]:
     """`n` automatic observers ("auto01", ...) judging the difference of
     `difference_from_comparison` (same arguments) against its threshold. With `noise_sd` > 0
@@ -233,7 +307,14 @@ def observers_from_comparison(
     if n < 1:
         raise ValueError(f"observers_from_comparison: n must be >= 1, got {n}")
     difference = difference_from_comparison(
-        table, metric=metric, spp=spp, model=model, threshold=threshold, levels=levels, where=where
+        table,
+        metric=metric,
+        spp=spp,
+        model=model,
+        threshold=threshold,
+        levels=levels,
+        where=where,
+        lines=lines,
     )
     return [
         MetricObserver(difference, difference.threshold, name=f"auto{k + 1:02d}", noise_sd=noise_sd, seed=s)

@@ -116,6 +116,7 @@ class StudySequence:
     render_seconds: float
     compile_seconds: float
     traces: dict
+    regions: str = "thesis"
 
     @property
     def frames(self) -> int:
@@ -214,6 +215,7 @@ def study_sequence(
     spp: int = STUDY_SPP,
     gaze: str = "scanpath",
     rule: str = "either",
+    regions: str = "thesis",
     walk_speed: float = WALK_SPEED,
     seed: int = 0,
     keys: str = "fresh",
@@ -225,18 +227,22 @@ def study_sequence(
     pose, head position, gaze, sampling key and the foveation thresholds change per frame as
     traced values: the full render compiles once and the foveated render once for the whole
     sequence. `seed`: the scanpath's seed and the first frame's key (frame f uses seed + f with
-    `keys="fresh"`, seed with "fixed").
+    `keys="fresh"`, seed with "fixed"). `regions` (`fovjax.foveate.with_regions`): "thesis"
+    (default: the thesis's own reading, so the levels compare with its participants' answers)
+    or "angle" (fovjax's exact-angle regions, about half the area on the 90° rig).
     `progress(text)` is called once per frame rendered."""
     import equinox as eqx
     import jax
 
-    from ..foveate import Foveation, render_foveated
+    from ..foveate import REGION_READINGS, Foveation, render_foveated, with_regions
     from ..render import TRACE_COUNTS, RenderConfig, StereoRig, bvh_for, render_stereo, scene_arrays
     from ..scenes import default_camera
 
     eye_width, eye_height, frames, fps, spp, walk_speed, seed, levels = _check_args(
         eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys
     )
+    if regions not in REGION_READINGS:
+        raise ValueError(f"study_sequence: regions must be one of {REGION_READINGS}, got {regions!r}")
     config = config or RenderConfig()
     tick = progress or (lambda text: None)
     display = sx111_display(eye_width, eye_height)
@@ -252,7 +258,8 @@ def study_sequence(
     poses = _head_poses(frames, fps)
     gazes = _gazes(gaze, frames, fps, seed, display)
     foveations = {
-        level: Foveation.thesis_measured(level, eye_height=eye_height, rule=rule, spp=spp) for level in levels
+        level: with_regions(Foveation.thesis(level, rule=rule, spp=spp), regions, eye_height)
+        for level in levels
     }
     bvh = bvh_for(scene, None)
     arrays = scene_arrays(scene, background=config.background)
@@ -295,6 +302,7 @@ def study_sequence(
         fps=fps,
         spp=spp,
         rule=rule,
+        regions=regions,
         gaze_mode=gaze,
         key_mode=keys,
         scene=str(getattr(scene, "name", "scene")),
@@ -360,6 +368,7 @@ class VideoStudy:
                     "periphery_deg": level[1],
                     "spp": s.spp,
                     "rule": s.rule,
+                    "regions": s.regions,
                     "gaze": s.gaze_mode,
                     "keys": s.key_mode,
                     "jod": float(jod),
@@ -455,6 +464,7 @@ def video_study(
     spp: int = STUDY_SPP,
     gaze: str = "scanpath",
     rule: str = "either",
+    regions: str = "thesis",
     walk_speed: float = WALK_SPEED,
     seed: int = 0,
     keys: str = "fresh",
@@ -495,6 +505,7 @@ def video_study(
             spp=spp,
             gaze=gaze,
             rule=rule,
+            regions=regions,
             walk_speed=walk_speed,
             seed=seed,
             keys=keys,

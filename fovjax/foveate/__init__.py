@@ -15,6 +15,9 @@ from ._config import (
     ECCENTRICITY_MODES as ECCENTRICITY_MODES,
 )
 from ._config import (
+    REGION_READINGS as REGION_READINGS,
+)
+from ._config import (
     SAMPLING_RULES as SAMPLING_RULES,
 )
 from ._config import (
@@ -37,6 +40,9 @@ from ._config import (
 )
 from ._config import (
     program_fidelity as program_fidelity,
+)
+from ._config import (
+    with_regions as with_regions,
 )
 from ._eccentricity import (
     display_pixel_pitch_mm as display_pixel_pitch_mm,

@@ -22,6 +22,8 @@ THESIS_PAIRS: tuple[tuple[float, float], ...] = (
 
 ECCENTRICITY_MODES = ("angle", "planar")
 SAMPLING_RULES = ("either", "strict", "thesis-measured")
+# How the regions' eccentricity is measured (`with_regions`; every command's --regions).
+REGION_READINGS = ("angle", "thesis")
 
 
 class LinearFalloff(eqx.Module):
@@ -243,9 +245,13 @@ class Foveation(eqx.Module):
     - `acuity`: a callable ω → probability in [0, 1] (default: the thesis's V(ω),
       `fovjax.acuity.THESIS_MODEL`; any `fovjax.acuity` model, `LinearFalloff`, `Constant`);
     - `blocks`: block edge in pixels for the periphery and the outside zone (thesis: 2, 4);
-    - `rule`: "either" (default) — a block's top-left pixel is always traced and any other
-      pixel's sub-sample with probability P(ω), the thesis's "either condition"; "strict" — only
-      top-left pixels, each sub-sample kept with probability P(ω); "thesis-measured" — the
+    - `rule`: two readings of one paragraph of the thesis (ray generation, Figure 57), which
+      says the top-left condition and the P(ω) draw are conditions "either of which determines"
+      a ray and then "If both conditions are met, we generate a ray". "either" (default, the
+      first sentence: a sample when either holds) — a block's top-left pixel is always traced
+      and any other pixel's sub-sample with probability P(ω); "strict" (the second sentence:
+      both must hold) — only top-left pixels, each sub-sample kept with probability P(ω).
+      Neither is the thesis's single rule; "either" is fovjax's choice. "thesis-measured" — the
       sampling the thesis's Table 2 implies (not its text): every sub-sample of the pixels
       within `periphery_deg`, one sample per pixel beyond it at any SPP, no draws (see
       `Foveation.thesis_measured` and docs/thesis.md);
@@ -391,6 +397,28 @@ class Foveation(eqx.Module):
         omega = jnp.asarray(omega, jnp.float32)
         p = jnp.clip(jnp.asarray(self.acuity(omega), jnp.float32), 0.0, 1.0)
         return jnp.where(omega <= self.fovea_deg, 1.0, p)
+
+
+def with_regions(foveation: Foveation, reading: str, eye_height: int) -> Foveation:
+    """`foveation` with its regions measured by `reading`:
+
+    - "angle" (fovjax's default): the exact angle between a pixel's ray and the gaze ray, on the
+      rig's own field of view (90° vertical by default);
+    - "thesis": the reading behind the thesis's Table 2 (`Foveation.thesis_measured`'s regions
+      without its rule): the planar formula (eq. 4-5, D = 24 mm) at the pitch of the SX111's
+      16 pixels per degree, scaled to `eye_height` rows (`thesis_pixel_pitch_mm`). On the 90°
+      rig a threshold then covers about twice the pixels "angle" gives it, so a thesis level
+      such as 12.5°/25° is like-for-like with the thesis's participants only under "thesis".
+
+    The sampling rule, thresholds and everything else stay `foveation`'s."""
+    from ._eccentricity import thesis_pixel_pitch_mm
+
+    if reading not in REGION_READINGS:
+        raise ValueError(f"regions must be one of {REGION_READINGS}, got {reading!r}")
+    if reading == "angle":
+        return dataclasses.replace(foveation, eccentricity="angle")
+    pitch = thesis_pixel_pitch_mm(int(eye_height), eye_display_mm=24.0)
+    return dataclasses.replace(foveation, eccentricity="planar", eye_display_mm=24.0, pixel_pitch_mm=pitch)
 
 
 def check_gaze(gaze, name: str = "gaze") -> np.ndarray:

@@ -29,6 +29,17 @@ spp, jitter, config)` is the pure full stereo frame (image, `RayCounts`, number 
 (key, jitter) as every entry point reads an optional PRNG key; `bvh_for(scene, bvh)` the BVH a
 frame traces (the one given, else the cached build); `DEFAULT_CONFIG` is `RenderConfig()`.
 
+Departures from the thesis's shading (chosen, and kept: the images are compared against
+Mitsuba elsewhere):
+
+- the specular term is not multiplied by n·l: per visible light Kd·(n·l) + Ks·(n·h)^Ns (Blinn–
+  Phong as usually written), where the thesis's shadow payload (§4.4.3) scales both terms by
+  n·l; under a light at grazing incidence a highlight is brighter here than in the thesis;
+- rays that miss every surface see a constant background, `RenderConfig.background`
+  (default `THESIS_BACKGROUND` (0.34, 0.55, 0.85), the thesis's OptiX "bg color"), unless an
+  environment map is given (`scene_arrays(..., envmap=)`, `fovjax render --envmap`); the
+  thesis's miss program (§4.4.4) samples an environment map.
+
 `fovjax.render` is both this subpackage and, when called, `render`: `fovjax.render(scene,
 camera, spp=4)` renders a frame while `fovjax.render.radiance` etc. stay reachable.
 """

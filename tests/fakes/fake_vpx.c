@@ -8,6 +8,7 @@ typedef int (*VPX_CALLBACK)(int msg, int subMsg, int param1, int param2, void *u
 static VPX_CALLBACK callback_fn = 0;
 static void *callback_user = 0;
 static VPX_RealPoint gaze[2];
+static VPX_RealPoint smoothed_gaze[2]; /* what ViewPoint's smoothing filter would give */
 static int quality[2] = {5, 5};
 static double data_time[2];
 
@@ -16,7 +17,11 @@ int VPX_GetGazePoint2(int eye, VPX_RealPoint *gp) {
     *gp = gaze[eye];
     return 1;
 }
-int VPX_GetGazePointSmoothed2(int eye, VPX_RealPoint *gp) { return VPX_GetGazePoint2(eye, gp); }
+int VPX_GetGazePointSmoothed2(int eye, VPX_RealPoint *gp) {
+    if (eye < 0 || eye > 1) return 0;
+    *gp = smoothed_gaze[eye];
+    return 1;
+}
 int VPX_GetDataQuality2(int eye, int *q) {
     if (eye < 0 || eye > 1) return 0;
     *q = quality[eye];
@@ -41,8 +46,14 @@ int VPX_RemoveCallback(VPX_CALLBACK fn) {
 void fake_set_eye(int eye, float x, float y, int q, double t) {
     gaze[eye].x = x;
     gaze[eye].y = y;
+    smoothed_gaze[eye] = gaze[eye];
     quality[eye] = q;
     data_time[eye] = t;
+}
+/* A smoothed point apart from the raw one (set after fake_set_eye). */
+void fake_set_smoothed(int eye, float x, float y) {
+    smoothed_gaze[eye].x = x;
+    smoothed_gaze[eye].y = y;
 }
 int fake_fire(int msg, int sub_msg) { return callback_fn ? callback_fn(msg, sub_msg, 0, 0, callback_user) : -1; }
 int fake_callback_registered(void) { return callback_fn != 0; }

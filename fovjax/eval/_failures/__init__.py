@@ -29,6 +29,7 @@ One private module per case (`_corner_gaze.py`, ...); `_common.py` holds what th
 `_run.py` runs them (`failure_cases`).
 """
 
+from ._acuity_models import FITTED_MAR as FITTED_MAR
 from ._acuity_models import AcuityTerms as AcuityTerms
 from ._acuity_models import EqualBudget as EqualBudget
 from ._acuity_models import acuity_models as acuity_models

@@ -199,23 +199,31 @@ def equal_budget_foveations(
     return EqualBudget(arms, gains, expected, int(budget), names[0])
 
 
-def default_models() -> dict[str, object]:
-    """The thesis's exponential, the fitted linear-MAR curve (`fits/published_linear_mar.json`
-    when the repository's fits are present, else Song, Levi & Pelli's E2 = 2.72°), the
-    `LinearFalloff` default (1 at 5° to 0.05 at 30°) and `Constant` (uniform)."""
+FITTED_MAR = Path(__file__).resolve().parents[3] / "fits" / "published_linear_mar.json"
+"""The linear-MAR curve fitted to the published acuity data (`fovjax fit`), in the repository's
+`fits/` folder: the second of `default_models()`."""
+
+
+def default_models(fit: str | Path | None = None) -> dict[str, object]:
+    """The thesis's exponential, the fitted linear-MAR curve read from `fit` (default
+    `FITTED_MAR`, the repository's `fits/published_linear_mar.json`), the `LinearFalloff`
+    default (1 at 5° to 0.05 at 30°) and `Constant` (uniform). A missing or unreadable fit is an
+    error (FileNotFoundError / ValueError naming the file), never a silent stand-in curve."""
     from ...acuity import THESIS_MODEL, LinearMAR, load_fit
     from ...foveate import Constant, LinearFalloff
 
-    fit = Path(__file__).resolve().parents[2] / "fits" / "published_linear_mar.json"
-    if fit.exists():
-        mar = load_fit(fit)
-        mar_name = f"linear MAR fit (E2 {float(mar.e2):.2f}°)"
-    else:
-        mar = LinearMAR()
-        mar_name = "linear MAR (E2 2.72°, Song et al.)"
+    path = FITTED_MAR if fit is None else Path(fit)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{path}: no such file; the acuity models need the fitted linear-MAR curve "
+            "(the repository's fits/published_linear_mar.json, or another `fovjax fit` record)"
+        )
+    mar = load_fit(path)
+    if not isinstance(mar, LinearMAR):
+        raise ValueError(f"{path}: a {type(mar).__name__} fit; the acuity models need a linear-MAR fit")
     return {
         "thesis exponential": THESIS_MODEL,
-        mar_name: mar,
+        f"linear MAR fit (E2 {float(mar.e2):.2f}°)": mar,
         "linear fall-off": LinearFalloff(),
         "constant": Constant(),
     }
