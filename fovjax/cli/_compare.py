@@ -85,8 +85,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "ID 0..N-1, HOST:PORT the address of process 0; implies --shard, process 0 writes the results",
     )
     p.add_argument("-o", "--output", default="out/compare")
-    from fovjax import cli
-
     cli.add_regions(p)
     p.set_defaults(func=run)
 
@@ -98,8 +96,6 @@ METRIC_RANGES = {"flip": (0.0, 1.0), "ssim": (-1.0, 1.0), "psnr": (0.0, None), "
 def validate(args) -> None:
     """Every argument of `fovjax compare`, before anything is rendered."""
     import importlib.util
-
-    from fovjax import cli
 
     cli.scene(args.scene)
     cli.backend(args.backend)
@@ -146,7 +142,6 @@ def run(args) -> int:
     import jax
 
     import fovjax
-    from fovjax import cli
     from fovjax.eval import HIGHER_IS_BETTER, compare_thresholds
     from fovjax.render import RenderConfig, StereoRig
 

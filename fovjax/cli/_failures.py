@@ -28,8 +28,6 @@ def _common(p: argparse.ArgumentParser, output: str) -> None:
     p.add_argument("--periphery", type=float, default=20.0, help="periphery radius, degrees")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("-o", "--output", default=output)
-    from fovjax import cli
-
     cli.add_regions(p)
 
 
@@ -58,8 +56,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _validate_common(args) -> None:
-    from fovjax import cli
-
     cli.scene(args.scene)
     cli.number(args.width, "--width", ge=1)
     cli.number(args.height, "--height", ge=1)
@@ -70,7 +66,6 @@ def _validate_common(args) -> None:
 
 def validate_failures(args) -> None:
     """Every argument of `fovjax failures`, before anything is rendered."""
-    from fovjax import cli
     from fovjax.eval import FITTED_MAR
 
     _validate_common(args)
@@ -90,14 +85,11 @@ def _setup(args):
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
-    from fovjax import cli
-
     foveation = cli.regions(Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery), args, args.height)
     return scene, rig, foveation, RenderConfig(max_depth=args.max_depth, backend=args.backend)
 
 
 def run_failures(args) -> int:
-    from fovjax import cli
     from fovjax.eval import default_models, failure_cases
 
     validate_failures(args)

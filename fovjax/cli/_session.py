@@ -34,7 +34,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=640, help="pixels per eye (default 640)")
     p.add_argument("--height", type=int, default=512, help="pixels per eye (default 512)")
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
-    from fovjax import cli
 
     cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
@@ -76,8 +75,6 @@ def validate(args) -> None:
     """Every argument of `fovjax session`, before a scene is built or a device opened."""
     import importlib.util
 
-    from fovjax import cli
-
     cli.source_spec(args.gaze, "gaze", "--gaze")
     cli.backend(args.backend)
     if args.head is not None:
@@ -116,7 +113,6 @@ def run(args) -> int:
     import jax
 
     import fovjax
-    from fovjax import cli
     from fovjax.cli._render import _load_scene
     from fovjax.devices import DEFAULT_CONNECT_TIMEOUT, ConnectTimeoutError, FallbackPolicy, GazeTracker
     from fovjax.foveate import Foveation

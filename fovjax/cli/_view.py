@@ -37,7 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=320, help="pixels per eye (default 320)")
     p.add_argument("--height", type=int, default=256, help="pixels per eye (default 256)")
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
-    from fovjax import cli
 
     cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
@@ -57,7 +56,6 @@ def validate(args) -> None:
     """Every argument of `fovjax view`, before a scene is built, a device opened or a port
     served: `fovjax.cli`'s checkers (`UsageError`, exit status 2), then the extras it needs
     (ImportError naming the `pip install`, exit status 1)."""
-    from fovjax import cli
     from fovjax.view import MAX_THRESHOLD_DEG
 
     cli.number(args.width, "--width", ge=1, le=MAX_EYE_PIXELS, integer=True)
@@ -125,7 +123,6 @@ def run(args) -> int:
 
 def _run(args) -> int:
     import fovjax
-    from fovjax import cli
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
     from fovjax.view import LiveRenderer, Viewer
