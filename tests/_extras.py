@@ -27,10 +27,14 @@ EXTRAS = {
     "fast_simplification": "lod",
     "flip_evaluator": "flip",
     "imageio_ffmpeg": "video",
+    "mitsuba": "bench",
+    "mkdocs": "docs",
+    "mkdocstrings_handlers.python": "docs",
     "msgpack": "pupil",
     "pyfvvdp": "fvvdp",
     "selenium": "dev",
     "torch": "fvvdp",
+    "warp": "gpu",
     "zmq": "pupil",
 }
 REQUIRE_VARIABLE = "FOVJAX_REQUIRE_EXTRAS"

@@ -10,13 +10,13 @@ tests/test_session.py), so most of their compiling is shared with those tests.""
 
 from __future__ import annotations
 
-import importlib
 import os
 import re
 import subprocess
 import sys
 from pathlib import Path
 
+import _extras
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,10 +33,8 @@ FORBIDDEN = re.compile(r"this session|pix12|out12|lod16|texspp|lodframe")
 
 
 def need(module: str):
-    """The docs toolchain (the [docs] extra), or a skip; a failure where CI installs every extra."""
-    if os.environ.get("FOVJAX_REQUIRE_EXTRAS") == "1":
-        return importlib.import_module(module)
-    return pytest.importorskip(module, reason="the [docs] extra (mkdocs-material, mkdocstrings-python)")
+    """The docs toolchain (the [docs] extra), through the suite's one guard."""
+    return _extras.require(module)
 
 
 @pytest.fixture(scope="module")

@@ -1,17 +1,18 @@
 """benchmarks/mitsuba_frame.py, the frame-level peer: at a tiny size its Mitsuba 3 frame matches
 fovjax's full frame (PSNR, ray counts by kind) and its JSON record holds the figures.
 
-Mitsuba is in the `[bench]` extra, which CI does not install: there this test skips. Where
-mitsuba is installed but Dr.Jit finds no libLLVM >= 16 (a system library), it skips with the
-script's own reason."""
+Mitsuba is in the `[bench]` extra (`.ci/run` installs it, and Debian's libllvm19 for Dr.Jit).
+Where mitsuba is installed but Dr.Jit finds no libLLVM >= 16 (a system library, not an extra),
+it skips with the script's own reason."""
 
 import importlib.util
 import json
 from pathlib import Path
 
+import _extras
 import pytest
 
-pytest.importorskip("mitsuba", reason="mitsuba is not installed (the 'bench' extra)")
+_extras.require("mitsuba", module_level=True)
 
 SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "mitsuba_frame.py"
 

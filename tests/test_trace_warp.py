@@ -8,9 +8,7 @@ cached on disk), each jitted query is one XLA program.
 
 from __future__ import annotations
 
-import importlib
-import os
-
+import _extras
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -20,16 +18,7 @@ import fovjax
 from fovjax.trace import brute_force_closest_hit, build_bvh, merge_bvhs
 from fovjax.trace._query import _raw_query
 
-
-def _need_warp():
-    """The `[gpu]` extra (warp-lang), or a skip; a failure where CI installs every extra
-    (FOVJAX_REQUIRE_EXTRAS=1 in .ci/run), so a broken install cannot pass as a skip."""
-    if os.environ.get("FOVJAX_REQUIRE_EXTRAS") == "1":
-        return importlib.import_module("warp")
-    return pytest.importorskip("warp", reason="pip install 'fovjax[gpu]' (warp-lang)")
-
-
-_need_warp()
+_extras.require("warp", module_level=True)
 from fovjax.trace._warp import ffi_target_names, warp_query  # noqa: E402
 
 N = 1024
