@@ -698,6 +698,43 @@ def main(argv=None) -> dict | None:
     return record
 
 
+def frame_tables(record: dict) -> list[dict]:
+    """The record's frames as the Performance page's tables, one per SPP."""
+    tables = []
+    for r in record["results"]:
+        rows = []
+        for label, key in (
+            ("Mitsuba 3, full", "mitsuba_full"),
+            ("fovjax, full", "fovjax_full"),
+            ("fovjax, foveated", "fovjax_foveated"),
+        ):
+            if f"{key}_ms" not in r:
+                continue
+            n = sum(r[f"{key}_rays"].values())
+            ratio = r[f"{key}_ms"] / r["mitsuba_full_ms"]
+            rows.append(
+                [
+                    label,
+                    round(r[f"{key}_ms"], 1),
+                    round(r[f"{key}_cpu_ms"]),
+                    n,
+                    round(n / r[f"{key}_ms"] / 1e3, 2),
+                    round(ratio, 3),
+                ]
+            )
+        tables.append(
+            {
+                "title": f"{record['scene']}, 2 × {r['width']}×{r['height']}, SPP {r['spp']}, depth "
+                f"{record['max_depth']}, backend {record['backend']}, foveated {record['fovea_deg']}° "
+                f"at gaze {record['gaze']}; PSNR of Mitsuba's frame against fovjax's full frame "
+                f"{r['psnr_db']:.1f} dB",
+                "columns": ["frame", "ms per frame", "CPU ms", "rays", "Mrays/s", "time / Mitsuba full"],
+                "rows": rows,
+            }
+        )
+    return tables
+
+
 def _json_default(x):
     if isinstance(x, np.generic):
         return x.item()
@@ -711,4 +748,6 @@ if __name__ == "__main__":
 
     figures = main()
     if figures is not None:  # None: skipped (no mitsuba or no libLLVM)
-        write_record("mitsuba_frame", json.loads(json.dumps(figures, default=_json_default)))
+        figures = json.loads(json.dumps(figures, default=_json_default))
+        figures["tables"] = frame_tables(figures)
+        write_record("mitsuba_frame", figures)

@@ -263,6 +263,44 @@ def shadow_rays(scene, po, pd, bvh):
     return p, sd, tmin, tmax, seen
 
 
+def throughput_tables(rows: list[dict]) -> list[dict]:
+    """The rows as the Performance page's table: Mrays/s of each backend and peer, ratios of the
+    first backend (the default, "auto") to the peers, hit/miss agreement with the JAX traversal."""
+    if not rows:
+        return []
+    backends = [b for b in fovjax.trace.BACKENDS if b in rows[0]]
+    peers = [
+        (k, t)
+        for k, t in (
+            ("embree1", "Embree 1 thread"),
+            ("embree2", "Embree 2 threads"),
+            ("mitsuba", "Mitsuba 3"),
+        )
+        if k in rows[0]
+    ]
+    first = backends[0]
+    columns = ["rays", "traversal", "rays traced", *(f"fovjax {b}" for b in backends), *(t for _, t in peers)]
+    columns += [f"{first} / {t}" for _, t in peers] + [f"agreement {first} vs jax"]
+    table = []
+    for r in rows:
+        row = [
+            r["rays"],
+            r["traversal"],
+            r["n"],
+            *(round(r[b], 2) for b in backends),
+            *(round(r[k], 2) for k, _ in peers),
+        ]
+        row += [round(r[first] / r[k], 2) for k, _ in peers] + [round(r[f"agree_jax_{first}"], 6)]
+        table.append(row)
+    return [
+        {
+            "title": f"Mrays/s on the {rows[0]['scene']} (median of the timed calls, one run)",
+            "columns": columns,
+            "rows": table,
+        }
+    ]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="640x512 primary rays, 65k random rays")
@@ -417,4 +455,5 @@ def main(argv=None):
 if __name__ == "__main__":
     from _record import write_record
 
-    write_record("trace_throughput", {"rows": main()})
+    rows = main()
+    write_record("trace_throughput", {"rows": rows, "tables": throughput_tables(rows)})

@@ -196,7 +196,7 @@ def test_cli_metric_choice_spp_and_model(tmp_path, capsys):
     base = ["study", "--comparison", str(csv_path), "--observers", "2"]
     assert main([*base, "--model", "thesis", "--metric", "flip", "-o", str(tmp_path / "a")]) == 0
     text = capsys.readouterr().out
-    assert "note:" not in text  # asked for, not defaulted
+    assert "note: metric" not in text  # asked for, not defaulted
     assert all(line[-2] == "5°/10°" for line in majority_lines(text))  # FLIP 0.01 everywhere
     assert main([*base, "--model", "other", "-o", str(tmp_path / "b")]) == 0
     assert all(line[-2] == "5°/10°" for line in majority_lines(capsys.readouterr().out))  # JOD 9.9

@@ -118,10 +118,13 @@ def _ffi_call(any_hit: bool, packets: int):
     @call.def_vmap
     def _batched(axis_size, in_batched, o, d, tmin, tmax, level, *scene):
         if any(in_batched[5:]):
-            raise ValueError(
-                "the Embree backend traces against one scene per call: a BVH batched under vmap "
-                "is not supported (batch the rays, not the BVH)"
-            )
+            # A batched scene (its own BVH per frame, or one broadcast by a batched lax.cond):
+            # one call per frame, each against its own scene.
+            args = [
+                x if b else jnp.broadcast_to(x, (axis_size, *x.shape))
+                for x, b in zip((o, d, tmin, tmax, level, *scene), in_batched, strict=True)
+            ]
+            return jax.lax.map(lambda a: call(*a), tuple(args)), (True,) * 4
         rays = [o, d, tmin, tmax] + ([level] if level.shape[0] else [])
         rays = [
             x if b else jnp.broadcast_to(x, (axis_size, *x.shape))
