@@ -433,6 +433,45 @@ def profile(scene, bvh, rig, config, spp, pair, repeats):
     }
 
 
+def foveation_tables(out: dict) -> list[dict]:
+    """A --speedup or --profile result as the Performance page's table."""
+    w, h = out["eye"]
+    fovea, periphery = out["pair"]
+    where = f"2 × {w}×{h}, foveated {fovea:g}°/{periphery:g}° at an off-centre gaze, backend {out['backend']}"
+    if "speedup" in out:
+        rows = [
+            [
+                r["spp"],
+                round(r["foveated_ms"], 1),
+                round(r["full_ms"], 1),
+                r["foveated_rays"],
+                r["full_rays"],
+                round(r["speedup"], 2),
+                round(r["cost_per_ray_foveated_over_full"], 2),
+            ]
+            for r in out["speedup"]
+        ]
+        columns = [
+            "SPP",
+            "foveated ms",
+            "full ms",
+            "foveated rays",
+            "full rays",
+            "speed-up",
+            "cost per traced ray, foveated / full",
+        ]
+        return [
+            {"title": f"Foveated against full frames, {where} (medians)", "columns": columns, "rows": rows}
+        ]
+    fov, full = dict(out["profile"]["foveated_ms"]), dict(out["profile"]["full_ms"])
+    names = list(dict.fromkeys([*fov, *full]))
+    rows = [[n.strip(), *("" if t.get(n) is None else round(t[n], 1) for t in (fov, full))] for n in names]
+    fused = out["fused_program_ms"]
+    rows.append(["the fused program (the frame)", round(fused["foveated"], 1), round(fused["full"], 1)])
+    title = f"Per-stage profile, {where}, SPP {out['spp']}: ms (the rows in parentheses count rays)"
+    return [{"title": title, "columns": ["stage", "foveated", "full"], "rows": rows}]
+
+
 def _program_memory() -> str:
     """Temporaries and outputs (MiB) of each compiled frame program so far, by entry point
     (`compiled.memory_analysis()`; on a CPU the temporaries are allocated, and their pages
@@ -826,4 +865,4 @@ if __name__ == "__main__":
     if isinstance(out, dict) and ("speedup" in out or "profile" in out):
         from _record import write_record
 
-        write_record("foveation", out)
+        write_record("foveation", {**out, "tables": foveation_tables(out)})

@@ -30,6 +30,7 @@ SECTIONS = [
     ("fovjax_render", "The main job: `fovjax render`"),
     ("compile_cache", "Compile cache"),
     ("trace_throughput", "Ray queries"),
+    ("mitsuba_frame", "Frames against Mitsuba 3"),
     ("render", "Full frames"),
     ("foveation", "Foveated frames"),
     ("fidelity", "Fidelity per region"),
@@ -63,10 +64,13 @@ What the figures mean for your choices is on [How to choose](how-to-choose.md).
 
 ## Ray-query backends
 
-<!-- The native backends' records (Embree, Warp; `backend="auto"`) and benchmarks/mitsuba_frame.py
-     go here. -->
-Records of the ray-query backends compared frame by frame will appear here; until then see
-[Ray queries](#ray-queries).
+`backend="auto"` (Embree through XLA's FFI on a CPU) against bare Embree (embreex, one and two
+threads) and Mitsuba 3 on the same rays: [Ray queries](#ray-queries)
+(`benchmarks/trace_throughput.py`). Whole frames against Mitsuba 3 rendering the same Whitted
+frame (same rays, materials, light and depth; its image checked against fovjax's by PSNR):
+[Frames against Mitsuba 3](#frames-against-mitsuba-3) (`benchmarks/mitsuba_frame.py`). The
+foveated frame against the full one and the per-stage profile: [Foveated
+frames](#foveated-frames) (`benchmarks/foveation.py --speedup`, `--profile`).
 """
 
 
