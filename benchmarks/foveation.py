@@ -111,10 +111,10 @@ def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
     traversal, shading (surfaces, shadow-ray setup, lights, reflection spawn), shadow rays, and
     each reflection bounce. Appends (stage, ms) to `rows`; returns the traced contribution."""
     from fovjax.render._integrator import (
-        _chunking,
+        _append,
+        _bands,
         _finish_shading,
-        _secondary_carry,
-        _secondary_level,
+        _reflection_level,
         _surface_and_shadow_rays,
         _trace_primary,
         _trace_shadows,
@@ -171,16 +171,42 @@ def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
     if config.max_depth == 0:
         return contribution
     n = int(np.prod(batch))
-    size, _ = _chunking(n, config)
-    carry, t0 = _timed(lambda c, s: _secondary_carry(c, s, config), contribution, state, repeats=repeats)
+    band, count = _bands(batch, config)
+    size = int(np.prod(band))
+    capacity = (count + 1) * size
+
+    def queue_of(contribution, state):
+        """The first reflection level's rays, compacted into a queue (the frame does this band
+        by band)."""
+        o2, d2, w2, alive2 = (x.reshape((n,) + x.shape[len(batch) :]) for x in state)
+        empty = (
+            jnp.zeros((capacity, 3), jnp.float32),
+            jnp.ones((capacity, 3), jnp.float32),
+            jnp.zeros((capacity, 3), jnp.float32),
+            jnp.zeros((capacity,), jnp.int32),
+        )
+        pad = lambda x: jnp.pad(x, ((0, capacity - n),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
+        queue, n_q = _append(
+            empty, 0, (pad(o2), pad(d2), pad(w2), jnp.arange(capacity, dtype=jnp.int32)), pad(alive2)
+        )
+        return pad(contribution.reshape(n, 3)), queue, n_q
+
+    (total, queue, n_q), t0 = _timed(queue_of, contribution, state, repeats=repeats)
+    other = jax.tree.map(jnp.zeros_like, queue)
     bounce = jax.jit(
-        lambda a, b, c, k: _secondary_level(a, b, c, k, offset=offset(a), config=config, size=size)
+        lambda a, b, tot, src, n_src, dst, k: _reflection_level(
+            a, b, tot, src, n_src, dst, k, offset=offset(a), config=config, size=size
+        )
     )
     for depth in range(1, config.max_depth + 1):
-        (carry, (n_live, _)), t = _timed(bounce, arrays, bvh, carry, jnp.int32(depth), repeats=repeats)
+        rays = int(n_q)
+        (total, other, n_q, _), t = _timed(
+            bounce, arrays, bvh, total, queue, n_q, other, jnp.int32(depth), repeats=repeats
+        )
+        queue, other = other, queue
         rows.append((f"reflection bounce {depth}", t + (t0 if depth == 1 else 0)))
-        rows.append((f"  (bounce {depth} rays)", int(n_live)))
-    return carry[0][:n].reshape(batch + (3,))
+        rows.append((f"  (bounce {depth} rays)", rays))
+    return total[:n].reshape(batch + (3,))
 
 
 def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats):

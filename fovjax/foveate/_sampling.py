@@ -48,6 +48,38 @@ def top_left(region, foveation) -> tuple[Int[Array, "H W"], Int[Array, "H W"], B
     return ty, tx, (ty == y) & (tx == x)
 
 
+def block_top_lefts(region: Int[ArrayLike, "H W"], foveation) -> Bool[Array, "H W"]:
+    """Every pixel that is some pixel's block top-left (`top_left`): the fill source of that
+    block. (A pixel that tests only itself, as the thesis's ray generation does, can miss this
+    at region boundaries, where a 2x2 block's top-left lies in the outside zone and is not
+    4-aligned.)
+
+    Pixel (y, x) is the top-left of a block of edge b exactly when b divides y and x and some
+    pixel of the aligned b x b block from it has block edge b: an OR over each block's pixels
+    (strided slices), the same mask as scattering every pixel's top-left, without the
+    screen-sized scatter (whose index arrays cost more than the rest of the sampling on
+    XLA:CPU)."""
+    region = jnp.asarray(region)
+    h, w = region.shape
+    mask = region == FOVEA  # blocks of one pixel
+    for code, b in ((PERIPHERY, int(foveation.blocks[0])), (OUTSIDE, int(foveation.blocks[1]))):
+        inside = region == code
+        if b == 1:
+            mask = mask | inside
+            continue
+        hp, wp = -(-h // b) * b, -(-w // b) * b
+        inside = jnp.pad(inside, ((0, hp - h), (0, wp - w)))
+        hit = inside[0::b, 0::b]
+        for i in range(b):
+            for j in range(b):
+                if i or j:
+                    hit = hit | inside[i::b, j::b]
+        corner = jnp.zeros((1, b, 1, b), bool).at[0, 0, 0, 0].set(True)
+        tl = (hit[:, None, :, None] & corner).reshape(hp, wp)[:h, :w]
+        mask = mask | tl
+    return mask
+
+
 def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[Array, "S H W"]:
     """The samples the thesis's measured ray counts imply (rule "thesis-measured"): every
     sub-sample of a pixel within the periphery threshold (fovea and periphery regions), and
@@ -132,11 +164,7 @@ def sample_classes(
     frame (temporally stable), a fresh key per frame a fresh pattern.
     """
     region = regions(ecc, foveation)
-    ty, tx, _ = top_left(region, foveation)
-    # Every pixel that is some pixel's block top-left: the fill source of that block. (A pixel
-    # that tests only itself, as the thesis's ray generation does, can miss this at region
-    # boundaries, where a 2x2 block's top-left lies in the outside zone and is not 4-aligned.)
-    is_tl = jnp.zeros(ecc.shape, bool).at[ty, tx].set(True)
+    is_tl = block_top_lefts(region, foveation)
     p = foveation.probability(ecc)
     u = uniform_draws(key, (foveation.spp,) + ecc.shape)
     kept = u < p[None]
@@ -154,7 +182,11 @@ def sample_classes(
     allowed = allowed_samples(region, foveation)
     if allowed is not None:  # beyond the region's samples per pixel, nothing is traced
         cls = jnp.where(allowed, cls, SKIPPED)
-    return cls, region
+    # Where the classes do not depend on the frame's values (the rule "thesis-measured" at SPP
+    # 1: every sample mandatory), XLA would fold the screen-sized prefix sums and reductions
+    # downstream at compile time, taking minutes (285 s for that frame program at 2 x 1280 x
+    # 1024); the barrier keeps them run-time work, a few ms.
+    return jax.lax.optimization_barrier(cls), region
 
 
 def _prefix_sum(x: Int[Array, " N"], block: int = 1024) -> Int[Array, " N"]:

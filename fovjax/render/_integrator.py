@@ -13,13 +13,13 @@ One depth level at a time, for every ray at once (the thesis's closest-hit progr
 4. where depth < max_depth and the hit material's Kr is not zero, a reflection ray continues
    with weight × Kr.
 
-Depth 0 runs on the rays as given (camera rays keep their image layout for packet traversal).
-Reflection rays are few and scattered, so levels 1..max_depth compact the live rays first and
-trace and shade them in fixed-size chunks, skipping chunks with none (one `lax.scan` over the
-levels, a `lax.cond` per chunk): static shapes, a cost that follows the rays actually spawned,
-and a program whose size does not grow with max_depth. On a 1280 x 512 stereo atrium frame this
-took the frame from 7.3 s (every level over every pixel) to 1.5 s, and compilation from 28 s
-to 11 s.
+Depth 0 runs band by band (rows of the image, so that packets keep their neighbouring
+pixels): XLA:CPU materialises every intermediate of the shading, and a band's stay in cache.
+Each band's reflection rays are compacted (O(band)) and appended to a queue; levels
+1..max_depth read one queue and append to another, chunk by chunk, skipping chunks with no
+rays (a `lax.cond` per chunk): static shapes, a cost that follows the rays actually spawned
+rather than the screen, and a program whose size does not grow with max_depth (the levels are
+a `lax.scan`). Every loop is a `lax.scan`, so `jax.grad` goes through.
 
 Kd is multiplied by the material's diffuse texture (bilinear, wrapping) where it has one. The
 shading normal n is the interpolated vertex normal where the mesh has them, else the face
@@ -373,85 +373,143 @@ def _live_first(alive):
     return n_live, jnp.zeros_like(rank).at[rank].set(jnp.arange(live.shape[0], dtype=rank.dtype))
 
 
-def _chunking(n: int, config) -> tuple[int, int]:
-    """(chunk size, padded length) of the reflection levels for n rays."""
-    size = min(config.chunk_size, n)
-    return size, -(-n // size) * size
-
-
-def _secondary_carry(total, state, config):
-    """The reflection levels' carry: (total, o, d, weight, alive, pixel), flat and padded to
-    whole chunks."""
-    batch = total.shape[:-1]
-    n = int(np.prod(batch))
-    _, padded = _chunking(n, config)
-
-    def flat(x, fill):
-        x = x.reshape((n,) + x.shape[len(batch) :])
-        return jnp.concatenate([x, jnp.full((padded - n,) + x.shape[1:], fill, x.dtype)])
-
-    o, d, weight, alive = state
-    carry = (flat(total, 0.0), flat(o, 0.0), flat(d, 1.0), flat(weight, 0.0), flat(alive, False))
-    return carry + (jnp.arange(padded, dtype=jnp.int32),)
-
-
-def _secondary_level(scene, bvh, carry, depth, *, offset, config, size):
-    """One reflection level on the carry: compact the alive rays to the front, trace and shade
-    the chunks that hold any. Returns (carry, (reflection rays, shadow rays))."""
-    total, o, d, weight, alive, pixel = carry
-    padded = o.shape[0]
-    n_live, order = _live_first(alive)
-    o, d, weight, alive, pixel = (x[order] for x in (o, d, weight, alive, pixel))
+def _reflection_level(scene, bvh, total, source, n_queued, queue, depth, *, offset, config, size):
+    """One reflection level over the first `n_queued` rays of `source`: each chunk of `size`
+    that holds any is traced and shaded (a `lax.cond` skips the rest, so the level costs what
+    its rays do, not the screen), its contribution added to its pixels and its reflection rays
+    compacted (O(chunk)) and appended to `queue`. Returns (total, queue, rays queued, shadow
+    rays traced)."""
+    lanes = jnp.arange(size, dtype=jnp.int32)
     spawn = depth < config.max_depth
 
     def chunk(inner, c):
         first = c * size
 
         def work(inner):
-            total, o_next, d_next, w_next, alive_next, n_shadow = inner
-            part = lambda x: jax.lax.dynamic_slice_in_dim(x, first, size)  # noqa: E731
-            contribution, nxt, traced = _trace_and_shade(
+            total, queue, n_next, n_shadow = inner
+            o, d, weight, pixel = (jax.lax.dynamic_slice_in_dim(q, first, size) for q in source)
+            contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
                 scene,
                 bvh,
-                part(o),
-                part(d),
-                part(alive),
-                part(weight),
+                o,
+                d,
+                first + lanes < n_queued,
+                weight,
                 packet=None,
                 offset=offset,
                 backend=config.backend,
                 spawn=spawn,
             )
-            # Only chunks with live rays write anything: no full-size scatter per level.
-            total = total.at[part(pixel)].add(contribution)
-            put = lambda x, y: jax.lax.dynamic_update_slice_in_dim(x, y, first, 0)  # noqa: E731
-            o_next, d_next, w_next, alive_next = (
-                put(x, y) for x, y in zip((o_next, d_next, w_next, alive_next), nxt, strict=True)
-            )
-            return total, o_next, d_next, w_next, alive_next, n_shadow + traced
+            total = total.at[pixel].add(contribution)
+            queue, n_next = _append(queue, n_next, (o2, d2, w2, pixel), alive2)
+            return total, queue, n_next, n_shadow + traced
 
-        return jax.lax.cond(first < n_live, work, lambda inner: inner, inner), None
+        return jax.lax.cond(first < n_queued, work, lambda inner: inner, inner), None
 
-    inner = (total, o, d, weight, jnp.zeros_like(alive), jnp.int32(0))
-    (total, o, d, weight, alive, n_shadow), _ = jax.lax.scan(chunk, inner, jnp.arange(padded // size))
-    return (total, o, d, weight, alive, pixel), (n_live, n_shadow)
+    count = source[0].shape[0] // size - 1
+    zero = jnp.int32(0)
+    (total, queue, n_next, n_shadow), _ = jax.lax.scan(chunk, (total, queue, zero, zero), jnp.arange(count))
+    return total, queue, n_next, n_shadow
 
 
-def _secondary_levels(scene, bvh, total, state, *, offset, config):
-    """Depth levels 1..max_depth on compacted chunks: each level moves its alive rays to the
-    front and shades only the chunks of `config.chunk_size` rays that hold any (a `lax.cond`
-    skips the rest), so the cost follows the reflection rays, not the screen. The levels are
-    one `lax.scan`, so the program (and its compile time) does not grow with max_depth."""
-    batch = total.shape[:-1]
+def _bands(batch: tuple[int, ...], config) -> tuple[tuple[int, ...], int]:
+    """How depth 0 splits a batch of rays: (one band's shape, number of bands). An image (a
+    tile packet and two or more axes) goes in bands of whole rows, a multiple of the packet's
+    height where it fits, so that packets keep their neighbouring pixels; other batches in
+    flat chunks. A band holds about `config.chunk_size` rays."""
     n = int(np.prod(batch))
-    size, _ = _chunking(n, config)
-    carry = _secondary_carry(total, state, config)
+    if isinstance(config.packet, tuple) and len(batch) >= 2:
+        rows, width = n // batch[-1], batch[-1]
+        r = max(1, config.chunk_size // width)
+        if r >= config.packet[0]:
+            r -= r % config.packet[0]
+        r = min(r, rows)
+        return (r, width), -(-rows // r)
+    size = min(config.chunk_size, n)
+    return (size,), -(-n // size)
 
-    def level(carry, depth):
-        return _secondary_level(scene, bvh, carry, depth, offset=offset, config=config, size=size)
 
-    carry, (n_reflection, n_shadow) = jax.lax.scan(level, carry, jnp.arange(1, config.max_depth + 1))
-    return carry[0][:n].reshape(batch + (3,)), jnp.sum(n_reflection), jnp.sum(n_shadow)
+def _depth0(scene, bvh, o, d, active, *, offset, config):
+    """Depth 0 band by band (`_bands`, a `lax.scan`): each band traced (packets as
+    `config.packet`) and shaded, its reflection rays compacted (O(band)) and appended to a
+    queue. Band by band because XLA:CPU materialises every intermediate of the shading: a
+    band's stay in cache (on the atrium's 2 x 1280 x 1024 frame, depth 0 took 0.70 of the
+    whole-screen pass's time, benchmarks/profile_frame.py). Returns (total (bands x band, 3),
+    queue (o, d, weight, pixel) with a band of room, rays queued, shadow rays traced, band
+    size)."""
+    batch = active.shape
+    n = int(np.prod(batch))
+    band, count = _bands(batch, config)
+    size = int(np.prod(band))
+    padded = count * size
+
+    def split(x, fill):
+        x = x.reshape((n,) + x.shape[len(batch) :])
+        x = jnp.concatenate([x, jnp.full((padded - n,) + x.shape[1:], fill, x.dtype)])
+        return x.reshape((count,) + band + x.shape[1:])
+
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    spawn = config.max_depth > 0
+    packet = _usable_packet(config.packet, len(band))
+
+    def body(carry, xs):
+        queue, n_q, n_shadow = carry
+        o, d, alive, first = xs
+        contribution, nxt, traced = _trace_and_shade(
+            scene,
+            bvh,
+            o,
+            d,
+            alive,
+            jnp.ones(band + (3,), jnp.float32),
+            packet=packet,
+            offset=offset,
+            backend=config.backend,
+            spawn=spawn,
+        )
+        if spawn:
+            o2, d2, w2, alive2 = (x.reshape((size,) + x.shape[len(band) :]) for x in nxt)
+            queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes), alive2)
+        return (queue, n_q, n_shadow + traced), contribution.reshape(size, 3)
+
+    capacity = padded + size if spawn else 0  # `_append` writes a band whole
+    queue = (
+        jnp.zeros((capacity, 3), jnp.float32),
+        jnp.ones((capacity, 3), jnp.float32),
+        jnp.zeros((capacity, 3), jnp.float32),
+        jnp.zeros((capacity,), jnp.int32),
+    )
+    xs = (split(o, 0.0), split(d, 1.0), split(active, False), jnp.arange(count, dtype=jnp.int32) * size)
+    zero = jnp.int32(0)
+    (queue, n_q, n_shadow), total = jax.lax.scan(body, (queue, zero, zero), xs)
+    return total.reshape(padded, 3), queue, n_q, n_shadow, size
+
+
+def _reflection_levels(scene, bvh, total, queue_a, n_a, *, offset, config, size):
+    """Depth levels 1..max_depth over two queues of reflection rays, each level reading one and
+    appending its rays to the other, chunk by chunk (`_reflection_level`): no level touches
+    the whole screen. Pairs of levels are one `lax.scan` (the queues never swap places in its
+    carry, which would copy them), the chunks `lax.scan`s of `lax.cond`s: the program does not
+    grow with max_depth and `jax.grad` goes through. Returns (total, reflection rays, shadow
+    rays)."""
+    queue_b = tuple(jnp.zeros_like(q) for q in queue_a)
+    kw = {"offset": offset, "config": config, "size": size}
+
+    def two_levels(carry, depth):
+        total, queue_a, n_a, queue_b = carry
+        total, queue_b, n_b, shadow_1 = _reflection_level(
+            scene, bvh, total, queue_a, n_a, queue_b, depth, **kw
+        )
+        n_b = jnp.where(depth < config.max_depth, n_b, 0)  # an odd max_depth: no last level
+        total, queue_a, n_a2, shadow_2 = _reflection_level(
+            scene, bvh, total, queue_b, n_b, queue_a, depth + 1, **kw
+        )
+        return (total, queue_a, n_a2, queue_b), (n_a + n_b, shadow_1 + shadow_2)
+
+    (total, *_), (n_reflection, n_shadow) = jax.lax.scan(
+        two_levels, (total, queue_a, n_a, queue_b), jnp.arange(1, config.max_depth + 1, 2)
+    )
+    return total, jnp.sum(n_reflection), jnp.sum(n_shadow)
 
 
 def radiance(
@@ -470,8 +528,8 @@ def radiance(
     counted. With `config.packet` a tile, the last two batch axes must be an image (the tile
     pads ragged edges). Pure and jittable; differentiable as the module docstring says.
 
-    Depth 0 (the given rays) is shaded in place, traced as `config.packet`; the reflection
-    levels run on compacted chunks of live rays (see `_secondary_levels`).
+    Depth 0 (the given rays) runs band by band, traced as `config.packet` (`_depth0`); the
+    reflection levels run on a queue of the live rays (`_reflection_levels`).
 
     Returns `Radiance(rgb (*batch, 3), bad (*batch), counts)`.
     """
@@ -486,25 +544,19 @@ def radiance(
     active = jnp.ones(batch, bool) if active is None else jnp.broadcast_to(jnp.asarray(active, bool), batch)
     offset = config.ray_offset * scene_scale(scene)
 
-    total, state, n_shadow = _trace_and_shade(
-        scene,
-        bvh,
-        o,
-        d,
-        active,
-        jnp.ones(batch + (3,), jnp.float32),
-        packet=_usable_packet(config.packet, len(batch)),
-        offset=offset,
-        backend=config.backend,
-        spawn=config.max_depth > 0,
-    )
+    total, queue, n_queued, n_shadow, size = _depth0(scene, bvh, o, d, active, offset=offset, config=config)
     n_reflection = jnp.int32(0)
     if config.max_depth > 0:
-        total, n_reflection, more_shadow = _secondary_levels(
-            scene, bvh, total, state, offset=offset, config=config
+        total, n_reflection, more_shadow = _reflection_levels(
+            scene, bvh, total, queue, n_queued, offset=offset, config=config, size=size
         )
         n_shadow = n_shadow + more_shadow
+    total = total[: int(np.prod(batch))].reshape(batch + (3,))
 
+    return _finish_radiance(total, active, valid, config, n_shadow, n_reflection)
+
+
+def _finish_radiance(total, active, valid, config, n_shadow, n_reflection):
     bad = active & ~all3(jnp.isfinite(total))
     bad_color = jnp.asarray(config.bad_color, jnp.float32)
     rgb = jnp.where(bad[..., None], bad_color, jnp.where(active[..., None], total, 0.0))
