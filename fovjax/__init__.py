@@ -13,6 +13,11 @@ from .files import linear_to_srgb as linear_to_srgb
 from .files import load_image as load_image
 from .files import save_image as save_image
 from .files import tonemap as tonemap
+from .foveate import Fidelity as Fidelity
+from .foveate import FoveatedFrame as FoveatedFrame
+from .foveate import FoveatedRenderer as FoveatedRenderer
+from .foveate import Foveation as Foveation
+from .foveate import render_foveated as render_foveated
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig
 from .render import StereoRig as StereoRig

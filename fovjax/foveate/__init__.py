@@ -65,6 +65,7 @@ from ._fill import resolve as resolve
 from ._frame import DEBUG_VIEW_DIAGNOSTICS as DEBUG_VIEW_DIAGNOSTICS
 from ._frame import DIAGNOSTICS as DIAGNOSTICS
 from ._frame import foveated_stereo as foveated_stereo
+from ._renderer import FoveatedRenderer as FoveatedRenderer
 from ._sampling import (
     FOVEA as FOVEA,
 )

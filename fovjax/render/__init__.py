@@ -49,6 +49,10 @@ import types
 
 from ._arrays import SceneArrays as SceneArrays
 from ._arrays import scene_arrays as scene_arrays
+from ._batch import PARTITIONS as PARTITIONS
+from ._batch import FrameBatch as FrameBatch
+from ._batch import frame_mesh as frame_mesh
+from ._batch import render_stereo_batch as render_stereo_batch
 from ._compile_cache import compile_cache_dir as compile_cache_dir
 from ._compile_cache import compile_cache_problem as compile_cache_problem
 from ._compile_cache import enable_compile_cache as enable_compile_cache
