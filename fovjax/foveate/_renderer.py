@@ -233,7 +233,8 @@ class FoveatedRenderer:
         lod_levels=None,
         diagnostics=DIAGNOSTICS,
     ):
-        from ..render import RenderConfig, SceneArrays, StereoRig, bvh_for, scene_arrays
+        from ..render import RenderConfig, SceneArrays, StereoRig, scene_arrays
+        from ..render.internal import bvh_for
 
         foveation = Foveation() if foveation is None else foveation
         config = RenderConfig() if config is None else config
@@ -266,7 +267,7 @@ class FoveatedRenderer:
 
     def _configure(self, rig, foveation: Foveation, diagnostics) -> None:
         """Everything that depends on the rig and the foveation (see the module docstring)."""
-        from ..render import with_texture_mips
+        from ..render.internal import with_texture_mips
 
         self.rig = rig
         self.foveation = foveation
@@ -368,7 +369,8 @@ class FoveatedRenderer:
             TypeError: `key` is not a JAX key array.
             ValueError: a bad gaze (naming the eye and the value) or thresholds.
         """
-        from ..render import frame_stats, head_pose_angles, run_compiled
+        from ..render import head_pose_angles
+        from ..render.internal import frame_stats, run_compiled
 
         gaze = check_gaze(gaze)
         if key is not None and not isinstance(key, jax.Array):
@@ -483,7 +485,7 @@ class FoveatedRenderer:
         (each device loops over its own frames) or "auto" (see `fovjax.render.PARTITIONS`).
         Returns a `fovjax.render.FrameBatch` (its per-pixel arrays None where the renderer's
         diagnostics leave them out; the pre-fill means are never returned)."""
-        from ..render import FrameBatch
+        from ..render import FrameBatch, frame_mesh
         from ..render import internal as render_internal
 
         n = render_internal.batch_size({"gazes": gazes, "keys": keys, "head_poses": head_poses})
@@ -504,7 +506,7 @@ class FoveatedRenderer:
             (arrays, bvh, rig, self._program_foveation, lod, shading),
             (poses, gaze, raw_keys),
             self._static(jitter, diagnostics),
-            render_internal.frame_mesh(devices),
+            frame_mesh(devices),
             n,
             partition,
         )
