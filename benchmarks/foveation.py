@@ -41,7 +41,8 @@ import numpy as np
 
 import fovjax
 from fovjax.foveate import DIAGNOSTICS, THESIS_PAIRS, Foveation, render_foveated
-from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays, scene_scale
+from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays
+from fovjax.render.internal import scene_scale
 from fovjax.trace import build_bvh
 
 SPPS = (1, 4, 9, 16)
@@ -213,7 +214,6 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
     """The chunked integrator's stages (`radiance_in_chunks`), each compiled and timed on its
     own over the live chunks: primary traversal, shadow rays of the primary hits, the rest of
     the primary level (shading, reflection spawn and queueing), each reflection bounce."""
-    from fovjax.render import chunk_loop
     from fovjax.render._integrator import (
         _batch,
         _chunks,
@@ -226,6 +226,7 @@ def _chunked_stages(arrays, bvh, rays_at, n_live, n_slots, config, rows, repeats
         _trace_shadows,
     )
     from fovjax.render._vec import normalize
+    from fovjax.render.internal import chunk_loop
     from fovjax.trace import Hit
 
     chunks = _chunks(n_slots, config)
@@ -666,7 +667,7 @@ def floor_table(scene, bvh, config, n_slots, repeats):
     import dataclasses
     import resource
 
-    from fovjax.render import radiance_in_chunks
+    from fovjax.render.internal import radiance_in_chunks
 
     arrays = scene_arrays(scene, background=config.background)
     cam = fovjax.Camera.from_pose(fovjax.scenes.default_camera(scene), width=64, height=64)

@@ -367,7 +367,8 @@ def render_mitsuba(arrays, rig, *, spp=1, config=None, head_pose=None):
     `fovjax.render.render_stereo(arrays, rig, spp=spp, config=config, bvh=...)` renders it
     (un-jittered): (side-by-side image (H, 2W, 3) float32, ray counts by kind). Untimed; for
     checks of the integrator on any scene."""
-    from fovjax.render import DEFAULT_CONFIG, scene_scale, stereo_sample_rays
+    from fovjax.render import DEFAULT_CONFIG, stereo_sample_rays
+    from fovjax.render.internal import scene_scale
 
     mi, dr = load_mitsuba()
     config = DEFAULT_CONFIG if config is None else config
@@ -626,7 +627,8 @@ def main(argv=None) -> dict | None:
     import jax
 
     import fovjax
-    from fovjax.render import RenderConfig, StereoRig, bvh_for, scene_arrays, scene_scale
+    from fovjax.render import RenderConfig, StereoRig, scene_arrays
+    from fovjax.render.internal import bvh_for, scene_scale
 
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
     scene = fovjax.scenes.BUILTIN[args.scene]()

@@ -31,16 +31,9 @@ import numpy as np
 from _record import write_record
 
 import fovjax
-from fovjax.render import (
-    RenderConfig,
-    StereoRig,
-    render_stereo,
-    scene_arrays,
-    scene_scale,
-    stereo_sample_rays,
-    surface_at,
-)
+from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays, stereo_sample_rays
 from fovjax.render._vec import dot, norm, normalize
+from fovjax.render.internal import scene_scale, surface_at
 from fovjax.trace import build_bvh, closest_hit, occluded
 
 

@@ -10,7 +10,7 @@ for every mouse event that a frame was rendered from, the time from the event to
 frame that shows that frame (its own clock at both ends), and when each frame was shown.
 
 The peer, in the same run (after the viewer has stopped, so they do not share the CPU): the
-bare renderer, `fovjax.render_stereo` with the same scene, size and foveation in a loop, timed
+bare renderer, a `fovjax.FoveatedRenderer` with the same scene, size and foveation in a loop, timed
 per call. Printed: medians, and the ratios viewer/bare (frame interval and latency against one
 bare frame): the cost of the server, encoding, transfer and display on top of rendering. On a
 shared, loaded machine the two halves can see different loads; the ratios against the viewer's
@@ -127,29 +127,21 @@ def measure_bare(args, frames: int) -> float:
     import jax
 
     import fovjax
-    from fovjax.foveate import Foveation
+    from fovjax.foveate import FoveatedRenderer, Foveation
     from fovjax.render import StereoRig
-    from fovjax.trace import build_bvh
 
     scene = fovjax.scenes.BUILTIN["cornell_box" if args.scene == "cornell" else args.scene]()
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
-    bvh = build_bvh(scene)
-    arrays = fovjax.render.scene_arrays(scene)
+    # Prepared once, as the viewer's renderer is: each frame passes only gaze and key.
+    renderer = FoveatedRenderer(scene, rig, Foveation())
     rng = random.Random(0)
     times = []
     for k in range(frames + 1):
         gaze = ((rng.uniform(0.1, 0.9), rng.uniform(0.1, 0.9)),) * 2
         t0 = time.perf_counter()
-        fovjax.render_stereo(
-            arrays,
-            rig,
-            gaze=gaze,
-            foveation=Foveation(),
-            key=jax.random.fold_in(jax.random.key(0), k),
-            bvh=bvh,
-        )
+        renderer.render(gaze, key=jax.random.fold_in(jax.random.key(0), k))
         if k:  # the first call compiles
             times.append(time.perf_counter() - t0)
     return statistics.median(times) * 1e3

@@ -13,6 +13,11 @@ from .files import linear_to_srgb as linear_to_srgb
 from .files import load_image as load_image
 from .files import save_image as save_image
 from .files import tonemap as tonemap
+from .foveate import Fidelity as Fidelity
+from .foveate import FoveatedFrame as FoveatedFrame
+from .foveate import FoveatedRenderer as FoveatedRenderer
+from .foveate import Foveation as Foveation
+from .foveate import render_foveated as render_foveated
 from .render import Frame as Frame
 from .render import RenderConfig as RenderConfig
 from .render import StereoRig as StereoRig
@@ -52,12 +57,56 @@ def _version() -> str:
 __version__ = _version()
 
 
-def __getattr__(name: str):
-    """`fovjax.plan_fidelity` (from `fovjax.eval`, imported on first use: `import fovjax` stays
-    free of the metrics' dependencies). It lives in eval, not foveate, because it judges plans
-    by image metrics and the core packages never import eval (docs/concepts/architecture.md)."""
-    if name == "plan_fidelity":
-        from .eval import plan_fidelity
+# The main eval entry points, imported from `fovjax.eval` on first use: `import fovjax` stays
+# free of the metrics' dependencies.
+_FROM_EVAL = ("compare_thresholds", "plan_fidelity", "video_study")
 
-        return plan_fidelity
+
+def __getattr__(name: str):
+    """`fovjax.compare_thresholds`, `fovjax.plan_fidelity`, `fovjax.video_study` (from
+    `fovjax.eval`, imported on first use). `plan_fidelity` lives in eval, not foveate, because it
+    judges plans by image metrics and the core packages never import eval
+    (docs/concepts/architecture.md)."""
+    if name in _FROM_EVAL:
+        from . import eval as eval_package
+
+        return getattr(eval_package, name)
     raise AttributeError(f"module 'fovjax' has no attribute {name!r}")
+
+
+__all__ = [
+    "render_stereo",
+    "linear_to_srgb",
+    "load_image",
+    "save_image",
+    "tonemap",
+    "Fidelity",
+    "FoveatedFrame",
+    "FoveatedRenderer",
+    "Foveation",
+    "render_foveated",
+    "Frame",
+    "RenderConfig",
+    "StereoRig",
+    "enable_compile_cache",
+    "DIRECTIONAL_LIGHT",
+    "POINT_LIGHT",
+    "Camera",
+    "Lights",
+    "LODLevels",
+    "Materials",
+    "Scene",
+    "decimate",
+    "load_scene",
+    "lod_levels",
+    "look_at_rotation",
+    "make_lights",
+    "make_materials",
+    "make_scene",
+    "pixel_sample_positions",
+    "select_lod",
+    "stratified_offsets",
+    "vfov_from_hfov",
+    "full_eccentricity",
+    "run_session",
+]

@@ -9,7 +9,14 @@ reaches (`fovjax.<package>`; the top-level modules belong to the package `fovjax
     viewer, or the `fovjax` top level that re-exports all of them);
 (c) `render` never imports `foveate` (foveation is built on the full renderer, not inside it);
 (d) every import between packages is one the table `MAY_IMPORT` allows (the table of
-    docs/concepts/architecture.md).
+    docs/concepts/architecture.md);
+(e) a name imported from another package's top (`from fovjax.render import run_compiled`) is in
+    that package's `__all__`: what siblings share and users do not need lives in the package's
+    `internal` module (`fovjax.render.internal`), imported by name;
+(f) the layers a user stands on, the command line and the `fovjax` top level, import no
+    `internal` module: they use the library as a user would.
+
+Every package, and every `internal` module, defines `__all__` (`test_every_package_defines_all`).
 
 Imports inside functions count as much as those at the top of a file.
 """
@@ -120,9 +127,27 @@ def _sources():
     return sorted(p for p in PACKAGE.rglob("*.py") if "static" not in p.parts)
 
 
+def declared_all(module: str) -> set[str] | None:
+    """The names in `module`'s `__all__` (read from its source), None when it has none."""
+    parts = module.split(".")[1:]
+    path = PACKAGE.joinpath(*parts)
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    if not path.is_file():
+        return None
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "__all__" for t in node.targets):
+            return {ast.literal_eval(e) for e in node.value.elts}
+    return None
+
+
+def _is_submodule(module: str, name: str) -> bool:
+    path = PACKAGE.joinpath(*module.split(".")[1:], name)
+    return path.is_dir() or path.with_suffix(".py").is_file()
+
+
 def check(path: Path, tree: ast.AST | None = None) -> dict[str, list[str]]:
     """Every rule `path` breaks, by rule letter, as `file:line: what`."""
-    found = {"a": [], "b": [], "c": [], "d": []}
+    found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": []}
     mine = package_of(module_name(path))
     where = path.relative_to(PACKAGE.parent)
     for line, target, names in imports(path, tree):
@@ -141,11 +166,24 @@ def check(path: Path, tree: ast.AST | None = None) -> dict[str, list[str]]:
             found["c"].append(f"{at}: render imports {target}")
         if theirs not in MAY_IMPORT.get(mine, set()):
             found["d"].append(f"{at}: {mine!r} imports {theirs!r} ({target}), not in MAY_IMPORT")
+        if target == f"{ROOT}.{theirs}" and theirs in MAY_IMPORT:  # a package's top
+            public = declared_all(target) or set()
+            unlisted = [
+                n for n in names if not _private(n) and n not in public and not _is_submodule(target, n)
+            ]
+            if unlisted:
+                found["e"].append(
+                    f"{at}: imports {', '.join(unlisted)} from {target}, not in its __all__ "
+                    f"(shared plumbing comes from {target}.internal)"
+                )
+        reaches_internal = target.split(".")[-1] == "internal" or "internal" in names
+        if mine in ("cli", ROOT) and reaches_internal:
+            found["f"].append(f"{at}: {mine!r} imports an internal module ({target})")
     return found
 
 
 def violations() -> dict[str, list[str]]:
-    found = {"a": [], "b": [], "c": [], "d": []}
+    found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": []}
     for path in _sources():
         for rule, hits in check(path).items():
             found[rule] += hits
@@ -169,6 +207,8 @@ def test_every_package_has_a_place_in_the_table():
         pytest.param("b", id="core-imports-no-application"),
         pytest.param("c", id="render-imports-no-foveate"),
         pytest.param("d", id="only-allowed-package-imports"),
+        pytest.param("e", id="only-public-names-from-a-package-top"),
+        pytest.param("f", id="user-layers-import-no-internal"),
     ],
 )
 def test_import_rules(rule):
@@ -185,7 +225,39 @@ BAD = {
     "trace/_bad.py": ("import fovjax.session\n", {"b", "d"}),
     "devices/_bad.py": ("from .. import run_session\n", {"b", "d"}),
     "acuity/_bad.py": ("from ..render import render_image\n", {"d"}),
+    "foveate/_bad2.py": ("from ..render import run_compiled\n", {"e"}),
+    "cli/_bad.py": ("from ..foveate.internal import foveated_stereo\n", {"f"}),
+    "_bad.py": ("from .render import internal\n", {"f"}),
 }
+
+
+def _packages_and_internals():
+    packages = sorted(p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file())
+    internals = sorted(f"{p.parent.name}.internal" for p in PACKAGE.glob("*/internal.py"))
+    return [ROOT] + [f"{ROOT}.{p}" for p in packages + internals]
+
+
+@pytest.mark.parametrize("module", _packages_and_internals())
+def test_every_package_defines_all(module):
+    """`__all__` says what a package offers; every name in it exists."""
+    import importlib
+
+    names = declared_all(module)
+    assert names, f"{module} defines no __all__"
+    loaded = importlib.import_module(module)
+    missing = [n for n in sorted(names) if not hasattr(loaded, n)]
+    assert not missing, f"{module}.__all__ names what it does not define: {missing}"
+
+
+def test_moved_names_still_import_with_a_deprecation():
+    """Old import paths of what moved to an internal module keep working, and say where it went."""
+    import fovjax.foveate
+    import fovjax.render
+
+    with pytest.warns(DeprecationWarning, match="fovjax.render.internal"):
+        assert fovjax.render.run_compiled is fovjax.render.internal.run_compiled
+    with pytest.warns(DeprecationWarning, match="fovjax.foveate.internal"):
+        assert fovjax.foveate.foveated_stereo is fovjax.foveate.internal.foveated_stereo
 
 
 @pytest.mark.parametrize("name", sorted(BAD))

@@ -13,7 +13,8 @@ import fovjax
 from fovjax.foveate import Fidelity, Foveation, render_foveated
 from fovjax.foveate import _api as fov_api
 from fovjax.foveate import _frame as fov_frame
-from fovjax.render import SHADOWS_ALL, RenderConfig, ShadingClasses, StereoRig
+from fovjax.render import RenderConfig, StereoRig
+from fovjax.render.internal import SHADOWS_ALL, ShadingClasses
 from fovjax.scene import make_lights
 
 EYE_W, EYE_H = 48, 32

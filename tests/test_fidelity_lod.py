@@ -297,7 +297,7 @@ def test_outside_hits_lie_on_the_coarse_level(ball):
 
 
 def test_auto_distance_is_a_lower_bound(spheres_rig, levels):
-    from fovjax.render import bvh_for
+    from fovjax.render.internal import bvh_for
     from fovjax.scene import surface_distance
 
     scene, _ = spheres_rig
@@ -365,7 +365,7 @@ def test_bad_levels_fail_before_compiling(spheres_rig, levels):
             rig,
             foveation=Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(lod=1))),
             config=CONFIG,
-            bvh=fovjax.render.bvh_for(scene, None),
+            bvh=fovjax.render.internal.bvh_for(scene, None),
             lod_levels=levels,
         )
     other = lod_levels(fovjax.scenes.cornell_box(), (1.0,))
@@ -387,8 +387,9 @@ def test_levels_without_fast_simplification(spheres_rig, monkeypatch, tmp_path):
 
 def test_frame_program_without_levels_refuses_a_lod_fidelity(spheres_rig):
     scene, rig = spheres_rig
-    from fovjax.foveate import foveated_stereo
-    from fovjax.render import bvh_for, scene_arrays
+    from fovjax.foveate.internal import foveated_stereo
+    from fovjax.render import scene_arrays
+    from fovjax.render.internal import bvh_for
 
     f = Foveation.thesis(0, fidelity=(FULL, FULL, Fidelity(lod=1)))
     with pytest.raises(ValueError, match="levels of detail"):

@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax.foveate import Fidelity, Foveation, render_foveated, subsample_rank
+from fovjax.foveate import Fidelity, Foveation, render_foveated
 from fovjax.foveate import _api as fov_api
-from fovjax.render import RenderConfig, StereoRig, mip_lookup, mip_shapes, texture_mips
+from fovjax.foveate.internal import subsample_rank
+from fovjax.render import RenderConfig, StereoRig
 from fovjax.render._mips import lod_uv, mip_level
+from fovjax.render.internal import mip_lookup, mip_shapes, texture_mips
 from fovjax.scene import DIRECTIONAL_LIGHT
 
 EYE_W, EYE_H = 48, 32
@@ -58,7 +60,7 @@ def test_mip_lookup_levels():
     uv = jnp.array([[0.3, 0.7], [0.0625, 0.0625], [0.9, 0.1]], jnp.float32)
     # level 0 is bilinear_wrap exactly
     level0 = mip_lookup(m, t.shape, jnp.zeros(3), uv)
-    np.testing.assert_array_equal(level0, fovjax.render.bilinear_wrap(jnp.asarray(t), uv))
+    np.testing.assert_array_equal(level0, fovjax.render.internal.bilinear_wrap(jnp.asarray(t), uv))
     # at the centre of a level-1 texel, level 1 is that texel (a 2x2 mean)
     centre = jnp.array([[0.375, 0.625]], jnp.float32)  # level-1 texel (row 2, col 1)
     np.testing.assert_allclose(

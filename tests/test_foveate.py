@@ -11,21 +11,23 @@ from scipy import stats
 import fovjax
 from fovjax.foveate import (
     FOVEA,
-    MANDATORY,
-    OPTIONAL,
     OUTSIDE,
     PERIPHERY,
-    SKIPPED,
     Constant,
     Foveation,
     LinearFalloff,
     check_gaze,
-    compaction_order,
     display_pixel_pitch_mm,
     eccentricity_map,
     fill_and_blur,
-    plan_budget,
     regions,
+)
+from fovjax.foveate.internal import (
+    MANDATORY,
+    OPTIONAL,
+    SKIPPED,
+    compaction_order,
+    plan_budget,
     sample_classes,
     top_left,
 )

@@ -12,8 +12,9 @@ import pytest
 
 import fovjax
 from fovjax.foveate import Foveation, render_foveated
-from fovjax.render import RenderConfig, StereoRig, radiance_in_chunks, render_stereo, scene_arrays
+from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays
 from fovjax.render._integrator import _batch, _chunks
+from fovjax.render.internal import radiance_in_chunks
 from fovjax.trace import build_bvh
 
 EYE_W, EYE_H = 96, 64

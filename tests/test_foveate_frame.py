@@ -242,7 +242,7 @@ def test_budget_overflow_drops_samples_fills_them_and_warns():
     image = frame.image
     assert np.isfinite(image).all() and (image.max(axis=-1) > 0).all()  # lit wall: no blank pixel
     # Some blocks had no traced sample at all (pull-push filled them).
-    _, _, top_left = fovjax.foveate.top_left(jnp.asarray(frame.regions[1]), capped)
+    _, _, top_left = fovjax.foveate.internal.top_left(jnp.asarray(frame.regions[1]), capped)
     untraced_top_left = np.asarray(top_left) & ~frame.sample_mask[1].any(axis=0)
     assert untraced_top_left.any()
     # Traced foveal pixels keep their traced colour (the fill and blur leave the fovea alone).

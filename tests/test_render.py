@@ -177,7 +177,9 @@ def test_no_acne_on_a_flat_plane_under_grazing_light(oracle):
     o, d, _ = camera.sample_rays(1)
     o, d = np.asarray(o[0], np.float64), np.asarray(d[0], np.float64)
     p = o - (o[..., 1:2] / d[..., 1:2]) * d
-    tex = fovjax.render.bilinear_wrap(jnp.asarray(scene.textures[0]), jnp.asarray(p[..., [0, 2]] / 4.0))
+    tex = fovjax.render.internal.bilinear_wrap(
+        jnp.asarray(scene.textures[0]), jnp.asarray(p[..., [0, 2]] / 4.0)
+    )
     kd = np.asarray(base.kd, np.float64)[FLOOR] * np.asarray(tex, np.float64)
     expected = shade(arrays, FLOOR, p, np.array([0.0, 1.0, 0.0]), d, light_pos=light[0], kd=kd)
     assert np.all(p[..., 0] > 0) and np.all(p[..., 2] > 4)  # open floor: every occluder is at z <= 4

@@ -58,15 +58,15 @@ def scan(scene, rig, tmp_path_factory):
     the (gaze, regions) of every frame, seen through a spy on `render_foveated`."""
     out = tmp_path_factory.mktemp("scan")
     captured = []
-    real = foveate.render_foveated
+    real = foveate.FoveatedRenderer.render
 
-    def spy(*args, **kwargs):
-        frame = real(*args, **kwargs)
-        captured.append((np.asarray(kwargs["gaze"]), frame.regions))
+    def spy(self, gaze, **kwargs):
+        frame = real(self, gaze, **kwargs)
+        captured.append((np.asarray(gaze), frame.regions))
         return frame
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(foveate, "render_foveated", spy)
+        mp.setattr(foveate.FoveatedRenderer, "render", spy)
         result = session(scene, rig, gaze=f"replay:{SCANPATH}", frames=16, fps=10, out=out, debug=True)
     return result, out, captured
 
@@ -186,13 +186,13 @@ def test_nan_samples_are_never_rendered(scene, rig, monkeypatch):
     bad = [GazeSample(0.3 + i / 120, nan_eye, nan_eye) for i in range(72)]  # 0.3 s .. 0.9 s
     source = ListSource(gaze_samples(0.0, 0.3, (0.3, 0.4)) + bad + gaze_samples(0.9, 1.2, (0.7, 0.6)))
     rendered = []
-    real = foveate.render_foveated
+    real = foveate.FoveatedRenderer.render
 
-    def spy(*args, **kwargs):
-        rendered.append(np.asarray(kwargs["gaze"], np.float64))
-        return real(*args, **kwargs)
+    def spy(self, gaze, **kwargs):
+        rendered.append(np.asarray(gaze, np.float64))
+        return real(self, gaze, **kwargs)
 
-    monkeypatch.setattr(foveate, "render_foveated", spy)
+    monkeypatch.setattr(foveate.FoveatedRenderer, "render", spy)
     result = session(scene, rig, gaze=source, frames=24, fps=20, policy=POLICY)
     assert len(rendered) == 24
     assert all(np.isfinite(g).all() for g in rendered)
@@ -319,13 +319,13 @@ def test_wall_clock_warms_up_every_widening_level(scene, rig, monkeypatch):
     source = ListSource(gaze_samples(100.0, 100.3, (0.4, 0.5)))
     source.clock = clock
     calls = []
-    real = foveate.render_foveated
+    real = foveate.FoveatedRenderer.render
 
-    def spy(*args, **kwargs):
-        calls.append((kwargs["foveation"].fovea_deg, kwargs["foveation"].periphery_deg))
-        return real(*args, **kwargs)
+    def spy(self, gaze=((0.5, 0.5), (0.5, 0.5)), **kwargs):
+        calls.append(tuple(kwargs["thresholds"]))
+        return real(self, gaze, **kwargs)
 
-    monkeypatch.setattr(foveate, "render_foveated", spy)
+    monkeypatch.setattr(foveate.FoveatedRenderer, "render", spy)
     result = session(scene, rig, gaze=source, frames=24, clock="wall", policy=POLICY)
     assert result.summary["clock"] == "wall"
     levels = POLICY.widen_steps + 1

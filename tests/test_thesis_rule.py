@@ -9,20 +9,8 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax.foveate import (
-    FOVEA,
-    MANDATORY,
-    OPTIONAL,
-    OUTSIDE,
-    PERIPHERY,
-    SKIPPED,
-    Foveation,
-    eccentricity_map,
-    plan_budget,
-    sample_classes,
-    thesis_pixel_pitch_mm,
-    top_left,
-)
+from fovjax.foveate import FOVEA, OUTSIDE, PERIPHERY, Foveation, eccentricity_map, thesis_pixel_pitch_mm
+from fovjax.foveate.internal import MANDATORY, OPTIONAL, SKIPPED, plan_budget, sample_classes, top_left
 from fovjax.render import RenderConfig, StereoRig
 
 W, H = 160, 128

@@ -221,7 +221,8 @@ def test_every_frame_program_lowers_for_cuda():
     op (no Embree FFI call, no host callback)."""
     from fovjax.eval import render_foveated_batch
     from fovjax.foveate import Foveation
-    from fovjax.render import LOWERING_HOOKS, RenderConfig, StereoRig
+    from fovjax.render import RenderConfig, StereoRig
+    from fovjax.render.internal import LOWERING_HOOKS
 
     exported = {}
 

@@ -30,7 +30,13 @@ PACKAGES = [
     ("fovjax.files", "files.md", "Images in and out; writes that are complete or absent."),
     ("fovjax.trace", "trace.md", "BVH construction and ray queries."),
     ("fovjax.render", "render.md", "The Whitted renderer, the stereo HMD rig and the compile cache."),
+    (
+        "fovjax.render.internal",
+        "render_internal.md",
+        "What the packages built on the renderer share: not stable API.",
+    ),
     ("fovjax.foveate", "foveate.md", "Eccentricity, regions, sampling, the ray budget, fill and blur."),
+    ("fovjax.foveate.internal", "foveate_internal.md", "The foveated frame's parts (not stable)."),
     ("fovjax.acuity", "acuity.md", "Acuity models, fits, posteriors and model choice."),
     ("fovjax.devices", "devices.md", "Eye and head tracking sources, filters, recordings, fallback."),
     ("fovjax.session", "session.md", "The session loop: foveated frames following gaze and head sources."),
@@ -40,7 +46,7 @@ PACKAGES = [
 ]
 
 # Names reachable on a package that its `__init__.py` does not bind (module `__getattr__`).
-LAZY = {"fovjax": ["plan_fidelity"]}
+LAZY = {"fovjax": ["compare_thresholds", "plan_fidelity", "video_study"]}
 
 
 def init_file(module: str) -> Path:

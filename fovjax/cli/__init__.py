@@ -390,3 +390,31 @@ def source_spec(spec: str, kind: str, option: str) -> None:
         source_from_spec(spec, kind)
     except (ValueError, OSError) as err:
         raise UsageError(f"{option} {spec}: {err}") from None
+
+
+__all__ = [
+    "atomic_path",
+    "deferred_interrupt",
+    "INTERRUPTED",
+    "build_parser",
+    "main",
+    "wrote",
+    "UsageError",
+    "BACKENDS",
+    "add_backend",
+    "backend",
+    "number",
+    "seed",
+    "squares",
+    "choice",
+    "fovea_periphery",
+    "display_point",
+    "REGIONS_HELP",
+    "add_regions",
+    "regions",
+    "head_gaze_fovea",
+    "output",
+    "input_file",
+    "scene",
+    "source_spec",
+]

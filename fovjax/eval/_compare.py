@@ -194,10 +194,9 @@ def compare_thresholds(
         print(cmp.choice)
         ```
     """
-    from ..foveate import REGION_READINGS, Foveation, render_foveated, with_regions
-    from ..render import RenderConfig, render_stereo
+    from ..foveate import REGION_READINGS, FoveatedRenderer, Foveation, with_regions
+    from ..render import RenderConfig
     from ._plan import _check_criterion, plan_fidelity
-    from ._shard import render_foveated_batch, render_stereo_batch
 
     if regions not in REGION_READINGS:
         raise ValueError(f"compare_thresholds: regions {regions!r}: expected one of {REGION_READINGS}")
@@ -223,14 +222,18 @@ def compare_thresholds(
 
         bar = tqdm(total=total, unit="frame", desc="compare")
 
+    # The scene prepared once for every configuration (arrays, BVH); each foveation below is a
+    # variant of it. Only the per-pixel outputs read here: the traced samples and eccentricity
+    # (a batch's program also returns the regions, as `render_foveated_batch`'s: one program).
+    diagnostics = ("traced", "region", "eccentricity") if shard else ("traced", "eccentricity")
+    base = FoveatedRenderer(scene, rig, Foveation(spp=spp[0]), config, bvh=bvh, diagnostics=diagnostics)
     full, references = {}, {}
     for s in spp:
+        renderer = base.with_foveation(Foveation(spp=s))
         if shard:
-            batch = render_stereo_batch(scene, rig, keys=keys, spp=s, config=config, bvh=bvh, devices=devices)
+            batch = renderer.render_full_batch(keys=keys, devices=devices)
             if batch.compile_seconds > 0:  # the first batch compiled: time it again
-                batch = render_stereo_batch(
-                    scene, rig, keys=keys, spp=s, config=config, bvh=bvh, devices=devices
-                )
+                batch = renderer.render_full_batch(keys=keys, devices=devices)
             for k, image in zip(keys, batch.images, strict=True):
                 references[s, k] = image
             times, rays = [batch.ms_per_frame / 1000] * len(keys), list(batch.rays)
@@ -239,9 +242,9 @@ def compare_thresholds(
         else:
             times, rays = [], []
             for k in keys:
-                frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
+                frame = renderer.render_full(key=jax.random.key(k))
                 if frame.stats.compile_seconds > 0:  # the first frame compiled: time it again
-                    frame = render_stereo(scene, rig, spp=s, key=jax.random.key(k), config=config, bvh=bvh)
+                    frame = renderer.render_full(key=jax.random.key(k))
                 references[s, k] = frame.image
                 times.append(frame.stats.render_seconds)
                 rays.append(frame.stats.rays)
@@ -255,12 +258,12 @@ def compare_thresholds(
         """Render `fov` for every gaze × key, measure it, add its record and rings."""
         samples, times, rays, ring_acc, ring_ray_acc = {}, [], [], [], []
         frames = list(itertools.product(gazes, keys))
+        renderer = base.with_foveation(fov)
         if shard:
-            batch_args = {"foveation": fov, "config": config, "bvh": bvh, "devices": devices}
-            g_k = {"gazes": [g for g, _ in frames], "keys": [k for _, k in frames]}
-            batch = render_foveated_batch(scene, rig, **g_k, **batch_args)
-            if batch.compile_seconds > 0:
-                batch = render_foveated_batch(scene, rig, **g_k, **batch_args)
+            frame_gazes, frame_keys = [g for g, _ in frames], [k for _, k in frames]
+            batch = renderer.render_batch(frame_gazes, keys=frame_keys, devices=devices)
+            if batch.compile_seconds > 0:  # the first batch compiled: time it again
+                batch = renderer.render_batch(frame_gazes, keys=frame_keys, devices=devices)
             # (image, eccentricity, sample mask, rays) per frame, as frames one by one give them.
             rendered = [
                 (batch.images[i], batch.eccentricity[i], batch.sample_mask[i], batch.rays[i])
@@ -270,12 +273,9 @@ def compare_thresholds(
         else:
             rendered, seconds = [], []
             for g, k in frames:
-                # Only the per-pixel outputs read here (not the regions nor the pre-fill means).
-                one = {"foveation": fov, "config": config, "bvh": bvh}
-                one["diagnostics"] = ("traced", "eccentricity")
-                frame = render_foveated(scene, rig, gaze=g, key=jax.random.key(k), **one)
+                frame = renderer.render(g, key=jax.random.key(k))
                 if frame.stats.compile_seconds > 0:
-                    frame = render_foveated(scene, rig, gaze=g, key=jax.random.key(k), **one)
+                    frame = renderer.render(g, key=jax.random.key(k))
                 rendered.append((frame.image, frame.eccentricity, frame.sample_mask, frame.stats.rays))
                 seconds.append(frame.stats.render_seconds)
         for (g, k), (image, eccentricity, sample_mask, n_rays), t in zip(

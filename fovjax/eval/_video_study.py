@@ -234,8 +234,8 @@ def study_sequence(
     import equinox as eqx
     import jax
 
-    from ..foveate import REGION_READINGS, Foveation, render_foveated, with_regions
-    from ..render import TRACE_COUNTS, RenderConfig, StereoRig, bvh_for, render_stereo, scene_arrays
+    from ..foveate import REGION_READINGS, FoveatedRenderer, Foveation, with_regions
+    from ..render import TRACE_COUNTS, RenderConfig, StereoRig
     from ..scenes import default_camera
 
     eye_width, eye_height, frames, fps, spp, walk_speed, seed, levels = _check_args(
@@ -257,12 +257,14 @@ def study_sequence(
     positions = start[None, :] + (walk_speed * times)[:, None] * forward[None, :]
     poses = _head_poses(frames, fps)
     gazes = _gazes(gaze, frames, fps, seed, display)
-    foveations = {
-        level: with_regions(Foveation.thesis(level, rule=rule, spp=spp), regions, eye_height)
+    # The scene prepared once; a renderer per level shares it (only the image is read).
+    base = FoveatedRenderer(scene, rig0, Foveation(spp=spp), config, diagnostics=())
+    renderers = {
+        level: base.with_foveation(
+            with_regions(Foveation.thesis(level, rule=rule, spp=spp), regions, eye_height)
+        )
         for level in levels
     }
-    bvh = bvh_for(scene, None)
-    arrays = scene_arrays(scene, background=config.background)
     traced_before = dict(TRACE_COUNTS)
     reference = []
     foveated = {level: [] for level in levels}
@@ -271,22 +273,13 @@ def study_sequence(
     for f in range(frames):
         rig = eqx.tree_at(lambda r: r.position, rig0, positions[f])
         key = jax.random.key(seed + f if keys == "fresh" else seed)
-        frame = render_stereo(arrays, rig, head_pose=poses[f], spp=spp, key=key, config=config, bvh=bvh)
+        frame = base.with_rig(rig).render_full(head_pose=poses[f], key=key)
         reference.append(frame.image)
         rays[None].append(frame.stats.primary_rays)
         render_s += frame.stats.render_seconds
         compile_s += frame.stats.compile_seconds
-        for level, foveation in foveations.items():
-            fov = render_foveated(
-                arrays,
-                rig,
-                gaze=gazes[f],
-                foveation=foveation,
-                head_pose=poses[f],
-                key=key,
-                config=config,
-                bvh=bvh,
-            )
+        for level, renderer in renderers.items():
+            fov = renderer.with_rig(rig).render(gazes[f], head_pose=poses[f], key=key)
             foveated[level].append(fov.image)
             rays[level].append(fov.stats.primary_rays)
             render_s += fov.stats.render_seconds

@@ -20,3 +20,16 @@ from ._image import load_image as load_image
 from ._image import save_image as save_image
 from ._image import srgb_to_linear as srgb_to_linear
 from ._image import tonemap as tonemap
+
+__all__ = [
+    "atomic_path",
+    "deferred_interrupt",
+    "interrupt_flag",
+    "HDR_SUFFIXES",
+    "TONEMAPS",
+    "linear_to_srgb",
+    "load_image",
+    "save_image",
+    "srgb_to_linear",
+    "tonemap",
+]

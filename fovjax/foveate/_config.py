@@ -156,7 +156,7 @@ def shading_classes(foveation, config):
     fidelity (the program without classes). Raises ValueError for a depth above the config's."""
     if foveation.fidelity is None:
         return None
-    from ..render import SHADOWS_ALL, SHADOWS_BRIGHTEST, SHADOWS_NONE, ShadingClasses
+    from ..render.internal import SHADOWS_ALL, SHADOWS_BRIGHTEST, SHADOWS_NONE, ShadingClasses
 
     modes = {"all": SHADOWS_ALL, "brightest": SHADOWS_BRIGHTEST, "none": SHADOWS_NONE}
     depths = []

@@ -199,7 +199,7 @@ def slot_rays(cameras, positions, slots, *, spp, h, w):
 def tile_rays(cameras, positions, sel: Selection, origins, tile: tuple[int, int]):
     """The fovea tile of each eye as image-shaped rays (2·S, rows, cols): the full render's
     sub-pixel positions, active where the sample is traced."""
-    from ..render import ImageTile
+    from ..render.internal import ImageTile
 
     spp = positions.shape[0]
     th, tw = tile
@@ -245,7 +245,7 @@ def grid_layout(spp: int):
 def grid_rays(cameras, positions, sel: Selection, stride: int):
     """Every `stride`-th pixel of each eye (rows and columns) as image-shaped rays (its
     sub-samples side by side, `grid_layout`), active where the sample is traced."""
-    from ..render import ImageTile
+    from ..render.internal import ImageTile
 
     spp = positions.shape[0]
     _, to_image, _ = grid_layout(spp)
@@ -295,7 +295,7 @@ def trace_selection(
     class is its region), None for full fidelity. Returns the per-slot radiance (padded to
     whole chunks), the tiles' and the ray counts. `scale`: as `radiance_in_chunks`'s (levels of
     detail: the finest level's)."""
-    from ..render import radiance_in_chunks
+    from ..render.internal import radiance_in_chunks
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
@@ -361,7 +361,7 @@ def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color, init=Non
     sample whose radiance is not finite is bad: its pixel is painted `bad_color` outright, as
     in the full render. Returns (per-pixel mean of the traced samples (2, H, W, 3), bad
     samples, bad pixels (2, H, W))."""
-    from ..render import chunk_loop
+    from ..render.internal import chunk_loop
 
     lanes = jnp.arange(size, dtype=jnp.int32)
     n_pixels = 2 * h * w
@@ -457,7 +457,8 @@ def foveated_stereo(
     render's (`pixel_sample_positions` from the same key, computed for those samples only:
     `positions_at`) and their directions are computed from their indices, chunk by chunk, so
     no screen-sized ray arrays exist."""
-    from ..render import RayCounts, pixel_spread_angle
+    from ..render import RayCounts
+    from ..render.internal import pixel_spread_angle
     from ..scene import pixel_sample_positions
 
     diagnostics = diagnostics_tuple(diagnostics, "foveated_stereo")
@@ -505,7 +506,7 @@ def foveated_stereo(
     # --- geometry level of detail ---
     scale = None
     if lod is not None:
-        from ..render import scene_scale
+        from ..render.internal import scene_scale
 
         classes = with_levels(classes, foveation, config, lod, bvh, cameras)
         scale = scene_scale(eqx.tree_at(lambda a: a.vertices, scene, scene.vertices[: lod.num_vertices]))

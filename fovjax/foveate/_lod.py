@@ -126,7 +126,7 @@ def prepare_levels(scene, arrays, bvh, levels, top: int, pixels_per_degree: floa
     """(merged scene arrays, merged BVH, `LODTables`) for levels 0..top of `levels` (every level
     for top -1), `bvh` being level 0's. Memoised per levels and arrays (a frame after the first
     merges nothing; the scene arrays' materials, lights and environment are this call's)."""
-    from ..render import bvh_for
+    from ..render.internal import bvh_for
     from ..trace import merge_bvhs
 
     scenes = levels.scenes if top < 0 else levels.scenes[: top + 1]
@@ -208,7 +208,7 @@ def region_levels(foveation, tables: LODTables, bvh, cameras):
 def with_levels(classes, foveation, config, tables: LODTables, bvh, cameras):
     """The renderer's `ShadingClasses` with each region's level (full shading where `classes`
     is None)."""
-    from ..render import SHADOWS_ALL, ShadingClasses
+    from ..render.internal import SHADOWS_ALL, ShadingClasses
 
     if classes is None:
         classes = ShadingClasses(np.full(3, config.max_depth, np.int32), np.full(3, SHADOWS_ALL, np.int32))

@@ -16,18 +16,17 @@ The frame is three steps, each usable on its own (the foveation layer reuses the
   pyramids from `with_texture_mips`, trilinear lookups `mip_lookup`, ray-cone levels).
 
 `render` / `render_stereo` put them together and return a `Frame`; `render_image` /
-`render_stereo_image` are the pure, differentiable versions. `run_compiled` is the one compile
-path of every host entry point (this package's, `fovjax.foveate`'s, `fovjax.eval`'s batches):
-`clear_compile_cache` and `compile_cache_info` cover them all; `frame_stats` the one builder of
-their `FrameStats`. `enable_compile_cache()` keeps compiled programs on disk across processes
+`render_stereo_image` are the pure, differentiable versions; `render_stereo_batch` a batch of
+stereo frames in one program sharded over devices (`FrameBatch`). Every host entry point
+compiles through one path (`fovjax.render.internal.run_compiled`): `clear_compile_cache` and
+`compile_cache_info` cover them all. `enable_compile_cache()` keeps compiled programs on disk across processes
 (JAX's persistent compilation cache; the command line turns it on).
 
-For the packages that build frames of their own on this one (`fovjax.foveate`, `fovjax.eval`'s
-sharded batches, the session loop): `stereo_program(scene_arrays, bvh, rig, head_pose, key, *,
-spp, jitter, config)` is the pure full stereo frame (image, `RayCounts`, number of bad pixels) that
-`render_stereo` compiles; `key_args(key, spp)` checks `spp` (a positive square) and returns
-(key, jitter) as every entry point reads an optional PRNG key; `bvh_for(scene, bvh)` the BVH a
-frame traces (the one given, else the cached build); `DEFAULT_CONFIG` is `RenderConfig()`.
+For the packages that build frames of their own on this one, `fovjax.render.internal` holds what
+they share and users do not need: the compile path (`run_compiled`), the stats builder
+(`frame_stats`), the pure full stereo frame (`stereo_program`), `key_args`, `bvh_for`, the chunked
+integrator (`radiance_in_chunks`, `ShadingClasses`, `ImageTile`), texture mips and the batch
+machinery. `DEFAULT_CONFIG` is `RenderConfig()`.
 
 Departures from the thesis's shading (chosen, and kept: the images are compared against
 Mitsuba elsewhere):
@@ -47,8 +46,13 @@ camera, spp=4)` renders a frame while `fovjax.render.radiance` etc. stay reachab
 import sys
 import types
 
+from . import internal as internal
 from ._arrays import SceneArrays as SceneArrays
 from ._arrays import scene_arrays as scene_arrays
+from ._batch import PARTITIONS as PARTITIONS
+from ._batch import FrameBatch as FrameBatch
+from ._batch import frame_mesh as frame_mesh
+from ._batch import render_stereo_batch as render_stereo_batch
 from ._compile_cache import compile_cache_dir as compile_cache_dir
 from ._compile_cache import compile_cache_problem as compile_cache_problem
 from ._compile_cache import enable_compile_cache as enable_compile_cache
@@ -60,51 +64,43 @@ from ._envmap import constant_envmap as constant_envmap
 from ._envmap import envmap_lookup as envmap_lookup
 from ._envmap import latlong_uv as latlong_uv
 from ._envmap import load_envmap as load_envmap
-from ._frame import LOWERING_HOOKS as LOWERING_HOOKS
 from ._frame import TRACE_COUNTS as TRACE_COUNTS
 from ._frame import Frame as Frame
 from ._frame import FrameStats as FrameStats
-from ._frame import _key_args, _stereo_program
-from ._frame import bvh_for as bvh_for
 from ._frame import clear_compile_cache as clear_compile_cache
 from ._frame import compile_cache_info as compile_cache_info
-from ._frame import frame_stats as frame_stats
 from ._frame import render as render
 from ._frame import render_image as render_image
 from ._frame import render_stereo as render_stereo
 from ._frame import render_stereo_image as render_stereo_image
 from ._frame import resolve as resolve
-from ._frame import run_compiled as run_compiled
 from ._frame import side_by_side as side_by_side
-from ._integrator import SHADOWS_ALL as SHADOWS_ALL
-from ._integrator import SHADOWS_BRIGHTEST as SHADOWS_BRIGHTEST
-from ._integrator import SHADOWS_NONE as SHADOWS_NONE
-from ._integrator import ChunkedRadiance as ChunkedRadiance
-from ._integrator import ImageTile as ImageTile
 from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
-from ._integrator import ShadingClasses as ShadingClasses
-from ._integrator import Surface as Surface
-from ._integrator import bilinear_wrap as bilinear_wrap
-from ._integrator import chunk_loop as chunk_loop
 from ._integrator import radiance as radiance
-from ._integrator import radiance_in_chunks as radiance_in_chunks
-from ._integrator import scene_scale as scene_scale
-from ._integrator import surface_at as surface_at
-from ._mips import mip_lookup as mip_lookup
-from ._mips import mip_shapes as mip_shapes
-from ._mips import pixel_spread_angle as pixel_spread_angle
-from ._mips import texture_mips as texture_mips
-from ._mips import with_texture_mips as with_texture_mips
 from ._stereo import SampleRays as SampleRays
 from ._stereo import StereoRig as StereoRig
 from ._stereo import head_pose_angles as head_pose_angles
 from ._stereo import head_rotation as head_rotation
 from ._stereo import stereo_sample_rays as stereo_sample_rays
 
-# Public names for the frame's parts other packages build on (see the docstring).
-key_args = _key_args
-stereo_program = _stereo_program
+# Names that moved to `fovjax.render.internal` (what only the packages built on the renderer
+# use): still reachable here, with a DeprecationWarning.
+_MOVED_TO_INTERNAL = frozenset(internal.__all__)
+
+
+def __getattr__(name: str):
+    if name in _MOVED_TO_INTERNAL:
+        import warnings
+
+        warnings.warn(
+            f"fovjax.render.{name} moved to fovjax.render.internal (plumbing the packages built on "
+            "the renderer share; not part of the stable API)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(internal, name)
+    raise AttributeError(f"module 'fovjax.render' has no attribute {name!r}")
 
 
 class _CallableModule(types.ModuleType):
@@ -115,3 +111,42 @@ class _CallableModule(types.ModuleType):
 
 
 sys.modules[__name__].__class__ = _CallableModule
+
+__all__ = [
+    "SceneArrays",
+    "scene_arrays",
+    "PARTITIONS",
+    "FrameBatch",
+    "frame_mesh",
+    "render_stereo_batch",
+    "compile_cache_dir",
+    "compile_cache_problem",
+    "enable_compile_cache",
+    "DEFAULT_CONFIG",
+    "MAGENTA",
+    "THESIS_BACKGROUND",
+    "RenderConfig",
+    "constant_envmap",
+    "envmap_lookup",
+    "latlong_uv",
+    "load_envmap",
+    "TRACE_COUNTS",
+    "Frame",
+    "FrameStats",
+    "clear_compile_cache",
+    "compile_cache_info",
+    "render",
+    "render_image",
+    "render_stereo",
+    "render_stereo_image",
+    "resolve",
+    "side_by_side",
+    "Radiance",
+    "RayCounts",
+    "radiance",
+    "SampleRays",
+    "StereoRig",
+    "head_pose_angles",
+    "head_rotation",
+    "stereo_sample_rays",
+]

@@ -51,3 +51,36 @@ from ._scene import validate_geometry as validate_geometry
 from ._spheres import spheres as spheres
 
 BUILTIN = {"atrium": atrium, "cornell_box": cornell_box, "spheres": spheres}
+
+__all__ = [
+    "atrium",
+    "Camera",
+    "look_at_rotation",
+    "pixel_sample_positions",
+    "stratified_offsets",
+    "vfov_from_hfov",
+    "cornell_box",
+    "SUPPORTED_FORMATS",
+    "load_scene",
+    "DEFAULT_RATIOS",
+    "LODLevels",
+    "decimate",
+    "geometric_error",
+    "lod_levels",
+    "select_lod",
+    "surface_distance",
+    "CameraPose",
+    "default_camera",
+    "DIRECTIONAL_LIGHT",
+    "POINT_LIGHT",
+    "Lights",
+    "Materials",
+    "Scene",
+    "geometry_hash",
+    "make_lights",
+    "make_materials",
+    "make_scene",
+    "validate_geometry",
+    "spheres",
+    "BUILTIN",
+]

@@ -20,3 +20,13 @@ from ._loop import SessionResult as SessionResult
 from ._loop import VirtualClock as VirtualClock
 from ._loop import full_eccentricity as full_eccentricity
 from ._loop import run_session as run_session
+
+__all__ = [
+    "CLOCKS",
+    "LIVE_SCHEMES",
+    "SessionFrame",
+    "SessionResult",
+    "VirtualClock",
+    "full_eccentricity",
+    "run_session",
+]

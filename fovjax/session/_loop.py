@@ -8,7 +8,8 @@ Two clocks:
   frame's time, and the same inputs give the same frames.
 - "wall": frames are rendered as fast as they can be on the gaze source's clock
   (`time.monotonic` for specs), for live devices; each frame uses whatever samples arrived since
-  the previous one. Every widening level is compiled before the first frame (`warmup`), so a
+  the previous one. The program is compiled before the first frame (`warmup` renders every
+  widening level once), so a
   tracker that goes silent does not freeze the display while a new program compiles.
 
 The default picks "wall" for live devices (serial, Pupil, ViewPoint, InterSense) and "virtual"
@@ -17,8 +18,9 @@ for recordings and synthetic gaze.
 Per frame: every sample that arrived goes through the `GazeTracker` (quality filter, hold, widen,
 recover) and the `HeadTracker`; the tracker's widening turns into the frame's fovea and
 periphery thresholds, widened towards the largest eccentricity any pixel of the display can have
-(widening 1: every pixel is foveal, full quality); then `render_foveated`. Each widening level
-is a separate compiled program (its thresholds fix the static ray budget). Gaze the tracker
+(widening 1: every pixel is foveal, full quality); then the session's `FoveatedRenderer`
+renders the frame. The thresholds are traced values: every widening level runs on the one
+compiled program. Gaze the tracker
 accepts slightly off screen (within its `max_offscreen`) is clamped to the screen edge.
 """
 
@@ -252,7 +254,8 @@ def run_session(
     (``summary["interrupted"]``); every file written is complete.
 
     Args:
-        scene: the `Scene`.
+        scene: the `Scene`, or a `fovjax.FoveatedRenderer` prepared from one (then it brings the
+            rig, foveation, render config, environment map and BVH, and those arguments stay None).
         rig: the `StereoRig` (default: the scene's default camera at the rig's default size).
         gaze: a spec ("synthetic:scanpath:0", "replay:FILE", "serial:PORT", "pupil:HOST:PORT",
             ...) or an unopened `fovjax.devices` source.
@@ -300,8 +303,7 @@ def run_session(
     """
     from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from ..files import deferred_interrupt, interrupt_flag
-    from ..foveate import DEBUG_VIEW_DIAGNOSTICS, Foveation, render_foveated
-    from ..render import DEFAULT_CONFIG, SceneArrays, StereoRig, bvh_for, scene_arrays
+    from ..foveate import DEBUG_VIEW_DIAGNOSTICS, FoveatedRenderer
 
     n_frames = _check_count(frames, seconds, fps)
     rate = float(fps)
@@ -317,22 +319,26 @@ def run_session(
         raise ValueError("run_session: video=True and debug=True write files; give out=")
     if video and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise ImportError("run_session(video=True) needs imageio-ffmpeg: pip install 'fovjax[video]'")
-    foveation = foveation or Foveation()
-    config = config or DEFAULT_CONFIG
     tracker = tracker or GazeTracker(policy=policy)
     head_tracker = HeadTracker()
-    if rig is None:
-        from ..scene import default_camera
-
-        rig = StereoRig.from_pose(default_camera(scene))
-    # The scene's arrays and BVH once, not per frame.
-    bvh = bvh_for(scene, bvh)
-    arrays = (
-        scene
-        if isinstance(scene, SceneArrays)
-        else scene_arrays(scene, envmap=envmap, background=config.background)
-    )
-    arrays = jax.tree.map(jnp.asarray, arrays)
+    # Only the per-pixel outputs the loop reads (the regions: `fovea_pixels`; the debug view's
+    # with `debug`), fixed for the session: one compiled program.
+    diagnostics = ("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",)
+    # The scene prepared once (arrays, BVH, budget, levels of detail), not per frame.
+    if isinstance(scene, FoveatedRenderer):
+        given = {"rig": rig, "foveation": foveation, "config": config, "envmap": envmap, "bvh": bvh}
+        clashing = [name for name, value in given.items() if value is not None]
+        if clashing:
+            raise ValueError(
+                f"run_session: the scene is a FoveatedRenderer, which has its own {', '.join(clashing)}; "
+                "pass them when making it"
+            )
+        renderer = scene.with_foveation(scene.foveation, diagnostics=diagnostics)
+    else:
+        renderer = FoveatedRenderer(
+            scene, rig, foveation, config, envmap=envmap, bvh=bvh, diagnostics=diagnostics
+        )
+    rig, foveation = renderer.rig, renderer.foveation
     omega_full = max(full_eccentricity(rig, foveation), foveation.periphery_deg)
 
     vclock = VirtualClock() if clock == "virtual" else None
@@ -349,28 +355,8 @@ def run_session(
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
 
-    def foveation_at(widening: float) -> Foveation:
-        fovea, periphery = widen_thresholds(
-            foveation.fovea_deg, foveation.periphery_deg, widening, omega_full
-        )
-        return dataclasses.replace(foveation, fovea_deg=fovea, periphery_deg=periphery)
-
-    # Only the per-pixel outputs the loop reads (the regions: `fovea_pixels`; the debug view's
-    # with `debug`), fixed for the session: one compiled program.
-    diagnostics = ("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",)
-
-    def render(gaze_xy, fov, pose, frame_key):
-        return render_foveated(
-            arrays,
-            rig,
-            gaze=gaze_xy,
-            foveation=fov,
-            head_pose=pose,
-            key=frame_key,
-            config=config,
-            bvh=bvh,
-            diagnostics=diagnostics,
-        )
+    def thresholds_at(widening: float) -> tuple[float, float]:
+        return widen_thresholds(foveation.fovea_deg, foveation.periphery_deg, widening, omega_full)
 
     warmup = clock == "wall" if warmup is None else warmup
     warmup_s = 0.0
@@ -394,7 +380,7 @@ def run_session(
             for step in range(steps + 1):
                 if stop.is_set():
                     raise KeyboardInterrupt
-                render(((0.5, 0.5), (0.5, 0.5)), foveation_at(step / steps), (0.0, 0.0, 0.0), key)
+                renderer.render(head_pose=(0.0, 0.0, 0.0), key=key, thresholds=thresholds_at(step / steps))
             warmup_s = time.perf_counter() - t0
         if progress:
             from tqdm import tqdm
@@ -425,10 +411,10 @@ def run_session(
             tf = tracker.step(t, gaze_samples, display_time=display_time)
             hf = head_tracker.step(t, head_samples) if head_source is not None else None
             pose = (hf.yaw, hf.pitch, hf.roll) if hf is not None else (0.0, 0.0, 0.0)
-            frame_fov = foveation_at(tf.widening)
+            thresholds = thresholds_at(tf.widening)
             gaze_xy = np.clip(np.array([tf.left, tf.right], np.float32), 0.0, 1.0)
             frame_key = jax.random.fold_in(key, k) if fresh_key_per_frame else key
-            frame = render(gaze_xy, frame_fov, pose, frame_key)
+            frame = renderer.render(gaze_xy, head_pose=pose, key=frame_key, thresholds=thresholds)
             shown = now() if vclock is None else display_time
             last_frame_s = max(shown - t, 0.0)
             with deferred_interrupt():  # a frame's files and its row: whole or not at all
@@ -458,8 +444,8 @@ def run_session(
                         gaze_right=tuple(float(x) for x in gaze_xy[1]),
                         head_state=str(hf.state) if hf is not None else "none",
                         head_pose=tuple(float(x) for x in pose),
-                        fovea_deg=float(frame_fov.fovea_deg),
-                        periphery_deg=float(frame_fov.periphery_deg),
+                        fovea_deg=float(frame.foveation.fovea_deg),
+                        periphery_deg=float(frame.foveation.periphery_deg),
                         fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
                         primary_rays=frame.stats.primary_rays,
                         shadow_rays=frame.stats.shadow_rays,
@@ -474,8 +460,7 @@ def run_session(
                 )
             if bar is not None:
                 bar.set_postfix_str(
-                    f"{tf.state} {frame_fov.fovea_deg:.0f}°/{frame_fov.periphery_deg:.0f}° "
-                    f"{frame.stats.rays / 1e6:.2f} Mrays"
+                    f"{tf.state} {thresholds[0]:.0f}°/{thresholds[1]:.0f}° {frame.stats.rays / 1e6:.2f} Mrays"
                 )
                 bar.update(1)
     except KeyboardInterrupt:

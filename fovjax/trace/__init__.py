@@ -41,3 +41,21 @@ from ._query import (
 from ._query import (
     resolve_backend as resolve_backend,
 )
+
+__all__ = [
+    "BuildParams",
+    "BVH",
+    "build_bvh",
+    "last_build_info",
+    "merge_bvhs",
+    "embree_status",
+    "release_embree_scenes",
+    "BACKENDS",
+    "Hit",
+    "brute_force_closest_hit",
+    "closest_hit",
+    "describe_backend",
+    "hit_geometry",
+    "occluded",
+    "resolve_backend",
+]

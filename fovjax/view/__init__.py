@@ -21,3 +21,17 @@ from ._renderer import RenderedFrame as RenderedFrame
 from ._renderer import encode_jpeg as encode_jpeg
 from ._server import Viewer as Viewer
 from ._server import is_loopback as is_loopback
+
+__all__ = [
+    "binocular_gaze",
+    "ACTIONS",
+    "MAX_MESSAGE_BYTES",
+    "MessageError",
+    "parse_message",
+    "MAX_THRESHOLD_DEG",
+    "LiveRenderer",
+    "RenderedFrame",
+    "encode_jpeg",
+    "Viewer",
+    "is_loopback",
+]

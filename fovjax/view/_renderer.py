@@ -1,7 +1,7 @@
 """The viewer's renderer: the live state (gaze, head, thresholds, modes) and one frame at a time.
 
 `LiveRenderer.render_next()` renders one foveated (or full) stereo frame for the newest gaze
-and head pose with the public API (`fovjax.render_stereo`) and encodes it as a JPEG. It is
+and head pose through its `fovjax.FoveatedRenderer` (made once) and encodes it as a JPEG. It is
 called from one worker thread only (the server's single-thread executor); the page's inputs
 (`set_mouse`, `apply_action`, ...) arrive on the event loop's thread and only replace small
 values under a lock, so a frame always reads one consistent, newest state.
@@ -89,21 +89,30 @@ def _source_status(source) -> str:
 class LiveRenderer:
     """The live state and the frame loop's body; see the module docstring.
 
-    `scene`, `rig`: what to render; `foveation`: the starting `Foveation`; `config`: a
+    `scene`, `rig`: what to render (or `scene` a `fovjax.FoveatedRenderer` that brings rig,
+    foveation and config, which stay None); `foveation`: the starting `Foveation`; `config`: a
     `RenderConfig`; `gaze`: None for the mouse or a gaze source spec; `head`: None for keys or a
     head source spec; `tracker`: the `GazeTracker` for a gaze source (default one)."""
 
     def __init__(self, scene, rig, foveation, *, config=None, gaze=None, head=None, tracker=None, seed=0):
         from ..devices import GazeTracker, HeadTracker, source_from_spec
-        from ..render import RenderConfig
-        from ..render import scene_arrays as _scene_arrays
-        from ..trace import build_bvh
+        from ..foveate import FoveatedRenderer
 
-        self.rig = rig
-        self.config = config or RenderConfig()
-        self.base_foveation = foveation
-        self.bvh = build_bvh(scene)
-        self.arrays = _scene_arrays(scene, background=self.config.background)
+        # The scene prepared once (arrays, BVH, budget): a `FoveatedRenderer`, or one made here.
+        if isinstance(scene, FoveatedRenderer):
+            given = {"rig": rig, "foveation": foveation, "config": config}
+            clashing = [name for name, value in given.items() if value is not None]
+            if clashing:
+                raise ValueError(
+                    f"LiveRenderer: the scene is a FoveatedRenderer, which has its own {', '.join(clashing)}"
+                )
+            self.renderer = scene
+        else:
+            self.renderer = FoveatedRenderer(scene, rig, foveation, config)
+        self.rig = self.renderer.rig
+        self.config = self.renderer.config
+        self.base_foveation = foveation = self.renderer.foveation
+        self.bvh = self.renderer.bvh
         self.key = jax.random.key(seed)
         self.gaze_spec, self.head_spec = gaze, head
         # Sources are built (not opened) here, so a bad spec fails before any rendering.
@@ -215,31 +224,18 @@ class LiveRenderer:
         return binocular_gaze(self.bvh, self.rig, pose, eye, xy)
 
     def _render(self, gaze, foveation, pose, full, key=None, debug=False):
-        from ..foveate import DEBUG_VIEW_DIAGNOSTICS, render_foveated
-        from ..render import render_stereo
+        from ..foveate import DEBUG_VIEW_DIAGNOSTICS
 
         if full:
-            return render_stereo(
-                self.arrays,
-                self.rig,
-                head_pose=pose,
-                spp=foveation.spp,
-                key=key,
-                config=self.config,
-                bvh=self.bvh,
-            )
+            return self.renderer.render_full(head_pose=pose, key=key)
         # Only the per-pixel outputs the frame shows: the regions (the fovea's centre), and the
         # debug view's while it is on (its first frame compiles that program, as the first
         # full frame does).
-        return render_foveated(
-            self.arrays,
-            self.rig,
-            gaze=((0.5, 0.5), (0.5, 0.5)) if gaze is None else gaze,
-            foveation=foveation,
+        return self.renderer.render(
+            ((0.5, 0.5), (0.5, 0.5)) if gaze is None else gaze,
             head_pose=pose,
             key=key,
-            config=self.config,
-            bvh=self.bvh,
+            thresholds=(foveation.fovea_deg, foveation.periphery_deg),
             diagnostics=("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",),
         )
 

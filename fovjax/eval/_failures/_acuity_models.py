@@ -114,7 +114,8 @@ class EqualBudget:
 def _candidates(rig, foveation, gazes):
     """Per gaze and eye: mandatory sample count and the curve's values at the probabilistic
     candidates (the expected-count terms of plan_budget for one gaze)."""
-    from ...foveate import FOVEA, eccentricity_map, regions, top_left
+    from ...foveate import FOVEA, eccentricity_map, regions
+    from ...foveate.internal import top_left
 
     parts = []
     for g in gazes:
@@ -151,7 +152,7 @@ def equal_budget_foveations(
     over `gazes`, equal the reference's (bisection to `rtol`), and give all of them the same
     static ray budget per eye. The fovea and region thresholds, blocks and rule stay
     `foveation`'s: only where the probabilistic samples go differs."""
-    from ...foveate import plan_budget
+    from ...foveate.internal import plan_budget
 
     if not models:
         raise ValueError("equal_budget_foveations: need at least one model")

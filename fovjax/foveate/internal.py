@@ -1,0 +1,35 @@
+"""The foveated frame's parts that only the packages built on `fovjax.foveate` (eval, the
+session, the viewer) and the tests use: the pure frame program, the static ray budget, the split
+of a foveation into program and tables, the sampling and reconstruction steps. Not part of the
+stable public API (tests/test_architecture.py keeps the top level and the command line from
+importing it)."""
+
+from ._budget import plan_budget as plan_budget
+from ._config import program_fidelity as program_fidelity
+from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
+from ._fill import resolve as resolve
+from ._frame import foveated_stereo as foveated_stereo
+from ._renderer import _budget_for as budget_for
+from ._sampling import MANDATORY as MANDATORY
+from ._sampling import OPTIONAL as OPTIONAL
+from ._sampling import SKIPPED as SKIPPED
+from ._sampling import compaction_order as compaction_order
+from ._sampling import sample_classes as sample_classes
+from ._sampling import subsample_rank as subsample_rank
+from ._sampling import top_left as top_left
+
+__all__ = [
+    "plan_budget",
+    "program_fidelity",
+    "fill_and_blur_pixels",
+    "resolve",
+    "foveated_stereo",
+    "MANDATORY",
+    "OPTIONAL",
+    "SKIPPED",
+    "compaction_order",
+    "sample_classes",
+    "subsample_rank",
+    "top_left",
+    "budget_for",
+]

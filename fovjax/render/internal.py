@@ -1,0 +1,65 @@
+"""What the packages built on the renderer share with it and users do not need: the compile
+path, the frame statistics builder, the pure stereo frame program and the batch machinery.
+Sibling packages (`fovjax.foveate`, `fovjax.eval`, the session and the viewer) import these from
+here; nothing here is part of the stable public API (tests/test_architecture.py keeps users'
+layers, the command line and the top level, from importing it)."""
+
+from ._batch import batch_size as batch_size
+from ._batch import head_poses_array as head_poses_array
+from ._batch import key_data as key_data
+from ._batch import per_frame as per_frame
+from ._batch import run_sharded as run_sharded
+from ._frame import LOWERING_HOOKS as LOWERING_HOOKS
+from ._frame import _key_args as key_args
+from ._frame import _stereo_program as stereo_program
+from ._frame import bvh_for as bvh_for
+from ._frame import frame_stats as frame_stats
+from ._frame import run_compiled as run_compiled
+from ._integrator import SHADOWS_ALL as SHADOWS_ALL
+from ._integrator import SHADOWS_BRIGHTEST as SHADOWS_BRIGHTEST
+from ._integrator import SHADOWS_NONE as SHADOWS_NONE
+from ._integrator import ChunkedRadiance as ChunkedRadiance
+from ._integrator import ImageTile as ImageTile
+from ._integrator import ShadingClasses as ShadingClasses
+from ._integrator import Surface as Surface
+from ._integrator import bilinear_wrap as bilinear_wrap
+from ._integrator import chunk_loop as chunk_loop
+from ._integrator import radiance_in_chunks as radiance_in_chunks
+from ._integrator import scene_scale as scene_scale
+from ._integrator import surface_at as surface_at
+from ._mips import mip_lookup as mip_lookup
+from ._mips import mip_shapes as mip_shapes
+from ._mips import pixel_spread_angle as pixel_spread_angle
+from ._mips import texture_mips as texture_mips
+from ._mips import with_texture_mips as with_texture_mips
+
+__all__ = [
+    "LOWERING_HOOKS",
+    "bvh_for",
+    "frame_stats",
+    "run_compiled",
+    "ChunkedRadiance",
+    "ImageTile",
+    "SHADOWS_ALL",
+    "SHADOWS_BRIGHTEST",
+    "SHADOWS_NONE",
+    "ShadingClasses",
+    "Surface",
+    "bilinear_wrap",
+    "chunk_loop",
+    "radiance_in_chunks",
+    "scene_scale",
+    "surface_at",
+    "mip_lookup",
+    "mip_shapes",
+    "pixel_spread_angle",
+    "texture_mips",
+    "with_texture_mips",
+    "batch_size",
+    "head_poses_array",
+    "key_data",
+    "per_frame",
+    "run_sharded",
+    "key_args",
+    "stereo_program",
+]
