@@ -217,6 +217,35 @@ def presentation(
     return (gap, Segment("reference", SLIDER_REFERENCE_S), gap, level)
 
 
+SLIDER_ACTIONS = ("lower", "higher", "reference")
+
+
+def slider_presentation(
+    trial: Trial, actions: Sequence[str]
+) -> tuple[tuple[Segment, ...], tuple[float, float]]:
+    """A slider trial's segments after the participant's `actions` (each one of
+    `SLIDER_ACTIONS`), in order, and the level shown last: `presentation`'s, then per "lower" or
+    "higher" black and the next level down or up, per "reference" black, the reference
+    (`SLIDER_REFERENCE_S`), black and the level again. A step past either end is a ValueError."""
+    if trial.test != "slider":
+        raise ValueError(f"slider_presentation: {trial.condition!r} is not a slider trial")
+    segments = list(presentation(trial))
+    gap = segments[0]
+    k = trial.levels.index(trial.level)
+    for n, action in enumerate(actions):
+        if action not in SLIDER_ACTIONS:
+            raise ValueError(f"slider action {n}: {action!r} is not one of {SLIDER_ACTIONS}")
+        if action == "reference":
+            segments += [gap, Segment("reference", SLIDER_REFERENCE_S), gap]
+        else:
+            k += 1 if action == "higher" else -1
+            if not 0 <= k < len(trial.levels):
+                raise ValueError(f"slider action {n}: {action!r} steps past the last level")
+            segments.append(gap)
+        segments.append(Segment("foveated", None, trial.levels[k]))
+    return tuple(segments), trial.levels[k]
+
+
 def pair_trials(levels=APPENDIX_LEVELS, *, seed: int | None = None) -> list[Trial]:
     """The pair test: each level twice, reference first then foveated first, levels in
     increasing order (the appendix); shuffled when `seed` is given."""

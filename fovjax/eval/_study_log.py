@@ -42,6 +42,7 @@ from ._protocols import (
     presentation,
     ramp_trials,
     read_responses,
+    slider_presentation,
     slider_trial,
 )
 
@@ -80,6 +81,11 @@ STUDY_LOG_FIELDS = (
     "slider_actions",
     "clips",
 )
+
+
+# The resolution of the page's timestamps (performance.now() and requestAnimationFrame's in
+# Chrome without cross-origin isolation: 100 µs), twice: a duration is the difference of two.
+TIMESTAMP_RESOLUTION_MS = 0.2
 
 
 class StudyLogError(ValueError):
@@ -184,7 +190,9 @@ def timing_problems(presented: Sequence[dict], frame_interval_ms: float) -> list
     """The segments whose shown duration differs from the protocol's by more than one frame
     (`frame_interval_ms`, the page's median frame interval), each with its index and the
     difference in ms. Segments without a protocol duration (the slider's level) are not judged."""
-    tolerance = float(frame_interval_ms)
+    # A duration is two timestamps apart, each rounded by the browser: "exactly one frame off"
+    # must not be flagged by that rounding (`TIMESTAMP_RESOLUTION_MS`).
+    tolerance = float(frame_interval_ms) + TIMESTAMP_RESOLUTION_MS
     out = []
     for k, seg in enumerate(presented):
         if seg.get("protocol_s") is None:
@@ -342,8 +350,27 @@ class StudyLog:
                 f"answer to trial {index}, but the next unanswered trial is {self.next_index}"
             )
         trial = self.trials[index]
-        segments = self.presentation_of(index, resumed=resumed)
         where = f"answer to trial {index}"
+        actions = measured.get("slider_actions")
+        if trial.test == "slider":
+            if not isinstance(actions, list) or not all(
+                isinstance(a, dict) and isinstance(a.get("action"), str) for a in actions
+            ):
+                raise StudyLogError(
+                    f"{where}: slider_actions must be a list of {{action, at_ms}}, got {actions!r}"
+                )
+            try:
+                segments, shown_last = slider_presentation(trial, [a["action"] for a in actions])
+            except ValueError as err:
+                raise StudyLogError(f"{where}: {err}") from None
+            if answer != f"{shown_last[0]:g}":
+                raise StudyLogError(
+                    f"{where}: the answer {answer!r} is not the level shown last ({shown_last[0]:g})"
+                )
+        else:
+            if actions:
+                raise StudyLogError(f"{where}: slider_actions in a {trial.test} trial")
+            segments = self.presentation_of(index, resumed=resumed)
         end_ms = _number(measured.get("stimulus_end_ms"), "stimulus_end_ms", where)
         answer_ms = _number(measured.get("answer_ms"), "answer_ms", where)
         if answer_ms < end_ms:
@@ -360,7 +387,10 @@ class StudyLog:
             time_scale=self.settings["time_scale"],
             frames=measured.get("frames"),
         )
-        response = Response(self.participant, trial, answer, (answer_ms - end_ms) / 1e3)
+        # The response time: from the stimulus's end to the answer; for the slider, from the
+        # starting level's first showing (after the reference) to the choice.
+        since_ms = presented[3]["onset_ms"] if trial.test == "slider" else end_ms
+        response = Response(self.participant, trial, answer, (answer_ms - since_ms) / 1e3)
         problems = timing_problems(presented, frame_ms)
         row = {
             **response.row(),
@@ -377,7 +407,7 @@ class StudyLog:
             "late_frames": measured.get("late_frames"),
             "timing_ok": not problems,
             "timing_worst_ms": worst_timing_ms(presented),
-            "slider_actions": measured.get("slider_actions"),
+            "slider_actions": actions,
             "clips": self.settings["stimulus"],
         }
         _fsync_write(self.path, json.dumps(row, allow_nan=False) + "\n", "a")
