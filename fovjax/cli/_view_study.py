@@ -311,16 +311,15 @@ def run(args, load_scene) -> int:
     from fovjax.eval import StudyLog
     from fovjax.view import StudyServer
 
-    clips, manifest = clips_for(args, load_scene)
+    settings = _clip_settings(args)
+    # The record first: a resumed session with other settings is refused before any rendering.
     log = StudyLog.open(
         args.output,
         args.participant,
         args.study,
         seed=args.seed,
         time_scale=args.time_scale,
-        stimulus={
-            k: manifest["settings"][k] for k in ("scene", "eye_width", "eye_height", "frames", "fps", "spp")
-        },
+        stimulus={k: settings[k] for k in ("scene", "eye_width", "eye_height", "frames", "fps", "spp")},
     )
     if log.dropped_tail:
         print(
@@ -329,6 +328,7 @@ def run(args, load_scene) -> int:
     if log.next_index is None:
         print(f"fovjax view: {args.participant} has answered every {args.study} trial already ({log.path})")
         return 0
+    clips, _ = clips_for(args, load_scene)
     cli.wrote(log.path)
     host = StudyHost(log, [name for name, _ in clips], args.time_scale)
     server = StudyServer(host, clips, clip_fps=args.clip_fps, host=args.host, port=args.port)
