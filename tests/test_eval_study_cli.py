@@ -316,15 +316,13 @@ def test_argument_errors(tmp_path, monkeypatch, capsys, argv, message):
     [
         (["--responses", "nowhere.csv"], "--responses nowhere.csv: no such file or folder"),
         (["--responses", "empty"], "--responses empty: a folder without results files (.jsonl/.csv)"),
-        (["--beside", "c.csv"], "--beside: only with --responses"),
+        (["--comparison", "c.csv", "--beside", "c.csv"], "--beside: only with --responses"),
     ],
 )
 def test_bad_responses_are_one_line_errors(tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "c.csv").write_text("fovea_deg,periphery_deg,spp,flip\n")
     (tmp_path / "empty").mkdir()
-    if "--responses" not in argv:
-        argv = [*argv, "--responses", "c.csv"]
     assert main(["study", *argv, "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err == f"fovjax study: error: {message}\n"
