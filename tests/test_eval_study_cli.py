@@ -316,7 +316,10 @@ def test_argument_errors(tmp_path, monkeypatch, capsys, argv, message):
     [
         (["--responses", "nowhere.csv"], "--responses nowhere.csv: no such file or folder"),
         (["--responses", "empty"], "--responses empty: a folder without results files (.jsonl/.csv)"),
-        (["--comparison", "c.csv", "--beside", "c.csv"], "--beside: only with --responses"),
+        (
+            ["--comparison", "c.csv", "--beside", "c.csv"],
+            "--beside: only with --responses (the observers are drawn beside people's answers)",
+        ),
     ],
 )
 def test_bad_responses_are_one_line_errors(tmp_path, monkeypatch, capsys, argv, message):
