@@ -5,9 +5,11 @@ tests to the end through the page's buttons -- rows written as answers are given
 the page showed within a display frame of the protocol, a session killed and resumed, and
 `fovjax study --responses` giving back the answers that were clicked.
 
-The browser sessions share one study folder, so the clips (2 x 16x12, 3 frames, spheres) are
-rendered once, by the first session, and loaded by the others; `--time-scale 0.1` makes the
-black gaps 50 ms and the ramp's steps 0.5 s (3 and 30 frames at 60 Hz)."""
+The browser sessions play synthetic clips (2 x 16x12, 3 frames; `fovjax view --study --clips`):
+what is tested there is the player, the record and the timing, and rendering the clips would
+cost the suite a compile of two frame programs; the clips' rendering and caching is tested
+in process with the renderer replaced (`study_sequence` itself: tests/test_eval_video_study.py).
+`--time-scale 0.05` makes the black gaps 25 ms and the ramp's steps 0.25 s."""
 
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ import pytest
 
 import fovjax.eval as fe
 from fovjax.cli import main
+from fovjax.cli._view_study import clip_names, clips_for, write_clips
 
 ROOT = Path(__file__).resolve().parents[1]
 START_TIMEOUT_S = 300  # the first session renders the clips (two programs to compile)
@@ -142,6 +145,44 @@ def test_the_record_is_appended_synced_and_resumed(tmp_path):
         fe.StudyLog.open(tmp_path, "p01", "ramp", seed=3)
 
 
+def test_clips_are_rendered_once_and_reused(tmp_path, monkeypatch, capsys):
+    import argparse
+
+    import numpy as np
+
+    calls = []
+
+    def fake_sequence(scene, **kwargs):
+        calls.append(kwargs)
+        image = np.zeros((kwargs["frames"], kwargs["eye_height"], 2 * kwargs["eye_width"], 3), np.float32)
+        return argparse.Namespace(
+            reference=image + 0.5,
+            foveated={level: image + 0.1 * k for k, level in enumerate(fe.APPENDIX_LEVELS)},
+            levels=fe.APPENDIX_LEVELS,
+            frames=kwargs["frames"],
+            render_seconds=0.5,
+            compile_seconds=2.0,
+            primary_rays={None: 100.0, **dict.fromkeys(fe.APPENDIX_LEVELS, 40.0)},
+        )
+
+    monkeypatch.setattr(fe, "study_sequence", fake_sequence)
+    args = argparse.Namespace(
+        clips=None, output=str(tmp_path), scene="spheres", triangles=1, width=8, height=8, frames=2,
+        clip_fps=30.0, spp=4, regions="angle", max_depth=5, backend="auto",
+    )  # fmt: skip
+    first, manifest = clips_for(args, lambda a: "scene")
+    assert [name for name, _ in first] == clip_names(fe.APPENDIX_LEVELS) and len(calls) == 1
+    assert calls[0]["gaze"] == "fixed" and calls[0]["spp"] == 4
+    assert all(len(frames) == 2 and frames[0][:2] == b"\xff\xd8" for _, frames in first)  # JPEGs
+    assert manifest["live_fps"] == pytest.approx(12 / 0.5) and manifest["settings"]["spp"] == 4
+    assert "24.0 frames/s rendering, against 30 frames/s played" in capsys.readouterr().out
+    again, _ = clips_for(args, lambda a: "scene")
+    assert again == first and len(calls) == 1  # read back, not rendered again
+    args.spp = 1
+    clips_for(args, lambda a: "scene")
+    assert len(calls) == 2  # other settings: other clips
+
+
 # ---- bad input: one line, exit status 2 ------------------------------------------------------------
 
 
@@ -160,6 +201,10 @@ def test_the_record_is_appended_synced_and_resumed(tmp_path):
             "a tracker",
         ),
         (["--participant", "p01"], "--participant: only with --study"),
+        (
+            ["--study", "pair", "--participant", "p01", "-o", "DIR", "--clips", "DIR"],
+            "--clips DIR: no manifest.json",
+        ),
     ],
 )
 def test_bad_study_arguments_are_one_line_errors(args, message, tmp_path, monkeypatch, capsys):
@@ -220,10 +265,21 @@ def test_a_malformed_responses_file_is_file_line(line, message, tmp_path, capsys
 class StudyProcess:
     """`fovjax view --study ...` on a free port; its output in a log file."""
 
-    def __init__(self, test: str, participant: str, folder: Path, *extra: str):
+    def __init__(self, test: str, participant: str, folder: Path, clips: Path, *extra: str):
         self.log = Path(tempfile.mkstemp(prefix=f"fovjax-study-{participant}-", suffix=".log")[1])
         env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-        argv = ["--study", test, "--participant", participant, "-o", str(folder), "--port", "0"]
+        argv = [
+            "--study",
+            test,
+            "--participant",
+            participant,
+            "-o",
+            str(folder),
+            "--port",
+            "0",
+            "--clips",
+            str(clips),
+        ]
         with self.log.open("w") as out:
             self.proc = subprocess.Popen(
                 [
@@ -316,6 +372,35 @@ def folder():
         yield Path(d)
 
 
+def _synthetic_clips(frames=3, width=16, height=12):
+    """[(name, [JPEG])] of `clip_names`: each clip its own grey, each frame a moving bar."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    clips = []
+    for c, name in enumerate(clip_names(fe.APPENDIX_LEVELS)):
+        jpegs = []
+        for f in range(frames):
+            image = np.full((height, 2 * width, 3), 40 + 30 * c, np.uint8)
+            image[:, f :: width // 2] = 255
+            buf = io.BytesIO()
+            Image.fromarray(image).save(buf, format="JPEG", quality=95)
+            jpegs.append(buf.getvalue())
+        clips.append((name, jpegs))
+    return clips
+
+
+@pytest.fixture(scope="module")
+def clips(folder):
+    path = folder.parent / (folder.name + "-clips")
+    settings = {"scene": "synthetic", "eye_width": 16, "eye_height": 12, "frames": 3, "fps": 30.0, "spp": 1}
+    write_clips(path, settings, _synthetic_clips())
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
 class Participant:
     """Takes a test through the page's controls only."""
 
@@ -380,19 +465,19 @@ def _check_shown_durations(rows):
             for seg in row["presented"]
             if seg["protocol_s"] is not None
         ]
-        assert all(seg["frames"] >= 1 for seg in row["presented"]), row
         assert row["timing_ok"] == all(off <= frame_ms + 0.2 for off in offs), row
         assert row["timing_worst_ms"] == pytest.approx(max(offs)), row
         if row["late_frames"] == 0:
             judged += 1
             assert row["timing_ok"], (row["condition"], row["presented"], frame_ms)
+            assert all(seg["frames"] >= 1 for seg in row["presented"]), row
     print(f"{judged} of {len(rows)} trials without a late frame, each shown within a frame of the protocol")
     assert judged >= 1, "every trial had late frames: the machine was too busy to judge the player"
 
 
 @pytest.fixture(scope="module")
-def pair_session(browser, folder):
-    view = StudyProcess("pair", "p01", folder)
+def pair_session(browser, folder, clips):
+    view = StudyProcess("pair", "p01", folder, clips)
     try:
         page = Participant(browser, view.url)
         page.fill_form()
@@ -423,9 +508,9 @@ def test_pair_test_runs_to_the_end(pair_session, folder):
 
 
 @pytest.fixture(scope="module")
-def ramp_session(browser, folder, pair_session):
+def ramp_session(browser, folder, clips, pair_session):
     # Killed after RAMP_KILLED_AFTER answers (no clean-up at all), then resumed.
-    view = StudyProcess("ramp", "p02", folder, "--seed", "1")
+    view = StudyProcess("ramp", "p02", folder, clips, "--seed", "1")
     try:
         page = Participant(browser, view.url)
         page.fill_form()
@@ -436,7 +521,7 @@ def ramp_session(browser, folder, pair_session):
     finally:
         view.stop()
     killed_rows = _rows(folder / "p02_ramp.jsonl")
-    view = StudyProcess("ramp", "p02", folder, "--seed", "1")
+    view = StudyProcess("ramp", "p02", folder, clips, "--seed", "1")
     try:
         page = Participant(browser, view.url)
         page.start()  # the form is not asked again
@@ -479,16 +564,16 @@ def test_ramp_test_resumes_after_a_kill(ramp_session, folder):
 
 
 @pytest.fixture(scope="module")
-def slider_session(browser, folder, ramp_session):
-    view = StudyProcess("slider", "p03", folder)
+def slider_session(browser, folder, clips, ramp_session):
+    view = StudyProcess("slider", "p03", folder, clips)
     try:
         page = Participant(browser, view.url)
         page.fill_form()
         page.start()
         for action in SLIDER_ACTIONS:
-            page.phase("slider")
+            opened = page.wait("const s = window.fovjaxStudy; return s.phase === 'slider' && s.sliderOpened")
             page.click(f"slider-{action}")
-            page.wait("return window.fovjaxStudy.phase !== 'slider'")
+            page.wait(f"return window.fovjaxStudy.sliderOpened > {opened}")
         page.phase("slider")
         page.click("slider-choose")
         page.phase("done")
@@ -544,5 +629,11 @@ def test_study_responses_gives_back_the_answers(pair_session, ramp_session, slid
     assert observers == {5.0: 0, 7.5: 0, 10.0: 0, 12.5: 30, 15.0: 30}
     for figure in ("fig66_pair_test.png", "fig67_ramp_test.png", "fig68_slider_test.png"):
         assert (out / figure).stat().st_size > 10_000
+    # timing.csv: one row per recorded answer, flagged exactly where the record says it was off.
+    recorded = {(r["participant"], r["trial"]): r for p in folder.glob("*.jsonl") for r in _rows(p)}
     timing = table("timing.csv")
-    assert len(timing) == 21 and not any(r["flagged"] == "True" for r in timing)
+    assert len(timing) == len(recorded) == 21
+    for row in timing:
+        assert (row["flagged"] == "True") == (
+            not recorded[(row["participant"], int(row["trial"]))]["timing_ok"]
+        )

@@ -76,6 +76,12 @@ def add_arguments(p) -> None:
         help=f"with --study: the clips' frame rate (default {DEFAULT_CLIP_FPS:g})",
     )
     p.add_argument(
+        "--clips",
+        metavar="CLIP_DIR",
+        help="with --study: play the clips in this folder (DIR/clips/<key>/ of another study folder, e.g. "
+        "rendered on a faster machine) instead of rendering them; their settings are recorded",
+    )
+    p.add_argument(
         "--time-scale",
         type=float,
         default=1.0,
@@ -101,6 +107,8 @@ def validate(args) -> None:
     cli.number(args.frames, "--frames", ge=2, le=10_000, integer=True)
     cli.number(args.clip_fps, "--clip-fps", gt=0, le=240)
     cli.number(args.time_scale, "--time-scale", gt=0, le=1)
+    if args.clips is not None:
+        read_clips(args.clips)
     if args.gaze != "mouse":
         raise cli.UsageError(
             f"--gaze {args.gaze}: --study plays pre-rendered clips foveated at a fixed gaze (the thesis's "
@@ -133,25 +141,89 @@ def _clip_settings(args) -> dict:
     }
 
 
+CLIP_MANIFEST = "manifest.json"
+
+
+def clip_names(levels) -> list[str]:
+    """The clips a study needs, in order: the reference, then each level as "fovea/periphery"."""
+    return ["reference", *(f"{f:g}/{p:g}" for f, p in levels)]
+
+
+def write_clips(folder, settings: dict, clips, **stats) -> Path:
+    """Store clips [(name, [JPEG bytes per frame])] in `folder` as `fovjax view --study` reads
+    them: frame f of clip c in `<c>_<f:04d>.jpg`, and `manifest.json` (the settings -- "fps" the
+    frame rate they play at --, each clip's name and frame count, `stats`) written last, so a
+    folder without one is incomplete."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for c, (_, frames) in enumerate(clips):
+        for f, jpeg in enumerate(frames):
+            (folder / f"{c}_{f:04d}.jpg").write_bytes(jpeg)
+    manifest = {
+        "settings": settings,
+        "clips": [{"name": name, "frames": len(frames)} for name, frames in clips],
+        "rendered": time.strftime("%Y-%m-%d %H:%M:%S"),
+        **stats,
+    }
+    tmp = folder / (CLIP_MANIFEST + ".tmp")
+    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
+    tmp.replace(folder / CLIP_MANIFEST)
+    return folder / CLIP_MANIFEST
+
+
+def read_clips(folder, option: str = "--clips") -> tuple[list, dict]:
+    """The clips and manifest `write_clips` stored in `folder`, checked: every clip the study
+    needs (`clip_names`) with at least one frame, and every frame's file present; a UsageError
+    names what is missing."""
+    from fovjax.eval import APPENDIX_LEVELS
+
+    folder = Path(folder)
+    path = folder / CLIP_MANIFEST
+    if not path.is_file():
+        raise cli.UsageError(
+            f"{option} {folder}: no {CLIP_MANIFEST} (not a clip folder, or an incomplete one)"
+        )
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+        listed = [(str(c["name"]), int(c["frames"])) for c in manifest["clips"]]
+        fps = float(manifest["settings"]["fps"])
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError) as err:
+        raise cli.UsageError(f"{path}: not a clip manifest ({type(err).__name__}: {err})") from None
+    names = [name for name, _ in listed]
+    if names != clip_names(APPENDIX_LEVELS):
+        raise cli.UsageError(f"{path}: clips {names}, expected {clip_names(APPENDIX_LEVELS)}")
+    if not (math.isfinite(fps) and fps > 0) or any(n < 1 for _, n in listed):
+        raise cli.UsageError(f"{path}: expected fps > 0 and at least one frame per clip")
+    clips = []
+    for c, (name, n) in enumerate(listed):
+        frames = []
+        for f in range(n):
+            frame = folder / f"{c}_{f:04d}.jpg"
+            if not frame.is_file():
+                raise cli.UsageError(f"{path}: clip {name!r} frame {f}: {frame} is missing")
+            frames.append(frame.read_bytes())
+        clips.append((name, frames))
+    return clips, manifest
+
+
 def clips_for(args, load_scene) -> tuple[list, dict]:
-    """The clips [(name, [JPEG per frame])] and their manifest: from DIR/clips/<key>/ when an
-    earlier session rendered them with the same settings, else rendered now and stored there
-    (the manifest written last: a folder without one is incomplete and rendered again)."""
+    """The clips [(name, [JPEG per frame])] and their manifest: from --clips DIR when given;
+    else from DIR/clips/<key>/ when an earlier session rendered them with the same settings;
+    else rendered now and stored there (`write_clips`)."""
     from fovjax.eval import study_sequence
     from fovjax.render import RenderConfig
     from fovjax.view import encode_jpeg
 
+    if args.clips is not None:
+        clips, manifest = read_clips(args.clips)
+        print(f"fovjax view: clips from {args.clips} (rendered {manifest['rendered']})", flush=True)
+        return clips, manifest
     settings = _clip_settings(args)
     key = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:12]
     folder = Path(args.output) / "clips" / key
-    manifest_path = folder / "manifest.json"
-    if manifest_path.is_file():
-        manifest = json.loads(manifest_path.read_text())
-        clips = [
-            (clip["name"], [(folder / f"{c}_{f:04d}.jpg").read_bytes() for f in range(clip["frames"])])
-            for c, clip in enumerate(manifest["clips"])
-        ]
-        print(f"fovjax view: clips from {folder} (rendered earlier: {manifest['rendered']})", flush=True)
+    if (folder / CLIP_MANIFEST).is_file():
+        clips, manifest = read_clips(folder, "-o")
+        print(f"fovjax view: clips from {folder} (rendered {manifest['rendered']})", flush=True)
         return clips, manifest
     print(
         f"fovjax view: rendering the clips ({args.frames} frames x {1 + len(settings['levels'])} versions, "
@@ -171,39 +243,33 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
         config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
     )
     wall = time.perf_counter() - t0
-    versions = [("reference", sequence.reference)]
-    versions += [(f"{f:g}/{p:g}", sequence.foveated[(f, p)]) for f, p in sequence.levels]
-    folder.mkdir(parents=True, exist_ok=True)
-    clips = []
-    for c, (name, images) in enumerate(versions):
-        frames = [encode_jpeg(image) for image in images]
-        for f, jpeg in enumerate(frames):
-            (folder / f"{c}_{f:04d}.jpg").write_bytes(jpeg)
-        clips.append((name, frames))
-    rendered = sequence.frames * len(versions)
-    live_fps = rendered / sequence.render_seconds if sequence.render_seconds > 0 else math.inf
-    manifest = {
-        "settings": settings,
-        "clips": [{"name": name, "frames": len(frames)} for name, frames in clips],
-        "rendered": time.strftime("%Y-%m-%d %H:%M:%S"),
-        "render_seconds": sequence.render_seconds,
-        "compile_seconds": sequence.compile_seconds,
-        "live_fps": live_fps,
-        "primary_rays": {
+    images = [sequence.reference, *(sequence.foveated[level] for level in sequence.levels)]
+    clips = [
+        (name, [encode_jpeg(image) for image in frames])
+        for name, frames in zip(clip_names(sequence.levels), images, strict=True)
+    ]
+    rendered = sequence.frames * len(clips)
+    live_fps = rendered / sequence.render_seconds if sequence.render_seconds > 0 else None
+    write_clips(
+        folder,
+        settings,
+        clips,
+        render_seconds=sequence.render_seconds,
+        compile_seconds=sequence.compile_seconds,
+        live_fps=live_fps,
+        primary_rays={
             ("reference" if k is None else f"{k[0]:g}/{k[1]:g}"): v for k, v in sequence.primary_rays.items()
         },
-    }
-    tmp = manifest_path.with_name("manifest.json.tmp")
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-    tmp.replace(manifest_path)
+    )
     cli.wrote(folder)
+    rate = "" if live_fps is None else f"{live_fps:.1f} frames/s rendering, against "
     print(
         f"fovjax view: rendered {rendered} frames in {wall:.1f} s "
         f"({sequence.compile_seconds:.1f} s compiling): "
-        f"{live_fps:.1f} frames/s rendering, against {args.clip_fps:g} frames/s played; pre-rendered clips",
+        f"{rate}{args.clip_fps:g} frames/s played; pre-rendered clips",
         flush=True,
     )
-    return clips, manifest
+    return read_clips(folder, "-o")
 
 
 # ---- the study between the page and the record ------------------------------------------------
@@ -311,7 +377,7 @@ def run(args, load_scene) -> int:
     from fovjax.eval import StudyLog
     from fovjax.view import StudyServer
 
-    settings = _clip_settings(args)
+    settings = _clip_settings(args) if args.clips is None else read_clips(args.clips)[1]["settings"]
     # The record first: a resumed session with other settings is refused before any rendering.
     log = StudyLog.open(
         args.output,
@@ -319,7 +385,7 @@ def run(args, load_scene) -> int:
         args.study,
         seed=args.seed,
         time_scale=args.time_scale,
-        stimulus={k: settings[k] for k in ("scene", "eye_width", "eye_height", "frames", "fps", "spp")},
+        stimulus={k: settings.get(k) for k in ("scene", "eye_width", "eye_height", "frames", "fps", "spp")},
     )
     if log.dropped_tail:
         print(
@@ -328,10 +394,11 @@ def run(args, load_scene) -> int:
     if log.next_index is None:
         print(f"fovjax view: {args.participant} has answered every {args.study} trial already ({log.path})")
         return 0
-    clips, _ = clips_for(args, load_scene)
+    clips, manifest = clips_for(args, load_scene)
     cli.wrote(log.path)
     host = StudyHost(log, [name for name, _ in clips], args.time_scale)
-    server = StudyServer(host, clips, clip_fps=args.clip_fps, host=args.host, port=args.port)
+    clip_fps = float(manifest["settings"]["fps"])
+    server = StudyServer(host, clips, clip_fps=clip_fps, host=args.host, port=args.port)
     interrupted = threading.Event()
     asyncio.run(_serve(server, args, log, interrupted))
     if interrupted.is_set():

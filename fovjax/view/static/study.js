@@ -13,7 +13,7 @@ const ctx = canvas.getContext("2d"), marks = marksCanvas.getContext("2d");
 
 // For tests and the curious: where the page is and what it measured.
 const study = { phase: "loading", state: null, trial: null, recorded: [], error: null, frameMs: null,
-  segment: null, sliderLevel: null };
+  segment: null, sliderLevel: null, sliderOpened: 0 };
 window.fovjaxStudy = study;
 
 let clips = [];          // clips[c][f]: ImageBitmap
@@ -239,6 +239,7 @@ async function sliderTrial(trial, frameMs) {
     higher.disabled = !open || level === s.levels.length - 1;
     ref.disabled = choose.disabled = !open;
     study.phase = open ? "slider" : "playing";
+    if (open) study.sliderOpened += 1;  // for tests: a level is on screen again after an action
     study.sliderLevel = s.levels[level];
     $("slider-level").textContent = open ? `Level ${level + 1} of ${s.levels.length}` : "…";
   };
