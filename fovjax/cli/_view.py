@@ -31,9 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or a gaze source spec as `fovjax session --gaze` takes (synthetic:scanpath, replay:FILE, "
         "serial:PORT, pupil:HOST:PORT, ...). Keys on the page: arrows head yaw/pitch, 0 head reset, "
         "q/a fovea up/down, w/s periphery up/down, 1-5 the thesis's threshold pairs, m full vs "
-        "foveated, v regions/samples view, p save the frame and its statistics. With --study pair|ramp|slider "
-        "--participant ID -o DIR the page runs that test of the thesis's user study with a participant instead, "
-        "recording the answers in DIR (see 'Running the study' in the documentation). Needs the 'view' extra.",
+        "foveated, v regions/samples view, p save the frame and its statistics. With --study "
+        "pair|ramp|slider --participant ID -o DIR the page runs that test of the thesis's user study "
+        "with a participant instead, recording the answers in DIR (see 'Running the study' in the "
+        "documentation). Needs the 'view' extra.",
     )
     p.add_argument("--scene", default="spheres", help="atrium, cornell, spheres, or a scene file (spheres)")
     p.add_argument("--triangles", type=int, default=262_000, help="atrium size (triangles)")
