@@ -183,6 +183,26 @@ def test_clips_are_rendered_once_and_reused(tmp_path, monkeypatch, capsys):
     assert len(calls) == 2  # other settings: other clips
 
 
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"frames": [3, 4]}, "frames must be one count per segment"),
+        ({"late_frames": -1}, "late_frames must be a whole number >= 0"),
+        ({"onsets_ms": [0.0, 10.0]}, "2 onsets for 4 segments"),
+        ({"onsets_ms": [0.0, 600.0, 500.0, 5600.0]}, "are not in order"),
+        ({"answer_ms": 0.0}, "before the stimulus ended"),
+        ({"frame_interval_ms": float("nan")}, "frame_interval_ms must be a finite number"),
+        ({"slider_actions": [{"action": "lower"}]}, "slider_actions in a pair trial"),
+    ],
+)
+def test_a_bad_page_report_is_refused_and_nothing_written(change, message, tmp_path):
+    log = fe.StudyLog.open(tmp_path, "p01", "pair")
+    measured = {**_measured(log.presentation_of(0, resumed=False)), **change}
+    with pytest.raises(fe.StudyLogError, match=message):
+        log.record(0, "same", measured, resumed=False)
+    assert not log.path.exists() and log.next_index == 0
+
+
 # ---- bad input: one line, exit status 2 ------------------------------------------------------------
 
 

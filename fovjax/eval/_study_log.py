@@ -154,6 +154,15 @@ def _number(value, name: str, where: str, *, optional: bool = False) -> float | 
     return float(value)
 
 
+def _count(value, name: str, where: str) -> int | None:
+    """A whole number >= 0 the page counted, or None when it did not say."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise StudyLogError(f"{where}: {name} must be a whole number >= 0, got {value!r}")
+    return value
+
+
 def shown_segments(
     segments, onsets_ms: Sequence, end_ms, *, time_scale: float = 1.0, frames: Sequence | None = None
 ) -> list[dict]:
@@ -169,7 +178,14 @@ def shown_segments(
     bounds = [*onsets, end]
     if any(b < a for a, b in zip(bounds, bounds[1:], strict=False)):
         raise StudyLogError(f"{where}: onsets {onsets} and end {end} are not in order")
-    frames = list(frames) if frames is not None else [None] * len(segments)
+    if frames is None:
+        frames = [None] * len(segments)
+    elif not isinstance(frames, list | tuple) or len(frames) != len(segments):
+        raise StudyLogError(
+            f"{where}: frames must be one count per segment ({len(segments)}), got {frames!r}"
+        )
+    else:
+        frames = [_count(n, "frames", where) for n in frames]
     out = []
     for k, segment in enumerate(segments):
         protocol = None if segment.seconds is None else segment.seconds * time_scale
@@ -403,8 +419,8 @@ class StudyLog:
             "time_origin_ms": _number(measured.get("time_origin_ms"), "time_origin_ms", where, optional=True),
             "answered_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="milliseconds"),
             "frame_interval_ms": frame_ms,
-            "frames_drawn": measured.get("frames_drawn"),
-            "late_frames": measured.get("late_frames"),
+            "frames_drawn": _count(measured.get("frames_drawn"), "frames_drawn", where),
+            "late_frames": _count(measured.get("late_frames"), "late_frames", where),
             "timing_ok": not problems,
             "timing_worst_ms": worst_timing_ms(presented),
             "slider_actions": actions,
