@@ -276,8 +276,9 @@ const INSTRUCTIONS = {
     ${t.gap_s} s of black. <b>Keep your eyes on the red cross</b> in the middle of each eye's image the whole
     time, even during the black.</p><p>After each pair, answer whether the <b>first</b> was better, the
     <b>second</b> was better, or both looked the <b>same</b> (buttons, or keys 1, 2, 3).</p>`,
-  ramp: (t, n) => `<p>First a reference sequence, then the same sequence at ${n} quality levels, one after
-    another, each shown for ${t.step_s} s and separated by black. <b>Keep your eyes on the red cross</b> the
+  ramp: (t, n) => `<p>First a reference sequence, then the same sequence at other quality levels, one after
+    another (${n} in all, in two runs that each start from the reference), each shown for ${t.step_s} s and
+    separated by black. <b>Keep your eyes on the red cross</b> the
     whole time.</p><p>After each one, answer whether the quality <b>increased</b>, <b>decreased</b> or
     stayed the <b>same</b> compared with the sequence just before it (buttons, or keys 1, 2, 3).</p>`,
   slider: (t) => `<p>First the reference sequence (${t.step_s} s), then the same sequence at a low
