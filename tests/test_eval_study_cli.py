@@ -298,7 +298,6 @@ def test_model_errors_name_the_models():
             "--metric, --seed: only with --comparison",
         ),
         (["--comparison", "nowhere"], "--comparison nowhere: no such file"),
-        (["--responses", "nowhere.csv"], "--responses nowhere.csv: no such file"),
         (["--comparison", "c.csv", "--observers", "0"], "argument --observers: must be >= 1"),
         (["--comparison", "c.csv", "--noise-sd", "-1"], "argument --noise-sd: must be a finite number >= 0"),
     ],
@@ -310,6 +309,26 @@ def test_argument_errors(tmp_path, monkeypatch, capsys, argv, message):
         main(["study", *argv, "-o", str(tmp_path / "out")])
     assert err.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--responses", "nowhere.csv"], "--responses nowhere.csv: no such file or folder"),
+        (["--responses", "empty"], "--responses empty: a folder without results files (.jsonl/.csv)"),
+        (
+            ["--comparison", "c.csv", "--beside", "c.csv"],
+            "--beside: only with --responses (the observers are drawn beside people's answers)",
+        ),
+    ],
+)
+def test_bad_responses_are_one_line_errors(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "c.csv").write_text("fovea_deg,periphery_deg,spp,flip\n")
+    (tmp_path / "empty").mkdir()
+    assert main(["study", *argv, "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"fovjax study: error: {message}\n"
 
 
 @pytest.mark.parametrize("regions", [None, "angle", "thesis"])

@@ -14,10 +14,17 @@ fig68_slider_test.png, and prints per test the level the observers' majority acc
 the thesis's (12.5°/25°). For jod, d = 10 - mean JOD, seen when d > 1 (`JND_JOD`); for flip,
 d = mean FLIP, seen when d > 0.05 (or --threshold).
 
-From answers in the results-file format (.csv or .jsonl; several files are pooled):
+From answers in the results-file format (.csv or .jsonl; several files are pooled; a folder
+stands for its results files, e.g. the one `fovjax view --study` records into), with the
+automatic observers of a comparison table beside them in the same figures (`--beside`):
 
     fovjax study --responses results/p01.csv results/p02.csv -o out/study
     fovjax study --responses out/study/responses.csv -o out/study_again
+    fovjax study --responses study_dir --beside out/compare -o out/study_people
+
+Answers recorded by `fovjax view --study` carry the durations the page actually showed: the
+trials whose segments differ from the protocol by more than a display frame are listed and
+written to timing.csv (`fovjax.eval.read_timing`).
 
 From an animated sequence judged by FovVideoVDP in video mode (`fovjax.eval.video_study`; the
 options and what is written: `fovjax.cli._video_study`):
@@ -83,12 +90,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(fovea_deg, periphery_deg, spp and the jod/flip cells), a bad cell is FILE:LINE and exit 2",
     )
     source.add_argument(
-        "--responses", metavar="FILE", nargs="+", help="results files (.csv/.jsonl, RESULT_FIELDS columns)"
+        "--responses",
+        metavar="FILE_OR_DIR",
+        nargs="+",
+        help="results files (.csv/.jsonl, RESULT_FIELDS columns) or folders of them (fovjax view --study's)",
     )
     source.add_argument(
         "--video",
         action="store_true",
         help="render an animated sequence and judge it with FovVideoVDP in video mode (the study emulated)",
+    )
+    p.add_argument(
+        "--beside",
+        metavar="DIR_OR_CSV",
+        help="with --responses: a comparison table whose automatic observers are drawn beside the people's "
+        "answers in figures 66-68",
     )
     p.add_argument(
         "--metric",
@@ -117,15 +133,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run, _parser=p)
 
 
-def _comparison_csv(text: str, parser: argparse.ArgumentParser) -> Path:
+def _comparison_csv(text: str, parser: argparse.ArgumentParser, option: str = "--comparison") -> Path:
     from fovjax import cli
 
     path = Path(text)
     if path.is_dir():
         path = path / "comparison.csv"
     if not path.is_file():
-        parser.error(f"--comparison {text}: no such file ({path})")
-    return cli.input_file(path, "--comparison", text=True)
+        parser.error(f"{option} {text}: no such file ({path})")
+    return cli.input_file(path, option, text=True)
 
 
 def validate(args) -> None:
@@ -138,10 +154,116 @@ def validate(args) -> None:
     if args.spp is not None:
         cli.squares(args.spp, "--spp")
     for name in args.responses or ():
+        if not Path(name).exists():
+            raise cli.UsageError(f"--responses {name}: no such file or folder")
         if Path(name).is_file():
             cli.input_file(name, "--responses", suffixes=(".csv", ".jsonl"), text=True)
+        elif not response_files(name):
+            raise cli.UsageError(f"--responses {name}: a folder without results files (.jsonl/.csv)")
+    if args.beside is not None and args.responses is None:
+        raise cli.UsageError(
+            "--beside: only with --responses (the observers are drawn beside people's answers)"
+        )
     cli.output(args.output, "-o", directory=True)
     _video.validate(args)
+
+
+def response_files(name) -> list[Path]:
+    """A --responses argument's results files: the file, or a folder's `*.jsonl`/`*.csv`."""
+    from fovjax.eval import study_files
+
+    path = Path(name)
+    return study_files(path) if path.is_dir() else [path]
+
+
+def _observers(args, parser, levels):
+    """The automatic observers of `--comparison` (or `--beside`) with the table's summary
+    printed; returns them."""
+    from fovjax.eval import STUDY_METRICS, default_metric, observers_from_comparison, read_comparison
+
+    option = "--comparison" if args.comparison is not None else "--beside"
+    csv_path = _comparison_csv(args.comparison or args.beside, parser, option)
+    table, lines = read_comparison(csv_path)
+    metric = args.metric
+    if metric is None:
+        metric = default_metric(table)
+        why = (
+            "the table has FovVideoVDP JOD"
+            if metric == "jod"
+            else "the table has no FovVideoVDP JOD (pyfvvdp was not installed for `fovjax compare`)"
+        )
+        print(f"note: metric {metric}: {why}; choose with --metric")
+    observers = observers_from_comparison(
+        table,
+        metric=metric,
+        spp=args.spp,
+        model=args.model,
+        n=args.observers,
+        noise_sd=args.noise_sd,
+        seed=args.seed,
+        threshold=args.threshold,
+        levels=levels,
+        where=str(csv_path),
+        lines=lines,
+    )
+    diff = observers[0].difference
+    model = "" if diff.model is None else f", model {diff.model}"
+    rule = f"{STUDY_METRICS[metric][0]}, seen when d > {diff.threshold:g}"
+    print(f"{csv_path}: spp {diff.spp}{model}; {rule}")
+    print(f"  {'level':>10s}  {'mean ' + metric:>10s}  {'d':>8s}  {'rows':>4s}  seen")
+    for level in levels:
+        seen = "yes" if diff.seen(level) else "no"
+        print(
+            f"  {f'{level[0]:g}/{level[1]:g}':>10s}  {diff.means[level]:10.4g}  "
+            f"{diff.differences[level]:8.4g}  {diff.rows[level]:4d}  {seen}"
+        )
+    if args.noise_sd == 0 and all(diff.seen(level) for level in levels):
+        # The slider cannot go past the last level: its answer then means "the best on
+        # offer", not "equivalent to the reference".
+        print(
+            f"note: every level is seen (d > {diff.threshold:g}); the slider stops at the "
+            "highest level, which is not an equivalence"
+        )
+    readings = sorted({str(r.get("regions") or "angle") for r in table})
+    if readings != ["thesis"]:
+        # The thesis's 12.5°/25° was chosen on its own regions, about twice the pixels per
+        # threshold of fovjax's exact-angle ones on the 90° rig: not the same levels.
+        print(
+            f"note: the table's regions are {'/'.join(readings)} (a table without a regions column "
+            "is angle), not the thesis's reading: the thesis column is not like-for-like; "
+            "`fovjax compare --regions thesis` makes it so"
+        )
+    print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
+    return observers
+
+
+def _timing(files, out: Path) -> Path | None:
+    """Say which recorded trials were shown off the protocol by more than a frame; write
+    timing.csv (one row per answer with measured timings). None when no file has any."""
+    from fovjax import cli
+    from fovjax.eval import read_timing, write_csv
+
+    rows = [row for path in files for row in read_timing(path)]
+    if not rows:
+        return None
+    flagged = [r for r in rows if r["flagged"]]
+    scales = sorted({r["time_scale"] for r in rows if r["time_scale"] is not None})
+    print(
+        f"timing: {len(flagged)} of {len(rows)} recorded answers had a segment shown off the protocol by "
+        "more than a display frame" + (":" if flagged else "")
+    )
+    for r in flagged[:10]:
+        print(f"  {r['file']}:{r['line']}: {r['participant']} {r['condition']}: {r['problems']}")
+    if len(flagged) > 10:
+        print(f"  ... and {len(flagged) - 10} more (timing.csv)")
+    if scales != [1.0]:
+        print(
+            f"note: time scale(s) {', '.join(f'{x:g}' for x in scales)}: not the thesis's timings (testing)"
+        )
+    with cli.deferred_interrupt():
+        path = write_csv(rows, out / "timing.csv")
+        cli.wrote(path)
+    return path
 
 
 def _level_text(fovea: float | None, levels) -> str:
@@ -156,11 +278,7 @@ def run(args) -> int:
     from fovjax.eval import (
         APPENDIX_LEVELS,
         MAJORITY_TESTS,
-        STUDY_METRICS,
         THESIS_LEVEL,
-        default_metric,
-        observers_from_comparison,
-        read_comparison,
         read_responses,
         run_study,
         study_majorities,
@@ -180,101 +298,60 @@ def run(args) -> int:
         if getattr(args, k) is None:
             setattr(args, k, default)
     paths = {}
+    observers_beside = None
     if args.responses is not None:
-        if given:
+        if given and args.beside is None:
             names = ", ".join("--" + k.replace("_", "-") for k in given)
             parser.error(f"{names}: only with --comparison (--responses files already hold the answers)")
+        files = [f for name in args.responses for f in response_files(name)]
         responses = []
-        for name in args.responses:
-            if not Path(name).is_file():
-                parser.error(f"--responses {name}: no such file")
-            responses.extend(read_responses(name, levels=levels))
+        for path in files:
+            responses.extend(read_responses(path, levels=levels))
         if not responses:
-            parser.error(f"--responses {' '.join(args.responses)}: no answers in the file(s)")
+            raise cli.UsageError(f"--responses {' '.join(args.responses)}: no answers in the file(s)")
         participants = len({r.participant for r in responses})
-        files = len(args.responses)
-        print(f"read {len(responses)} answers from {participants} participant(s) in {files} file(s)")
+        print(f"read {len(responses)} answers from {participants} participant(s) in {len(files)} file(s)")
+        timing = _timing(files, out)
+        if timing is not None:
+            paths["timing"] = timing
+        if args.beside is not None:
+            observers = _observers(args, parser, levels)
+            observers_beside = run_study(observers, levels, seed=args.seed if args.shuffle else None)
+            with cli.deferred_interrupt():
+                paths["observers"] = write_responses(observers_beside, out / "observers_responses.csv")
+                cli.wrote(paths["observers"])
     else:
-        csv_path = _comparison_csv(args.comparison, parser)
-        table, lines = read_comparison(csv_path)
-        metric = args.metric
-        if metric is None:
-            metric = default_metric(table)
-            why = (
-                "the table has FovVideoVDP JOD"
-                if metric == "jod"
-                else "the table has no FovVideoVDP JOD (pyfvvdp was not installed for `fovjax compare`)"
-            )
-            print(f"note: metric {metric}: {why}; choose with --metric")
-        observers = observers_from_comparison(
-            table,
-            metric=metric,
-            spp=args.spp,
-            model=args.model,
-            n=args.observers,
-            noise_sd=args.noise_sd,
-            seed=args.seed,
-            threshold=args.threshold,
-            levels=levels,
-            where=str(csv_path),
-            lines=lines,
-        )
-        diff = observers[0].difference
-        model = "" if diff.model is None else f", model {diff.model}"
-        rule = f"{STUDY_METRICS[metric][0]}, seen when d > {diff.threshold:g}"
-        print(f"{csv_path}: spp {diff.spp}{model}; {rule}")
-        print(f"  {'level':>10s}  {'mean ' + metric:>10s}  {'d':>8s}  {'rows':>4s}  seen")
-        for level in levels:
-            seen = "yes" if diff.seen(level) else "no"
-            print(
-                f"  {f'{level[0]:g}/{level[1]:g}':>10s}  {diff.means[level]:10.4g}  "
-                f"{diff.differences[level]:8.4g}  {diff.rows[level]:4d}  {seen}"
-            )
-        if args.noise_sd == 0 and all(diff.seen(level) for level in levels):
-            # The slider cannot go past the last level: its answer then means "the best on
-            # offer", not "equivalent to the reference".
-            print(
-                f"note: every level is seen (d > {diff.threshold:g}); the slider stops at the "
-                "highest level, which is not an equivalence"
-            )
-        readings = sorted({str(r.get("regions") or "angle") for r in table})
-        if readings != ["thesis"]:
-            # The thesis's 12.5°/25° was chosen on its own regions, about twice the pixels per
-            # threshold of fovjax's exact-angle ones on the 90° rig: not the same levels.
-            print(
-                f"note: the table's regions are {'/'.join(readings)} (a table without a regions column "
-                "is angle), not the thesis's reading: the thesis column is not like-for-like; "
-                "`fovjax compare --regions thesis` makes it so"
-            )
-        print(f"{len(observers)} observer(s), noise sd {args.noise_sd:g}, seed {args.seed}")
+        observers = _observers(args, parser, levels)
         responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)
         with cli.deferred_interrupt():
             paths["responses"] = write_responses(responses, out / "responses.csv")
             cli.wrote(paths["responses"])
 
     majorities = study_majorities(responses, levels)
+    beside_majorities = None if observers_beside is None else study_majorities(observers_beside, levels)
     with cli.deferred_interrupt():
-        written = report(responses, out, levels=levels)
+        written = report(responses, out, levels=levels, beside=observers_beside)
         paths.update(written)
         cli.wrote(*written.values())
     thesis = _level_text(THESIS_LEVEL[0], levels)
     rows = []
-    print(f"{'test':>10s}  {'majority accepts':<32s}  thesis")
+    header = f"{'test':>10s}  {'majority accepts':<32s}  "
+    if beside_majorities is not None:
+        header += f"{'automatic observers':<32s}  "
+    print(header + "thesis")
     for test in MAJORITY_TESTS:
         if test not in majorities:
             continue
         fovea = majorities[test]
-        print(f"{test:>10s}  {_level_text(fovea, levels):<32s}  {thesis}")
-        periphery = None if fovea is None else dict(levels).get(fovea)
-        rows.append(
-            {
-                "test": test,
-                "majority_fovea_deg": fovea,
-                "majority_periphery_deg": periphery,
-                "thesis_fovea_deg": THESIS_LEVEL[0],
-                "thesis_periphery_deg": THESIS_LEVEL[1],
-            }
-        )
+        line = f"{test:>10s}  {_level_text(fovea, levels):<32s}  "
+        row = {"test": test, "majority_fovea_deg": fovea, "majority_periphery_deg": dict(levels).get(fovea)}
+        if beside_majorities is not None:
+            auto = beside_majorities.get(test)
+            line += f"{_level_text(auto, levels):<32s}  "
+            row.update(observers_fovea_deg=auto, observers_periphery_deg=dict(levels).get(auto))
+        print(line + thesis)
+        row.update(thesis_fovea_deg=THESIS_LEVEL[0], thesis_periphery_deg=THESIS_LEVEL[1])
+        rows.append(row)
     if rows:
         with cli.deferred_interrupt():
             paths["majority"] = write_csv(rows, out / "majority.csv")

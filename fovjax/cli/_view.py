@@ -1,4 +1,5 @@
-"""`fovjax view`: the live viewer's command line. Every argument is checked first (`validate`,
+"""`fovjax view`: the live viewer's command line (with `--study`, the user-study player:
+`fovjax.cli._view_study`). Every argument is checked first (`validate`,
 with `fovjax.cli`'s checkers); errors and Ctrl-C are answered by `fovjax.cli.main` as for every
 command (a bad argument: one line, exit status 2; a device or a missing extra: 1; Ctrl-C: 130,
 naming the frames the page saved)."""
@@ -15,6 +16,8 @@ import threading
 
 from fovjax import cli
 
+from . import _view_study
+
 SCENE_ALIASES = {"cornell": "cornell_box"}
 MAX_EYE_PIXELS = 8192
 
@@ -28,7 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or a gaze source spec as `fovjax session --gaze` takes (synthetic:scanpath, replay:FILE, "
         "serial:PORT, pupil:HOST:PORT, ...). Keys on the page: arrows head yaw/pitch, 0 head reset, "
         "q/a fovea up/down, w/s periphery up/down, 1-5 the thesis's threshold pairs, m full vs "
-        "foveated, v regions/samples view, p save the frame and its statistics. Needs the 'view' extra.",
+        "foveated, v regions/samples view, p save the frame and its statistics. With --study "
+        "pair|ramp|slider --participant ID -o DIR the page runs that test of the thesis's user study "
+        "with a participant instead, recording the answers in DIR (see 'Running the study' in the "
+        "documentation). Needs the 'view' extra.",
     )
     p.add_argument("--scene", default="spheres", help="atrium, cornell, spheres, or a scene file (spheres)")
     p.add_argument("--triangles", type=int, default=262_000, help="atrium size (triangles)")
@@ -40,15 +46,23 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     cli.add_regions(p)
     p.add_argument("--periphery", type=float, default=10.0, help="periphery eccentricity (default 10)")
-    p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
+    p.add_argument(
+        "--spp", type=int, help="samples per pixel: 1, 4, 9, ... (default 1; with --study 4, the thesis's)"
+    )
     p.add_argument("--max-depth", type=int, default=5, help="reflection bounces (default 5)")
     cli.add_backend(p)
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed of the sampling (default 0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        help="PRNG seed of the sampling (default 0); with --study, the seed of a randomised trial order "
+        "(default: the appendix's order)",
+    )
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: any free port)")
     p.add_argument("--save-dir", default="fovjax-view", help="where the page's save key writes (fovjax-view)")
     p.add_argument("--open", action="store_true", help="open the page in a browser")
     p.add_argument("--verbose", action="store_true", help="log every client and ignored message")
+    _view_study.add_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -58,6 +72,12 @@ def validate(args) -> None:
     (ImportError naming the `pip install`, exit status 1)."""
     from fovjax.view import MAX_THRESHOLD_DEG
 
+    study_only = {"--participant": args.participant, "-o": args.output}
+    given = [name for name, value in study_only.items() if value is not None]
+    if args.study is None and given:
+        raise cli.UsageError(f"{', '.join(given)}: only with --study pair|ramp|slider")
+    if args.spp is None:
+        args.spp = _view_study.STUDY_SPP if args.study is not None else 1
     cli.number(args.width, "--width", ge=1, le=MAX_EYE_PIXELS, integer=True)
     cli.number(args.height, "--height", ge=1, le=MAX_EYE_PIXELS, integer=True)
     cli.squares(args.spp, "--spp")
@@ -72,6 +92,8 @@ def validate(args) -> None:
     cli.number(args.max_depth, "--max-depth", ge=0, integer=True)
     cli.number(args.triangles, "--triangles", ge=1, integer=True)
     cli.seed(args.seed)
+    if args.study is not None:
+        _view_study.validate(args)
     cli.scene(args.scene)
     if args.gaze != "mouse":
         cli.source_spec(args.gaze, "gaze", "--gaze")
@@ -118,6 +140,8 @@ def _load_scene(args):
 
 def run(args) -> int:
     validate(args)
+    if args.study is not None:
+        return _view_study.run(args, _load_scene)
     return _run(args)
 
 
@@ -142,7 +166,7 @@ def _run(args) -> int:
         config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
         gaze=None if args.gaze == "mouse" else args.gaze,
         head=None if args.head == "keys" else args.head,
-        seed=args.seed,
+        seed=0 if args.seed is None else args.seed,
     )
     # Devices first: an unreachable tracker is an error now, before anything is served.
     renderer.open()

@@ -218,46 +218,94 @@ def _level_names(rows) -> list[str]:
     return [f"{r['fovea_deg']:g}°/{r['periphery_deg']:g}°" for r in rows]
 
 
-def plot_pair_test(rows: Sequence[dict], path, *, title: str | None = None) -> Path:
-    """Figure 66 from `analyse_pair`: % of pair answers "same" per level, 95% Wilson intervals."""
+PEOPLE_LABEL = "people"
+OBSERVERS_LABEL = "automatic observers"
+
+
+def _by_level(rows) -> dict:
+    return {(r["fovea_deg"], r["periphery_deg"]): r for r in rows}
+
+
+def plot_pair_test(
+    rows: Sequence[dict],
+    path,
+    *,
+    title: str | None = None,
+    beside: Sequence[dict] | None = None,
+    labels: tuple[str, str] = (PEOPLE_LABEL, OBSERVERS_LABEL),
+) -> Path:
+    """Figure 66 from `analyse_pair`: % of pair answers "same" per level, 95% Wilson intervals.
+    `beside`: a second `analyse_pair` table (e.g. the automatic observers') drawn next to the
+    first, `labels` naming the two."""
     if not rows:
         raise ValueError("plot_pair_test: no pair answers")
     fig = _figure((7, 4.5))
     ax = fig.add_subplot()
-    pos = np.arange(len(rows))
-    _proportion_bars(ax, rows, pos, 0.6, "tab:blue", "same")
+    levels = sorted(set(_by_level(rows)) | set(_by_level(beside or [])))
+    pos = np.arange(len(levels))
+    groups = [(rows, "tab:blue", labels[0] if beside else "same")]
+    if beside:
+        groups.append((beside, "0.55", labels[1]))
+    width = 0.6 / len(groups)
+    for k, (group, color, label) in enumerate(groups):
+        by_level = _by_level(group)
+        idx = [i for i, lv in enumerate(levels) if lv in by_level]
+        offset = (k - (len(groups) - 1) / 2) * width
+        _proportion_bars(ax, [by_level[levels[i]] for i in idx], pos[idx] + offset, width, color, label)
     ax.axhline(50, color="0.4", ls=":", lw=1)
-    ax.set_xticks(pos, _level_names(rows))
+    ax.set_xticks(pos, [f"{f:g}°/{p:g}°" for f, p in levels])
     ax.set_xlabel("foveation level (fovea / periphery)")
     ax.set_ylabel('answered "same" (% of answers)')
     ax.set_ylim(0, 100)
+    if beside:
+        ax.legend(fontsize=8)
     n = max(r["participants"] for r in rows)
-    ax.set_title(title or f"Pair test (cf. thesis fig. 66): {n} participant(s), both orders")
+    who = f"{n} participant(s)" + (
+        f" beside {max(r['participants'] for r in beside)} {labels[1]}" if beside else ""
+    )
+    ax.set_title(title or f"Pair test (cf. thesis fig. 66): {who}, both orders")
     return _save(fig, path)
 
 
-def plot_ramp_test(rows: Sequence[dict], path, *, title: str | None = None) -> Path:
+def plot_ramp_test(
+    rows: Sequence[dict],
+    path,
+    *,
+    title: str | None = None,
+    beside: Sequence[dict] | None = None,
+    labels: tuple[str, str] = (PEOPLE_LABEL, OBSERVERS_LABEL),
+) -> Path:
     """Figure 67 from `analyse_ramp`: % of ramp answers "same" (equal to the reference) per
-    level, upward and downward ramps side by side."""
+    level, upward and downward ramps side by side. `beside`: a second `analyse_ramp` table
+    (e.g. the automatic observers'), drawn as markers on the first's bars."""
     if not rows:
         raise ValueError("plot_ramp_test: no ramp answers")
-    levels = sorted({(r["fovea_deg"], r["periphery_deg"]) for r in rows})
+    levels = sorted({(r["fovea_deg"], r["periphery_deg"]) for r in [*rows, *(beside or [])]})
     fig = _figure((7.5, 4.5))
     ax = fig.add_subplot()
     pos = np.arange(len(levels))
     for k, (direction, color) in enumerate((("up", "tab:blue"), ("down", "tab:orange"))):
-        by_level = {(r["fovea_deg"], r["periphery_deg"]): r for r in rows if r["direction"] == direction}
+        low, high = f"{levels[0][0]:g}°", f"{levels[-1][0]:g}°"
+        ramp = f"{low}→{high}" if direction == "up" else f"{high}→{low}"
+        x = pos + (k - 0.5) * 0.38
+        by_level = _by_level(r for r in rows if r["direction"] == direction)
         idx = [i for i, lv in enumerate(levels) if lv in by_level]
         if idx:
-            low, high = f"{levels[0][0]:g}°", f"{levels[-1][0]:g}°"
-            ramp = f"{low}→{high}" if direction == "up" else f"{high}→{low}"
+            who = f"{labels[0]}, " if beside else ""
             _proportion_bars(
-                ax,
-                [by_level[levels[i]] for i in idx],
-                pos[idx] + (k - 0.5) * 0.38,
-                0.38,
-                color,
-                f"ramp {direction} ({ramp})",
+                ax, [by_level[levels[i]] for i in idx], x[idx], 0.38, color, f"{who}ramp {direction} ({ramp})"
+            )
+        other = _by_level(r for r in (beside or []) if r["direction"] == direction)
+        idx = [i for i, lv in enumerate(levels) if lv in other]
+        if idx:
+            ax.plot(
+                x[idx],
+                [other[levels[i]]["proportion_same"] * 100 for i in idx],
+                "D",
+                color="k",
+                mfc="0.85" if direction == "up" else "0.45",
+                ms=7,
+                label=f"{labels[1]}, ramp {direction}",
             )
     ax.axhline(50, color="0.4", ls=":", lw=1)
     ax.set_xticks(pos, [f"{f:g}°/{p:g}°" for f, p in levels])
@@ -269,43 +317,88 @@ def plot_ramp_test(rows: Sequence[dict], path, *, title: str | None = None) -> P
     return _save(fig, path)
 
 
-def plot_slider_test(rows: Sequence[dict], path, *, title: str | None = None) -> Path:
-    """Figure 68 from `analyse_slider`: participants per chosen level."""
+def plot_slider_test(
+    rows: Sequence[dict],
+    path,
+    *,
+    title: str | None = None,
+    beside: Sequence[dict] | None = None,
+    labels: tuple[str, str] = (PEOPLE_LABEL, OBSERVERS_LABEL),
+) -> Path:
+    """Figure 68 from `analyse_slider`: participants per chosen level. With `beside` (a second
+    `analyse_slider` table, e.g. the automatic observers'), both as % of their participants,
+    side by side."""
     if not rows:
         raise ValueError("plot_slider_test: no levels")
     fig = _figure((7, 4.5))
     ax = fig.add_subplot()
     pos = np.arange(len(rows))
     counts = [r["participants"] for r in rows]
-    ax.bar(pos, counts, 0.6, color="tab:green", alpha=0.85)
+    if beside:
+        for k, (group, color, label) in enumerate(
+            ((rows, "tab:green", labels[0]), (beside, "0.55", labels[1]))
+        ):
+            total = sum(r["participants"] for r in group)
+            share = [100 * r["participants"] / total if total else 0.0 for r in group]
+            ax.bar(pos + (k - 0.5) * 0.38, share, 0.38, color=color, alpha=0.85, label=f"{label} (n={total})")
+        ax.set_ylabel("participants (%)")
+        ax.legend(fontsize=8)
+    else:
+        ax.bar(pos, counts, 0.6, color="tab:green", alpha=0.85)
+        ax.set_ylabel("participants")
+        ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_xticks(pos, _level_names(rows))
     ax.set_xlabel("lowest level reported equivalent to the reference")
-    ax.set_ylabel("participants")
-    ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_title(title or f"Slider test (cf. thesis fig. 68): {sum(counts)} participant(s)")
     return _save(fig, path)
 
 
-def write_study_report(responses, out_dir, *, levels=None) -> dict[str, Path]:
+def write_study_report(
+    responses, out_dir, *, levels=None, beside=None, labels: tuple[str, str] = (PEOPLE_LABEL, OBSERVERS_LABEL)
+) -> dict[str, Path]:
     """Analyse answers (human or automatic) and write the three summary tables (CSV) and
-    figures 66-68 (PNG) into `out_dir`; returns the paths by name."""
+    figures 66-68 (PNG) into `out_dir`; returns the paths by name. `beside`: a second set of
+    answers (e.g. the automatic observers' next to people's) analysed the same way, its tables
+    written as `*_observers.csv` and drawn in the same figures, `labels` naming the two."""
     from ._pareto import write_csv
     from ._protocols import APPENDIX_LEVELS, analyse_pair, analyse_ramp, analyse_slider
 
     responses = list(responses)
+    levels = APPENDIX_LEVELS if levels is None else levels
     out = Path(out_dir)
     paths: dict[str, Path] = {}
     pair, ramp = analyse_pair(responses), analyse_ramp(responses)
-    slider = analyse_slider(responses, APPENDIX_LEVELS if levels is None else levels)
+    slider = analyse_slider(responses, levels)
+    other = None
+    if beside is not None:
+        beside = list(beside)
+        other = {
+            "pair": analyse_pair(beside),
+            "ramp": analyse_ramp(beside),
+            "slider": analyse_slider(beside, levels),
+        }
+        for name, rows in other.items():
+            if rows and (name != "slider" or any(r["participants"] for r in rows)):
+                paths[f"{name}_observers_csv"] = write_csv(rows, out / f"{name}_test_observers.csv")
+    options = {"labels": labels}
     if pair:
         paths["pair_csv"] = write_csv(pair, out / "pair_test.csv")
-        paths["pair_png"] = plot_pair_test(pair, out / "fig66_pair_test.png")
+        paths["pair_png"] = plot_pair_test(
+            pair, out / "fig66_pair_test.png", beside=other and other["pair"], **options
+        )
     if ramp:
         paths["ramp_csv"] = write_csv(ramp, out / "ramp_test.csv")
-        paths["ramp_png"] = plot_ramp_test(ramp, out / "fig67_ramp_test.png")
+        paths["ramp_png"] = plot_ramp_test(
+            ramp, out / "fig67_ramp_test.png", beside=other and other["ramp"], **options
+        )
     if any(r["participants"] for r in slider):
         paths["slider_csv"] = write_csv(slider, out / "slider_test.csv")
-        paths["slider_png"] = plot_slider_test(slider, out / "fig68_slider_test.png")
+        other_slider = other and other["slider"]
+        if other_slider and not any(r["participants"] for r in other_slider):
+            other_slider = None
+        paths["slider_png"] = plot_slider_test(
+            slider, out / "fig68_slider_test.png", beside=other_slider, **options
+        )
     return paths
 
 

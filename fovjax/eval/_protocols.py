@@ -21,6 +21,12 @@ With `seed=None` the generators give the appendix's order exactly; with a seed, 
 are shuffled and the ramp's two directions come in a random order (steps within a ramp keep
 their order: that is what makes it a ramp).
 
+Timings (`presentation`): the pair's two stimuli are separated by `PAIR_GAP_S` = 0.5 s of black;
+each ramp step is shown `RAMP_STEP_S` = 5 s, the steps "separated by a short interval of black"
+(chapter 5.2 gives no length: `RAMP_GAP_S`, the pair's 0.5 s). The thesis gives no length for a
+pair's "short animated sequences": `PAIR_STIMULUS_S` is the ramp's step, so each level is seen as
+long in both tests; the slider's reference is shown as long (`SLIDER_REFERENCE_S`).
+
 Results file: one row per answer, CSV (`.csv`) or JSON lines (`.jsonl`), columns
 `RESULT_FIELDS`: participant, test, trial (position in that participant's sequence of the test),
 condition (a readable label, checked against the other columns on reading), fovea_deg,
@@ -53,6 +59,12 @@ PAIR_ORDERS = ("reference_first", "foveated_first")
 RAMP_DIRECTIONS = ("up", "down")
 PAIR_ANSWERS = ("first", "second", "same")
 RAMP_ANSWERS = ("increase", "decrease", "same")
+PAIR_GAP_S = 0.5  # black between a pair's two sequences (chapter 5.2)
+RAMP_STEP_S = 5.0  # each of the ramp's 5 steps (chapter 5.2)
+RAMP_GAP_S = PAIR_GAP_S  # "a short interval of black" between ramp steps: no length given
+PAIR_STIMULUS_S = RAMP_STEP_S  # a pair's "short animated sequences": no length given
+SLIDER_REFERENCE_S = RAMP_STEP_S  # the slider's non-foveated reference, shown first
+SEGMENT_KINDS = ("black", "reference", "foveated")
 RESULT_FIELDS = (
     "participant",
     "test",
@@ -143,6 +155,95 @@ class Trial:
         if self.test == "ramp":
             return f"ramp {self.direction} step {self.step} {level}"
         return f"slider from {level}"
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One part of a trial's presentation: black, the non-foveated reference, or the foveated
+    sequence at `level`, for `seconds` (None: until the participant acts, the slider's level)."""
+
+    kind: str
+    seconds: float | None
+    level: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if self.kind not in SEGMENT_KINDS:
+            raise ValueError(f"Segment.kind must be one of {SEGMENT_KINDS}, got {self.kind!r}")
+        if (self.kind == "foveated") != (self.level is not None):
+            raise ValueError(
+                f"Segment: a level goes with a foveated segment only, got {self.kind!r}, {self.level}"
+            )
+        if self.seconds is not None and not (math.isfinite(self.seconds) and self.seconds > 0):
+            raise ValueError(f"Segment.seconds must be > 0 or None, got {self.seconds}")
+
+    @property
+    def label(self) -> str:
+        return self.kind if self.level is None else f"foveated {_level_label(*self.level)}"
+
+
+def presentation(
+    trial: Trial, *, previous: Trial | None = None, resumed: bool = False
+) -> tuple[Segment, ...]:
+    """What a trial shows, in order, with the protocol's timings (module docstring). Every trial
+    starts from black, so consecutive trials are separated by a gap as the thesis's were.
+
+    - pair: black, first sequence, black, second sequence (`order` says which is the reference);
+    - ramp: the first step of a direction follows the non-foveated reference (black, reference,
+      black, step); a later step follows the step before it, already shown (black, step) --
+      except when `resumed` (the first trial after an interrupted session), when `previous`,
+      the step before, is shown again first, since the answer compares with it;
+    - slider: black, the reference, black, then the starting level until the participant acts.
+    """
+    gap = Segment("black", PAIR_GAP_S if trial.test == "pair" else RAMP_GAP_S)
+    level = Segment("foveated", None, trial.level)
+    if trial.test == "pair":
+        stimulus = dataclasses.replace(level, seconds=PAIR_STIMULUS_S)
+        reference = Segment("reference", PAIR_STIMULUS_S)
+        first, second = (reference, stimulus) if trial.order == "reference_first" else (stimulus, reference)
+        return (gap, first, gap, second)
+    if trial.test == "ramp":
+        step = dataclasses.replace(level, seconds=RAMP_STEP_S)
+        if trial.step == 0:
+            return (gap, Segment("reference", RAMP_STEP_S), gap, step)
+        if resumed:
+            if previous is None or previous.test != "ramp" or previous.direction != trial.direction:
+                raise ValueError(
+                    f"presentation: resuming at {trial.condition!r} needs the step before it in the same "
+                    "ramp, "
+                    f"got {None if previous is None else previous.condition!r}"
+                )
+            return (gap, Segment("foveated", RAMP_STEP_S, previous.level), gap, step)
+        return (gap, step)
+    return (gap, Segment("reference", SLIDER_REFERENCE_S), gap, level)
+
+
+SLIDER_ACTIONS = ("lower", "higher", "reference")
+
+
+def slider_presentation(
+    trial: Trial, actions: Sequence[str]
+) -> tuple[tuple[Segment, ...], tuple[float, float]]:
+    """A slider trial's segments after the participant's `actions` (each one of
+    `SLIDER_ACTIONS`), in order, and the level shown last: `presentation`'s, then per "lower" or
+    "higher" black and the next level down or up, per "reference" black, the reference
+    (`SLIDER_REFERENCE_S`), black and the level again. A step past either end is a ValueError."""
+    if trial.test != "slider":
+        raise ValueError(f"slider_presentation: {trial.condition!r} is not a slider trial")
+    segments = list(presentation(trial))
+    gap = segments[0]
+    k = trial.levels.index(trial.level)
+    for n, action in enumerate(actions):
+        if action not in SLIDER_ACTIONS:
+            raise ValueError(f"slider action {n}: {action!r} is not one of {SLIDER_ACTIONS}")
+        if action == "reference":
+            segments += [gap, Segment("reference", SLIDER_REFERENCE_S), gap]
+        else:
+            k += 1 if action == "higher" else -1
+            if not 0 <= k < len(trial.levels):
+                raise ValueError(f"slider action {n}: {action!r} steps past the last level")
+            segments.append(gap)
+        segments.append(Segment("foveated", None, trial.levels[k]))
+    return tuple(segments), trial.levels[k]
 
 
 def pair_trials(levels=APPENDIX_LEVELS, *, seed: int | None = None) -> list[Trial]:

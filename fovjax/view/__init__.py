@@ -6,6 +6,8 @@ gaze-to-display latency. Needs the 'view' extra (aiohttp).
 - `LiveRenderer`: the live state and one frame at a time (`render_next`); `MAX_THRESHOLD_DEG`
   the largest fovea or periphery radius it takes;
 - `Viewer`: the aiohttp server around it (`start`, `stop`, `url`);
+- `StudyServer`: the user-study player's server (`fovjax view --study`): pre-rendered clips,
+  the trials' sequences timed on the page, answers handed to the study as they are given;
 - `binocular_gaze`: both eyes' gaze from one eye's, through the rig's geometry;
 - `parse_message`, `MessageError`, `ACTIONS`: the page protocol and its validation.
 """
@@ -21,6 +23,7 @@ from ._renderer import RenderedFrame as RenderedFrame
 from ._renderer import encode_jpeg as encode_jpeg
 from ._server import Viewer as Viewer
 from ._server import is_loopback as is_loopback
+from ._study import StudyServer as StudyServer
 
 __all__ = [
     "binocular_gaze",
@@ -34,4 +37,5 @@ __all__ = [
     "encode_jpeg",
     "Viewer",
     "is_loopback",
+    "StudyServer",
 ]
