@@ -33,6 +33,7 @@ SECTIONS = [
     ("mitsuba_frame", "Frames against Mitsuba 3"),
     ("render", "Full frames"),
     ("foveation", "Foveated frames"),
+    ("profile_frame", "Inside the frame program"),
     ("fidelity", "Fidelity per region"),
     ("fidelity_density", "Sampling density"),
     ("plan_fidelity", "Planned fidelity"),
@@ -70,7 +71,9 @@ threads) and Mitsuba 3 on the same rays: [Ray queries](#ray-queries)
 frame (same rays, materials, light and depth; its image checked against fovjax's by PSNR):
 [Frames against Mitsuba 3](#frames-against-mitsuba-3) (`benchmarks/mitsuba_frame.py`). The
 foveated frame against the full one and the per-stage profile: [Foveated
-frames](#foveated-frames) (`benchmarks/foveation.py --speedup`, `--profile`).
+frames](#foveated-frames) (`benchmarks/foveation.py --speedup`, `--profile`). Where the fused
+frame program's own time goes, operation by operation, grouped by stage: [Inside the frame
+program](#inside-the-frame-program) (`benchmarks/profile_frame.py`).
 """
 
 

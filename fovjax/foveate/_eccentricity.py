@@ -33,7 +33,26 @@ def _angle_to_gaze(camera: Camera, gaze_xy, x, y) -> Float[Array, "..."]:
     c1 = d2 * g[0] - d0 * g[2]
     c2 = d0 * g[1] - d1 * g[0]
     cross = jnp.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    return jnp.rad2deg(jnp.arctan2(cross, d0 * g[0] + d1 * g[1] + d2 * g[2]))
+    return jnp.rad2deg(_atan2_nonnegative(cross, d0 * g[0] + d1 * g[1] + d2 * g[2]))
+
+
+def _atan2_nonnegative(y, x):
+    """atan2(y, x) for y ≥ 0, as accurate as `jnp.arctan2` (2.7e-7 rad at most against float64,
+    2.2e-7 relative near 0, over 1.3M random pairs), from Cephes' `atanf`: the ratio of the
+    smaller to the larger magnitude, above tan(π/8) moved by π/4, a degree-9 odd polynomial,
+    then the octant. XLA:CPU's own atan2 measured 30x slower over an eye's pixels (56 against
+    1.8 ms)."""
+    ax = jnp.abs(x)
+    big, small = jnp.maximum(ax, y), jnp.minimum(ax, y)
+    a = small / jnp.where(big > 0, big, 1.0)  # [0, 1]
+    shifted = a > np.float32(0.41421356237309503)  # tan(π/8)
+    t = jnp.where(shifted, (a - 1.0) / (a + 1.0), a)
+    z = t * t
+    p = ((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z - 3.33329491539e-1
+    r = p * z * t + t
+    r = jnp.where(shifted, r + np.float32(np.pi / 4), r)
+    r = jnp.where(y > ax, np.float32(np.pi / 2) - r, r)
+    return jnp.where(x < 0, np.float32(np.pi) - r, r)
 
 
 def display_pixel_pitch_mm(camera: Camera, eye_display_mm: float) -> Float[Array, ""]:

@@ -262,7 +262,10 @@ def _light_sum(scene, surface, d, rays: ShadowRays, blocked, kd, ks, ns):
     visible = rays.wanted & ~blocked
     half = normalize(rays.direction - d[None])
     n_dot_h = dot(n, half)
-    specular = jnp.where(n_dot_h > 0, jnp.power(jnp.where(n_dot_h > 0, n_dot_h, 1.0), ns[None]), 0.0)
+    # (n·h)^Ns as 2^(Ns·log2(n·h)): XLA:CPU's general `pow` measured 13x slower over a frame's
+    # hits (85 against 6.6 ms for 2.6M); the two agree to 1.5e-5 relative, 1.2e-7 absolute.
+    safe = jnp.where(n_dot_h > 0, n_dot_h, 1.0)
+    specular = jnp.where(n_dot_h > 0, jnp.exp2(ns[None] * jnp.log2(safe)), 0.0)
     contribution = (
         kd[None] * jnp.where(rays.wanted, rays.n_dot_l, 0.0)[..., None] + ks[None] * specular[..., None]
     ) * color
@@ -420,10 +423,13 @@ def _bands(batch: tuple[int, ...], config) -> tuple[tuple[int, ...], int]:
     n = int(np.prod(batch))
     if isinstance(config.packet, tuple) and len(batch) >= 2:
         rows, width = n // batch[-1], batch[-1]
-        r = max(1, config.chunk_size // width)
-        if r >= config.packet[0]:
-            r -= r % config.packet[0]
-        r = min(r, rows)
+        r = min(max(1, config.chunk_size // width), rows)
+        step = config.packet[0] if r >= config.packet[0] else 1
+        r -= r % step
+        # A band height that divides the rows (down to half the target) needs no padding, so
+        # the rays are bands without a copy.
+        whole = [q for q in range(r, max(step, r // 2) - 1, -step) if rows % q == 0]
+        r = whole[0] if whole else r
         return (r, width), -(-rows // r)
     size = min(config.chunk_size, n)
     return (size,), -(-n // size)
@@ -445,7 +451,8 @@ def _depth0(scene, bvh, o, d, active, *, offset, config):
 
     def split(x, fill):
         x = x.reshape((n,) + x.shape[len(batch) :])
-        x = jnp.concatenate([x, jnp.full((padded - n,) + x.shape[1:], fill, x.dtype)])
+        if padded > n:
+            x = jnp.concatenate([x, jnp.full((padded - n,) + x.shape[1:], fill, x.dtype)])
         return x.reshape((count,) + band + x.shape[1:])
 
     lanes = jnp.arange(size, dtype=jnp.int32)

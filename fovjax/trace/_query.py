@@ -103,46 +103,32 @@ def _per_ray(x, n):
     return jnp.broadcast_to(x, (n,)) if x.ndim == 0 else x
 
 
-def _xyz(v):
-    return v[..., 0], v[..., 1], v[..., 2]
-
-
-def _dot3(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _cross3(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _sub3(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
 def hit_geometry(vertices, faces, prim, origins, directions):
     """Differentiable (t, u, v) of rays against the faces `prim` (-1: miss → t = inf, u = v = 0).
 
     Möller–Trumbore in closed form: smooth in vertices, origins and directions. Visibility (which
     face was hit) is taken as given and not differentiated.
+
+    The sums over the 3-vectors stay `jnp.sum` (a library kernel on XLA:CPU) although the same
+    arithmetic written out per component ran faster in a frame: written out (even fenced by
+    optimisation barriers), two frame programs that differ only in another region's texture
+    level gave that region's samples differing in the last bit
+    (tests/test_fidelity_texture_lod.py), and the per-region guarantees are bit-exact.
     """
     prim = jax.lax.stop_gradient(prim)
     hit = prim >= 0
     tri = jnp.asarray(vertices)[jnp.asarray(faces)[jnp.where(hit, prim, 0)]]
-    # Component by component: XLA:CPU sends `jnp.sum(a * b, -1)` over a 3-vector (and
-    # `jnp.cross`'s stacks) to kernels far slower than the fused loop this becomes (on the
-    # atrium's 2.6M primary hits, benchmarks/profile_frame.py).
-    p0, p1, p2 = _xyz(tri[..., 0, :]), _xyz(tri[..., 1, :]), _xyz(tri[..., 2, :])
-    o, d = _xyz(jnp.asarray(origins)), _xyz(jnp.asarray(directions))
-    e1, e2 = _sub3(p1, p0), _sub3(p2, p0)
-    pvec = _cross3(d, e2)
-    det = _dot3(e1, pvec)
+    p0, p1, p2 = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
+    e1, e2 = p1 - p0, p2 - p0
+    pvec = jnp.cross(directions, e2)
+    det = jnp.sum(e1 * pvec, -1)
     ok = hit & (det != 0)
     inv_det = 1.0 / jnp.where(ok, det, 1.0)  # the double-where keeps NaN out of gradients
-    tvec = _sub3(o, p0)
-    qvec = _cross3(tvec, e1)
-    u = _dot3(tvec, pvec) * inv_det
-    v = _dot3(d, qvec) * inv_det
-    t = _dot3(e2, qvec) * inv_det
+    tvec = origins - p0
+    qvec = jnp.cross(tvec, e1)
+    u = jnp.sum(tvec * pvec, -1) * inv_det
+    v = jnp.sum(directions * qvec, -1) * inv_det
+    t = jnp.sum(e2 * qvec, -1) * inv_det
     return jnp.where(ok, t, jnp.inf), jnp.where(ok, u, 0.0), jnp.where(ok, v, 0.0)
 
 
