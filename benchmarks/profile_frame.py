@@ -4,15 +4,15 @@
     python benchmarks/profile_frame.py --frames foveated --top 30
     python benchmarks/profile_frame.py --size 640 512 --spp 4
 
-Renders the atrium's stereo frame (`fovjax.render_stereo`, full and/or foveated 5°/10° at an
-off-centre gaze, backend auto), then records `--repeats` frames with JAX's profiler. XLA:CPU
-reports every operation (a fusion, an FFI call, a scatter) it runs, with its duration and
-thread; the program's optimised HLO (dumped by XLA) says which source line each operation
-came from, and so which stage of the frame it belongs to. The table is ms per frame by stage,
-summed over both of the CPU's worker threads (so the stages can add up to more than the
-frame's wall time where they ran in parallel), then the slowest operations with their source.
-Control-flow operations (loops, conditionals) are left out of the sums: their time is that of
-the operations inside them, which are counted themselves.
+Renders the atrium's stereo frame (one `FoveatedRenderer`: `render_full` and/or `render`,
+foveated 5°/10° at an off-centre gaze, backend auto), then records `--repeats` frames with
+JAX's profiler. XLA:CPU reports every operation (a fusion, an FFI call, a scatter) it runs,
+with its duration and thread; the program's optimised HLO (dumped by XLA) says which source
+line each operation came from, and so which stage of the frame it belongs to. The table is ms
+per frame by stage, summed over both of the CPU's worker threads (so the stages can add up to
+more than the frame's wall time where they ran in parallel), then the slowest operations with
+their source. Control-flow operations (loops, conditionals) are left out of the sums: their
+time is that of the operations inside them, which are counted themselves.
 
 Unlike `benchmarks/foveation.py --profile` (each stage compiled and timed on its own, with
 the cost of materialising what the fused program never does), this is the fused program's own
@@ -207,20 +207,11 @@ def main(argv=None):
         f"{args.backend} ({fovjax.trace.describe_backend(args.backend, jax.devices()[0].platform)}), "
         f"jax {jax.__version__}, {os.cpu_count()} CPUs"
     )
+    # One renderer prepared once (scene arrays and BVH on the device), called per frame.
+    renderer = fovjax.FoveatedRenderer(scene, rig, foveation, config, bvh=bvh, diagnostics=())
     renders = {
-        "full": lambda k: fovjax.render_stereo(
-            scene, rig, spp=args.spp, config=config, bvh=bvh, key=jax.random.key(k)
-        ),
-        "foveated": lambda k: fovjax.render_stereo(
-            scene,
-            rig,
-            foveation=foveation,
-            gaze=gaze,
-            config=config,
-            bvh=bvh,
-            diagnostics=(),
-            key=jax.random.key(k),
-        ),
+        "full": lambda k: renderer.render_full(key=jax.random.key(k)),
+        "foveated": lambda k: renderer.render(gaze, key=jax.random.key(k)),
     }
     results = {}
     for kind in args.frames:
