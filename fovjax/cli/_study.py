@@ -153,6 +153,12 @@ def validate(args) -> None:
         cli.number(args.threshold, "--threshold", ge=0)
     if args.spp is not None:
         cli.squares(args.spp, "--spp")
+    # Options that do not go together first, then the files they name.
+    if args.beside is not None and args.responses is None:
+        raise cli.UsageError(
+            "--beside: only with --responses (the observers are drawn beside people's answers)"
+        )
+    _video.validate(args)
     for name in args.responses or ():
         if not Path(name).exists():
             raise cli.UsageError(f"--responses {name}: no such file or folder")
@@ -160,12 +166,7 @@ def validate(args) -> None:
             cli.input_file(name, "--responses", suffixes=(".csv", ".jsonl"), text=True)
         elif not response_files(name):
             raise cli.UsageError(f"--responses {name}: a folder without results files (.jsonl/.csv)")
-    if args.beside is not None and args.responses is None:
-        raise cli.UsageError(
-            "--beside: only with --responses (the observers are drawn beside people's answers)"
-        )
     cli.output(args.output, "-o", directory=True)
-    _video.validate(args)
 
 
 def response_files(name) -> list[Path]:
