@@ -41,6 +41,14 @@ def test_traces_exactly_the_selected_samples_and_no_recompile(atrium_small):
     # Every region is present and the fovea is fully sampled.
     fovea = first.regions == 0
     assert fovea.any() and (first.sample_mask.transpose(1, 0, 2, 3)[:, fovea]).all()
+    # What the frame program relies on to leave the pull-push fill out (the rule "either", no
+    # sample dropped): every pixel's block top-left has a traced sample.
+    from fovjax.foveate._sampling import top_left
+
+    assert f.rule == "either"
+    for eye in range(2):
+        ty, tx, _ = top_left(jnp.asarray(first.regions[eye]), f)
+        assert first.sample_mask[eye].any(axis=0)[np.asarray(ty), np.asarray(tx)].all()
     assert np.isfinite(first.image).all() and first.image.shape == (EYE_H, 2 * EYE_W, 3)
     # A new gaze, head pose and key reuse the compiled program.
     second = render_foveated(

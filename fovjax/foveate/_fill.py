@@ -149,10 +149,12 @@ def blur_and_blend(
     return jax.lax.fori_loop(0, e * n_bands, band, start)
 
 
-def fill_blanks(pix, n, region, foveation):
+def fill_blanks(pix, n, region, foveation, *, top_lefts_traced: bool = False):
     """Every pixel with no traced sample takes its block's top-left value; a block whose
     top-left was not traced either is filled by pull-push. `pix` (..., H, W, 3), leading axes
-    independent images. Returns (filled, pixels that were blank)."""
+    independent images. `top_lefts_traced` (static): the caller knows every block's top-left
+    has a traced sample (the rule "either" with no sample dropped), so the pull-push is left
+    out of the program. Returns (filled, pixels that were blank)."""
     blank = n == 0
     tl_pix, tl_n = top_left_values(pix, n, region, foveation)
     filled = jnp.where(blank[..., None], tl_pix, pix)
@@ -172,6 +174,8 @@ def fill_blanks(pix, n, region, foveation):
 
         return jax.lax.fori_loop(0, images.shape[0], one, images).reshape(f.shape)
 
+    if top_lefts_traced:
+        return filled, blank
     return jax.lax.cond(jnp.all(have), lambda f: f, fill_empty, filled), blank
 
 

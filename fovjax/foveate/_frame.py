@@ -418,10 +418,10 @@ def traced_count(mask, spp) -> Int[Array, "2 H W"]:
     return n
 
 
-def fill_and_blur_eyes(prefill, n, sel: Selection, foveation) -> Float[Array, "H W2 3"]:
+def fill_and_blur_eyes(prefill, n, sel: Selection, foveation, *, top_lefts_traced: bool = False):
     """Stage 4b: each eye filled and blurred (`fill_and_blur_pixels`; both eyes in the same
     passes, the blur band by band straight into the side-by-side image)."""
-    filled, _ = fill_blanks(prefill, n, sel.region, foveation)
+    filled, _ = fill_blanks(prefill, n, sel.region, foveation, top_lefts_traced=top_lefts_traced)
     return blur_and_blend(filled, sel.eccentricity, foveation, side_by_side=True)
 
 
@@ -553,7 +553,10 @@ def foveated_stereo(
         bad_color=config.bad_color,
         init=init,
     )
-    image = fill_and_blur_eyes(prefill, n, sel, foveation)
+    # Under the rule "either" every block's top-left is mandatory, so with no sample dropped
+    # (a budget of every sample) no block is left empty: the pull-push fill is not compiled.
+    complete = foveation.rule == "either" and budget >= every
+    image = fill_and_blur_eyes(prefill, n, sel, foveation, top_lefts_traced=complete)
     counts = sel.counts
     wanted = counts[MANDATORY] + counts[OPTIONAL]
     # One scatter-add instead of three masked reductions (slow on XLA:CPU).
