@@ -43,9 +43,11 @@ class RenderConfig:
       chosen per platform inside the program), "jax", "embree" or "warp". Images are the same
       up to float rounding and ties between faces at equal distance: only the hit face comes
       from the backend, the rest is recomputed in JAX.
-    - `chunk_size`: reflection levels trace and shade their live rays in chunks of this many
-      (dead chunks are skipped); larger chunks keep more traversal lanes busy, smaller ones
-      waste less on the last, partly filled chunk.
+    - `chunk_size`: `radiance` traces and shades depth 0 in bands of about this many rays
+      (whole image rows, so that packets keep their pixels; a band's intermediates stay in
+      cache) and the reflection levels' live rays in chunks of the band's size (dead chunks
+      are skipped); larger chunks keep more traversal lanes busy, smaller ones waste less on
+      the last, partly filled chunk.
     - `queue_chunk_size`: the chunk of the reflection levels of `radiance_in_chunks` (the
       foveated frame's integrator), whose queues hold few rays: a level with 2 live rays
       shades one chunk of this size.
