@@ -178,7 +178,10 @@ def test_intersense_reset_heading_euler_new_data_and_replug(build):
         assert source.wait_connected(5.0)
         assert fake.fake_resets() == 1 and fake.fake_last_port() == 0
         fake.fake_set_pose(2, 40.0, -5.5, 2.25, 1, 12.5)
+        # The pose at connection (device time 0) may still be queued: skip to this one.
         pose = source.read(timeout=2.0)
+        while pose is not None and pose.device_time == 0.0:
+            pose = source.read(timeout=2.0)
         assert (pose.yaw, pose.pitch, pose.roll) == (30.0, -5.5, 2.25)  # yaw relative to the reset heading
         assert pose.valid and pose.device_time == 12.5
         assert source.read(timeout=0.05) is None  # NewData false: no repeats
