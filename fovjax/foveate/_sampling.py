@@ -184,8 +184,8 @@ def sample_classes(
         cls = jnp.where(allowed, cls, SKIPPED)
     # Where the classes do not depend on the frame's values (the rule "thesis-measured" at SPP
     # 1: every sample mandatory), XLA would fold the screen-sized prefix sums and reductions
-    # downstream at compile time, taking minutes (285 s for that frame program at 2 x 1280 x
-    # 1024); the barrier keeps them run-time work, a few ms.
+    # downstream at compile time, taking minutes for that frame program at full size; the
+    # barrier keeps them run-time work.
     return jax.lax.optimization_barrier(cls), region
 
 
