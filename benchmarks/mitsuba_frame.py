@@ -30,8 +30,9 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   and **fovjax foveated** (`FoveatedRenderer.render`: `Foveation(fovea_deg=5, periphery_deg=10,
   spp=SPP)` at `--gaze`, off-centre by default; `diagnostics=()`, the image and counts as a
   frame loop asks), one renderer prepared once for both, both un-jittered (key None),
-  `--backend` as fovjax's ray-query backend: the frame's `stats.render_seconds` (the compiled
-  program's wall time) and the wall time around the call; compile times printed apart.
+  `--backend` as fovjax's ray-query backend and `--hits` as `RenderConfig.hits`: the frame's
+  `stats.render_seconds` (the compiled program's wall time) and the wall time around the call;
+  compile times printed apart.
 
 After the warm-ups the three frames are timed in turn, --repeats rounds, so that all three see the
 same momentary load of a shared machine; each row also gives the median wall time of the whole
@@ -618,6 +619,12 @@ def main(argv=None) -> dict | None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--backend", default="auto", help="fovjax's ray-query backend (auto, jax, embree, warp)")
     ap.add_argument(
+        "--hits",
+        default="recomputed",
+        choices=("recomputed", "backend"),
+        help="fovjax's RenderConfig.hits: t, u, v recomputed from the vertices (default) or the backend's",
+    )
+    ap.add_argument(
         "--gaze",
         type=float,
         nargs=4,
@@ -647,7 +654,7 @@ def main(argv=None) -> dict | None:
     from fovjax.render import RenderConfig, StereoRig, scene_arrays
     from fovjax.render.internal import bvh_for, scene_scale
 
-    config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    config = RenderConfig(max_depth=args.max_depth, backend=args.backend, hits=args.hits)
     scene = fovjax.scenes.BUILTIN[args.scene]()
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
@@ -707,6 +714,7 @@ def main(argv=None) -> dict | None:
         "max_depth": args.max_depth,
         "repeats": args.repeats,
         "backend": args.backend,
+        "hits": args.hits,
         "gaze": gaze,
         "fovea_deg": args.fovea,
         "results": results,
@@ -745,7 +753,9 @@ def frame_tables(record: dict) -> list[dict]:
         tables.append(
             {
                 "title": f"{record['scene']}, 2 × {r['width']}×{r['height']}, SPP {r['spp']}, depth "
-                f"{record['max_depth']}, backend {record['backend']}, foveated {record['fovea_deg']}° "
+                f"{record['max_depth']}, backend {record['backend']}, "
+                f"hits {record.get('hits', 'recomputed')}, "
+                f"foveated {record['fovea_deg']}° "
                 f"at gaze {record['gaze']}; PSNR of Mitsuba's frame against fovjax's full frame "
                 f"{r['psnr_db']:.1f} dB",
                 "columns": [
