@@ -160,3 +160,71 @@ def test_reset_forgets_the_history(weier):
     assert renderer.render(CENTRE).foveation.reused == 0
     with pytest.raises(ValueError, match="one after another"):
         renderer.render_batch([CENTRE])
+
+
+# ---- Guenter et al. 2012 ----
+
+
+def test_magnify_is_bilinear_between_grid_pixels():
+    """Bilinear interpolation reproduces a linear ramp exactly between grid pixels (and holds
+    the last grid row and column beyond them); stride 1 is the identity."""
+    from fovjax.foveate._methods._guenter import magnify
+
+    h, w, s = 12, 16, 4
+    y, x = np.mgrid[:h, :w].astype(np.float32)
+    ramp = np.stack([x, y, 2 * x - y], axis=-1)[None]
+    up = np.asarray(magnify(jnp.asarray(ramp), s))
+    inside = (slice(None), slice(0, (h // s - 1) * s + 1), slice(0, (w // s - 1) * s + 1))
+    np.testing.assert_allclose(up[inside], ramp[inside], atol=1e-5)
+    last_row = (h // s - 1) * s
+    np.testing.assert_allclose(up[0, last_row:, 0, 1], last_row)  # held beyond the last grid row
+    assert np.array_equal(np.asarray(magnify(jnp.asarray(ramp), 1)), ramp)
+
+
+def test_guenter_layer_rule_by_hand():
+    from fovjax.foveate._methods import Guenter2012
+
+    # MAR(ω) = p + m·ω reaches s pixels at ω = (s - 1)·p / m; m = 1.32' per degree.
+    p = 0.1
+    e1, e2 = Guenter2012().layer_radii(p)
+    assert e1 == pytest.approx(1 * p / (1.32 / 60)) and e2 == pytest.approx(3 * p / (1.32 / 60))
+    with pytest.raises(ValueError, match="strides"):
+        Guenter2012(strides=(4, 2))
+
+
+@pytest.fixture(scope="module")
+def card_full():
+    scene = _card_scene()
+    return scene, render_stereo(scene, _rig(), spp=SPP, config=CONFIG)
+
+
+def test_guenter_layers_at_equal_resolution_are_the_full_render(card_full):
+    from fovjax.foveate._methods import Guenter2012
+
+    scene, full = card_full
+    f = Foveation(fovea_deg=5, periphery_deg=15, spp=SPP, method=Guenter2012(strides=(1, 1)))
+    frame = FoveatedRenderer(scene, _rig(), f, CONFIG).render(((0.3, 0.4), (0.35, 0.4)))
+    assert frame.stats.primary_rays == 2 * SPP * EYE_W * EYE_H
+    np.testing.assert_allclose(frame.image, full.image, rtol=1e-4, atol=1e-5)
+
+
+def test_guenter_full_fovea_and_coarse_grid_are_the_full_render(card_full):
+    scene, full = card_full
+    renderer = FoveatedRenderer(scene, _rig(), Foveation(spp=SPP, method="guenter2012"), CONFIG)
+    everything = renderer.render(CENTRE, thresholds=(180.0, 180.0))
+    assert everything.stats.primary_rays == 2 * SPP * EYE_W * EYE_H
+    np.testing.assert_allclose(everything.image, full.image, rtol=1e-4, atol=1e-5)
+    traces = _api.TRACE_COUNTS["foveated-guenter2012"]
+    frame = renderer.render(CENTRE, thresholds=(3.0, 8.0))
+    assert _api.TRACE_COUNTS["foveated-guenter2012"] == traces  # radii are traced
+    assert frame.stats.primary_rays < 0.5 * 2 * SPP * EYE_W * EYE_H
+    # Where only the outer layer shows (beyond the middle radius and its blend), its grid
+    # pixels (every 4th row and column) are traced samples, shown as they are.
+    outer_only = frame.eccentricity > 8.0 + 1.0
+    grid = np.zeros((EYE_H, EYE_W), bool)
+    grid[::4, ::4] = True
+    check = outer_only & grid[None]
+    assert check.sum() > 20
+    eyes = np.stack(np.split(frame.image, 2, axis=1)), np.stack(np.split(full.image, 2, axis=1))
+    np.testing.assert_allclose(eyes[0][check], eyes[1][check], rtol=1e-4, atol=1e-5)
+    assert frame.sample_mask.any(axis=1)[check].all()

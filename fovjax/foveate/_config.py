@@ -285,8 +285,10 @@ class Foveation(eqx.Module):
       recompile; reflection depth, shadow mode and texture level per region are traced tables
       (`program_fidelity`: a new one compiles nothing); a region's `spp` and `lod` are static).
     - `method`: the foveation method, a name of `fovjax.foveate.METHODS` or an instance of
-      one with its parameters: "thesis" (default: the frame above), "weier2016" (sparse
-      tracing plus reprojection of the previous frames' samples, `Weier2016`). Each method
+      one with its parameters: "thesis" (default: the frame above), "guenter2012" (three
+      nested layers at decreasing resolution, magnified and blended, `Guenter2012`),
+      "weier2016" (sparse tracing plus reprojection of the previous frames' samples,
+      `Weier2016`). Each method
       cites its paper (`Foveation().method.citation`); the options above that only the
       thesis's frame has (`fidelity`, budgets, tiles) are refused with another method.
     """

@@ -98,7 +98,82 @@ class Weier2016:
             raise ValueError(f"Weier2016.retrace_tolerance must be a finite number > 0, got {tol!r}")
 
 
-METHODS: dict[str, type] = {m.name: m for m in (Thesis, Weier2016)}
+@dataclasses.dataclass(frozen=True)
+class Guenter2012:
+    """Guenter et al. 2012: three nested eccentricity layers around the gaze, rendered at
+    decreasing resolution, magnified to the display's and blended.
+
+    Per eye and frame (fovjax's reading for a ray tracer, `fovjax.foveate._methods._guenter`):
+    layer 1 (the fovea, ω ≤ `Foveation.fovea_deg`) at every pixel; layer 2 (ω ≤
+    `periphery_deg`) at every `strides[0]`-th pixel of each row and column; layer 3 (the whole
+    display) at every `strides[1]`-th. A layer traces the pixels of its grid that its
+    bilinear magnification needs; a pixel on several grids is traced once (the same ray: it is
+    one sample of each). Each layer is magnified by bilinear interpolation between its grid
+    pixels and the layers are blended by eccentricity: across `blend_deg` beyond each layer's
+    radius (a smoothstep) from the finer layer to the coarser, so a coarser layer shows alone
+    only where the rule allows it. No blur.
+
+    The paper's layer-size rule (`layer_radii`): its acuity model, the minimum angle of
+    resolution growing linearly with eccentricity, MAR(ω) = ω0 + m·ω, with the slope the paper
+    measured, 1.32-1.65 arc minutes per degree (`slope_arcmin_per_deg`, default 1.32, the
+    conservative end: larger layers); a layer whose pixels are s display pixels wide may start
+    where MAR reaches s display pixels, ω = (s·p − ω0) / m, p the display pixel's angle at the
+    centre, with ω0 = p (fovjax's choice: the inner layer is the display at its native
+    sharpness). `Foveation.fovea_deg` and `periphery_deg` are the layer radii, traced, so a
+    threshold sweep compares radii; `layer_radii` gives the paper's.
+
+    Parameters:
+        strides: the middle and outer layers' sampling factors in display pixels (fovjax's
+            choice, (2, 4): the thesis's block edges, so the two methods trace comparable grids;
+            the paper chooses them with the radii by minimising its cost model).
+        blend_deg: width of the blend at a layer's edge (fovjax's choice, 1°: the thesis's
+            fovea blend; the paper blends "smoothly" over a band it sizes itself).
+        slope_arcmin_per_deg: m of the acuity model (the paper's 1.32-1.65).
+
+    Not modelled: the paper's temporal antialiasing of the coarse layers (jitter and
+    reprojection) and its half-rate update of the outer layers.
+    """
+
+    strides: tuple[int, int] = (2, 4)
+    blend_deg: float = 1.0
+    slope_arcmin_per_deg: float = 1.32
+
+    name = "guenter2012"
+    temporal = False
+    citation = Citation(
+        authors="Brian Guenter, Mark Finch, Steven Drucker, Desney Tan, John Snyder",
+        year=2012,
+        title="Foveated 3D Graphics",
+        venue="ACM Transactions on Graphics 31(6):164 (SIGGRAPH Asia 2012)",
+        doi="10.1145/2366145.2366183",
+    )
+
+    def __post_init__(self):
+        s = self.strides
+        if not (
+            isinstance(s, tuple)
+            and len(s) == 2
+            and all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in s)
+            and s[0] <= s[1]
+        ):
+            raise ValueError(
+                f"Guenter2012.strides must be two integers 1 <= middle <= outer, got {self.strides!r}"
+            )
+        for name in ("blend_deg", "slope_arcmin_per_deg"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
+                raise ValueError(f"Guenter2012.{name} must be a finite number > 0, got {v!r}")
+
+    def layer_radii(self, pixel_deg: float) -> tuple[float, float]:
+        """The paper's rule: the (inner, middle) layers' radii in degrees on a display whose
+        pixel subtends `pixel_deg` at its centre (see the class docstring)."""
+        if not (math.isfinite(pixel_deg) and pixel_deg > 0):
+            raise ValueError(f"Guenter2012.layer_radii: pixel_deg must be > 0, got {pixel_deg!r}")
+        m = self.slope_arcmin_per_deg / 60.0
+        return tuple(float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
+
+
+METHODS: dict[str, type] = {m.name: m for m in (Thesis, Guenter2012, Weier2016)}
 """The methods by name (`Foveation(method=name)`, `fovjax compare --methods`)."""
 
 

@@ -13,6 +13,10 @@ def program_of(method):
         from ._weier import weier_stereo
 
         return "foveated-weier2016", weier_stereo
+    if method.name == "guenter2012":
+        from ._guenter import guenter_stereo
+
+        return "foveated-guenter2012", guenter_stereo
     raise ValueError(f"no frame program for foveation method {method.name!r}")
 
 
@@ -44,5 +48,6 @@ def render_with_method(renderer, foveation, frame_args, *, jitter, diagnostics, 
     static = {"spp": foveation.spp, "jitter": jitter, "config": renderer.config, "diagnostics": diagnostics}
     args = (arrays, bvh, rig, *frame_args, foveation, history)
     (out, reused, history), compile_s, render_s = run_compiled(entry, program, args, static)
-    renderer._history = history
+    if method.temporal:
+        renderer._history = history
     return out, int(np.asarray(reused)), compile_s, render_s

@@ -9,7 +9,6 @@ sample, so the next frame traces them all: the full frame).
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
@@ -22,16 +21,11 @@ from .._frame import (
     FoveatedOutputs,
     Selection,
     _slot_samples,
-    accumulate,
     diagnostics_tuple,
     eccentricities,
-    locality_order,
     slot_rays,
-    trace_selection,
-    traced_count,
 )
-from .._positions import positions_at
-from .._sampling import MANDATORY, SKIPPED, compaction_order, regions
+from ._sparse import trace_pixels
 
 # A ray that misses keeps a point this many scene sizes along it: reprojected, it moves with
 # the view's rotation only (the sky), never with its translation (float32 keeps the direction
@@ -140,19 +134,6 @@ def traced_points(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, 
     return points.reshape(2, h, w, 3)
 
 
-def select_pixels(ecc, trace_pixel, *, spp: int, foveation) -> Selection:
-    """Every sub-sample of the pixels to trace, compacted in locality order (as the thesis's
-    frame lists its samples: `fovjax.foveate._frame.select_samples`)."""
-    classes = jnp.where(trace_pixel[:, None], MANDATORY, SKIPPED).astype(jnp.int32)
-    classes = jnp.broadcast_to(classes, (2, spp) + ecc.shape[1:])
-    _, _, h, w = classes.shape
-    perm = jnp.asarray(locality_order(h, w))
-    local = classes.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
-    order, counts, rank = compaction_order(local, with_rank=True)
-    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)])
-    return Selection(ecc, region, classes, counts, order, rank, counts[MANDATORY])
-
-
 def weier_stereo(
     scene,
     bvh,
@@ -171,8 +152,6 @@ def weier_stereo(
     """One stereo frame of Weier et al. 2016 (`Weier2016`) from the previous frame's `history`:
     (the frame's outputs, the pixels shown from the history, this frame's history). Pure; jit
     with the keyword arguments static."""
-    from ...render import RayCounts
-
     diagnostics = diagnostics_tuple(diagnostics, "weier_stereo")
     method = foveation.method
     cameras = rig.eye_cameras(head_pose)
@@ -184,44 +163,17 @@ def weier_stereo(
     draws = jnp.stack([jax.random.uniform(keys[i], (h, w), jnp.float32) for i in range(2)])
     refresh = draws < foveation.probability(ecc)  # 1 in the fovea: always traced there
     trace_pixel = refresh | ~usable
-    sel = select_pixels(ecc, trace_pixel, spp=spp, foveation=foveation)
-    budget = 2 * spp * h * w  # every sample: nothing is ever dropped
-    size = min(config.chunk_size, budget)
-    padded = -(-budget // size) * size
-    if padded > sel.order.shape[0]:
-        sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
-    frame_key = key if jitter else None
-    positions = functools.partial(positions_at, frame_key, spp=spp, h=h, w=w)
-    traced = trace_selection(
-        scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, budget=budget
+    pixels = trace_pixels(
+        scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
     )
-    mask = sel.classes != SKIPPED
-    n = traced_count(mask, spp)
-    zero = jnp.minimum(traced.primary, 0)
-    init = (jnp.full((2 * h * w, 3), zero, jnp.float32), jnp.zeros(2 * h * w, bool), zero)
-    prefill, n_bad, bad_pixel = accumulate(
-        traced.total, sel, n, spp=spp, h=h, w=w, size=size, bad_color=config.bad_color, init=init
+    sel, n = pixels.selection, pixels.n
+    points = traced_points(
+        scene, bvh, cameras, pixels.positions, sel, spp=spp, h=h, w=w, config=config, size=pixels.size
     )
-    points = traced_points(scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, size=size)
     fresh = n > 0
     # Every pixel is traced or holds a usable reprojected sample: nothing to fill.
-    eyes = jnp.where(fresh[..., None], prefill, back.color)
+    eyes = jnp.where(fresh[..., None], pixels.prefill, back.color)
     history = WeierHistory(eyes, jnp.where(fresh[..., None], points, back.point), fresh | usable)
-    by_region = jnp.zeros(3, jnp.int32).at[sel.region.reshape(-1)].add(n.reshape(-1))
-    wanted = sel.counts[MANDATORY]
-    outputs = FoveatedOutputs(
-        image=jnp.concatenate([eyes[0], eyes[1]], axis=1),
-        counts=RayCounts(traced.primary, traced.shadow, traced.reflection, n_bad),
-        primary_by_region=by_region,
-        mandatory=wanted,
-        optional=jnp.zeros((), jnp.int32),
-        dropped=jnp.zeros((), jnp.int32),
-        padding=budget - wanted,
-        traced=mask if "traced" in diagnostics else None,
-        region=sel.region.astype(jnp.int8) if "region" in diagnostics else None,
-        eccentricity=ecc if "eccentricity" in diagnostics else None,
-        prefill=prefill if "prefill" in diagnostics else None,
-        bad_pixels=jnp.sum(bad_pixel, dtype=jnp.int32),
-    )
+    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
     reused = jnp.sum(~fresh, dtype=jnp.int32)
     return outputs, reused, history
