@@ -171,6 +171,13 @@ def _levels_of_detail(scene, arrays, bvh, foveation, rig, levels, top: int):
     return prepare_levels(scene, arrays, bvh, levels, top, _pixels_per_degree(rig))
 
 
+class _History:
+    """The history a temporal foveation method carries from frame to frame (None: none)."""
+
+    def __init__(self):
+        self.value = None
+
+
 def _rig_shape(rig) -> tuple:
     """What the budget, the tiles and the levels of detail are planned from: a rig with other
     values here needs a new renderer (`with_rig` checks)."""
@@ -272,7 +279,9 @@ class FoveatedRenderer:
 
         self.rig = rig
         self.foveation = foveation
-        self._history = None  # a temporal method's history (`Foveation.method`): none yet
+        # A temporal method's history (`Foveation.method`): none yet. A holder, so that the
+        # variants `with_rig` makes (the same renderer, moved) carry one history.
+        self._history = _History()
         self.diagnostics = diagnostics_tuple(diagnostics, "FoveatedRenderer")
         # A bad per-region depth fails before any work; depths and shadow modes are traced tables.
         self._program_foveation, self._shading = program_fidelity(foveation, self.config)
@@ -309,12 +318,13 @@ class FoveatedRenderer:
     def reset_history(self) -> None:
         """Forget the history a temporal method (`Weier2016`) carries from frame to frame: the
         next frame starts from none (for the thesis's method, nothing changes)."""
-        self._history = None
+        self._history.value = None
 
     def with_rig(self, rig) -> FoveatedRenderer:
         """This renderer with the rig moved (its position, rotation, IPD, toe-out: traced values);
         the eye size, field of view and offsets must be this rig's (the budget, tiles and levels
-        of detail are planned from them)."""
+        of detail are planned from them). A temporal method's history is shared with this
+        renderer: frames of either continue it."""
         if _rig_shape(rig) != _rig_shape(self.rig):
             raise ValueError(
                 f"with_rig: the rig's (eye width, eye height, fov axis, fov, offsets) {_rig_shape(rig)} "
@@ -444,7 +454,7 @@ class FoveatedRenderer:
             regions=None if out.region is None else np.asarray(out.region),
             eccentricity=None if out.eccentricity is None else np.asarray(out.eccentricity),
             outputs=out,
-            history=self._history,
+            history=self._history.value,
         )
 
     def render_full(self, *, head_pose=None, key: jax.Array | None = None):

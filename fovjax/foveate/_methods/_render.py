@@ -42,12 +42,12 @@ def render_with_method(renderer, foveation, frame_args, *, jitter, diagnostics, 
     method = foveation.method
     entry, program = program_of(method)
     arrays, bvh, rig = renderer._scene_inputs
-    history = renderer._history
+    history = renderer._history.value
     if reset or history is None:
         history = jax.tree.map(jnp.asarray, initial_history(method, renderer.rig))
     static = {"spp": foveation.spp, "jitter": jitter, "config": renderer.config, "diagnostics": diagnostics}
     args = (arrays, bvh, rig, *frame_args, foveation, history)
     (out, reused, history), compile_s, render_s = run_compiled(entry, program, args, static)
     if method.temporal:
-        renderer._history = history
+        renderer._history.value = history
     return out, int(np.asarray(reused)), compile_s, render_s
