@@ -5,7 +5,8 @@ budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, section
 batches and their full references for given gaze, head pose, key and thresholds (the way to
 render frames in a loop); `render_foveated` renders one frame through a renderer made for it.
 `check_gaze(gaze)` is the per-eye gaze check. `Foveation(method=...)` chooses the foveation
-method (`METHODS`: the thesis's, `Guenter2012`, `Weier2016`), each with its paper's citation.
+method (`METHODS`: the thesis's, `Guenter2012`, `Patney2016`,
+`Weier2016`), each with its paper's citation.
 The frame program's parts (`foveated_stereo`, `budget_for`, `program_fidelity`, the sampling
 steps) are in `fovjax.foveate.internal`, for the packages built on this one."""
 
@@ -33,6 +34,7 @@ from ._frame import DIAGNOSTICS as DIAGNOSTICS
 from ._methods import METHODS as METHODS
 from ._methods import Citation as Citation
 from ._methods import Guenter2012 as Guenter2012
+from ._methods import Patney2016 as Patney2016
 from ._methods import Thesis as Thesis
 from ._methods import Weier2016 as Weier2016
 from ._renderer import FoveatedRenderer as FoveatedRenderer
@@ -84,6 +86,7 @@ __all__ = [
     "METHODS",
     "Citation",
     "Guenter2012",
+    "Patney2016",
     "Thesis",
     "Weier2016",
     "FoveatedRenderer",

@@ -173,7 +173,93 @@ class Guenter2012:
         return tuple(float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
 
 
-METHODS: dict[str, type] = {m.name: m for m in (Thesis, Guenter2012, Weier2016)}
+@dataclasses.dataclass(frozen=True)
+class Patney2016:
+    """Patney et al. 2016: shading rate falling with eccentricity, a contrast-preserving
+    pre-filter of the coarse periphery and temporal antialiasing (temporal: a frame blends the
+    history of the frames before it).
+
+    Per eye and frame (fovjax's reading for a ray tracer, `fovjax.foveate._methods._patney`):
+
+    - coarse sampling: the paper's coarse pixel shading, one shade per s×s block held over the
+      block; s is 1 in the fovea (ω ≤ `Foveation.fovea_deg`), `strides[0]` up to
+      `periphery_deg` and `strides[1]` beyond, the layers blended by eccentricity over
+      `blend_deg` (a smoothstep, as `Guenter2012`); a block's top-left pixel is traced (whole,
+      every sub-sample) where its block shows;
+    - temporal antialiasing on the held image: the history, clamped to this frame's 3×3
+      neighbourhood mean ± `clip_gamma` standard deviations (variance clipping; the box is
+      widened to contain the pixel itself, so a still image is a fixed point), is blended with
+      weight 1 − `taa_alpha`; after a reset the frame is shown as traced;
+    - the pre-filter (the paper's post-process, `contrast_preserving_filter`), outside the
+      fovea only: a Gaussian blur of σ = `blur_per_stride`·s pixels, then the local contrast
+      the blur removed restored: deviations from the local mean scaled by the ratio of the
+      unblurred to the blurred local standard deviation of luminance (Gaussian windows of
+      `window_per_sigma`·σ, the gain within [1, `max_gain`]).
+
+    Parameters:
+        strides: the middle and outer shading rates in display pixels (the paper's coarse
+            pixel shading rates 2×2 and 4×4: (2, 4)).
+        blend_deg: width of the blend between rates (fovjax's choice, 1°: the thesis's blend).
+        blur_per_stride: the blur's σ per display pixel of the shading rate (fovjax's choice,
+            0.5: a blur radius of half the subsampling factor, the relation Albert et al. 2017
+            use for this method).
+        window_per_sigma: the contrast window's σ per blur σ (fovjax's choice, 2: the scale of
+            the detail the blur removes).
+        max_gain: the largest contrast gain (fovjax's choice, 4: bounds the amplification of
+            noise where the blur left almost no contrast).
+        taa_alpha: the weight of this frame in the temporal blend (fovjax's choice, 0.1: the
+            exponential average's usual weight in temporal antialiasing).
+        clip_gamma: the variance clip's width in standard deviations (fovjax's choice, 1).
+
+    Not modelled: the paper's pre-filtered shading terms (texture mips, LEAN normal maps,
+    variance shadow maps), its reprojection of the history by motion vectors (the history is
+    blended in screen space; head motion is limited by the variance clip only), and its
+    saccade-aware, eccentricity-varying temporal weights.
+    """
+
+    strides: tuple[int, int] = (2, 4)
+    blend_deg: float = 1.0
+    blur_per_stride: float = 0.5
+    window_per_sigma: float = 2.0
+    max_gain: float = 4.0
+    taa_alpha: float = 0.1
+    clip_gamma: float = 1.0
+
+    name = "patney2016"
+    temporal = True
+    citation = Citation(
+        authors="Anjul Patney, Marco Salvi, Joohwan Kim, Anton Kaplanyan, Chris Wyman, Nir Benty, "
+        "David Luebke, Aaron Lefohn",
+        year=2016,
+        title="Towards Foveated Rendering for Gaze-Tracked Virtual Reality",
+        venue="ACM Transactions on Graphics 35(6) (SIGGRAPH Asia 2016)",
+        doi="10.1145/2980179.2980246",
+    )
+
+    def __post_init__(self):
+        s = self.strides
+        if not (
+            isinstance(s, tuple)
+            and len(s) == 2
+            and all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in s)
+            and s[0] <= s[1]
+        ):
+            raise ValueError(
+                f"Patney2016.strides must be two integers 1 <= middle <= outer, got {self.strides!r}"
+            )
+        for name in ("blend_deg", "blur_per_stride", "window_per_sigma", "clip_gamma"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
+                raise ValueError(f"Patney2016.{name} must be a finite number > 0, got {v!r}")
+        g = self.max_gain
+        if isinstance(g, bool) or not isinstance(g, int | float) or not (math.isfinite(g) and g >= 1):
+            raise ValueError(f"Patney2016.max_gain must be a finite number >= 1, got {g!r}")
+        a = self.taa_alpha
+        if isinstance(a, bool) or not isinstance(a, int | float) or not (0 < a <= 1):
+            raise ValueError(f"Patney2016.taa_alpha must be a number in (0, 1], got {a!r}")
+
+
+METHODS: dict[str, type] = {m.name: m for m in (Thesis, Guenter2012, Patney2016, Weier2016)}
 """The methods by name (`Foveation(method=name)`, `fovjax compare --methods`)."""
 
 

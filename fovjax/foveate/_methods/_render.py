@@ -17,6 +17,10 @@ def program_of(method):
         from ._guenter import guenter_stereo
 
         return "foveated-guenter2012", guenter_stereo
+    if method.name == "patney2016":
+        from ._patney import patney_stereo
+
+        return "foveated-patney2016", patney_stereo
     raise ValueError(f"no frame program for foveation method {method.name!r}")
 
 
@@ -26,6 +30,10 @@ def initial_history(method, rig):
         from ._weier import empty_history
 
         return empty_history(rig.eye_height, rig.eye_width)
+    if method.name == "patney2016":
+        from ._patney import empty_history as empty_taa_history
+
+        return empty_taa_history(rig.eye_height, rig.eye_width)
     return None
 
 

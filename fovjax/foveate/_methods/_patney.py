@@ -1,0 +1,202 @@
+"""Patney et al. 2016's frame: shading rate falling with eccentricity, temporal antialiasing and
+a contrast-preserving pre-filter of the periphery (see `Patney2016` for the method and its
+parameters).
+
+One jitted program per configuration; gaze, head pose, key, the thresholds and the history are
+traced. The history is explicit: `patney_stereo` takes the previous frame's `TaaHistory` and
+returns this frame's; `empty_history` is the reset (no pixel holds one: the next frame is shown
+as traced). The filters are pure image functions of static size (`gaussian_blur`,
+`contrast_preserving_filter`, `taa_blend`), tested on their own.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._frame import DIAGNOSTICS, FoveatedOutputs, diagnostics_tuple, eccentricities
+from ._guenter import layer_weights
+from ._sparse import trace_pixels
+
+# Rec. 709 luminance weights: the contrast gain is measured on luminance and applied to every
+# channel alike, so the enhancement keeps a pixel's hue.
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+# Below this local standard deviation of the blurred image a region is flat: its gain is 1
+# (a ratio of two vanishing deviations is noise).
+FLAT_STD = 1e-4
+
+
+class TaaHistory(NamedTuple):
+    """Per eye and pixel: the temporally antialiased colour of the previous frame (before the
+    pre-filter, so the filter is never compounded) and whether the pixel holds one."""
+
+    color: Float[Array, "2 H W 3"]
+    valid: Bool[Array, "2 H W"]
+
+
+def empty_history(h: int, w: int) -> TaaHistory:
+    """The reset: no pixel holds a history."""
+    return TaaHistory(jnp.zeros((2, h, w, 3), jnp.float32), jnp.zeros((2, h, w), bool))
+
+
+def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, "E H W C"]:
+    """A separable Gaussian blur of standard deviation `sigma` pixels (static; 0: `image`),
+    truncated at 3σ and normalised, the border pixels repeated beyond the image."""
+    if sigma == 0:
+        return image
+    radius = max(1, math.ceil(3 * sigma))
+    taps = [math.exp(-0.5 * (k / sigma) ** 2) for k in range(-radius, radius + 1)]
+    total = sum(taps)
+    taps = [t / total for t in taps]
+    _, h, w, _ = image.shape
+    out = image
+    padded = jnp.pad(out, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge")
+    out = sum(t * padded[:, k : k + h] for k, t in enumerate(taps))
+    padded = jnp.pad(out, ((0, 0), (0, 0), (radius, radius), (0, 0)), mode="edge")
+    return sum(t * padded[:, :, k : k + w] for k, t in enumerate(taps))
+
+
+def _luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
+    return image @ jnp.asarray(LUMINANCE, jnp.float32)[:, None]
+
+
+def local_std(values: Float[Array, "E H W C"], window_sigma: float) -> Float[Array, "E H W C"]:
+    """The standard deviation of `values` in a Gaussian window of `window_sigma` pixels around
+    each pixel (E[x²] − E[x]², never negative)."""
+    mean = gaussian_blur(values, window_sigma)
+    var = gaussian_blur(values * values, window_sigma) - mean * mean
+    return jnp.sqrt(jnp.maximum(var, 0.0))
+
+
+def contrast_preserving_filter(
+    image: Float[Array, "E H W 3"], sigma: float, *, window_sigma: float, max_gain: float
+) -> Float[Array, "E H W 3"]:
+    """The pre-filter: a Gaussian blur of `sigma` pixels, then the local contrast the blur
+    removed restored. With B the blurred image, m its local mean (a Gaussian window of
+    `window_sigma`) and s_I, s_B the local standard deviations of the luminance of `image` and
+    of B in that window, the result is m + (B − m)·g with g = s_I / s_B clipped to [1,
+    `max_gain`] (g = 1 where B is flat): a variance-preserving contrast enhancement, so
+    the blur's low-pass shape is kept and its loss of contrast is not. A constant image is a
+    fixed point (up to float rounding); the result is clipped at 0 (radiance)."""
+    blurred = gaussian_blur(image, sigma)
+    mean = gaussian_blur(blurred, window_sigma)
+    s_image = local_std(_luminance(image), window_sigma)
+    s_blurred = local_std(_luminance(blurred), window_sigma)
+    gain = jnp.where(
+        s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
+    )
+    return jnp.maximum(mean + (blurred - mean) * gain, 0.0)
+
+
+def _neighbourhood(image: Float[Array, "E H W 3"]):
+    """Per pixel the mean and standard deviation of its 3×3 neighbourhood (border repeated)."""
+    _, h, w, _ = image.shape
+    padded = jnp.pad(image, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    taps = [padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)]
+    mean = sum(taps) / 9.0
+    var = sum(t * t for t in taps) / 9.0 - mean * mean
+    return mean, jnp.sqrt(jnp.maximum(var, 0.0))
+
+
+def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float):
+    """Temporal antialiasing: the history clamped per channel to the box mean ± `gamma`·std of
+    the current frame's 3×3 neighbourhood (variance clipping), the box widened to contain the
+    current pixel (so a still image is a fixed point), then blended, `alpha` of the current
+    frame; where the history holds nothing, the current frame. Returns the blended image."""
+    mean, std = _neighbourhood(current)
+    lo = jnp.minimum(mean - gamma * std, current)
+    hi = jnp.maximum(mean + gamma * std, current)
+    clipped = jnp.clip(history.color, lo, hi)
+    blended = alpha * current + (1.0 - alpha) * clipped
+    return jnp.where(history.valid[..., None], blended, current)
+
+
+def _block_any(mask: Bool[Array, "E H W"], stride: int) -> Bool[Array, "E H W"]:
+    """Per pixel: whether any pixel of its stride×stride block (blocks from the top-left) is
+    set in `mask`."""
+    if stride == 1:
+        return mask
+    e, h, w = mask.shape
+    hp, wp = -(-h // stride) * stride, -(-w // stride) * stride
+    padded = jnp.pad(mask, ((0, 0), (0, hp - h), (0, wp - w)))
+    blocks = padded.reshape(e, hp // stride, stride, wp // stride, stride).any(axis=(2, 4))
+    return jnp.repeat(jnp.repeat(blocks, stride, axis=1), stride, axis=2)[:, :h, :w]
+
+
+def _top_left(h: int, w: int, stride: int) -> Bool[Array, "H W"]:
+    y = jnp.arange(h)[:, None]
+    x = jnp.arange(w)[None, :]
+    return (y % stride == 0) & (x % stride == 0)
+
+
+def hold(pix: Float[Array, "E H W 3"], stride: int) -> Float[Array, "E H W 3"]:
+    """Coarse pixel shading's reconstruction: every pixel shows its stride×stride block's
+    top-left pixel. `stride` 1: `pix`."""
+    if stride == 1:
+        return pix
+    _, h, w, _ = pix.shape
+    rows = (jnp.arange(h) // stride) * stride
+    cols = (jnp.arange(w) // stride) * stride
+    return pix[:, rows][:, :, cols]
+
+
+def patney_stereo(
+    scene,
+    bvh,
+    rig,
+    head_pose,
+    gaze,
+    key,
+    foveation,
+    history: TaaHistory,
+    *,
+    spp,
+    jitter,
+    config,
+    diagnostics=DIAGNOSTICS,
+) -> tuple[FoveatedOutputs, Int[Array, ""], TaaHistory]:
+    """One stereo frame of Patney et al. 2016 (`Patney2016`) from the previous frame's
+    `history`: (the frame's outputs, the pixels that blended a history, this frame's history).
+    Pure; jit with the keyword arguments static."""
+    diagnostics = diagnostics_tuple(diagnostics, "patney_stereo")
+    method = foveation.method
+    cameras = rig.eye_cameras(head_pose)
+    h, w = rig.eye_height, rig.eye_width
+    ecc = eccentricities(cameras, gaze, foveation)
+    radii = (foveation.fovea_deg, foveation.periphery_deg)
+    strides = (1, *method.strides)
+    # Where each shading rate shows (its radius plus the blend; the outer rate everywhere):
+    # the top-left pixel of each of its blocks there is traced.
+    shown = [ecc <= r + method.blend_deg for r in radii] + [jnp.ones_like(ecc, bool)]
+    trace_pixel = jnp.zeros_like(ecc, bool)
+    for stride, where in zip(strides, shown, strict=True):
+        trace_pixel = trace_pixel | (_block_any(where, stride) & _top_left(h, w, stride)[None])
+    pixels = trace_pixels(
+        scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
+    )
+    inner, middle, outer = (hold(pixels.prefill, s) for s in strides)
+    w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
+
+    def blend(fine, mid, coarse):
+        rest = coarse * (1 - w_middle)[..., None] + mid * w_middle[..., None]
+        return rest * (1 - w_inner)[..., None] + fine * w_inner[..., None]
+
+    shaded = blend(inner, middle, outer)
+    accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma)
+    # The pre-filter per shading rate (σ grows with the block size), shown where that rate is.
+    filtered = [
+        contrast_preserving_filter(
+            accumulated,
+            method.blur_per_stride * s,
+            window_sigma=method.window_per_sigma * method.blur_per_stride * s,
+            max_gain=method.max_gain,
+        )
+        for s in method.strides
+    ]
+    eyes = blend(accumulated, *filtered)
+    reused = jnp.sum(history.valid, dtype=jnp.int32)
+    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    return outputs, reused, TaaHistory(accumulated, jnp.ones_like(history.valid))
