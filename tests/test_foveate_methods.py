@@ -228,3 +228,140 @@ def test_guenter_full_fovea_and_coarse_grid_are_the_full_render(card_full):
     eyes = np.stack(np.split(frame.image, 2, axis=1)), np.stack(np.split(full.image, 2, axis=1))
     np.testing.assert_allclose(eyes[0][check], eyes[1][check], rtol=1e-4, atol=1e-5)
     assert frame.sample_mask.any(axis=1)[check].all()
+
+
+# ---- Patney et al. 2016 ----
+
+
+def test_patney_is_cited_and_checked():
+    from fovjax.foveate._methods import Patney2016
+
+    assert Foveation(method="patney2016").method == Patney2016() and METHODS["patney2016"] is Patney2016
+    assert Patney2016.temporal and Patney2016.citation.doi == "10.1145/2980179.2980246"
+    for bad in ({"strides": (4, 2)}, {"taa_alpha": 0.0}, {"max_gain": 0.5}, {"blur_per_stride": -1.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            Patney2016(**bad)
+
+
+def _bars(h=48, w=64, period=8):
+    """A vertical bar grating (0.2 and 0.8, `period` pixels), tinted: a known image whose local
+    contrast a blur of σ = period/4 mostly removes."""
+    x = np.arange(w, dtype=np.float32)[None, :]
+    g = 0.5 + 0.3 * np.sign(np.sin(2 * np.pi * (x + 0.5) / period))
+    g = np.broadcast_to(g, (h, w))
+    return jnp.asarray(g[None, ..., None] * np.array([1.0, 0.8, 0.6], np.float32))
+
+
+def test_contrast_preserving_filter_keeps_constants_and_restores_contrast():
+    from fovjax.foveate._methods._patney import (
+        contrast_preserving_filter,
+        gaussian_blur,
+        local_std,
+        luminance,
+    )
+
+    sigma, window = 2.0, 4.0
+    flat = jnp.full((2, 16, 24, 3), 0.37, jnp.float32)
+    out = contrast_preserving_filter(flat, sigma, window_sigma=window, max_gain=4.0)
+    np.testing.assert_allclose(np.asarray(out), 0.37, rtol=1e-6)  # identity up to rounding
+
+    def contrast(image):  # local std of luminance, away from the border
+        return np.asarray(local_std(luminance(image), window))[0, 16:-16, 16:-16, 0]
+
+    bars = _bars()
+    ref = contrast(bars)
+    blurred = contrast(gaussian_blur(bars, sigma)) / ref
+    restored = contrast(contrast_preserving_filter(bars, sigma, window_sigma=window, max_gain=4.0)) / ref
+    assert blurred.max() < 0.5  # the blur alone loses more than half the contrast
+    assert 0.9 < restored.min() and restored.max() < 1.1  # the filter gives it back (within 10%)
+    # Finer bars than the blur passes (it keeps under 1% of them): the gain stops at max_gain,
+    # so the filter does not invent the detail back.
+    fine = _bars(period=4)
+    assert contrast(gaussian_blur(fine, sigma)).max() < 0.01 * contrast(fine).min()
+    capped = contrast(contrast_preserving_filter(fine, sigma, window_sigma=window, max_gain=4.0))
+    assert capped.max() < 0.1 * contrast(fine).min()
+
+
+def test_taa_blend_is_the_clipped_exponential_average():
+    from fovjax.foveate._methods._patney import TaaHistory, taa_blend
+
+    rng = np.random.default_rng(0)
+    current = jnp.asarray(rng.uniform(0, 1, (2, 8, 8, 3)).astype(np.float32))
+    none = TaaHistory(jnp.zeros_like(current), jnp.zeros((2, 8, 8), bool))
+    assert np.array_equal(np.asarray(taa_blend(current, none, alpha=0.1, gamma=1.0)), np.asarray(current))
+    same = TaaHistory(current, jnp.ones((2, 8, 8), bool))  # a still image is a fixed point
+    np.testing.assert_allclose(np.asarray(taa_blend(current, same, alpha=0.1, gamma=1.0)), current, atol=1e-6)
+    flat = jnp.full_like(current, 0.5)  # a flat neighbourhood: the history is clipped to it
+    far = TaaHistory(jnp.full_like(current, 3.0), jnp.ones((2, 8, 8), bool))
+    np.testing.assert_allclose(np.asarray(taa_blend(flat, far, alpha=0.1, gamma=1.0)), 0.5, atol=1e-6)
+    near = TaaHistory(flat + 0.0, jnp.ones((2, 8, 8), bool))
+    np.testing.assert_allclose(np.asarray(taa_blend(flat, near, alpha=0.25, gamma=1.0)), 0.5, atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def patney():
+    scene = _card_scene()
+    renderer = FoveatedRenderer(scene, _rig(), Foveation(fovea_deg=5, spp=SPP, method="patney2016"), CONFIG)
+    return scene, renderer
+
+
+def test_patney_full_fovea_is_the_full_render(patney, card_full):
+    _, full = card_full
+    _, renderer = patney
+    every = 2 * SPP * EYE_W * EYE_H
+    traces = None
+    for k in range(2):  # the second frame blends a history: a still image is its fixed point
+        frame = renderer.render(CENTRE, thresholds=(180.0, 180.0), reset=k == 0)
+        assert frame.stats.primary_rays == every
+        assert frame.foveation.reused == (0 if k == 0 else EYE_W * EYE_H * 2)
+        np.testing.assert_allclose(frame.image, full.image, rtol=1e-4, atol=1e-5)
+        traces = _api.TRACE_COUNTS["foveated-patney2016"] if traces is None else traces
+    assert _api.TRACE_COUNTS["foveated-patney2016"] == traces
+
+
+def test_patney_coarse_periphery_traces_block_corners(patney, card_full):
+    _, full = card_full
+    _, renderer = patney
+    frame = renderer.render(CENTRE, thresholds=(6.0, 12.0), reset=True)
+    assert frame.stats.compile_seconds == 0.0  # thresholds are traced
+    assert frame.stats.primary_rays < 0.5 * 2 * SPP * EYE_W * EYE_H
+    traced = frame.sample_mask.any(axis=1)
+    outer_only = frame.eccentricity > 12.0 + 1.0
+    # Beyond the middle rate's radius and blend: every 4×4 block's top-left is traced, and no
+    # pixel off the 2×2 grid (a 2×2 block reaching into the middle rate may still be traced).
+    corner, grid2 = np.zeros((EYE_H, EYE_W), bool), np.zeros((EYE_H, EYE_W), bool)
+    corner[::4, ::4] = True
+    grid2[::2, ::2] = True
+    assert (outer_only & corner[None]).sum() > 20
+    assert traced[outer_only & corner[None]].all() and not traced[outer_only & ~grid2[None]].any()
+    # The fovea (ω ≤ its radius: the fine rate alone, no filter) is the full render.
+    eyes = np.stack(np.split(frame.image, 2, axis=1)), np.stack(np.split(full.image, 2, axis=1))
+    fovea = frame.eccentricity <= 6.0
+    assert fovea.sum() > 10
+    np.testing.assert_allclose(eyes[0][fovea], eyes[1][fovea], rtol=1e-4, atol=1e-5)
+
+
+def test_patney_history_converges_after_a_move_and_reset_forgets_it(patney, card_full):
+    """After a camera move the history contracts to the new view's frame at least as fast as
+    the exponential average (1 - taa_alpha per frame: the clip box holds the current pixel, so
+    clipping never moves the history away from it); with reset the new view's first frame is
+    the frame without history, whose fovea is the full render."""
+    _, renderer = patney
+    moved = renderer.with_rig(_rig(shift=0.3))
+    first = moved.render(CENTRE, reset=True)
+    assert first.foveation.reused == 0
+    target = np.asarray(first.history.color)  # the shaded frame of the moved view
+    renderer.render(CENTRE, reset=True)
+    start = np.abs(np.asarray(renderer._history.value.color) - target)
+    assert start.max() > 0.1  # the move changes what pixels see
+    factor = 1.0 - renderer.foveation.method.taa_alpha
+    for k in range(1, 4):
+        frame = moved.render(CENTRE)
+        assert frame.foveation.reused == 2 * EYE_W * EYE_H
+        gap = np.abs(np.asarray(frame.history.color) - target)
+        assert (gap <= factor**k * start + 1e-5).all()
+    assert gap.max() > 0  # the history was blended, not dropped
+    renderer.reset_history()
+    again = moved.render(CENTRE)
+    assert again.foveation.reused == 0
+    np.testing.assert_allclose(again.image, first.image, rtol=1e-6, atol=1e-7)

@@ -59,7 +59,7 @@ def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, 
     return sum(t * padded[:, :, k : k + w] for k, t in enumerate(taps))
 
 
-def _luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
+def luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
     return image @ jnp.asarray(LUMINANCE, jnp.float32)[:, None]
 
 
@@ -83,8 +83,8 @@ def contrast_preserving_filter(
     fixed point (up to float rounding); the result is clipped at 0 (radiance)."""
     blurred = gaussian_blur(image, sigma)
     mean = gaussian_blur(blurred, window_sigma)
-    s_image = local_std(_luminance(image), window_sigma)
-    s_blurred = local_std(_luminance(blurred), window_sigma)
+    s_image = local_std(luminance(image), window_sigma)
+    s_blurred = local_std(luminance(blurred), window_sigma)
     gain = jnp.where(
         s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
     )
