@@ -89,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         nargs="+",
         default=["thesis"],
         help="foveation methods to sweep with every threshold pair (fovjax.foveate.METHODS: thesis, "
-        "guenter2012, weier2016); one table and one chart across them",
+        "guenter2012, patney2016, weier2016); one table and one chart across them",
     )
     p.add_argument("-o", "--output", default="out/compare")
     cli.add_regions(p)

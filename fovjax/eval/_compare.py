@@ -188,7 +188,7 @@ def compare_thresholds(
         methods: the foveation methods to sweep (names of `fovjax.foveate.METHODS` or method
             instances; default the thesis's): every method × threshold pair × spp, recorded per
             row (`method`, with `new_rays_per_frame` and `reused_pixels_per_frame`). A temporal
-            method (`Weier2016`) is measured on each still frame after one frame of history
+            method (`Weier2016`, `Patney2016`) is measured on each still frame after one frame of history
             of the same view (a reset, then the frame with the next key): its steady state on
             a still view, where it reuses the most.
         regions: the region reading (`fovjax.foveate.with_regions`, recorded per row): "angle"

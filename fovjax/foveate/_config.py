@@ -287,8 +287,9 @@ class Foveation(eqx.Module):
     - `method`: the foveation method, a name of `fovjax.foveate.METHODS` or an instance of
       one with its parameters: "thesis" (default: the frame above), "guenter2012" (three
       nested layers at decreasing resolution, magnified and blended, `Guenter2012`),
-      "weier2016" (sparse tracing plus reprojection of the previous frames' samples,
-      `Weier2016`). Each method
+      "patney2016" (shading rate by eccentricity, temporal antialiasing and a
+      contrast-preserving pre-filter, `Patney2016`), "weier2016" (sparse tracing plus
+      reprojection of the previous frames' samples, `Weier2016`). Each method
       cites its paper (`Foveation().method.citation`); the options above that only the
       thesis's frame has (`fidelity`, budgets, tiles) are refused with another method.
     """

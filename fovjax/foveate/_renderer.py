@@ -316,8 +316,8 @@ class FoveatedRenderer:
         return other
 
     def reset_history(self) -> None:
-        """Forget the history a temporal method (`Weier2016`) carries from frame to frame: the
-        next frame starts from none (for the thesis's method, nothing changes)."""
+        """Forget the history a temporal method (`Weier2016`, `Patney2016`) carries from frame
+        to frame: the next frame starts from none (for the thesis's method, nothing changes)."""
         self._history.value = None
 
     def with_rig(self, rig) -> FoveatedRenderer:
@@ -379,9 +379,10 @@ class FoveatedRenderer:
             thresholds: this frame's (fovea_deg, periphery_deg) (default the foveation's);
                 traced, within `Foveation.max_periphery_deg`.
             diagnostics: this frame's per-pixel outputs (default the renderer's).
-            reset: a method that keeps a history of earlier frames (`Weier2016`) starts this
-                frame from none (a scene change, a tracking loss); the renderer keeps each
-                frame's history for the next (`reset_history` clears it too).
+            reset: a method that keeps a history of earlier frames (`Weier2016`,
+                `Patney2016`) starts this frame from none (a scene change, a tracking loss);
+                the renderer keeps each frame's history for the next (`reset_history` clears
+                it too).
 
         Returns:
             The `FoveatedFrame`.

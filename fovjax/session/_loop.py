@@ -109,7 +109,8 @@ class SessionFrame:
     head_reconnects: int | None = None
     head_errors: int | None = None
     head_sample_age_s: float | None = None
-    # Pixels shown from earlier frames' samples (a temporal foveation method, `Weier2016`).
+    # Pixels shown from earlier frames' samples (`Weier2016`) or blended with them (`Patney2016`):
+    # a temporal foveation method's reuse.
     reused_pixels: int = 0
 
     @property
