@@ -201,8 +201,8 @@ class Patney2016:
             pixel shading rates 2×2 and 4×4: (2, 4)).
         blend_deg: width of the blend between rates (fovjax's choice, 1°: the thesis's blend).
         blur_per_stride: the blur's σ per display pixel of the shading rate (fovjax's choice,
-            0.5: a blur radius of half the subsampling factor, the relation Albert et al. 2017
-            use for this method).
+            0.5: Albert et al. 2017, "Latency Requirements for Foveated Rendering in Virtual
+            Reality", map a blur radius r to this method's 2r×2r coarse shading rate).
         window_per_sigma: the contrast window's σ per blur σ (fovjax's choice, 2: the scale of
             the detail the blur removes).
         max_gain: the largest contrast gain (fovjax's choice, 4: bounds the amplification of
