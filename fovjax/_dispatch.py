@@ -18,7 +18,6 @@ def render_stereo(
     spp: int | None = None,
     key=None,
     config: RenderConfig | None = None,
-    envmap=None,
     bvh=None,
     diagnostics=DIAGNOSTICS,
 ):
@@ -39,10 +38,13 @@ def render_stereo(
         key: the frame's `jax.random` key (jitter and sampling draws); None for cell centres and a
             fixed sampling pattern.
         config: the `fovjax.render.RenderConfig` (default `RenderConfig()`).
-        envmap: an environment map for rays that miss (a path or an array).
         bvh: a prebuilt BVH (default: built, or loaded from the disk cache).
         diagnostics: foveated frames only: which per-pixel outputs to return (names of
             `fovjax.foveate.DIAGNOSTICS`); each set is its own compiled program.
+
+    An environment map for the rays that miss: `fovjax.render.render_stereo(envmap=)` or
+    `fovjax.FoveatedRenderer(envmap=)`, or a `SceneArrays` made with one
+    (`scene_arrays(scene, envmap=)`) as `scene`, with `bvh`.
 
     Returns:
         A `fovjax.render.Frame`, or a `fovjax.foveate.FoveatedFrame` when foveated (image,
@@ -69,7 +71,6 @@ def render_stereo(
             spp=1 if spp is None else spp,
             key=key,
             config=config,
-            envmap=envmap,
             bvh=bvh,
         )
     if foveation is None:
@@ -84,7 +85,6 @@ def render_stereo(
         head_pose=head_pose,
         key=key,
         config=config,
-        envmap=envmap,
         bvh=bvh,
         diagnostics=diagnostics,
     )

@@ -25,7 +25,6 @@ def render_foveated(
     head_pose=None,
     key: jax.Array | None = None,
     config=None,
-    envmap=None,
     bvh=None,
     lod_levels=None,
     diagnostics=DIAGNOSTICS,
@@ -48,7 +47,6 @@ def render_foveated(
         key: the frame's PRNG key (sub-pixel jitter and sampling draws); None renders pixel-cell
             centres and a fixed sampling pattern.
         config: the `fovjax.render.RenderConfig`.
-        envmap: an environment map for rays that miss.
         bvh: a prebuilt BVH.
         lod_levels: the scene's levels of detail (`fovjax.scene.lod_levels`) that `Fidelity.lod`
             indexes; None: `lod_levels(scene)` at its default ratios (cached on disk) when a region
@@ -58,6 +56,10 @@ def render_foveated(
             default all; `DEBUG_VIEW_DIAGNOSTICS` for `debug_view`). A static choice (another set
             is another compiled program): on a CPU every screen-sized output is fresh memory each
             frame, so a frame loop asks only for what it reads.
+
+    An environment map for the rays that miss: `FoveatedRenderer(..., envmap=)` (the way to
+    render frames in a loop), or a `SceneArrays` made with one (`scene_arrays(scene, envmap=)`)
+    as `scene`, with `bvh`.
 
     Returns:
         The `FoveatedFrame`.
@@ -70,7 +72,6 @@ def render_foveated(
         rig,
         foveation,
         config,
-        envmap=envmap,
         bvh=bvh,
         lod_levels=lod_levels,
         diagnostics=diagnostics,

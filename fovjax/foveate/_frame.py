@@ -80,6 +80,32 @@ def diagnostics_tuple(diagnostics, where: str = "render_foveated") -> tuple[str,
     return tuple(n for n in DIAGNOSTICS if n in names)
 
 
+@dataclasses.dataclass(frozen=True)
+class FrameOptions:
+    """The frame program's static options (hashable: one compiled program per distinct value;
+    everything else a frame takes is traced). `FoveatedRenderer` makes them.
+
+    - `spp`: samples per pixel (`Foveation.spp`);
+    - `jitter`: whether the sub-pixel positions are jittered from the frame key (a key was
+      given) or are the pixel cells' centres;
+    - `config`: the `fovjax.render.RenderConfig`;
+    - `budget`: the static number of ray slots of both eyes;
+    - `tile` (rows, cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images
+      in packets (None: not; only where the budget is every sample, so that their samples are
+      never dropped; see `Foveation.fovea_tile_deg`);
+    - `diagnostics`: which per-pixel outputs besides the image to return (`DIAGNOSTICS`, in
+      that order; the others are None: a CPU allocates each output fresh every frame).
+    """
+
+    spp: int
+    jitter: bool
+    config: object  # fovjax.render.RenderConfig (hashable)
+    budget: int
+    tile: tuple[int, int] | None = None
+    grid: int | None = None
+    diagnostics: tuple[str, ...] = DIAGNOSTICS
+
+
 class FoveatedOutputs(NamedTuple):
     """A frame program's outputs; the per-pixel `traced` (2, S, H, W), `region` (2, H, W int8:
     0 fovea, 1 periphery, 2 outside), `eccentricity` (2, H, W degrees) and `prefill` (2, H, W,
@@ -284,11 +310,8 @@ def trace_selection(
     positions,
     sel: Selection,
     *,
-    spp,
-    h,
-    w,
     config,
-    budget,
+    budget: int,
     tiles=(),
     classes=None,
     scale=None,
@@ -297,8 +320,11 @@ def trace_selection(
     tiles of rays) first; `classes`: the renderer's `ShadingClasses` per region (a sample's
     class is its region), None for full fidelity. Returns the per-slot radiance (padded to
     whole chunks), the tiles' and the ray counts. `scale`: as `radiance_in_chunks`'s (levels of
-    detail: the finest level's)."""
+    detail: the finest level's). The samples per pixel and the image size are the selection's
+    (`sel.classes` (2, S, H, W))."""
     from ..render.internal import radiance_in_chunks
+
+    _, spp, h, w = sel.classes.shape
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
@@ -436,21 +462,11 @@ def foveated_stereo(
     lod=None,
     shading=None,
     *,
-    spp,
-    jitter,
-    config,
-    budget,
-    tile=None,
-    grid=None,
-    diagnostics=DIAGNOSTICS,
+    options: FrameOptions,
 ):
-    """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
-    arguments static. `diagnostics`: which per-pixel outputs besides the image to return
-    (`DIAGNOSTICS`, in that order; the others are None: a CPU allocates each output fresh every
-    frame). `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
-    cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images in packets
-    (None: not; only where the budget is every sample, so that their samples are never
-    dropped; see `Foveation.fovea_tile_deg`). `lod`: with levels of detail per region
+    """One foveated stereo frame (see the module docstring). Pure; jit with `options` (the
+    `FrameOptions`) static. `gaze` (2, 2): per-eye normalised display coordinates. `lod`: with
+    levels of detail per region
     (`Fidelity.lod`), the `LODTables` of `scene` and `bvh` merged over the levels
     (`render_foveated` prepares them); None otherwise. `shading`: the per-region
     `ShadingClasses` tables of `program_fidelity` (traced values: the reflection depth and
@@ -464,7 +480,11 @@ def foveated_stereo(
     from ..render.internal import pixel_spread_angle
     from ..scene import pixel_sample_positions
 
-    diagnostics = diagnostics_tuple(diagnostics, "foveated_stereo")
+    if not isinstance(options, FrameOptions):
+        raise TypeError(f"foveated_stereo: options must be a FrameOptions, got {type(options).__name__}")
+    spp, jitter, config, budget = options.spp, options.jitter, options.config, options.budget
+    tile, grid = options.tile, options.grid
+    diagnostics = diagnostics_tuple(options.diagnostics, "foveated_stereo")
     if lod is None and lod_needed(foveation) is not None:
         raise ValueError(
             "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
@@ -520,9 +540,6 @@ def foveated_stereo(
         cameras,
         positions,
         sel,
-        spp=spp,
-        h=h,
-        w=w,
         config=config,
         budget=budget,
         tiles=tiles,

@@ -40,6 +40,7 @@ from ._frame import (
     DIAGNOSTICS,
     FoveatedOutputs,
     FoveationStats,
+    FrameOptions,
     diagnostics_tuple,
     foveated_stereo,
     region_view,
@@ -177,11 +178,13 @@ def _rig_shape(rig) -> tuple:
     return rig.eye_width, rig.eye_height, rig.fov_axis, float(rig.fov_deg), offsets
 
 
-def _batch_program(scene, bvh, rig, foveation, lod, shading, head_poses, gazes, raw_keys, **static):
+def _batch_program(scene, bvh, rig, foveation, lod, shading, head_poses, gazes, raw_keys, *, options):
     def frame(xs):
         head_pose, gaze, key = xs
         key = jax.random.wrap_key_data(key)
-        return foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, lod, shading, **static)
+        return foveated_stereo(
+            scene, bvh, rig, head_pose, gaze, key, foveation, lod, shading, options=options
+        )
 
     # One frame after another (lax.map), not vmap: a foveated frame skips the chunks of slots it
     # does not trace with lax.cond, which vmap would turn into a select that runs every chunk.
@@ -322,15 +325,17 @@ class FoveatedRenderer:
     # ---- frames ----
 
     def _static(self, jitter: bool, diagnostics: tuple[str, ...]) -> dict:
-        return {
-            "spp": self.foveation.spp,
-            "jitter": jitter,
-            "config": self.config,
-            "budget": self.budget,
-            "tile": self.tile,
-            "grid": self.grid,
-            "diagnostics": diagnostics,
-        }
+        """The frame program's static arguments (`run_compiled`'s `static`)."""
+        options = FrameOptions(
+            spp=self.foveation.spp,
+            jitter=jitter,
+            config=self.config,
+            budget=self.budget,
+            tile=self.tile,
+            grid=self.grid,
+            diagnostics=diagnostics,
+        )
+        return {"options": options}
 
     def _frame_foveation(self, thresholds) -> Foveation:
         """The program's foveation with the frame's (fovea, periphery) thresholds (traced)."""

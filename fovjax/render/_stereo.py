@@ -24,6 +24,7 @@ sit at `position + R_head @ (eye_centre ± (ipd/2, 0, 0))`.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import equinox as eqx
@@ -128,10 +129,10 @@ class StereoRig(eqx.Module):
         fov_axis: str = "horizontal",
         toe_out_deg: float = TOE_OUT_DEG,
         ipd: float = IPD_M,
-        offsets=((0.0, 0.0), (0.0, 0.0)),
-        eye_centre=(0.0, 0.0, 0.0),
     ) -> StereoRig:
-        """A rig whose head centre is at `position`, looking at `look_at` at zero head pose."""
+        """A rig whose head centre is at `position`, looking at `look_at` at zero head pose, its
+        eyes centred on the head centre with no projection offsets (`with_eye_placement` moves
+        them)."""
         if int(eye_width) <= 0 or int(eye_height) <= 0:
             raise ValueError(f"StereoRig: eye resolution must be positive, got {eye_width}x{eye_height}")
         if fov_axis not in FOV_AXES:
@@ -146,25 +147,39 @@ class StereoRig(eqx.Module):
         pos = np.asarray(position, np.float32)
         if pos.shape != (3,) or not np.isfinite(pos).all():
             raise ValueError(f"StereoRig: position must be 3 finite numbers, got {position}")
-        offsets = np.asarray(offsets, np.float32)
-        if offsets.shape != (2, 2) or not np.isfinite(offsets).all():
-            raise ValueError(
-                f"StereoRig: offsets must be ((x, y) left, (x, y) right), got {offsets.tolist()}"
-            )
-        centre = np.asarray(eye_centre, np.float32)
-        if centre.shape != (3,) or not np.isfinite(centre).all():
-            raise ValueError(f"StereoRig: eye_centre must be 3 finite numbers, got {eye_centre}")
         return cls(
             position=pos,
             rotation=look_at_rotation(position, look_at, up),
             ipd=np.float32(ipd),
             toe_out_deg=np.float32(toe_out_deg),
             fov_deg=np.float32(fov_deg),
-            offsets=offsets,
-            eye_centre=centre,
+            offsets=np.zeros((2, 2), np.float32),
+            eye_centre=np.zeros(3, np.float32),
             eye_width=int(eye_width),
             eye_height=int(eye_height),
             fov_axis=fov_axis,
+        )
+
+    def with_eye_placement(self, *, offsets=None, eye_centre=None) -> StereoRig:
+        """This rig with other per-eye projection-centre `offsets` ((x, y) left, (x, y) right, in
+        `Camera.offset` units: canted or off-axis displays) and/or another `eye_centre` (the
+        eyes' midpoint in the head frame relative to `position`, e.g. (0, 0.1, -0.08) to turn
+        about a neck below and behind the eyes); None keeps the rig's."""
+        if offsets is not None:
+            offsets = np.asarray(offsets, np.float32)
+            if offsets.shape != (2, 2) or not np.isfinite(offsets).all():
+                raise ValueError(
+                    f"StereoRig: offsets must be ((x, y) left, (x, y) right), got {offsets.tolist()}"
+                )
+        if eye_centre is not None:
+            centre = np.asarray(eye_centre, np.float32)
+            if centre.shape != (3,) or not np.isfinite(centre).all():
+                raise ValueError(f"StereoRig: eye_centre must be 3 finite numbers, got {eye_centre}")
+            eye_centre = centre
+        return dataclasses.replace(
+            self,
+            offsets=self.offsets if offsets is None else offsets,
+            eye_centre=self.eye_centre if eye_centre is None else eye_centre,
         )
 
     @classmethod
