@@ -3,24 +3,28 @@ foveation layer (the renderer knows nothing of foveation)."""
 
 from __future__ import annotations
 
-from .foveate import DIAGNOSTICS, Foveation, render_foveated
-from .render import RenderConfig
+import jax
+
+from .foveate import DIAGNOSTICS, DiagnosticsLike, FoveatedFrame, Foveation, GazeLike, render_foveated
+from .render import Frame, HeadPoseLike, RenderConfig, SceneArrays, StereoRig
 from .render import render_stereo as _render_full
+from .scene import Scene
+from .trace import BVH
 
 
 def render_stereo(
-    scene,
-    rig=None,
+    scene: Scene | SceneArrays,
+    rig: StereoRig | None = None,
     *,
-    gaze=None,
-    foveation=None,
-    head_pose=None,
+    gaze: GazeLike | None = None,
+    foveation: Foveation | None = None,
+    head_pose: HeadPoseLike = None,
     spp: int | None = None,
-    key=None,
+    key: jax.Array | None = None,
     config: RenderConfig | None = None,
-    bvh=None,
-    diagnostics=DIAGNOSTICS,
-):
+    bvh: BVH | None = None,
+    diagnostics: DiagnosticsLike = DIAGNOSTICS,
+) -> Frame | FoveatedFrame:
     """Render one stereo frame of the thesis's HMD: both eyes side by side, full or foveated.
 
     Without `foveation` and `gaze` this is the full render (`fovjax.render.render_stereo`); with

@@ -8,8 +8,11 @@ from __future__ import annotations
 import jax
 
 from ..render import TRACE_COUNTS as TRACE_COUNTS  # shared by every entry point
-from ._config import Foveation
-from ._frame import DIAGNOSTICS
+from ..render import HeadPoseLike, RenderConfig, SceneArrays, StereoRig
+from ..scene import LODLevels, Scene
+from ..trace import BVH
+from ._config import Foveation, GazeLike
+from ._frame import DIAGNOSTICS, DiagnosticsLike
 from ._renderer import CENTRE_GAZE, FoveatedFrame, FoveatedRenderer
 from ._renderer import _budget_for as _budget_for  # the budget of every entry point
 from ._renderer import fovea_tile as fovea_tile
@@ -17,17 +20,17 @@ from ._renderer import uncapped as uncapped
 
 
 def render_foveated(
-    scene,
-    rig=None,
+    scene: Scene | SceneArrays,
+    rig: StereoRig | None = None,
     *,
-    gaze=CENTRE_GAZE,
+    gaze: GazeLike = CENTRE_GAZE,
     foveation: Foveation | None = None,
-    head_pose=None,
+    head_pose: HeadPoseLike = None,
     key: jax.Array | None = None,
-    config=None,
-    bvh=None,
-    lod_levels=None,
-    diagnostics=DIAGNOSTICS,
+    config: RenderConfig | None = None,
+    bvh: BVH | None = None,
+    lod_levels: LODLevels | None = None,
+    diagnostics: DiagnosticsLike = DIAGNOSTICS,
 ) -> FoveatedFrame:
     """Render a foveated stereo frame (thesis chapter 4; the steps in `fovjax.foveate._frame`).
 

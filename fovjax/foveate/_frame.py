@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import NamedTuple
+from collections.abc import Collection
+from typing import NamedTuple, TypeAlias, cast
 
 import equinox as eqx
 import jax
@@ -42,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..render import RenderConfig
 from ._config import max_region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import blur_and_blend, fill_blanks
@@ -61,9 +63,11 @@ SAMPLING_STREAM = 0x5A3
 DIAGNOSTICS = ("traced", "region", "eccentricity", "prefill")
 # What `region_view` (the debug view) reads.
 DEBUG_VIEW_DIAGNOSTICS = ("traced", "region", "prefill")
+# Which of them to return: names of `DIAGNOSTICS` (any order), or one name.
+DiagnosticsLike: TypeAlias = str | Collection[str]
 
 
-def diagnostics_tuple(diagnostics, where: str = "render_foveated") -> tuple[str, ...]:
+def diagnostics_tuple(diagnostics: DiagnosticsLike, where: str = "render_foveated") -> tuple[str, ...]:
     """`diagnostics` (names of `DIAGNOSTICS`, any order, or one name) as the canonical static
     tuple (`DIAGNOSTICS`' order: the same set is the same compiled program)."""
     if isinstance(diagnostics, str):
@@ -99,7 +103,7 @@ class FrameOptions:
 
     spp: int
     jitter: bool
-    config: object  # fovjax.render.RenderConfig (hashable)
+    config: RenderConfig
     budget: int
     tile: tuple[int, int] | None = None
     grid: int | None = None
@@ -183,13 +187,14 @@ def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
     in locality order (see the module docstring). `covered` (2, H, W): pixels traced as an
     image tile, left out of the slots (counted in `counts` all the same)."""
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
-    classes, region = zip(*(sample_classes(ecc[i], foveation, keys[i]) for i in range(2)), strict=True)
-    classes, region = jnp.stack(classes), jnp.stack(region)  # (2, S, H, W), (2, H, W)
+    per_eye = [sample_classes(ecc[i], foveation, keys[i]) for i in range(2)]
+    classes = jnp.stack([c for c, _ in per_eye])  # (2, S, H, W)
+    region = jnp.stack([r for _, r in per_eye])  # (2, H, W)
     _, spp, h, w = classes.shape
     perm = jnp.asarray(locality_order(h, w))
     listed = classes if covered is None else jnp.where(covered[:, None], SKIPPED, classes)
     local = listed.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
-    order, counts, rank = compaction_order(local, with_rank=True)
+    order, counts, rank = cast(tuple[Array, Array, Array], compaction_order(local, with_rank=True))
     n_slots = jnp.minimum(counts[MANDATORY] + counts[OPTIONAL], budget)
     if covered is not None:  # the tile's samples: counted, not listed
         in_tile = covered[:, None]
@@ -337,7 +342,6 @@ def trace_selection(
 
     if classes is None:
         tiles = tuple(t._replace(shading_class=None) for t in tiles)
-        class_at = None
     return radiance_in_chunks(
         scene,
         bvh,
@@ -347,7 +351,7 @@ def trace_selection(
         config=config,
         tiles=tiles,
         classes=classes,
-        class_at=class_at,
+        class_at=None if classes is None else class_at,
         scale=scale,
     )
 
@@ -508,16 +512,16 @@ def foveated_stereo(
     # the image tiles slice the full render's screen of them.
     frame_key = key if jitter else None
     positions = functools.partial(positions_at, frame_key, spp=spp, h=h, w=w)
-    tiles = ()
+    tiles: tuple = ()  # ImageTiles
     if tile is not None or grid is not None:
         screen = pixel_sample_positions(w, h, spp, frame_key)
-    if grid is not None:
-        tiles += (grid_rays(cameras, screen, sel, grid),)
-    if tile is not None:
-        ft = tile_rays(cameras, screen, sel, origins, tile)
-        if grid is not None:  # the grid's pixels are the grid tile's
-            ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
-        tiles += (ft,)
+        if grid is not None:
+            tiles += (grid_rays(cameras, screen, sel, grid),)
+        if tile is not None:
+            ft = tile_rays(cameras, screen, sel, origins, tile)
+            if grid is not None:  # the grid's pixels are the grid tile's
+                ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
+            tiles += (ft,)
     size = min(config.chunk_size, budget)
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
@@ -615,17 +619,18 @@ def region_view(outputs: FoveatedOutputs, *, dim: float = 0.12) -> Float[Array, 
     a traced sample in their rendered colour, the others in a dim colour of their region
     (periphery yellow, outside red) — and the fovea's edge drawn green. Needs the outputs of
     `DEBUG_VIEW_DIAGNOSTICS`."""
-    missing = [n for n in DEBUG_VIEW_DIAGNOSTICS if getattr(outputs, n) is None]
-    if missing:
+    traced, region, prefill = outputs.traced, outputs.region, outputs.prefill  # DEBUG_VIEW_DIAGNOSTICS
+    if traced is None or region is None or prefill is None:
+        missing = [n for n in DEBUG_VIEW_DIAGNOSTICS if getattr(outputs, n) is None]
         raise ValueError(
             f"region_view: the frame was rendered without the diagnostics {missing}; render it with "
             f"diagnostics including {DEBUG_VIEW_DIAGNOSTICS}"
         )
     colours = jnp.array([[0.0, 0.0, 0.0], [1.0, 0.8, 0.1], [1.0, 0.15, 0.1]], jnp.float32)
-    traced = jnp.any(outputs.traced, axis=1)[..., None]
-    shown = jnp.where(traced, outputs.prefill, dim * colours[outputs.region])
+    any_traced = jnp.any(traced, axis=1)[..., None]
+    shown = jnp.where(any_traced, prefill, dim * colours[region])
     # One-pixel ring where the region changes from fovea to periphery.
-    fovea = outputs.region == 0
+    fovea = region == 0
     edge = fovea & ~(
         jnp.roll(fovea, 1, 1) & jnp.roll(fovea, -1, 1) & jnp.roll(fovea, 1, 2) & jnp.roll(fovea, -1, 2)
     )

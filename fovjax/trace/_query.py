@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._bvh import BVH
+from ._bvh import BVH, FacesLike, VerticesLike
 from ._order import inverse_order, spatial_order
 from ._packet import traverse_packets
 from ._traverse import Nodes, Traversal, traverse
@@ -99,7 +99,13 @@ def _per_ray(x, n):
     return jnp.broadcast_to(x, (n,)) if x.ndim == 0 else x
 
 
-def hit_geometry(vertices, faces, prim, origins, directions):
+def hit_geometry(
+    vertices: VerticesLike,
+    faces: FacesLike,
+    prim: Int[ArrayLike, "*batch"],
+    origins: Float[ArrayLike, "*batch 3"],
+    directions: Float[ArrayLike, "*batch 3"],
+) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"], Float[Array, "*batch"]]:
     """Differentiable (t, u, v) of rays against the faces `prim` (-1: miss → t = inf, u = v = 0).
 
     Möller–Trumbore in closed form: smooth in vertices, origins and directions. Visibility (which
@@ -111,7 +117,7 @@ def hit_geometry(vertices, faces, prim, origins, directions):
     level gave that region's samples differing in the last bit
     (tests/test_fidelity_texture_lod.py), and the per-region guarantees are bit-exact.
     """
-    prim = jax.lax.stop_gradient(prim)
+    prim = jax.lax.stop_gradient(jnp.asarray(prim))
     hit = prim >= 0
     tri = jnp.asarray(vertices)[jnp.asarray(faces)[jnp.where(hit, prim, 0)]]
     p0, p1, p2 = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
@@ -240,7 +246,7 @@ def _warp_installed() -> bool:
 
     return (
         importlib.util.find_spec("warp") is not None
-        and importlib.util.find_spec(__package__ + "._warp") is not None
+        and importlib.util.find_spec(f"{__package__}._warp") is not None
     )
 
 
@@ -652,7 +658,14 @@ def occluded(
     return (prim >= 0).reshape(batch)
 
 
-def brute_force_closest_hit(vertices, faces, origins, directions, tmin=0.0, tmax=np.inf):
+def brute_force_closest_hit(
+    vertices: VerticesLike,
+    faces: FacesLike,
+    origins: Float[ArrayLike, "*batch 3"],
+    directions: Float[ArrayLike, "*batch 3"],
+    tmin: float | Float[ArrayLike, "*batch"] = 0.0,
+    tmax: float | Float[ArrayLike, "*batch"] = np.inf,
+) -> tuple[Float[np.ndarray, " n"], Int[np.ndarray, " n"], Float[np.ndarray, "n F"]]:
     """Reference: every ray against every triangle, float64 Möller–Trumbore with an
     inclusive edge test, on the host. Returns (t, prim, t_all) with t = inf, prim = -1 on a
     miss and t_all the (rays, faces) distances (inf where a face is missed). For small meshes."""
