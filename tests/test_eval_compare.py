@@ -259,3 +259,56 @@ def test_metric_summary_needs_two_finite_samples():
     assert same["psnr"] == same["psnr_lo"] == same["psnr_hi"] == math.inf
     single = _summarise("flip", [0.01])
     assert single["flip"] == 0.01 and math.isnan(single["flip_lo"]) and math.isnan(single["flip_hi"])
+
+
+def test_methods_side_by_side_in_one_table_and_chart(scene_rig, tmp_path, capsys):
+    """`methods=`: every method × threshold pair in one table (the method per row, new rays and
+    reused pixels per frame) and one chart of new rays across methods; the temporal method
+    measured after a frame of history reuses pixels and traces fewer new rays than the full
+    frame; the CLI's --methods is the same sweep."""
+    from fovjax.cli import main
+
+    scene, rig = scene_rig
+    methods = ["thesis", "guenter2012", "weier2016"]
+    result = compare_thresholds(
+        scene,
+        rig,
+        thresholds=[(5, 10)],
+        spp=[1],
+        gazes=GAZES,
+        keys=KEYS,
+        config=CONFIG,
+        criterion=("psnr", 0.0),
+        perceptual=False,
+        progress=False,
+        methods=methods,
+    )
+    assert [r["method"] for r in result.records] == methods
+    assert [r["config"] for r in result.records] == [f"{m} 5/10 spp1" for m in methods]
+    full_primary = 2 * EYE_W * EYE_H
+    by_method = {r["method"]: r for r in result.records}
+    for r in result.records:
+        assert FIELDS <= set(r) and r["n"] == len(GAZES) * len(KEYS)
+        assert 0 < r["new_rays_per_frame"] < full_primary
+    assert by_method["thesis"]["reused_pixels_per_frame"] == 0
+    assert by_method["guenter2012"]["reused_pixels_per_frame"] == 0
+    assert by_method["weier2016"]["reused_pixels_per_frame"] > 0
+    paths = result.write(tmp_path / "api")
+    assert paths["cost_accuracy_new_rays_spp1"].is_file()
+    assert [r["method"] for r in read_csv(paths["csv"])] == methods
+    with pytest.raises(ValueError, match="method must be one of"):
+        compare_thresholds(scene, rig, methods=["nope"], progress=False, perceptual=False)
+    with pytest.raises(ValueError, match="take neither shard"):
+        compare_thresholds(scene, rig, methods=["weier2016"], shard=True, progress=False, perceptual=False)
+
+    out = tmp_path / "cli"
+    argv = ["compare", "--scene", "cornell_box", "--thresholds", "5,10", "--spp", "1"]
+    argv += ["--width", str(EYE_W), "--height", str(EYE_H), "--gazes", "0.5,0.5", "0.3,0.4"]
+    argv += ["--keys", "0", "1", "--criterion", "psnr", "--threshold", "0", "--max-depth", "0"]
+    argv += ["--no-perceptual", "--methods", *methods, "-o", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert all(f"{m} 5/10 spp1" in text for m in methods)
+    assert [r["method"] for r in read_csv(out / "comparison.csv")] == methods
+    assert (out / "cost_accuracy_new_rays_spp1.png").is_file()
+    assert main([*argv[:-2], "--methods", "nope", "-o", str(out)]) != 0

@@ -490,6 +490,8 @@ def test_config_and_argument_errors(oracle):
         RenderConfig(background=(1.0, 2.0))
     with pytest.raises(ValueError, match="backend"):
         RenderConfig(backend="optix")
+    with pytest.raises(ValueError, match="hits must be one of"):
+        RenderConfig(hits="embree")
     with pytest.raises(ValueError, match="packet"):
         RenderConfig(packet=(8, 0))
     camera = fovjax.Camera.look_at((0.0, 1.0, 6.0), (0.0, 1.0, 0.0), width=SIZE, height=SIZE)
@@ -500,6 +502,40 @@ def test_config_and_argument_errors(oracle):
     other = build_bvh(fovjax.scenes.cornell_box())
     with pytest.raises(ValueError, match="triangles"):
         render(scene, camera, bvh=other)
+
+
+def test_hits_from_the_backend_equal_the_recomputed_ones_and_differentiate_alike(oracle):
+    """RenderConfig.hits="backend" takes t, u, v from the ray query instead of recomputing them
+    from the vertices: the same faces, the same values up to float rounding, and the same
+    derivatives with respect to the scene's vertices (the closed form either way)."""
+    from fovjax.render._integrator import _trace_primary
+
+    scene, bvh = oracle
+    arrays = scene_arrays(scene)
+    camera = fovjax.Camera.look_at((0.0, 1.0, 6.0), (0.0, 1.0, 0.0), width=SIZE, height=SIZE)
+    o, d, _ = camera.sample_rays(1, None)
+    alive = jnp.ones(o.shape[:-1], bool)
+
+    def t_of(vertices, hits):
+        a = dataclasses.replace(arrays, vertices=vertices)
+        hit = _trace_primary(a, bvh, o, d, alive, packet=None, backend="auto", hits=hits)
+        return hit.t, (hit.prim, hit.u, hit.v)
+
+    vertices = jnp.asarray(arrays.vertices)
+    tangent = jnp.asarray(np.random.default_rng(0).normal(size=vertices.shape), jnp.float32)
+    out = {
+        hits: jax.jit(lambda v, dv, hits=hits: jax.jvp(lambda x: t_of(x, hits), (v,), (dv,), has_aux=True))(
+            vertices, tangent
+        )
+        for hits in ("recomputed", "backend")
+    }
+    (t_r, dt_r, (prim_r, u_r, v_r)), (t_b, dt_b, (prim_b, u_b, v_b)) = out["recomputed"], out["backend"]
+    assert np.array_equal(prim_r, prim_b) and (np.asarray(prim_r) >= 0).any()
+    hit = np.asarray(prim_r) >= 0
+    for a, b in ((t_r, t_b), (u_r, u_b), (v_r, v_b)):  # float32 rounding of one intersection test
+        np.testing.assert_allclose(np.asarray(a)[hit], np.asarray(b)[hit], rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(dt_r)[hit], np.asarray(dt_b)[hit], rtol=1e-4, atol=1e-5)
+    assert np.isinf(np.asarray(t_b)[~hit]).all()
 
 
 def test_png_is_tone_mapped_srgb_and_exr_is_linear(tmp_path):

@@ -416,3 +416,33 @@ def test_bad_input_is_a_clear_value_error(scene, rig, kwargs, message):
     kwargs.setdefault("gaze", f"replay:{SCANPATH}")
     with pytest.raises(ValueError, match=re.escape(message)):
         session(scene, rig, **kwargs)
+
+
+def test_temporal_method_carries_its_history_and_resets_on_tracking_loss(scene, rig):
+    """Weier et al. 2016 in a session: the history runs from frame to frame (pixels reused
+    while tracking is good, fewer new rays than the full frame), is reset exactly where
+    tracking becomes lost (seen through a spy on the renderer), and one program serves it."""
+    calls = []
+    real = foveate.FoveatedRenderer.render
+
+    def spy(self, *args, **kwargs):
+        calls.append(bool(kwargs.get("reset", False)))
+        return real(self, *args, **kwargs)
+
+    fov = Foveation(fovea_deg=10.0, periphery_deg=20.0, method="weier2016")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(foveate.FoveatedRenderer, "render", spy)
+        result = session(
+            scene, rig, gaze=f"replay:{DROPOUT}", frames=34, fps=10, policy=POLICY, foveation=fov
+        )
+    states = result.states()
+    assert "ok" in states and states.count("lost") >= 2
+    entered_lost = [s == "lost" and (i == 0 or states[i - 1] != "lost") for i, s in enumerate(states)]
+    assert calls == entered_lost
+    every = 2 * EYE_W * EYE_H
+    for i, f in enumerate(result.frames):
+        if f.tracking_state == "lost":  # the whole display is foveal: every pixel traced
+            assert f.reused_pixels == 0 and f.primary_rays == every
+        elif i > 0 and states[i - 1] == "ok":
+            assert f.reused_pixels > 0 and f.primary_rays < every
+    assert sum(f.compile_s > 0 for f in result.frames) == 1

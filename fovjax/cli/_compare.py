@@ -84,6 +84,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run on N processes (hosts) with jax.distributed: the same command on every host, "
         "ID 0..N-1, HOST:PORT the address of process 0; implies --shard, process 0 writes the results",
     )
+    p.add_argument(
+        "--methods",
+        nargs="+",
+        default=["thesis"],
+        help="foveation methods to sweep with every threshold pair (fovjax.foveate.METHODS: thesis, "
+        "guenter2012, weier2016); one table and one chart across them",
+    )
     p.add_argument("-o", "--output", default="out/compare")
     cli.add_regions(p)
     p.set_defaults(func=run)
@@ -115,6 +122,14 @@ def validate(args) -> None:
     if args.fidelity is not None:
         cli.choice(args.fidelity, "--fidelity", ("auto",))
     cli.number(args.fidelity_threshold, "--fidelity-threshold (FLIP added per ring)", ge=0.0, le=1.0)
+    from fovjax.foveate import METHODS
+
+    for method in args.methods:
+        cli.choice(method, "--methods", tuple(METHODS))
+    if set(args.methods) != {"thesis"} and (args.shard or args.distributed or args.fidelity):
+        raise cli.UsageError(
+            "--methods other than thesis: --shard, --distributed and --fidelity are the thesis's method's"
+        )
     cli.output(args.output, "-o", directory=True)
     # Installed extras last: every row of tests/test_bad_inputs.py answers the same without them.
     if args.criterion == "flip" and importlib.util.find_spec("flip_evaluator") is None:
@@ -164,13 +179,15 @@ def run(args) -> int:
         shard=args.shard,
         fidelity=args.fidelity,
         plan_criterion=("flip", args.fidelity_threshold),
+        methods=args.methods,
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them
         return 0
     with cli.deferred_interrupt():
         paths = result.write(args.output)
         cli.wrote(*paths.values())
-    cols = ["config", "rays_per_frame", "ms_per_frame", "speedup", "psnr", "ssim", "flip", "jod", "pareto"]
+    cols = ["config", "rays_per_frame", "new_rays_per_frame", "ms_per_frame", "speedup"]
+    cols += ["psnr", "ssim", "flip", "jod", "pareto"]
     cols = [c for c in cols if c in result.records[0]]
     print("  ".join(f"{c:>14s}" for c in cols))
     for r in result.records:

@@ -75,6 +75,16 @@ class Comparison:
                 threshold=threshold,
                 title=f"rays per frame against {metric}, SPP {spp}",
             )
+            if any(r.get("method", "thesis") != "thesis" for r in rows):  # methods side by side
+                paths[f"cost_accuracy_new_rays_spp{spp}"] = plot_cost_accuracy(
+                    rows,
+                    out / f"cost_accuracy_new_rays_spp{spp}.png",
+                    cost="new_rays_per_frame",
+                    accuracy=metric,
+                    sense=_sense(metric),
+                    threshold=threshold,
+                    title=f"new primary rays per frame against {metric} by method, SPP {spp}",
+                )
             metrics = [m for m in ("psnr", "ssim", "flip", "jod") if m in rows[0]]
             paths[f"bars_spp{spp}"] = plot_metric_bars(
                 rows, out / f"bars_spp{spp}.png", metrics=["speedup", *metrics], title=f"SPP {spp}"
@@ -138,6 +148,7 @@ def compare_thresholds(
     devices: Sequence | None = None,
     fidelity: str | None = None,
     plan_criterion: tuple[str, float] = ("flip", 0.01),
+    methods: Sequence = ("thesis",),
 ) -> Comparison:
     """Compare fovea thresholds: cost against image error for every configuration.
 
@@ -174,6 +185,12 @@ def compare_thresholds(
             foveation) and measures it: a record labelled "... planned" with `planned` True and the
             plan in `fidelity` (plain records: `planned` False, `fidelity` "full").
         plan_criterion: the criterion of those plans.
+        methods: the foveation methods to sweep (names of `fovjax.foveate.METHODS` or method
+            instances; default the thesis's): every method × threshold pair × spp, recorded per
+            row (`method`, with `new_rays_per_frame` and `reused_pixels_per_frame`). A temporal
+            method (`Weier2016`) is measured on each still frame after one frame of history
+            of the same view (a reset, then the frame with the next key): its steady state on
+            a still view, where it reuses the most.
         regions: the region reading (`fovjax.foveate.with_regions`, recorded per row): "angle"
             (fovjax's exact-angle regions, the default) or "thesis" (the thesis's Table 2
             reading; the one under which the thesis levels compare like-for-like with its
@@ -198,6 +215,16 @@ def compare_thresholds(
     from ..render import RenderConfig
     from ._plan import _check_criterion, plan_fidelity
 
+    methods = [Foveation(method=m).method for m in methods]  # names checked by Foveation
+    if not methods:
+        raise ValueError("compare_thresholds: methods is empty; expected at least one method name")
+    others = [m.name for m in methods if m.name != "thesis"]
+    if others and (shard or fidelity is not None or rule != "either"):
+        raise ValueError(
+            f"compare_thresholds: methods {others} take neither shard, fidelity nor a rule "
+            f"(got shard={shard}, fidelity={fidelity!r}, rule={rule!r}); those are the thesis's"
+        )
+
     if regions not in REGION_READINGS:
         raise ValueError(f"compare_thresholds: regions {regions!r}: expected one of {REGION_READINGS}")
     if fidelity not in (None, "auto"):
@@ -214,7 +241,7 @@ def compare_thresholds(
     if criterion[0] == "flip" and not use_flip:
         raise MissingExtraError("the FLIP criterion needs flip-evaluator: pip install 'fovjax[flip]'")
     gazes = [np.broadcast_to(np.asarray(g, np.float32).reshape(-1, 2), (2, 2)) for g in gazes]
-    configs = list(itertools.product(spp, thresholds, models))
+    configs = list(itertools.product(spp, thresholds, models, methods))
     total = len(spp) * len(keys) + len(configs) * len(gazes) * len(keys)
     bar = None
     if progress:
@@ -269,15 +296,21 @@ def compare_thresholds(
                 (batch.images[i], batch.eccentricity[i], batch.sample_mask[i], batch.rays[i])
                 for i in range(len(frames))
             ]
+            new_rays, reused = [int(x) for x in batch.primary_rays], [0] * len(frames)
             seconds = [batch.ms_per_frame / 1000] * len(frames)
         else:
-            rendered, seconds = [], []
+            rendered, seconds, new_rays, reused = [], [], [], []
+            temporal = fov.method.temporal
             for g, k in frames:
+                if temporal:  # one frame of history of this view (another key), then the frame
+                    renderer.render(g, key=jax.random.key(k + 1), reset=True)
                 frame = renderer.render(g, key=jax.random.key(k))
-                if frame.stats.compile_seconds > 0:
+                if frame.stats.compile_seconds > 0 and not temporal:
                     frame = renderer.render(g, key=jax.random.key(k))
                 rendered.append((frame.image, frame.eccentricity, frame.sample_mask, frame.stats.rays))
                 seconds.append(frame.stats.render_seconds)
+                new_rays.append(frame.stats.primary_rays)
+                reused.append(frame.foveation.reused)
         for (g, k), (image, eccentricity, sample_mask, n_rays), t in zip(
             frames, rendered, seconds, strict=True
         ):
@@ -302,6 +335,8 @@ def compare_thresholds(
             "config": label,
             **record_fields,
             "rays_per_frame": float(statistics.mean(rays)),
+            "new_rays_per_frame": float(statistics.mean(new_rays)),
+            "reused_pixels_per_frame": float(statistics.mean(reused)),
             "ms_per_frame": ms,
             "speedup": full[s]["ms_per_frame"] / ms,
             "ray_reduction": 1 - statistics.mean(rays) / full[s]["rays_per_frame"],
@@ -326,13 +361,18 @@ def compare_thresholds(
         rings[label] = dataclasses.replace(widest, mean_error=np.nanmean(np.stack(errors), axis=0))
         ring_rays[label] = list(np.mean(np.stack(ring_rays_padded), axis=0))
 
-    for s, (fovea, periphery), model in configs:
+    for s, (fovea, periphery), model, method in configs:
         kwargs = {} if model is None else {"acuity": model}
-        fov = Foveation(fovea_deg=float(fovea), periphery_deg=float(periphery), spp=s, rule=rule, **kwargs)
+        fov = Foveation(
+            fovea_deg=float(fovea), periphery_deg=float(periphery), spp=s, rule=rule, method=method, **kwargs
+        )
         fov = with_regions(fov, regions, rig.eye_height)
         model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
         label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
+        if len(methods) > 1 or method.name != "thesis":
+            label = f"{method.name} {label}"
         fields = {
+            "method": method.name,
             "fovea_deg": float(fovea),
             "periphery_deg": float(periphery),
             "spp": s,

@@ -4,9 +4,10 @@ budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, section
 `FoveatedRenderer(scene, rig, foveation, config)` prepares a scene once and renders frames,
 batches and their full references for given gaze, head pose, key and thresholds (the way to
 render frames in a loop); `render_foveated` renders one frame through a renderer made for it.
-`check_gaze(gaze)` is the per-eye gaze check. The frame program's parts (`foveated_stereo`,
-`budget_for`, `program_fidelity`, the sampling steps) are in `fovjax.foveate.internal`, for
-the packages built on this one."""
+`check_gaze(gaze)` is the per-eye gaze check. `Foveation(method=...)` chooses the foveation
+method (`METHODS`: the thesis's, `Guenter2012`, `Weier2016`), each with its paper's citation.
+The frame program's parts (`foveated_stereo`, `budget_for`, `program_fidelity`, the sampling
+steps) are in `fovjax.foveate.internal`, for the packages built on this one."""
 
 from . import internal as internal
 from ._api import FoveatedFrame as FoveatedFrame
@@ -31,6 +32,11 @@ from ._fill import fill_and_blur as fill_and_blur
 from ._frame import DEBUG_VIEW_DIAGNOSTICS as DEBUG_VIEW_DIAGNOSTICS
 from ._frame import DIAGNOSTICS as DIAGNOSTICS
 from ._frame import DiagnosticsLike as DiagnosticsLike
+from ._methods import METHODS as METHODS
+from ._methods import Citation as Citation
+from ._methods import Guenter2012 as Guenter2012
+from ._methods import Thesis as Thesis
+from ._methods import Weier2016 as Weier2016
 from ._renderer import FoveatedRenderer as FoveatedRenderer
 from ._sampling import FOVEA as FOVEA
 from ._sampling import OUTSIDE as OUTSIDE
@@ -79,6 +85,11 @@ __all__ = [
     "DEBUG_VIEW_DIAGNOSTICS",
     "DIAGNOSTICS",
     "DiagnosticsLike",
+    "METHODS",
+    "Citation",
+    "Guenter2012",
+    "Thesis",
+    "Weier2016",
     "FoveatedRenderer",
     "FOVEA",
     "OUTSIDE",

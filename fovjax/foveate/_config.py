@@ -13,6 +13,8 @@ import numpy as np
 from jax.core import Tracer
 from jaxtyping import Array, ArrayLike, Float, Real
 
+from ._methods._catalog import as_method
+
 # The thesis's (fovea, periphery) pairs in degrees (section 5.1, tables 2-5).
 THESIS_PAIRS: tuple[tuple[float, float], ...] = (
     (5.0, 10.0),
@@ -291,6 +293,13 @@ class Foveation(eqx.Module):
       level of detail and samples per pixel per region (regions move with the gaze without a
       recompile; reflection depth, shadow mode and texture level per region are traced tables
       (`program_fidelity`: a new one compiles nothing); a region's `spp` and `lod` are static).
+    - `method`: the foveation method, a name of `fovjax.foveate.METHODS` or an instance of
+      one with its parameters: "thesis" (default: the frame above), "guenter2012" (three
+      nested layers at decreasing resolution, magnified and blended, `Guenter2012`),
+      "weier2016" (sparse tracing plus reprojection of the previous frames' samples,
+      `Weier2016`). Each method
+      cites its paper (`Foveation().method.citation`); the options above that only the
+      thesis's frame has (`fidelity`, budgets, tiles) are refused with another method.
     """
 
     # Floats, or traced under jit (a new pair compiles nothing).
@@ -310,6 +319,8 @@ class Foveation(eqx.Module):
     fovea_tile_deg: float | None = eqx.field(static=True, default=None)
     grid_tile: bool = eqx.field(static=True, default=False)
     fidelity: tuple | None = eqx.field(static=True, default=None)
+    # The method (`fovjax.foveate.METHODS`; default the thesis's): a name or a method instance.
+    method: object = eqx.field(static=True, default="thesis", converter=as_method)
 
     def __check_init__(self):
         traced = isinstance(self.fovea_deg, Tracer) or isinstance(self.periphery_deg, Tracer)
@@ -376,6 +387,20 @@ class Foveation(eqx.Module):
                     )
         if self.ray_budget is not None and self.ray_budget < 1:
             raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")
+        if self.method.name != "thesis":  # options of the thesis's frame program only
+            thesis_only = {
+                "fidelity": self.fidelity,
+                "ray_budget": self.ray_budget,
+                "max_periphery_deg": self.max_periphery_deg,
+                "fovea_tile_deg": self.fovea_tile_deg,
+                "grid_tile": self.grid_tile or None,
+            }
+            given = [k for k, v in thesis_only.items() if v is not None]
+            if given:
+                raise ValueError(
+                    f"Foveation: {', '.join(given)} apply to the thesis's method only, not to "
+                    f"method {self.method.name!r} (expected None)"
+                )
 
     @classmethod
     def thesis(cls, pair: int | tuple[float, float] = 0, **kwargs: Any) -> Foveation:

@@ -602,7 +602,8 @@ def foveated_stereo(
 class FoveationStats:
     """Per-frame foveation figures: primary rays traced per region (fovea, periphery,
     outside), the samples the plan asked for (mandatory + probabilistic), the static budget,
-    the budget slots left empty (padding) and samples dropped because the budget was full."""
+    the budget slots left empty (padding), samples dropped because the budget was full, and
+    pixels shown from earlier frames' samples (`reused`: a temporal method's)."""
 
     primary_by_region: tuple[int, int, int]
     mandatory: int
@@ -612,6 +613,8 @@ class FoveationStats:
     dropped: int
     fovea_deg: float
     periphery_deg: float
+    # Pixels shown from earlier frames' samples (a temporal method, `Foveation.method`; else 0).
+    reused: int = 0
 
 
 def region_view(outputs: FoveatedOutputs, *, dim: float = 0.12) -> Float[Array, "H W2 3"]:

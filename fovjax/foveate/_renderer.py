@@ -149,6 +149,7 @@ class FoveatedFrame:
     regions: np.ndarray | None
     eccentricity: np.ndarray | None
     outputs: FoveatedOutputs
+    history: object = None  # a temporal method's history after this frame (else None)
 
     @property
     def debug_view(self) -> np.ndarray:
@@ -190,6 +191,13 @@ def _levels_of_detail(scene, arrays, bvh, foveation, rig, levels, top: int):
         )
     check_levels(foveation, levels)
     return prepare_levels(scene, arrays, bvh, levels, top, _pixels_per_degree(rig))
+
+
+class _History:
+    """The history a temporal foveation method carries from frame to frame (None: none)."""
+
+    def __init__(self):
+        self.value = None
 
 
 def _rig_shape(rig) -> tuple:
@@ -295,6 +303,9 @@ class FoveatedRenderer:
 
         self.rig = rig
         self.foveation = foveation
+        # A temporal method's history (`Foveation.method`): none yet. A holder, so that the
+        # variants `with_rig` makes (the same renderer, moved) carry one history.
+        self._history = _History()
         self.diagnostics = diagnostics_tuple(diagnostics, "FoveatedRenderer")
         # A bad per-region depth fails before any work; depths and shadow modes are traced tables.
         self._program_foveation, self._shading = program_fidelity(foveation, self.config)
@@ -330,10 +341,16 @@ class FoveatedRenderer:
         other._configure(self.rig, foveation, self.diagnostics if diagnostics is None else diagnostics)
         return other
 
+    def reset_history(self) -> None:
+        """Forget the history a temporal method (`Weier2016`) carries from frame to frame: the
+        next frame starts from none (for the thesis's method, nothing changes)."""
+        self._history.value = None
+
     def with_rig(self, rig: StereoRig) -> FoveatedRenderer:
         """This renderer with the rig moved (its position, rotation, IPD, toe-out: traced values);
         the eye size, field of view and offsets must be this rig's (the budget, tiles and levels
-        of detail are planned from them)."""
+        of detail are planned from them). A temporal method's history is shared with this
+        renderer: frames of either continue it."""
         if _rig_shape(rig) != _rig_shape(self.rig):
             raise ValueError(
                 f"with_rig: the rig's (eye width, eye height, fov axis, fov, offsets) {_rig_shape(rig)} "
@@ -376,6 +393,7 @@ class FoveatedRenderer:
         key: jax.Array | None = None,
         thresholds: tuple[float, float] | None = None,
         diagnostics: DiagnosticsLike | None = None,
+        reset: bool = False,
     ) -> FoveatedFrame:
         """One foveated stereo frame.
 
@@ -389,6 +407,9 @@ class FoveatedRenderer:
             thresholds: this frame's (fovea_deg, periphery_deg) (default the foveation's);
                 traced, within `Foveation.max_periphery_deg`.
             diagnostics: this frame's per-pixel outputs (default the renderer's).
+            reset: a method that keeps a history of earlier frames (`Weier2016`) starts this
+                frame from none (a scene change, a tracking loss); the renderer keeps each
+                frame's history for the next (`reset_history` clears it too).
 
         Returns:
             The `FoveatedFrame`.
@@ -410,11 +431,20 @@ class FoveatedRenderer:
         angles = np.asarray(head_pose_angles(head_pose), np.float32)
         arrays, bvh, rig = self._scene_inputs
         lod, shading = self._tables
-        frame_args = jax.tree.map(jnp.asarray, (angles, gaze, key, foveation))
-        args = (arrays, bvh, rig, *frame_args, lod, shading)
-        out, compile_s, render_s = run_compiled(
-            "foveated", foveated_stereo, args, self._static(jitter, diagnostics)
-        )
+        reused = 0
+        if foveation.method.name == "thesis":
+            frame_args = jax.tree.map(jnp.asarray, (angles, gaze, key, foveation))
+            args = (arrays, bvh, rig, *frame_args, lod, shading)
+            out, compile_s, render_s = run_compiled(
+                "foveated", foveated_stereo, args, self._static(jitter, diagnostics)
+            )
+        else:  # another method's frame program (`fovjax.foveate._methods`)
+            from ._methods._render import render_with_method
+
+            frame_args = jax.tree.map(jnp.asarray, (angles, gaze, key))
+            out, reused, compile_s, render_s = render_with_method(
+                self, foveation, frame_args, jitter=jitter, diagnostics=diagnostics, reset=reset
+            )
         image = np.asarray(out.image)
         stats = frame_stats(
             out.counts,
@@ -436,6 +466,7 @@ class FoveatedRenderer:
             dropped=int(out.dropped),
             fovea_deg=float(foveation.fovea_deg),
             periphery_deg=float(foveation.periphery_deg),
+            reused=reused,
         )
         if fstats.dropped:
             warnings.warn(
@@ -452,6 +483,7 @@ class FoveatedRenderer:
             regions=None if out.region is None else np.asarray(out.region),
             eccentricity=None if out.eccentricity is None else np.asarray(out.eccentricity),
             outputs=out,
+            history=self._history.value,
         )
 
     def render_full(self, *, head_pose: HeadPoseLike = None, key: jax.Array | None = None) -> Frame:
@@ -517,6 +549,11 @@ class FoveatedRenderer:
         from ..render import frame_mesh
         from ..render import internal as render_internal
 
+        if self.foveation.method.name != "thesis":
+            raise ValueError(
+                f"render_batch: foveation method {self.foveation.method.name!r} renders frames one "
+                "after another (FoveatedRenderer.render); batches are the thesis's method's"
+            )
         n = render_internal.batch_size({"gazes": gazes, "keys": keys, "head_poses": head_poses})
 
         def gaze_of(g):

@@ -12,6 +12,8 @@ from ..trace import BACKENDS
 # exception colour ("bad color") (1, 0, 1).
 THESIS_BACKGROUND = (0.34, 0.55, 0.85)
 MAGENTA = (1.0, 0.0, 1.0)
+# Where a hit's t, u, v come from (`RenderConfig.hits`).
+HITS = ("recomputed", "backend")
 
 
 def _rgb(name: str, value) -> tuple[float, float, float]:
@@ -57,6 +59,13 @@ class RenderConfig:
       thousands of rays, which wider chunks trace in fewer, fuller traversal loops: 16384
       measured 7-13% faster foveated frames than 4096, benchmarks/foveation.py); None: the same
       as `queue_chunk_size` (one loop body for every level, a shorter compile).
+    - `hits`: where the distance t and barycentrics u, v of a hit come from. "recomputed"
+      (the default): from the hit face's corners in `scene.vertices` (Möller–Trumbore in JAX),
+      so the image follows vertices other than the BVH's build-time ones (differentiating a
+      scene's geometry by moving its vertices without rebuilding the BVH). "backend": the ray
+      query's own t, u, v (Embree's, Warp's or the JAX traversal's), not recomputed: for a scene
+      whose vertices are the BVH's, faster (benchmarks/mitsuba_frame.py `--hits`) and equal up
+      to float rounding. Derivatives are the same closed form at `scene.vertices` either way.
     - `depth_batch_size`: `radiance_in_chunks` takes its slots through every depth level in
       batches of this many (rounded up to whole chunks), so its reflection queue holds one
       batch's rays: the program's memory, which on a CPU is fresh pages touched every frame,
@@ -74,6 +83,7 @@ class RenderConfig:
     queue_chunk_size: int = 4096
     first_bounce_chunk_size: int | None = 16384
     depth_batch_size: int | None = 262144
+    hits: str = "recomputed"
 
     def __post_init__(self):
         if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
@@ -119,6 +129,8 @@ class RenderConfig:
                     f"RenderConfig.depth_batch_size must be None or a positive integer, got {batch!r}"
                 )
             object.__setattr__(self, "depth_batch_size", int(batch))
+        if self.hits not in HITS:
+            raise ValueError(f"RenderConfig.hits must be one of {HITS}, got {self.hits!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
 

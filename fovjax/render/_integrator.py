@@ -46,6 +46,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..scene import POINT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
+from ..trace.internal import backend_geometry
 from ._arrays import SceneArrays
 from ._config import DEFAULT_CONFIG, RenderConfig
 from ._envmap import envmap_lookup
@@ -279,18 +280,18 @@ def _light_sum(scene, surface, d, rays: ShadowRays, blocked, kd, ks, ns):
     return shaded
 
 
-def _trace_primary(scene, bvh, o, d, alive, *, packet, backend, level=None) -> Hit:
-    return closest_hit(
-        bvh,
-        o,
-        d,
-        0.0,
-        jnp.where(alive, jnp.inf, 0.0),
-        packet=packet,
-        vertices=scene.vertices,
-        backend=backend,
-        level=level,
-    )
+def _trace_primary(scene, bvh, o, d, alive, *, packet, backend, level=None, hits="recomputed") -> Hit:
+    """Closest hits; t, u, v as `RenderConfig.hits` says, derivatives through `scene.vertices`
+    either way."""
+    tmax = jnp.where(alive, jnp.inf, 0.0)
+    if hits == "recomputed":
+        vertices = scene.vertices
+        return closest_hit(
+            bvh, o, d, 0.0, tmax, packet=packet, vertices=vertices, backend=backend, level=level
+        )
+    hit = closest_hit(bvh, o, d, 0.0, tmax, packet=packet, backend=backend, level=level)
+    t, u, v = backend_geometry(scene.vertices, bvh.faces, hit.prim, o, d, hit.t, hit.u, hit.v)
+    return Hit(t, hit.prim, u, v)
 
 
 def _surface_and_shadow_rays(scene, hit, d, alive, offset):
@@ -325,7 +326,9 @@ def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, 
     return contribution, (surface.point + offset * n_g, normalize(reflected), weight, alive)
 
 
-def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn, fidelity=None):
+def _trace_and_shade(
+    scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn, fidelity=None, hits="recomputed"
+):
     """One depth level: trace `alive` rays (unit directions `d`), add what they see (weighted),
     and the reflection rays they spawn where `spawn`. `fidelity`: None, or (ShadingClasses,
     class per ray, this level's depth) limiting reflections and shadow rays per ray. Returns
@@ -336,7 +339,7 @@ def _trace_and_shade(scene, bvh, o, d, alive, weight, *, packet, offset, backend
         spawn = spawn & (depth < jnp.asarray(classes.max_depth, jnp.int32)[cls])
         if classes.level is not None:
             level = jnp.asarray(classes.level, jnp.int32)[cls]
-    hit = _trace_primary(scene, bvh, o, d, alive, packet=packet, backend=backend, level=level)
+    hit = _trace_primary(scene, bvh, o, d, alive, packet=packet, backend=backend, level=level, hits=hits)
     surface, rays = _surface_and_shadow_rays(scene, hit, d, alive, offset)
     blocked, n_shadow = None, jnp.int32(0)
     if rays is not None:
@@ -404,6 +407,7 @@ def _reflection_level(scene, bvh, total, source, n_queued, queue, depth, *, offs
                 packet=None,
                 offset=offset,
                 backend=config.backend,
+                hits=config.hits,
                 spawn=spawn,
             )
             total = total.at[pixel].add(contribution)
@@ -475,6 +479,7 @@ def _depth0(scene, bvh, o, d, active, *, offset, config):
             packet=packet,
             offset=offset,
             backend=config.backend,
+            hits=config.hits,
             spawn=spawn,
         )
         if spawn:
@@ -482,13 +487,7 @@ def _depth0(scene, bvh, o, d, active, *, offset, config):
             queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes), alive2)
         return (queue, n_q, n_shadow + traced), contribution.reshape(size, 3)
 
-    capacity = padded + size if spawn else 0  # `_append` writes a band whole
-    queue = (
-        jnp.zeros((capacity, 3), jnp.float32),
-        jnp.ones((capacity, 3), jnp.float32),
-        jnp.zeros((capacity, 3), jnp.float32),
-        jnp.zeros((capacity,), jnp.int32),
-    )
+    queue = _queue_of(padded + size if spawn else 0)  # `_append` writes a band whole
     xs = (split(o, 0.0), split(d, 1.0), split(active, False), jnp.arange(count, dtype=jnp.int32) * size)
     zero = jnp.int32(0)
     (queue, n_q, n_shadow), total = jax.lax.scan(body, (queue, zero, zero), xs)
@@ -664,14 +663,18 @@ def _batch(chunks: _Chunks, config) -> _Chunks:
 def _empty_queue(chunks: _Chunks, config, classes=None):
     """(origins, directions, weights, target slots[, shading classes]) with a chunk of room
     beyond the slots and tile rays, in whole reflection chunks."""
-    capacity = _queue_chunks(chunks, config).padded
+    return _queue_of(_queue_chunks(chunks, config).padded, with_classes=classes is not None)
+
+
+def _queue_of(capacity: int, *, with_classes: bool = False):
+    """An empty queue of rays: (origins, directions, weights, target slots[, shading classes])."""
     queue = (
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.ones((capacity, 3), jnp.float32),
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.zeros((capacity,), jnp.int32),
     )
-    return queue if classes is None else queue + (jnp.zeros((capacity,), jnp.int32),)
+    return queue + (jnp.zeros((capacity,), jnp.int32),) if with_classes else queue
 
 
 def _packet_of(config):
@@ -729,6 +732,7 @@ def _primary_level(
             packet=packet,
             offset=offset,
             backend=config.backend,
+            hits=config.hits,
             spawn=spawn,
             fidelity=fidelity,
         )
@@ -775,6 +779,7 @@ def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config, classes=N
             packet=_usable_packet(config.packet, len(batch)),
             offset=offset,
             backend=config.backend,
+            hits=config.hits,
             spawn=spawn,
             fidelity=fidelity,
         )
@@ -832,6 +837,7 @@ def _queue_level(
             packet=None,
             offset=offset,
             backend=config.backend,
+            hits=config.hits,
             spawn=spawn,
             fidelity=fidelity,
         )

@@ -109,6 +109,8 @@ class SessionFrame:
     head_reconnects: int | None = None
     head_errors: int | None = None
     head_sample_age_s: float | None = None
+    # Pixels shown from earlier frames' samples (a temporal foveation method, `Weier2016`).
+    reused_pixels: int = 0
 
     @property
     def rays(self) -> int:
@@ -382,6 +384,9 @@ def run_session(
                     raise KeyboardInterrupt
                 renderer.render(head_pose=(0.0, 0.0, 0.0), key=key, thresholds=thresholds_at(step / steps))
             warmup_s = time.perf_counter() - t0
+        # A temporal method (`Foveation.method`) keeps the session's frames' history only.
+        renderer.reset_history()
+        previous_state = None
         if progress:
             from tqdm import tqdm
 
@@ -414,7 +419,10 @@ def run_session(
             thresholds = thresholds_at(tf.widening)
             gaze_xy = np.clip(np.array([tf.left, tf.right], np.float32), 0.0, 1.0)
             frame_key = jax.random.fold_in(key, k) if fresh_key_per_frame else key
-            frame = renderer.render(gaze_xy, head_pose=pose, key=frame_key, thresholds=thresholds)
+            # Tracking lost: a temporal method's history is dropped (the frame starts from none).
+            lost = str(tf.state) == "lost" and previous_state != "lost"
+            previous_state = str(tf.state)
+            frame = renderer.render(gaze_xy, head_pose=pose, key=frame_key, thresholds=thresholds, reset=lost)
             shown = now() if vclock is None else display_time
             last_frame_s = max(shown - t, 0.0)
             with deferred_interrupt():  # a frame's files and its row: whole or not at all
@@ -456,6 +464,7 @@ def run_session(
                         rejected_samples=int(sum(tf.rejected.values())),
                         path=path,
                         **states,
+                        reused_pixels=frame.foveation.reused,
                     )
                 )
             if bar is not None:

@@ -1,0 +1,191 @@
+"""The foveation methods a `Foveation` can use (`Foveation(method=...)`), each with its paper.
+
+A method is a frozen dataclass of the paper's parameters (hashable: part of the compiled
+program's configuration, so another value compiles another program); the frame's gaze, head
+pose, key and fovea threshold stay traced. `Foveation(method="weier2016")` takes a method's
+defaults; `Foveation(method=Weier2016(retrace_tolerance=0.05))` sets its parameters. The frame
+programs are in the sibling modules (imported only when a frame is rendered).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+
+@dataclasses.dataclass(frozen=True)
+class Citation:
+    """A method's paper. The DOI is taken only from a source that could be read (the thesis's
+    bibliography or the publisher's pages); None where none was."""
+
+    authors: str
+    year: int
+    title: str
+    venue: str
+    doi: str | None
+
+    def __str__(self) -> str:
+        doi = f" doi:{self.doi}" if self.doi else ""
+        return f"{self.authors} ({self.year}). {self.title}. {self.venue}.{doi}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Thesis:
+    """The thesis's method (fovjax's default, every option of `Foveation` applies): regions by
+    eccentricity, blocks whose top-left is traced plus samples drawn with the acuity model's
+    P(ω), fill from the block's top-left and a Gaussian blur outside the fovea."""
+
+    name = "thesis"
+    temporal = False
+    citation = Citation(
+        authors="Andreas Polychronakis",
+        year=2020,
+        title="Real-Time Foveated Rendering In Virtual Reality For Ray-tracing",
+        venue="Diploma thesis, Electrical and Computer Engineering, Technical University of Crete",
+        doi=None,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Weier2016:
+    """Weier et al. 2016: sparse ray tracing by eccentricity plus reprojection of the previous
+    frame's shaded samples (temporal: a frame reuses the history of the frames before it).
+
+    Per pixel and frame (fovjax's reading, `fovjax.foveate._methods._weier`):
+
+    - the previous frame's samples are kept as (colour, world-space hit point) per pixel and
+      forward-projected into this frame's cameras (head and gaze motion alike: the gaze only
+      moves the fovea); where several land in one pixel the nearest wins (a depth test);
+    - a reprojected sample farther than `(1 + retrace_tolerance)` times the nearest reprojected
+      sample around it (its 3×3 neighbourhood) is taken as background showing through a gap of
+      a nearer surface and rejected;
+    - traced this frame: every pixel of the fovea (ω ≤ `fovea_deg`), every pixel that received
+      no valid sample (disocclusions, newly visible borders, rejected samples; after a reset
+      that is every pixel: the first frame is the full frame), and any other pixel with the
+      foveation's P(ω) (`Foveation.acuity`; the paper's linear fall-off is
+      `fovjax.foveate.LinearFalloff`), which refreshes the history where shading changes;
+    - the image is the traced samples where traced and the reprojected ones elsewhere: every
+      pixel holds a sample, so the fill and blur of the thesis's method are not needed.
+
+    Parameters:
+        retrace_tolerance: the relative depth step above which a reprojected sample is rejected
+            (fovjax's choice, 0.1: the paper schedules "possible errors introduced by this
+            reprojection" for resampling from a coarse geometry it rebuilds from a G-buffer; the
+            value it uses could not be read here).
+
+    A pixel's samples are traced together (every sub-sample at the frame's spp); its world
+    point is the hit of its first sub-sample's ray (a second closest-hit query over the traced
+    pixels: the integrator returns radiance only). fovjax's choice: the paper's coarse support
+    image is not built, because every pixel without a valid sample is traced.
+    """
+
+    retrace_tolerance: float = 0.1
+
+    name = "weier2016"
+    temporal = True
+    citation = Citation(
+        authors="Martin Weier, Thorsten Roth, Ernst Kruijff, André Hinkenjann, Arsène Pérard-Gayot, "
+        "Philipp Slusallek, Yongmin Li",
+        year=2016,
+        title="Foveated Real-Time Ray Tracing for Head-Mounted Displays",
+        venue="Computer Graphics Forum 35(7):289-298 (Pacific Graphics 2016)",
+        doi="10.1111/cgf.13026",
+    )
+
+    def __post_init__(self):
+        tol = self.retrace_tolerance
+        if isinstance(tol, bool) or not isinstance(tol, int | float) or not (math.isfinite(tol) and tol > 0):
+            raise ValueError(f"Weier2016.retrace_tolerance must be a finite number > 0, got {tol!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Guenter2012:
+    """Guenter et al. 2012: three nested eccentricity layers around the gaze, rendered at
+    decreasing resolution, magnified to the display's and blended.
+
+    Per eye and frame (fovjax's reading for a ray tracer, `fovjax.foveate._methods._guenter`):
+    layer 1 (the fovea, ω ≤ `Foveation.fovea_deg`) at every pixel; layer 2 (ω ≤
+    `periphery_deg`) at every `strides[0]`-th pixel of each row and column; layer 3 (the whole
+    display) at every `strides[1]`-th. A layer traces the pixels of its grid that its
+    bilinear magnification needs; a pixel on several grids is traced once (the same ray: it is
+    one sample of each). Each layer is magnified by bilinear interpolation between its grid
+    pixels and the layers are blended by eccentricity: across `blend_deg` beyond each layer's
+    radius (a smoothstep) from the finer layer to the coarser, so a coarser layer shows alone
+    only where the rule allows it. No blur.
+
+    The paper's layer-size rule (`layer_radii`): its acuity model, the minimum angle of
+    resolution growing linearly with eccentricity, MAR(ω) = ω0 + m·ω, with the slope the paper
+    measured, 1.32-1.65 arc minutes per degree (`slope_arcmin_per_deg`, default 1.32, the
+    conservative end: larger layers); a layer whose pixels are s display pixels wide may start
+    where MAR reaches s display pixels, ω = (s·p − ω0) / m, p the display pixel's angle at the
+    centre, with ω0 = p (fovjax's choice: the inner layer is the display at its native
+    sharpness). `Foveation.fovea_deg` and `periphery_deg` are the layer radii, traced, so a
+    threshold sweep compares radii; `layer_radii` gives the paper's.
+
+    Parameters:
+        strides: the middle and outer layers' sampling factors in display pixels (fovjax's
+            choice, (2, 4): the thesis's block edges, so the two methods trace comparable grids;
+            the paper chooses them with the radii by minimising its cost model).
+        blend_deg: width of the blend at a layer's edge (fovjax's choice, 1°: the thesis's
+            fovea blend; the paper blends "smoothly" over a band it sizes itself).
+        slope_arcmin_per_deg: m of the acuity model (the paper's 1.32-1.65).
+
+    Not modelled: the paper's temporal antialiasing of the coarse layers (jitter and
+    reprojection) and its half-rate update of the outer layers.
+    """
+
+    strides: tuple[int, int] = (2, 4)
+    blend_deg: float = 1.0
+    slope_arcmin_per_deg: float = 1.32
+
+    name = "guenter2012"
+    temporal = False
+    citation = Citation(
+        authors="Brian Guenter, Mark Finch, Steven Drucker, Desney Tan, John Snyder",
+        year=2012,
+        title="Foveated 3D Graphics",
+        venue="ACM Transactions on Graphics 31(6):164 (SIGGRAPH Asia 2012)",
+        doi="10.1145/2366145.2366183",
+    )
+
+    def __post_init__(self):
+        s = self.strides
+        if not (
+            isinstance(s, tuple)
+            and len(s) == 2
+            and all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in s)
+            and s[0] <= s[1]
+        ):
+            raise ValueError(
+                f"Guenter2012.strides must be two integers 1 <= middle <= outer, got {self.strides!r}"
+            )
+        for name in ("blend_deg", "slope_arcmin_per_deg"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
+                raise ValueError(f"Guenter2012.{name} must be a finite number > 0, got {v!r}")
+
+    def layer_radii(self, pixel_deg: float) -> tuple[float, float]:
+        """The paper's rule: the (inner, middle) layers' radii in degrees on a display whose
+        pixel subtends `pixel_deg` at its centre (see the class docstring)."""
+        if not (math.isfinite(pixel_deg) and pixel_deg > 0):
+            raise ValueError(f"Guenter2012.layer_radii: pixel_deg must be > 0, got {pixel_deg!r}")
+        m = self.slope_arcmin_per_deg / 60.0
+        return tuple(float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
+
+
+METHODS: dict[str, type] = {m.name: m for m in (Thesis, Guenter2012, Weier2016)}
+"""The methods by name (`Foveation(method=name)`, `fovjax compare --methods`)."""
+
+
+def as_method(method):
+    """A method instance from a name of `METHODS` or an instance of one of its classes."""
+    if isinstance(method, str):
+        if method not in METHODS:
+            raise ValueError(f"Foveation.method must be one of {tuple(METHODS)}, got {method!r}")
+        return METHODS[method]()
+    if isinstance(method, tuple(METHODS.values())):
+        return method
+    raise ValueError(
+        f"Foveation.method must be a name of {tuple(METHODS)} or an instance of "
+        f"{', '.join(c.__name__ for c in METHODS.values())}, got {method!r}"
+    )

@@ -1,0 +1,105 @@
+"""Guenter et al. 2012's frame: three nested layers at decreasing resolution, magnified and
+blended (see `Guenter2012` for the method and its parameters). Stateless; one jitted program
+per configuration, gaze, head pose, key and the layer radii (the fovea and periphery
+thresholds) traced."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._frame import DIAGNOSTICS, FoveatedOutputs, diagnostics_tuple, eccentricities
+from ._sparse import trace_pixels
+
+
+def _on_grid(h: int, w: int, stride: int) -> Bool[Array, "H W"]:
+    y = jnp.arange(h)[:, None]
+    x = jnp.arange(w)[None, :]
+    return (y % stride == 0) & (x % stride == 0)
+
+
+def _dilate(mask: Bool[Array, "E H W"], radius: int) -> Bool[Array, "E H W"]:
+    """Every pixel within `radius` pixels (a square) of a pixel of `mask` (separable max)."""
+    if radius == 0:
+        return mask
+    _, h, w = mask.shape
+    out = mask
+    padded = jnp.pad(out, ((0, 0), (radius, radius), (0, 0)))
+    out = jnp.any(jnp.stack([padded[:, k : k + h] for k in range(2 * radius + 1)]), axis=0)
+    padded = jnp.pad(out, ((0, 0), (0, 0), (radius, radius)))
+    return jnp.any(jnp.stack([padded[:, :, k : k + w] for k in range(2 * radius + 1)]), axis=0)
+
+
+def magnify(pix: Float[Array, "E H W 3"], stride: int) -> Float[Array, "E H W 3"]:
+    """A layer held at the pixels of a grid of `stride` (rows and columns divisible by it)
+    magnified to every pixel by bilinear interpolation between the pixel centres of the grid
+    (beyond the last grid row or column: that row's or column's value). `stride` 1: `pix`."""
+    if stride == 1:
+        return pix
+    _, h, w, _ = pix.shape
+    grid = pix[:, ::stride, ::stride]  # (E, Hg, Wg, 3)
+    hg, wg = grid.shape[1:3]
+
+    def axis(n, ng):
+        g = jnp.arange(n, dtype=jnp.float32) / stride
+        i0 = jnp.floor(g).astype(jnp.int32)
+        f = g - i0
+        i1 = jnp.minimum(i0 + 1, ng - 1)
+        return i0, i1, f
+
+    y0, y1, fy = axis(h, hg)
+    x0, x1, fx = axis(w, wg)
+    rows = grid[:, y0] * (1 - fy)[None, :, None, None] + grid[:, y1] * fy[None, :, None, None]
+    return rows[:, :, x0] * (1 - fx)[None, None, :, None] + rows[:, :, x1] * fx[None, None, :, None]
+
+
+def _smoothstep(t):
+    t = jnp.clip(t, 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def layer_weights(ecc: Float[Array, "E H W"], radii, blend_deg: float):
+    """Per pixel the weight of the finer layer at each of the two layer edges (1 within a
+    layer's radius, falling to 0 over `blend_deg` beyond it)."""
+    return [1.0 - _smoothstep((ecc - r) / blend_deg) for r in radii]
+
+
+def guenter_stereo(
+    scene,
+    bvh,
+    rig,
+    head_pose,
+    gaze,
+    key,
+    foveation,
+    history=None,
+    *,
+    spp,
+    jitter,
+    config,
+    diagnostics=DIAGNOSTICS,
+) -> tuple[FoveatedOutputs, Int[Array, ""], None]:
+    """One stereo frame of Guenter et al. 2012 (`Guenter2012`): (the frame's outputs, 0 pixels
+    reused, no history). Pure; jit with the keyword arguments static."""
+    diagnostics = diagnostics_tuple(diagnostics, "guenter_stereo")
+    method = foveation.method
+    cameras = rig.eye_cameras(head_pose)
+    h, w = rig.eye_height, rig.eye_width
+    ecc = eccentricities(cameras, gaze, foveation)
+    radii = (foveation.fovea_deg, foveation.periphery_deg)
+    # Where each layer shows (its radius plus the blend beyond it; the outer layer everywhere),
+    # and the pixels of its grid its magnification reads there: a grid pixel within one stride.
+    strides = (1, *method.strides)
+    shown = [ecc <= r + method.blend_deg for r in radii] + [jnp.ones_like(ecc, bool)]
+    trace_pixel = jnp.zeros_like(ecc, bool)
+    for stride, where in zip(strides, shown, strict=True):
+        trace_pixel = trace_pixel | (_dilate(where, stride) & _on_grid(h, w, stride)[None])
+    pixels = trace_pixels(
+        scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
+    )
+    inner, middle, outer = (magnify(pixels.prefill, s) for s in strides)
+    w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
+    coarse = outer * (1 - w_middle)[..., None] + middle * w_middle[..., None]
+    eyes = coarse * (1 - w_inner)[..., None] + inner * w_inner[..., None]
+    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    return outputs, jnp.zeros((), jnp.int32), None
