@@ -93,7 +93,8 @@ class FrameOptions:
     - `jitter`: whether the sub-pixel positions are jittered from the frame key (a key was
       given) or are the pixel cells' centres;
     - `config`: the `fovjax.render.RenderConfig`;
-    - `budget`: the static number of ray slots of both eyes;
+    - `budget`: the static number of ray slots of both eyes (the thesis's method; None for the
+      other methods' programs, which trace pixels without slots);
     - `tile` (rows, cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images
       in packets (None: not; only where the budget is every sample, so that their samples are
       never dropped; see `Foveation.fovea_tile_deg`);
@@ -104,7 +105,7 @@ class FrameOptions:
     spp: int
     jitter: bool
     config: RenderConfig
-    budget: int
+    budget: int | None = None
     tile: tuple[int, int] | None = None
     grid: int | None = None
     diagnostics: tuple[str, ...] = DIAGNOSTICS
@@ -487,6 +488,8 @@ def foveated_stereo(
     if not isinstance(options, FrameOptions):
         raise TypeError(f"foveated_stereo: options must be a FrameOptions, got {type(options).__name__}")
     spp, jitter, config, budget = options.spp, options.jitter, options.config, options.budget
+    if budget is None:
+        raise ValueError("foveated_stereo: FrameOptions.budget is the frame's static ray slots, got None")
     tile, grid = options.tile, options.grid
     diagnostics = diagnostics_tuple(options.diagnostics, "foveated_stereo")
     if lod is None and lod_needed(foveation) is not None:
