@@ -13,7 +13,7 @@ import numpy as np
 from jax.core import Tracer
 from jaxtyping import Array, ArrayLike, Float, Real
 
-from ._methods._catalog import as_method
+from ._methods._catalog import FoveationMethod, as_method
 
 # The thesis's (fovea, periphery) pairs in degrees (section 5.1, tables 2-5).
 THESIS_PAIRS: tuple[tuple[float, float], ...] = (
@@ -320,7 +320,7 @@ class Foveation(eqx.Module):
     grid_tile: bool = eqx.field(static=True, default=False)
     fidelity: tuple | None = eqx.field(static=True, default=None)
     # The method (`fovjax.foveate.METHODS`; default the thesis's): a name or a method instance.
-    method: object = eqx.field(static=True, default="thesis", converter=as_method)
+    method: FoveationMethod = eqx.field(static=True, default="thesis", converter=as_method)
 
     def __check_init__(self):
         traced = isinstance(self.fovea_deg, Tracer) or isinstance(self.periphery_deg, Tracer)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TypeAlias
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,20 +171,23 @@ class Guenter2012:
         if not (math.isfinite(pixel_deg) and pixel_deg > 0):
             raise ValueError(f"Guenter2012.layer_radii: pixel_deg must be > 0, got {pixel_deg!r}")
         m = self.slope_arcmin_per_deg / 60.0
-        return tuple(float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
+        inner, middle = (float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
+        return inner, middle
 
 
 METHODS: dict[str, type] = {m.name: m for m in (Thesis, Guenter2012, Weier2016)}
+# A foveation method: an instance of one of `METHODS`' classes.
+FoveationMethod: TypeAlias = Thesis | Guenter2012 | Weier2016
 """The methods by name (`Foveation(method=name)`, `fovjax compare --methods`)."""
 
 
-def as_method(method):
+def as_method(method: object) -> FoveationMethod:
     """A method instance from a name of `METHODS` or an instance of one of its classes."""
     if isinstance(method, str):
         if method not in METHODS:
             raise ValueError(f"Foveation.method must be one of {tuple(METHODS)}, got {method!r}")
         return METHODS[method]()
-    if isinstance(method, tuple(METHODS.values())):
+    if isinstance(method, Thesis | Guenter2012 | Weier2016):  # METHODS' classes
         return method
     raise ValueError(
         f"Foveation.method must be a name of {tuple(METHODS)} or an instance of "
