@@ -18,7 +18,8 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
     observers = fe.observers_from_comparison(fe.read_csv("out/compare/comparison.csv"), spp=4)
     fe.study_majorities(fe.run_study(observers))                       # {"pair": 12.5, ...}
     # the study emulated on video: an animation, FovVideoVDP in video mode, the SX111 display
-    study = fe.video_study(fovjax.scenes.atrium(), eye_width=160, eye_height=128, frames=30)
+    animation = fe.StudyAnimation(eye_width=160, eye_height=128, frames=30)  # and levels, gaze, rule, ...
+    study = fe.video_study(fovjax.scenes.atrium(), animation)
     study.jods, study.majorities                                       # per level; per test
 """
 
@@ -170,6 +171,8 @@ from ._video_study import (
     GAZE_MODES as VIDEO_GAZE_MODES,
 )
 from ._video_study import (
+    ObserverPanel,
+    StudyAnimation,
     StudySequence,
     VideoStudy,
     judge_sequence,
@@ -279,6 +282,8 @@ __all__ = [
     "observers_from_comparison",
     "study_majorities",
     "VIDEO_GAZE_MODES",
+    "ObserverPanel",
+    "StudyAnimation",
     "StudySequence",
     "VideoStudy",
     "judge_sequence",
