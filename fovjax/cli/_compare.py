@@ -142,7 +142,7 @@ def run(args) -> int:
     import jax
 
     import fovjax
-    from fovjax.eval import HIGHER_IS_BETTER, compare_thresholds
+    from fovjax.eval import HIGHER_IS_BETTER, ThresholdSweep, compare_thresholds
     from fovjax.render import RenderConfig, StereoRig
 
     name = {"cornell": "cornell_box"}.get(args.scene, args.scene)  # the alias `render` takes
@@ -150,20 +150,19 @@ def run(args) -> int:
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
+    renderer = fovjax.FoveatedRenderer(
+        scene, rig, config=RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    )
+    sweep = ThresholdSweep(
+        thresholds=args.thresholds, spp=args.spp, gazes=args.gazes, keys=args.keys, regions=args.regions
+    )
     result = compare_thresholds(
-        scene,
-        rig,
-        thresholds=args.thresholds,
-        spp=args.spp,
-        gazes=args.gazes,
-        keys=args.keys,
-        config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
+        renderer,
+        sweep=sweep,
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
-        regions=args.regions,
+        plan=("flip", args.fidelity_threshold) if args.fidelity == "auto" else None,
         shard=args.shard,
-        fidelity=args.fidelity,
-        plan_criterion=("flip", args.fidelity_threshold),
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them
         return 0

@@ -40,7 +40,15 @@ from ._charts import (
     plot_tracking_error,
     write_study_report,
 )
-from ._compare import DEFAULT_CRITERION, DEFAULT_GAZES, HIGHER_IS_BETTER, Comparison, compare_thresholds
+from ._compare import (
+    DEFAULT_CRITERION,
+    DEFAULT_GAZES,
+    HIGHER_IS_BETTER,
+    THESIS_THRESHOLDS,
+    Comparison,
+    ThresholdSweep,
+    compare_thresholds,
+)
 from ._failures import (
     CASES as FAILURE_CASES,
 )
@@ -50,6 +58,8 @@ from ._failures import (
     EqualBudget,
     FailureCase,
     FailureReport,
+    PursuitFlicker,
+    SaccadeTrial,
     acuity_models,
     after_saccade,
     checkerboard,
@@ -95,6 +105,7 @@ from ._plan import (
     DEFAULT_PLAN_GAZES,
     DEFAULT_STEPS,
     FidelityPlan,
+    PlanSearch,
     PlanStep,
     default_options,
     plan_fidelity,
@@ -186,6 +197,7 @@ __all__ = [
     "DEFAULT_PLAN_GAZES",
     "DEFAULT_STEPS",
     "FidelityPlan",
+    "PlanSearch",
     "PlanStep",
     "default_options",
     "plan_fidelity",
@@ -194,7 +206,9 @@ __all__ = [
     "DEFAULT_CRITERION",
     "DEFAULT_GAZES",
     "HIGHER_IS_BETTER",
+    "THESIS_THRESHOLDS",
     "Comparison",
+    "ThresholdSweep",
     "compare_thresholds",
     "FrameBatch",
     "frame_mesh",
@@ -297,6 +311,8 @@ __all__ = [
     "EqualBudget",
     "FailureCase",
     "FailureReport",
+    "PursuitFlicker",
+    "SaccadeTrial",
     "acuity_models",
     "after_saccade",
     "checkerboard",
