@@ -154,7 +154,7 @@ BAD = [
     ({"peak_luminance": 0.0}, "peak_luminance must be a number > 0 (cd/m²), got 0.0"),
     ({"observers": 0}, "n (observers) must be a whole number >= 1, got 0"),
     ({"noise_sd": -0.1}, "noise_sd must be a finite number >= 0, got -0.1"),
-    ({"threshold": math.inf}, "threshold must be a finite number >= 0 (JOD), got inf"),
+    ({"threshold": math.inf}, "threshold must be None or a finite number >= 0, got inf"),
 ]
 
 

@@ -18,6 +18,7 @@ from fovjax.eval import (
     DEFAULT_STEPS,
     FidelityPlan,
     HmdDisplay,
+    PlanSearch,
     default_options,
     error_by_eccentricity,
     flip,

@@ -159,6 +159,7 @@ from ._study import (
     STUDY_METRICS,
     THESIS_LEVEL,
     LevelDifference,
+    ObserverPanel,
     default_metric,
     difference_from_comparison,
     observers_from_comparison,
@@ -182,7 +183,6 @@ from ._video_study import (
     GAZE_MODES as VIDEO_GAZE_MODES,
 )
 from ._video_study import (
-    ObserverPanel,
     StudyAnimation,
     StudySequence,
     VideoStudy,
@@ -293,10 +293,10 @@ __all__ = [
     "LevelDifference",
     "default_metric",
     "difference_from_comparison",
+    "ObserverPanel",
     "observers_from_comparison",
     "study_majorities",
     "VIDEO_GAZE_MODES",
-    "ObserverPanel",
     "StudyAnimation",
     "StudySequence",
     "VideoStudy",

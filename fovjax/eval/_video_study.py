@@ -59,7 +59,7 @@ import numpy as np
 from ._metrics import JND_JOD, HmdDisplay, MetricValue, fovvdp
 from ._pareto import write_csv
 from ._protocols import APPENDIX_LEVELS, Response, _check_levels, run_study
-from ._study import THESIS_LEVEL, observers_from_comparison, study_majorities
+from ._study import THESIS_LEVEL, ObserverPanel, observers_from_comparison, study_majorities
 
 SX111_EYE = (1280, 1024)  # pixels per eye (thesis 2.1.3)
 SX111_VFOV_DEG = 64.0  # vertical field of view (thesis 2.1.3: 102° x 64°)
@@ -268,36 +268,6 @@ class StudyAnimation:
             object.__setattr__(self, name, tuple(value) if name == "levels" else value)
 
 
-@dataclasses.dataclass(frozen=True)
-class ObserverPanel:
-    """The automatic observers who answer the study's tests (`observers_from_comparison`): `n`
-    of them, each seeing a level when its difference d = 10 − JOD exceeds `threshold` (JOD),
-    with per-observer noise `noise_sd` drawn from `seed`.
-
-    Raises:
-        ValueError: any bad field, naming it, its value and what was expected.
-    """
-
-    n: int = 15
-    noise_sd: float = 0.0
-    threshold: float = JND_JOD
-    seed: int = 0
-
-    def __post_init__(self):
-        _check_int(self.n, "n (observers)", 1, "ObserverPanel")
-        if not (
-            isinstance(self.noise_sd, int | float) and math.isfinite(self.noise_sd) and self.noise_sd >= 0
-        ):
-            raise ValueError(f"ObserverPanel: noise_sd must be a finite number >= 0, got {self.noise_sd!r}")
-        if not (
-            isinstance(self.threshold, int | float) and math.isfinite(self.threshold) and self.threshold >= 0
-        ):
-            raise ValueError(
-                f"ObserverPanel: threshold must be a finite number >= 0 (JOD), got {self.threshold!r}"
-            )
-        _check_int(self.seed, "seed", 0, "ObserverPanel")
-
-
 def study_sequence(
     scene,
     animation: StudyAnimation | None = None,
@@ -499,27 +469,17 @@ def verdict_from_jods(
     *,
     spp: int = STUDY_SPP,
     levels: Sequence = APPENDIX_LEVELS,
-    observers: int = 15,
-    noise_sd: float = 0.0,
-    seed: int = 0,
-    threshold: float = JND_JOD,
+    observers: ObserverPanel | None = None,
 ) -> tuple[list[Response], dict]:
-    """The pair, ramp and slider tests answered by `observers` automatic observers judging
-    d = 10 − JOD at each level (seen when d > `threshold`): (responses, majorities)."""
+    """The pair, ramp and slider tests answered by the automatic `observers` (`ObserverPanel`,
+    default `ObserverPanel()`) judging d = 10 − JOD at each level (seen when d > its threshold,
+    `JND_JOD` by default): (responses, majorities)."""
     table = [
         {"fovea_deg": level[0], "periphery_deg": level[1], "spp": spp, "jod": float(jod)}
         for level, jod in jods.items()
     ]
     observer_list = observers_from_comparison(
-        table,
-        metric="jod",
-        spp=spp,
-        n=observers,
-        noise_sd=noise_sd,
-        seed=seed,
-        threshold=threshold,
-        levels=levels,
-        where="video study",
+        table, metric="jod", spp=spp, observers=observers, levels=levels, where="video study"
     )
     responses = run_study(observer_list, levels)
     return responses, study_majorities(responses, levels)
@@ -565,15 +525,7 @@ def video_study(
             sequence.reference, sequence.reference, display, gaze_xy=sequence.gaze, fps=sequence.fps
         )
     metric_s = time.perf_counter() - start
-    responses, majorities = verdict_from_jods(
-        jods,
-        spp=sequence.spp,
-        levels=sequence.levels,
-        observers=panel.n,
-        noise_sd=panel.noise_sd,
-        seed=panel.seed,
-        threshold=panel.threshold,
-    )
+    responses, majorities = verdict_from_jods(jods, spp=sequence.spp, levels=sequence.levels, observers=panel)
     return VideoStudy(
         sequence=sequence,
         display=display,
@@ -581,7 +533,7 @@ def video_study(
         reference_jod=reference_jod,
         responses=responses,
         majorities=majorities,
-        threshold=float(panel.threshold),
+        threshold=JND_JOD if panel.threshold is None else float(panel.threshold),
         observers=int(panel.n),
         noise_sd=float(panel.noise_sd),
         metric_seconds=metric_s,

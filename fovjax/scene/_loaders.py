@@ -33,7 +33,7 @@ from ._parts import (
     _TextureTable,
 )
 from ._ply import _load_ply
-from ._scene import Lights, Materials, Scene, make_lights, make_materials, make_scene
+from ._scene import Lights, Materials, Scene, Textures, make_lights, make_materials, make_scene
 
 
 def load_scene(
@@ -190,8 +190,7 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
         lights=lights,
         normals=normals,
         uvs=uvs,
-        textures=textures.images,
-        texture_paths=textures.names,
+        textures=Textures(tuple(textures.images), tuple(textures.names)),
         name=name or Path(path).stem,
         where=str(path),
     )
