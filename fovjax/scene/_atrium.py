@@ -7,7 +7,7 @@ import functools
 import numpy as np
 
 from . import _geometry as g
-from ._scene import Scene, make_lights, make_materials, make_scene
+from ._scene import Scene, _build_scene, make_lights, make_materials
 
 # Layout, in metres, y up, the court's long axis along x (Sponza-like extent: 30 x 13 x 15 m).
 HALF_LENGTH = 15.0  # outer walls at x = +-15
@@ -227,7 +227,8 @@ def atrium(triangles: int = 262_000, *, light_position=LIGHT_POSITION, light_col
     for add, args, kwargs, _ in _plan(edge, floor_cells):
         add(mb, *args, **kwargs)
     vertices, faces, normals, face_material = mb.build()
-    return make_scene(
+    return _build_scene(
+        f"atrium(triangles={triangles})",
         vertices,
         faces,
         face_material=face_material,
@@ -235,5 +236,4 @@ def atrium(triangles: int = 262_000, *, light_position=LIGHT_POSITION, light_col
         lights=make_lights([light_position], [light_color]),
         normals=normals,
         name="atrium",
-        where=f"atrium(triangles={triangles})",
     )

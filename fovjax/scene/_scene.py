@@ -226,16 +226,44 @@ def make_scene(
     textures=(),
     ambient=(0.1, 0.1, 0.1),
     name: str = "scene",
-    where: str | None = None,
 ) -> Scene:
-    """Validate arrays and build a `Scene`. Zero-area triangles are dropped with a warning.
+    """Validate arrays and build a `Scene`. Zero-area triangles are dropped with a warning;
+    errors and warnings name the scene by `name`.
 
     `textures`: the images (H, W, 3) `Materials.texture` indexes, a sequence, or `Textures`
-    (the images with the files they came from, kept as `Scene.texture_paths`). `where` names
-    the source in error messages (default `name`)."""
+    (the images with the files they came from, kept as `Scene.texture_paths`)."""
+    return _build_scene(
+        name,
+        vertices,
+        faces,
+        face_material=face_material,
+        materials=materials,
+        lights=lights,
+        normals=normals,
+        uvs=uvs,
+        textures=textures,
+        ambient=ambient,
+        name=name,
+    )
+
+
+def _build_scene(
+    where,
+    vertices,
+    faces,
+    *,
+    face_material=None,
+    materials=None,
+    lights=None,
+    normals=None,
+    uvs=None,
+    textures=(),
+    ambient=(0.1, 0.1, 0.1),
+    name="scene",
+) -> Scene:
+    """`make_scene`, with errors and warnings naming `where` (a loader's file, or the name)."""
     import warnings
 
-    where = where or name
     if not isinstance(textures, Textures):
         textures = Textures(tuple(textures))
     texture_paths, textures = textures.paths, textures.images
