@@ -401,7 +401,7 @@ def run_session(
         ```python
         renderer = fovjax.FoveatedRenderer(scene, rig, Foveation(fovea_deg=5, periphery_deg=10))
         result = fovjax.run_session(renderer, gaze="replay:data/recordings/synthetic_scanpath_seed0.jsonl",
-                                    session=SessionConfig(frames=30, fps=30), out="out/session")
+                                    session=fovjax.SessionConfig(frames=30, fps=30), out="out/session")
         print(result.summary["tracking_states"])
         ```
     """
