@@ -168,8 +168,6 @@ def test_bad_inputs_raise_clear_errors(tiny):
         SaccadeTrial(latencies_s=(-0.01,))
     with pytest.raises(ValueError, match="PursuitFlicker: frames must be a whole number >= 2, got 1"):
         PursuitFlicker(frames=1)
-    with pytest.raises(TypeError, match="the first argument must be a fovjax.eval.FullRenders"):
-        after_saccade(scene, fov)
     with pytest.raises(ValueError, match="rules"):
         from fovjax.eval import acuity_models
 
@@ -232,3 +230,11 @@ def test_cli_registers_failures_and_stability():
         parser.parse_args(["failures", "--small", "64by48"])
     with pytest.raises(SystemExit):
         parser.parse_args(["failures", "--cases", "nope"])
+
+
+@pytest.mark.no_typecheck
+def test_a_case_needs_full_renders_of_what_to_render(tiny):
+    scene, _, fov, _ = tiny
+    for case in (after_saccade, corner_gaze):
+        with pytest.raises(TypeError, match="the first argument must be a fovjax.eval.FullRenders"):
+            case(scene, fov)

@@ -139,5 +139,10 @@ def test_temporal_stability_rejects_bad_inputs(tiny):
         temporal_stability(full, (0.5, 0.5), fov, frames=2, key_modes="random")
     with pytest.raises(ValueError, match="head_poses"):
         temporal_stability(full, (0.5, 0.5), fov, frames=2, head_poses=np.zeros((3, 3)))
+
+
+@pytest.mark.no_typecheck
+def test_temporal_stability_needs_full_renders_of_what_to_render(tiny):
+    scene, _, fov = tiny
     with pytest.raises(TypeError, match="the first argument must be a fovjax.eval.FullRenders"):
         temporal_stability(scene, (0.5, 0.5), fov, frames=2)
