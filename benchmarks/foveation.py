@@ -115,6 +115,7 @@ def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
         _append,
         _bands,
         _finish_shading,
+        _queue_of,
         _reflection_level,
         _surface_and_shadow_rays,
         _trace_primary,
@@ -180,12 +181,7 @@ def _radiance_stages(arrays, bvh, o, d, active, config, rows, repeats):
         """The first reflection level's rays, compacted into a queue (the frame does this band
         by band)."""
         o2, d2, w2, alive2 = (x.reshape((n,) + x.shape[len(batch) :]) for x in state)
-        empty = (
-            jnp.zeros((capacity, 3), jnp.float32),
-            jnp.ones((capacity, 3), jnp.float32),
-            jnp.zeros((capacity, 3), jnp.float32),
-            jnp.zeros((capacity,), jnp.int32),
-        )
+        empty = _queue_of(capacity)
         pad = lambda x: jnp.pad(x, ((0, capacity - n),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
         queue, n_q = _append(
             empty, 0, (pad(o2), pad(d2), pad(w2), jnp.arange(capacity, dtype=jnp.int32)), pad(alive2)

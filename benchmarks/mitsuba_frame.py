@@ -34,14 +34,17 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   program's wall time) and the wall time around the call; compile times printed apart.
 
 After the warm-ups the three frames are timed in turn, --repeats rounds, so that all three see the
-same momentary load of a shared machine; each row also gives the median wall time of the whole call
-and the process CPU time of the frame (every thread's: the work done, which a loaded machine's
-waits for a core do not inflate). Then the ratios (fovjax foveated / Mitsuba full, fovjax full /
-Mitsuba full; > 1 means slower than Mitsuba; also in CPU time), the ray counts of Mitsuba
-against fovjax's full frame (primary, shadow, reflection; they agree up to ties and float
-rounding), and the PSNR of Mitsuba's image against fovjax's full frame (`fovjax.eval.psnr`:
-sRGB-encoded, clipped, peak 1); 40 dB or more is expected, and below it the script says where the
-images differ. `--json PATH` writes every figure with the command, date, git commit and machine.
+same momentary load of a shared machine; each row also gives the median wall time of the whole
+call and the process CPU time of the frame (every thread's: the work done, which a loaded
+machine's waits for a core do not inflate), the fresh memory of the frame (MiB of pages it touched
+for the first time: each a minor page fault the kernel maps and zeroes, on some virtual machines
+several microseconds a page) and the kernel time it spent. Then the ratios (fovjax foveated /
+Mitsuba full, fovjax full / Mitsuba full; > 1 means slower than Mitsuba; also in CPU time), the
+ray counts of Mitsuba against fovjax's full frame (primary, shadow, reflection; they agree up to
+ties and float rounding), and the PSNR of Mitsuba's image against fovjax's full frame
+(`fovjax.eval.psnr`: sRGB-encoded, clipped, peak 1); 40 dB or more is expected, and below it the
+script says where the images differ. `--json PATH` writes every figure with the command, date, git
+commit and machine.
 
 Needs Mitsuba 3 (`pip install 'fovjax[bench]'`) and, for its LLVM backend, the system's LLVM
 shared library, version 16 or later (Dr.Jit 1.5 needs it for `dr.maximum`/`dr.atan2`; Debian
@@ -57,6 +60,7 @@ import json
 import math
 import os
 import platform
+import resource
 import shlex
 import statistics
 import subprocess
@@ -71,6 +75,7 @@ MIN_LLVM = 16
 LLVM_HINT = "install Debian package libllvm19, or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version >= 16"
 DEFAULT_GAZE = ((0.4, 0.45), (0.4, 0.45))
 PSNR_EXPECTED = 40.0
+PAGE = resource.getpagesize()
 
 
 class Unavailable(Exception):
@@ -508,12 +513,18 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
         last["mitsuba"] = integrator.frame(prepared)
 
     runs = {"mitsuba_full": mitsuba_full, **runs}
-    timed = {name: {"ms": [], "wall": [], "cpu": []} for name in runs}
+    timed = {name: {"ms": [], "wall": [], "cpu": [], "fresh": [], "sys": []} for name in runs}
     for _ in range(args.repeats):
         for name, fn in runs.items():
+            u0 = resource.getrusage(resource.RUSAGE_SELF)
             c0, t0 = time.process_time(), time.perf_counter()
             result = fn()
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            u1 = resource.getrusage(resource.RUSAGE_SELF)
+            # Memory the frame touched for the first time (minor page faults: pages the kernel
+            # had to map and zero, kernel time the frame pays), and that kernel time.
+            timed[name]["fresh"].append((u1.ru_minflt - u0.ru_minflt) * PAGE / 2**20)
+            timed[name]["sys"].append(u1.ru_stime - u0.ru_stime)
             # fovjax: the compiled program's own time; Mitsuba: its frame (rays in -> image).
             timed[name]["ms"].append(wall if result is None else result.stats.render_seconds)
             timed[name]["wall"].append(wall)
@@ -524,6 +535,8 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
         out[f"{name}_ms"] = _median_ms(t["ms"])
         out[f"{name}_wall_ms"] = _median_ms(t["wall"])
         out[f"{name}_cpu_ms"] = _median_ms(t["cpu"])
+        out[f"{name}_fresh_mib"] = statistics.median(t["fresh"])
+        out[f"{name}_sys_ms"] = _median_ms(t["sys"])
     image, mi_counts = last["mitsuba"]
     out["mitsuba_compile_s"] = max(out["mitsuba_warmup_s"] - out["mitsuba_full_ms"] / 1000, 0.0)
     out["mitsuba_full_rays"] = mi_counts
@@ -551,14 +564,15 @@ def report(r, args) -> None:
         names.append((f"fovjax foveated {args.fovea[0]:g}°/{args.fovea[1]:g}°", "fovjax_foveated"))
     print(
         f"  {'frame':28s} {'ms/frame':>9s} {'wall ms':>9s} {'CPU ms':>9s} {'rays/frame':>11s} "
-        f"{'Mrays/s':>8s}   primary / shadow / reflection"
+        f"{'Mrays/s':>8s} {'fresh MiB':>9s} {'sys ms':>7s}   primary / shadow / reflection"
     )
     for label, key in names:
         counts, ms = r[f"{key}_rays"], r[f"{key}_ms"]
         n = _rays(counts)
         print(
             f"  {label:28s} {ms:9,.1f} {r[f'{key}_wall_ms']:9,.0f} {r[f'{key}_cpu_ms']:9,.0f} {n:11,} "
-            f"{n / ms / 1e3:8.2f}   {counts['primary']:,} / {counts['shadow']:,} / {counts['reflection']:,}"
+            f"{n / ms / 1e3:8.2f} {r[f'{key}_fresh_mib']:9,.0f} {r[f'{key}_sys_ms']:7,.0f}   "
+            f"{counts['primary']:,} / {counts['shadow']:,} / {counts['reflection']:,}"
         )
     ratios, cpu_ratios = [], []
     for label, key in reversed(names[1:]):
@@ -725,6 +739,7 @@ def frame_tables(record: dict) -> list[dict]:
                     n,
                     round(n / r[f"{key}_ms"] / 1e3, 2),
                     round(ratio, 3),
+                    round(r[f"{key}_fresh_mib"]) if f"{key}_fresh_mib" in r else "–",
                 ]
             )
         tables.append(
@@ -733,7 +748,15 @@ def frame_tables(record: dict) -> list[dict]:
                 f"{record['max_depth']}, backend {record['backend']}, foveated {record['fovea_deg']}° "
                 f"at gaze {record['gaze']}; PSNR of Mitsuba's frame against fovjax's full frame "
                 f"{r['psnr_db']:.1f} dB",
-                "columns": ["frame", "ms per frame", "CPU ms", "rays", "Mrays/s", "time / Mitsuba full"],
+                "columns": [
+                    "frame",
+                    "ms per frame",
+                    "CPU ms",
+                    "rays",
+                    "Mrays/s",
+                    "time / Mitsuba full",
+                    "fresh MiB",
+                ],
                 "rows": rows,
             }
         )

@@ -479,13 +479,7 @@ def _depth0(scene, bvh, o, d, active, *, offset, config):
             queue, n_q = _append(queue, n_q, (o2, d2, w2, first + lanes), alive2)
         return (queue, n_q, n_shadow + traced), contribution.reshape(size, 3)
 
-    capacity = padded + size if spawn else 0  # `_append` writes a band whole
-    queue = (
-        jnp.zeros((capacity, 3), jnp.float32),
-        jnp.ones((capacity, 3), jnp.float32),
-        jnp.zeros((capacity, 3), jnp.float32),
-        jnp.zeros((capacity,), jnp.int32),
-    )
+    queue = _queue_of(padded + size if spawn else 0)  # `_append` writes a band whole
     xs = (split(o, 0.0), split(d, 1.0), split(active, False), jnp.arange(count, dtype=jnp.int32) * size)
     zero = jnp.int32(0)
     (queue, n_q, n_shadow), total = jax.lax.scan(body, (queue, zero, zero), xs)
@@ -661,14 +655,18 @@ def _batch(chunks: _Chunks, config) -> _Chunks:
 def _empty_queue(chunks: _Chunks, config, classes=None):
     """(origins, directions, weights, target slots[, shading classes]) with a chunk of room
     beyond the slots and tile rays, in whole reflection chunks."""
-    capacity = _queue_chunks(chunks, config).padded
+    return _queue_of(_queue_chunks(chunks, config).padded, with_classes=classes is not None)
+
+
+def _queue_of(capacity: int, *, with_classes: bool = False):
+    """An empty queue of rays: (origins, directions, weights, target slots[, shading classes])."""
     queue = (
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.ones((capacity, 3), jnp.float32),
         jnp.zeros((capacity, 3), jnp.float32),
         jnp.zeros((capacity,), jnp.int32),
     )
-    return queue if classes is None else queue + (jnp.zeros((capacity,), jnp.int32),)
+    return queue + (jnp.zeros((capacity,), jnp.int32),) if with_classes else queue
 
 
 def _packet_of(config):
