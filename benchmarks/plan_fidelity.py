@@ -29,7 +29,7 @@ from pathlib import Path
 from _record import write_record
 
 import fovjax
-from fovjax.eval import default_options, plan_fidelity
+from fovjax.eval import PlanSearch, default_options, plan_fidelity
 from fovjax.foveate import Foveation
 from fovjax.render import RenderConfig, StereoRig
 
@@ -137,13 +137,11 @@ def main(argv=None):
             rig,
             Foveation.thesis(0, spp=spp),
             ("flip", args.threshold),
-            gazes=GAZES,
-            keys=args.keys,
+            search=PlanSearch(
+                gazes=GAZES, keys=args.keys, options=options, densities=args.densities, repeats=args.repeats
+            ),
             config=config,
-            repeats=args.repeats,
-            options=options,
             log=lambda line: print("  " + line, flush=True),
-            densities=args.densities,
         )
         print(f"\nSPP {spp} (search and timing {time.perf_counter() - t0:.0f} s)")
         print(plan)

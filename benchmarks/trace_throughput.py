@@ -340,7 +340,7 @@ def main(argv=None):
     for b in args.backends:
         print(f"backend {b}: {fovjax.trace.describe_backend(b, dev.platform)}")
     first = args.backends[0]
-    kw = {} if args.lanes is None else {"lanes": args.lanes}
+    kw = {} if args.lanes is None else {"traversal": fovjax.trace.Traversal(lanes=args.lanes)}
     rows = []
     for name in args.scenes:
         scene = fovjax.scenes.BUILTIN[name]()

@@ -44,8 +44,7 @@ def main() -> None:
     name = {"cornell": "cornell_box"}.get(args.scene, args.scene)
     scene = fovjax.scenes.BUILTIN[name]()
     start = time.perf_counter()
-    seq = fe.study_sequence(
-        scene,
+    animation = fe.StudyAnimation(
         eye_width=args.width,
         eye_height=args.height,
         frames=args.frames,
@@ -53,6 +52,7 @@ def main() -> None:
         rule=args.rule,
         seed=args.seed,
     )
+    seq = fe.study_sequence(scene, animation)
     print(f"rendered {seq.frames} frames in {time.perf_counter() - start:.0f} s (traces {seq.traces})")
     columns: dict[str, dict] = {}
     for peak in [100.0, *args.luminances]:

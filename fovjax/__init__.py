@@ -40,6 +40,8 @@ from .scene import pixel_sample_positions as pixel_sample_positions
 from .scene import select_lod as select_lod
 from .scene import stratified_offsets as stratified_offsets
 from .scene import vfov_from_hfov as vfov_from_hfov
+from .session import SessionConfig as SessionConfig
+from .session import SessionOutput as SessionOutput
 from .session import full_eccentricity as full_eccentricity
 from .session import run_session as run_session
 
@@ -107,6 +109,8 @@ __all__ = [
     "select_lod",
     "stratified_offsets",
     "vfov_from_hfov",
+    "SessionConfig",
+    "SessionOutput",
     "full_eccentricity",
     "run_session",
 ]

@@ -3,25 +3,28 @@ foveation layer (the renderer knows nothing of foveation)."""
 
 from __future__ import annotations
 
-from .foveate import DIAGNOSTICS, Foveation, render_foveated
-from .render import RenderConfig
+import jax
+
+from .foveate import DIAGNOSTICS, DiagnosticsLike, FoveatedFrame, Foveation, GazeLike, render_foveated
+from .render import Frame, HeadPoseLike, RenderConfig, SceneArrays, StereoRig
 from .render import render_stereo as _render_full
+from .scene import Scene
+from .trace import BVH
 
 
 def render_stereo(
-    scene,
-    rig=None,
+    scene: Scene | SceneArrays,
+    rig: StereoRig | None = None,
     *,
-    gaze=None,
-    foveation=None,
-    head_pose=None,
+    gaze: GazeLike | None = None,
+    foveation: Foveation | None = None,
+    head_pose: HeadPoseLike = None,
     spp: int | None = None,
-    key=None,
+    key: jax.Array | None = None,
     config: RenderConfig | None = None,
-    envmap=None,
-    bvh=None,
-    diagnostics=DIAGNOSTICS,
-):
+    bvh: BVH | None = None,
+    diagnostics: DiagnosticsLike = DIAGNOSTICS,
+) -> Frame | FoveatedFrame:
     """Render one stereo frame of the thesis's HMD: both eyes side by side, full or foveated.
 
     Without `foveation` and `gaze` this is the full render (`fovjax.render.render_stereo`); with
@@ -39,10 +42,13 @@ def render_stereo(
         key: the frame's `jax.random` key (jitter and sampling draws); None for cell centres and a
             fixed sampling pattern.
         config: the `fovjax.render.RenderConfig` (default `RenderConfig()`).
-        envmap: an environment map for rays that miss (a path or an array).
         bvh: a prebuilt BVH (default: built, or loaded from the disk cache).
         diagnostics: foveated frames only: which per-pixel outputs to return (names of
             `fovjax.foveate.DIAGNOSTICS`); each set is its own compiled program.
+
+    An environment map for the rays that miss: `fovjax.render.render_stereo(envmap=)` or
+    `fovjax.FoveatedRenderer(envmap=)`, or a `SceneArrays` made with one
+    (`scene_arrays(scene, envmap=)`) as `scene`, with `bvh`.
 
     Returns:
         A `fovjax.render.Frame`, or a `fovjax.foveate.FoveatedFrame` when foveated (image,
@@ -69,7 +75,6 @@ def render_stereo(
             spp=1 if spp is None else spp,
             key=key,
             config=config,
-            envmap=envmap,
             bvh=bvh,
         )
     if foveation is None:
@@ -84,7 +89,6 @@ def render_stereo(
         head_pose=head_pose,
         key=key,
         config=config,
-        envmap=envmap,
         bvh=bvh,
         diagnostics=diagnostics,
     )

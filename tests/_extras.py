@@ -32,6 +32,7 @@ EXTRAS = {
     "mkdocstrings_handlers.python": "docs",
     "msgpack": "pupil",
     "pyfvvdp": "fvvdp",
+    "pyright": "dev",
     "selenium": "dev",
     "torch": "fvvdp",
     "warp": "gpu",

@@ -88,3 +88,36 @@ def _annotation_checks(request):
 def pytest_unconfigure(config):
     if _OWN_SHARED:
         shutil.rmtree(os.environ.pop(_SHARED), ignore_errors=True)
+
+
+# pytest-xdist hands each worker whole files (pyproject: --dist loadfile), in collection order
+# (--no-loadscope-reorder). The files that take longest go first, so that the last files the two
+# workers take are short ones and neither waits long for the other at the end. Mostly compile
+# time; the order changes only how long the run takes.
+SLOWEST_FIRST = (
+    "test_plan_fidelity.py",
+    "test_foveate_tiles.py",
+    "test_view.py",
+    "test_eval_compare.py",
+    "test_renderer.py",
+    "test_fidelity_texture_lod.py",
+    "test_fidelity_lod.py",
+    "test_foveate_batches.py",
+    "test_render.py",
+    "test_eval_shard.py",
+    "test_render_grad.py",
+    "test_compile_cache.py",
+    "test_trace.py",
+    "test_session.py",
+    "test_eval_video_study.py",
+    "test_foveate_frame.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    here = os.path.dirname(__file__)
+    for name in SLOWEST_FIRST:
+        if not os.path.isfile(os.path.join(here, name)):
+            raise pytest.UsageError(f"tests/conftest.py SLOWEST_FIRST names {name!r}, which is not in tests/")
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order

@@ -23,7 +23,8 @@ def well_posed():
 @pytest.fixture(scope="module")
 def posterior(well_posed):
     data, result = well_posed
-    return fa.sample_posterior(data, "exponential", start=result, nwalkers=32, nsteps=2500, seed=1)
+    sampler = fa.EmceeOptions(nwalkers=32, nsteps=2500)
+    return fa.sample_posterior(data, "exponential", start=result, sampler=sampler, seed=1)
 
 
 def test_emcee_agrees_with_the_laplace_approximation(well_posed, posterior):
@@ -64,12 +65,12 @@ def test_short_chain_fails_the_autocorrelation_check(well_posed):
     with pytest.raises(
         fa.PosteriorConvergenceError, match=r"chain of 200 steps is shorter than 50× the autocorrelation"
     ):
-        fa.sample_posterior(data, start=result, nsteps=200)
+        fa.sample_posterior(data, start=result, sampler=fa.EmceeOptions(nsteps=200))
     with pytest.warns(fa.PosteriorConvergenceWarning, match="autocorrelation"):
-        s = fa.sample_posterior(data, start=result, nsteps=200, on_fail="warn")
+        s = fa.sample_posterior(data, start=result, sampler=fa.EmceeOptions(nsteps=200, on_fail="warn"))
     assert not s.diagnostics["converged"]
     with pytest.raises(ValueError, match="on_fail"):
-        fa.sample_posterior(data, start=result, on_fail="ignore")
+        fa.EmceeOptions(on_fail="ignore")
 
 
 def test_bootstrap_intervals(well_posed):
@@ -88,7 +89,7 @@ def test_bootstrap_intervals(well_posed):
 def test_fixed_parameters_are_not_sampled():
     data = fa.from_arrays([0.5, 1.75, 2.72, 3.0, 5.27], [0.5] * 5)
     res = fa.fit(data, "linear_mar", fixed={"a": 1.0})
-    s = fa.sample_posterior(data, "linear_mar", start=res, nsteps=2000)
+    s = fa.sample_posterior(data, "linear_mar", start=res, sampler=fa.EmceeOptions(nsteps=2000))
     assert s.names == ("e2",) and s.full().shape[1] == 2
     assert np.all(s.full()[:, 0] == 1.0)
     lo, hi = s.intervals()["e2"]

@@ -4,6 +4,7 @@ intervals, the choice checked by hand against the records, the CSV and charts, t
 from __future__ import annotations
 
 import math
+import re
 
 import _extras
 import imageio.v3 as iio
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax.eval import Comparison, compare_thresholds, read_csv
+from fovjax.eval import Comparison, ThresholdSweep, compare_thresholds, read_csv
 from fovjax.render import RenderConfig, StereoRig
 
 EYE_W, EYE_H = 32, 24
@@ -53,13 +54,8 @@ def scene_rig():
 def _compare(scene_rig, criterion) -> Comparison:
     scene, rig = scene_rig
     return compare_thresholds(
-        scene,
-        rig,
-        thresholds=THRESHOLDS,
-        spp=[1],
-        gazes=GAZES,
-        keys=KEYS,
-        config=CONFIG,
+        fovjax.FoveatedRenderer(scene, rig, config=CONFIG),
+        sweep=ThresholdSweep(thresholds=THRESHOLDS, spp=[1], gazes=GAZES, keys=KEYS),
         criterion=criterion,
         perceptual=False,
         progress=False,
@@ -198,13 +194,48 @@ def test_cli_compare_fidelity_auto(scene_rig, tmp_path, capsys):
     assert (out / "cost_accuracy_ms_spp1.png").is_file()
 
 
-def test_compare_rejects_a_bad_fidelity_before_rendering(scene_rig):
+def test_compare_rejects_a_bad_plan_before_rendering(scene_rig):
     scene, rig = scene_rig
-    with pytest.raises(ValueError, match="fidelity 'manual'"):
-        compare_thresholds(scene, rig, fidelity="manual", progress=False)
-    if HAS_FLIP:
-        with pytest.raises(ValueError, match="threshold 3"):
-            compare_thresholds(scene, rig, fidelity="auto", plan_criterion=("flip", 3), progress=False)
+    with pytest.raises(ValueError, match="metric 'psnr'"):
+        compare_thresholds(scene, rig, plan=("psnr", 0.1), progress=False)
+    with pytest.raises(ValueError, match="threshold 3"):
+        compare_thresholds(scene, rig, plan=("flip", 3), progress=False)
+
+
+@pytest.mark.no_typecheck
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"thresholds": [(10, 5)]}, "thresholds[0] (10, 5): expected (fovea, periphery) degrees"),
+        ({"thresholds": []}, "thresholds []: expected a non-empty sequence"),
+        ({"spp": [1, 3]}, "spp[1] 3: expected a positive square"),
+        ({"gazes": [(0.5, 1.5)]}, "gazes[0] (0.5, 1.5): expected (x, y)"),
+        ({"keys": [0, -1]}, "keys[1] -1: expected an integer seed >= 0"),
+        ({"rule": "sometimes"}, "rule 'sometimes': expected one of"),
+        ({"regions": "square"}, "regions 'square': expected one of"),
+    ],
+)
+def test_a_sweep_checks_its_fields(fields, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        ThresholdSweep(**fields)
+
+
+def test_the_documented_keywords_still_work_with_a_deprecation(scene_rig, everything_passes):
+    """The README's and the tutorials' earlier call (thresholds=, spp=, gazes=, keys=, config=)
+    measures what the sweep does, and names the replacements."""
+    scene, rig = scene_rig
+    with pytest.warns(DeprecationWarning) as caught:
+        old = compare_thresholds(
+            scene, rig, thresholds=THRESHOLDS, spp=[1], gazes=GAZES, keys=KEYS, config=CONFIG,
+            criterion=("psnr", 0.0), perceptual=False, progress=False,
+        )  # fmt: skip
+    said = " ".join(str(w.message) for w in caught)
+    assert "ThresholdSweep(" in said and "FoveatedRenderer(" in said
+    for a, b in zip(old.records, everything_passes.records, strict=True):
+        assert a["config"] == b["config"] and a["rays_per_frame"] == b["rays_per_frame"]
+        assert a["psnr"] == pytest.approx(b["psnr"], rel=1e-6)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'threshold'"):
+        compare_thresholds(scene, rig, threshold=[(5, 10)])
 
 
 def test_cli_rejects_a_bad_distributed_spec(capsys):
@@ -221,7 +252,10 @@ def test_documented_defaults_and_one_frame_has_no_interval(scene_rig):
     # key: a single frame per configuration gives no interval, so no criterion can be met.
     scene, rig = scene_rig
     one = compare_thresholds(
-        scene, rig, thresholds=[(15, 30)], spp=[1], gazes=[(0.5, 0.5)], keys=[0], progress=False
+        scene,
+        rig,
+        ThresholdSweep(thresholds=[(15, 30)], spp=[1], gazes=[(0.5, 0.5)], keys=[0]),
+        progress=False,
     )
     (record,) = one.records
     assert record["n"] == 1
@@ -235,10 +269,7 @@ def test_documented_defaults_and_one_frame_has_no_interval(scene_rig):
     psnr = compare_thresholds(
         scene,
         rig,
-        thresholds=[(15, 30)],
-        spp=[1],
-        gazes=[(0.5, 0.5)],
-        keys=[0],
+        ThresholdSweep(thresholds=[(15, 30)], spp=[1], gazes=[(0.5, 0.5)], keys=[0]),
         criterion=("psnr", 0.0),
         perceptual=False,
         progress=False,
@@ -262,8 +293,8 @@ def test_metric_summary_needs_two_finite_samples():
 
 
 def test_methods_side_by_side_in_one_table_and_chart(scene_rig, tmp_path, capsys):
-    """`methods=`: every method × threshold pair in one table (the method per row, new rays and
-    reused pixels per frame) and one chart of new rays across methods; the temporal method
+    """`ThresholdSweep(methods=)`: every method × threshold pair in one table (the method per
+    row, new rays and reused pixels per frame) and one chart of new rays across methods; the temporal method
     measured after a frame of history reuses pixels and traces fewer new rays than the full
     frame; the CLI's --methods is the same sweep."""
     from fovjax.cli import main
@@ -271,17 +302,11 @@ def test_methods_side_by_side_in_one_table_and_chart(scene_rig, tmp_path, capsys
     scene, rig = scene_rig
     methods = ["thesis", "guenter2012", "weier2016"]
     result = compare_thresholds(
-        scene,
-        rig,
-        thresholds=[(5, 10)],
-        spp=[1],
-        gazes=GAZES,
-        keys=KEYS,
-        config=CONFIG,
+        fovjax.FoveatedRenderer(scene, rig, config=CONFIG),
+        sweep=ThresholdSweep(thresholds=[(5, 10)], spp=[1], gazes=GAZES, keys=KEYS, methods=methods),
         criterion=("psnr", 0.0),
         perceptual=False,
         progress=False,
-        methods=methods,
     )
     assert [r["method"] for r in result.records] == methods
     assert [r["config"] for r in result.records] == [f"{m} 5/10 spp1" for m in methods]
@@ -297,9 +322,11 @@ def test_methods_side_by_side_in_one_table_and_chart(scene_rig, tmp_path, capsys
     assert paths["cost_accuracy_new_rays_spp1"].is_file()
     assert [r["method"] for r in read_csv(paths["csv"])] == methods
     with pytest.raises(ValueError, match="method must be one of"):
-        compare_thresholds(scene, rig, methods=["nope"], progress=False, perceptual=False)
+        compare_thresholds(scene, rig, ThresholdSweep(methods=["nope"]), progress=False, perceptual=False)
     with pytest.raises(ValueError, match="take neither shard"):
-        compare_thresholds(scene, rig, methods=["weier2016"], shard=True, progress=False, perceptual=False)
+        compare_thresholds(
+            scene, rig, ThresholdSweep(methods=["weier2016"]), shard=True, progress=False, perceptual=False
+        )
 
     out = tmp_path / "cli"
     argv = ["compare", "--scene", "cornell_box", "--thresholds", "5,10", "--spp", "1"]

@@ -14,6 +14,8 @@ from fovjax.acuity import THESIS_MODEL, LinearMAR, PowerMAR
 from fovjax.eval import (
     AcuityTerms,
     FullRenders,
+    PursuitFlicker,
+    SaccadeTrial,
     after_saccade,
     checkerboard_scene,
     corner_gaze,
@@ -77,7 +79,7 @@ def test_offset_gaze_is_the_stated_angle_away(tiny):
 
 def test_corner_gaze_gives_a_valid_frame_and_ring_records(tiny, tmp_path):
     scene, rig, fov, full = tiny
-    case = corner_gaze(scene, rig, fov, keys=(0,), config=CONFIG, full=full)
+    case = corner_gaze(full, fov, keys=(0,))
     assert {r["gaze"] for r in case.records} == {"centre", "corner"}
     corner = [r for r in case.records if r["gaze"] == "corner"]
     centre = [r for r in case.records if r["gaze"] == "centre"]
@@ -97,9 +99,7 @@ def test_corner_gaze_gives_a_valid_frame_and_ring_records(tiny, tmp_path):
 
 def test_tracker_error_raises_the_error_at_the_true_gaze(tiny):
     scene, rig, fov, full = tiny
-    case = tracking_error(
-        scene, rig, [fov], errors_deg=(0.0, 8.0), directions_deg=(0.0,), config=CONFIG, full=full
-    )
+    case = tracking_error(full, [fov], errors_deg=(0.0, 8.0), directions_deg=(0.0,))
     perfect, off = case.records
     assert perfect["tracker_error_deg"] == 0 and off["measured_error_deg"] == pytest.approx(8.0, abs=0.05)
     # Perfect tracking: the true fovea is the full render (to float32 rounding).
@@ -110,7 +110,7 @@ def test_tracker_error_raises_the_error_at_the_true_gaze(tiny):
 
 def test_after_saccade_latest_gaze_lags_and_perfect_does_not(tiny):
     scene, rig, fov, full = tiny
-    case = after_saccade(scene, rig, fov, latencies_s=(0.025,), after_s=0.05, config=CONFIG, full=full)
+    case = after_saccade(full, fov, saccade=SaccadeTrial(latencies_s=(0.025,), after_s=0.05))
     rows = {(r["display"], r["frame"]): r for r in case.records}
     perfect = [r for r in case.records if r["policy"] == "perfect"]
     assert all(r["gaze_error_deg"] < 1e-3 and r["abs_true_fovea"] < 1e-5 for r in perfect)
@@ -131,15 +131,7 @@ def test_equal_budget_models_match_rays(tiny):
     assert {f.ray_budget for f in budget.foveations.values()} == {budget.ray_budget}
     from fovjax.eval import acuity_models
 
-    case = acuity_models(
-        scene,
-        rig,
-        gazes=((0.5, 0.5),),
-        rules=("either",),
-        budgets={"either": budget},
-        config=CONFIG,
-        full=full,
-    )
+    case = acuity_models(full, gazes=((0.5, 0.5),), rules=("either",), budgets={"either": budget})
     frames = [r for r in case.records if r["kind"] == "frame"]
     assert len(frames) == 4 and all(r["dropped"] == 0 for r in frames)
     assert all(abs(r["primary_rays_vs_reference"]) < 0.05 for r in frames)
@@ -171,30 +163,21 @@ def test_bad_inputs_raise_clear_errors(tiny):
     with pytest.raises(ValueError, match="options for unknown"):
         failure_cases(scene, rig, options={"nope": {}}, progress=False)
     with pytest.raises(ValueError, match="policies"):
-        after_saccade(scene, rig, fov, policies=("psychic",), full=full)
+        after_saccade(full, fov, policies=("psychic",))
     with pytest.raises(ValueError, match="latencies_s"):
-        after_saccade(scene, rig, fov, latencies_s=(-0.01,), full=full)
+        SaccadeTrial(latencies_s=(-0.01,))
+    with pytest.raises(ValueError, match="PursuitFlicker: frames must be a whole number >= 2, got 1"):
+        PursuitFlicker(frames=1)
     with pytest.raises(ValueError, match="rules"):
         from fovjax.eval import acuity_models
 
-        acuity_models(scene, rig, fov, rules=("loose",), full=full)
+        acuity_models(full, fov, rules=("loose",))
     with pytest.raises(ValueError, match="positive squares"):
         high_spp(scene, rig, spp=(1, 3))
     with pytest.raises(ValueError, match="errors >= 0"):
-        tracking_error(scene, rig, [fov], errors_deg=(-1.0,), full=full)
-    with pytest.raises(ValueError, match="another rig"):
-        corner_gaze(
-            scene,
-            rig,
-            fov,
-            full=FullRenders(
-                scene,
-                rig.__class__.from_pose(fovjax.scenes.default_camera(scene), eye_width=32, eye_height=24),
-                CONFIG,
-            ),
-        )
+        tracking_error(full, [fov], errors_deg=(-1.0,))
     with pytest.raises(ValueError, match="off-screen"):
-        corner_gaze(scene, rig, fov, corner=(1.2, 0.5), full=full)
+        corner_gaze(full, fov, corner=(1.2, 0.5))
     with pytest.raises(ValueError, match="at least one model"):
         equal_budget_foveations(rig, fov, {})
     with pytest.raises(ValueError, match="cannot reach"):
@@ -247,3 +230,11 @@ def test_cli_registers_failures_and_stability():
         parser.parse_args(["failures", "--small", "64by48"])
     with pytest.raises(SystemExit):
         parser.parse_args(["failures", "--cases", "nope"])
+
+
+@pytest.mark.no_typecheck
+def test_a_case_needs_full_renders_of_what_to_render(tiny):
+    scene, _, fov, _ = tiny
+    for case in (after_saccade, corner_gaze):
+        with pytest.raises(TypeError, match="the first argument must be a fovjax.eval.FullRenders"):
+            case(scene, fov)

@@ -26,7 +26,7 @@ SCRIPT = textwrap.dedent(
     from jax.sharding import PartitionSpec as P
 
     import fovjax
-    from fovjax.eval import compare_thresholds, render_foveated_batch, render_stereo_batch
+    from fovjax.eval import ThresholdSweep, compare_thresholds, render_foveated_batch, render_stereo_batch
     from fovjax.foveate import Foveation, render_foveated
     from fovjax.render import RenderConfig, StereoRig, render_stereo
 
@@ -77,12 +77,11 @@ SCRIPT = textwrap.dedent(
         np.testing.assert_allclose(full.images[i], frame.image, rtol=1e-5, atol=1e-6)
 
     # The sweep, sharded and not: same rays and metrics (reuses the programs compiled above).
-    sweep = dict(
-        thresholds=[(5, 10)], spp=[1], gazes=[(0.5, 0.5), (0.3, 0.4)], keys=[0, 1], config=config,
-        criterion=("psnr", 10.0), perceptual=False, progress=False,
-    )
-    sharded = compare_thresholds(scene, rig, shard=True, **sweep)
-    plain = compare_thresholds(scene, rig, shard=False, **sweep)
+    renderer = fovjax.FoveatedRenderer(scene, rig, config=config)
+    sweep = ThresholdSweep(thresholds=[(5, 10)], spp=[1], gazes=[(0.5, 0.5), (0.3, 0.4)], keys=[0, 1])
+    options = dict(criterion=("psnr", 10.0), perceptual=False, progress=False)
+    sharded = compare_thresholds(renderer, sweep=sweep, shard=True, **options)
+    plain = compare_thresholds(renderer, sweep=sweep, shard=False, **options)
     (a,), (b,) = sharded.records, plain.records
     assert a["timing"].startswith("batch over 2 devices") and b["timing"] == "median of frames"
     assert a["rays_per_frame"] == b["rays_per_frame"] and a["n"] == b["n"] == 4

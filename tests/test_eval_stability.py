@@ -107,7 +107,7 @@ def test_gaze_sequence_from_models_callables_and_arrays():
 def test_fixed_key_is_still_on_a_still_gaze_and_fresh_key_flickers(tiny, tmp_path):
     scene, rig, fov = tiny
     full = FullRenders(scene, rig, CONFIG)
-    result = temporal_stability(scene, rig, (0.5, 0.5), fov, frames=3, config=CONFIG, full=full)
+    result = temporal_stability(full, (0.5, 0.5), fov, frames=3)
     by = {r["key_mode"]: r for r in result.summary}
     assert by["fixed"]["flicker_beyond_fovea"] == 0.0
     assert by["fixed"]["full_same_policy_flicker_beyond_fovea"] == 0.0
@@ -125,7 +125,7 @@ def test_fixed_key_is_still_on_a_still_gaze_and_fresh_key_flickers(tiny, tmp_pat
 def test_moving_gaze_makes_fixed_key_flicker(tiny):
     scene, rig, fov = tiny
     moving = np.array([(0.3, 0.5), (0.5, 0.5), (0.7, 0.5)])
-    result = temporal_stability(scene, rig, moving, fov, frames=3, key_modes="fixed", config=CONFIG)
+    result = temporal_stability(FullRenders(scene, rig, CONFIG), moving, fov, frames=3, key_modes="fixed")
     (row,) = result.summary
     assert row["full_same_policy_flicker_beyond_fovea"] == 0.0
     assert row["flicker_beyond_fovea"] > 0.0  # the eccentricity map moved, the key did not
@@ -134,10 +134,15 @@ def test_moving_gaze_makes_fixed_key_flicker(tiny):
 
 def test_temporal_stability_rejects_bad_inputs(tiny):
     scene, rig, fov = tiny
+    full = FullRenders(scene, rig, CONFIG)
     with pytest.raises(ValueError, match="key_modes"):
-        temporal_stability(scene, rig, (0.5, 0.5), fov, frames=2, key_modes="random", config=CONFIG)
+        temporal_stability(full, (0.5, 0.5), fov, frames=2, key_modes="random")
     with pytest.raises(ValueError, match="head_poses"):
-        temporal_stability(scene, rig, (0.5, 0.5), fov, frames=2, head_poses=np.zeros((3, 3)), config=CONFIG)
-    other = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=32, eye_height=24)
-    with pytest.raises(ValueError, match="another rig"):
-        temporal_stability(scene, rig, (0.5, 0.5), fov, frames=2, full=FullRenders(scene, other, CONFIG))
+        temporal_stability(full, (0.5, 0.5), fov, frames=2, head_poses=np.zeros((3, 3)))
+
+
+@pytest.mark.no_typecheck
+def test_temporal_stability_needs_full_renders_of_what_to_render(tiny):
+    scene, _, fov = tiny
+    with pytest.raises(TypeError, match="the first argument must be a fovjax.eval.FullRenders"):
+        temporal_stability(scene, (0.5, 0.5), fov, frames=2)

@@ -94,7 +94,7 @@ def test_difference_is_the_mean_over_the_levels_rows_at_the_spp(metric):
 @pytest.mark.parametrize(("metric", "threshold", "first_same"), CROSSINGS)
 def test_noise_free_observers_answer_same_exactly_below_threshold(metric, threshold, first_same):
     observers = fe.observers_from_comparison(
-        make_table(metric), metric=metric, spp=4, n=3, threshold=threshold, noise_sd=0.0
+        make_table(metric), metric=metric, spp=4, observers=fe.ObserverPanel(n=3, threshold=threshold)
     )
     responses = fe.run_study(observers)
     assert len(responses) == 3 * 21
@@ -120,10 +120,15 @@ def test_noisy_observers_differ_and_follow_the_seed():
     table = make_table("jod")
 
     def answers(seed):
-        observers = fe.observers_from_comparison(table, n=8, noise_sd=0.8, seed=seed)
+        observers = fe.observers_from_comparison(
+            table, observers=fe.ObserverPanel(n=8, noise_sd=0.8, seed=seed)
+        )
         return [r.answer for r in fe.run_study(observers)]
 
-    seeds = [o.seed for o in fe.observers_from_comparison(table, n=8, noise_sd=0.8, seed=1)]
+    seeds = [
+        o.seed
+        for o in fe.observers_from_comparison(table, observers=fe.ObserverPanel(n=8, noise_sd=0.8, seed=1))
+    ]
     assert len(set(seeds)) == 8
     per_observer = [tuple(answers(1)[k * 21 : (k + 1) * 21]) for k in range(8)]
     assert len(set(per_observer)) > 1  # noise makes the observers differ

@@ -20,6 +20,7 @@ import fovjax.render
 from fovjax.cli import main
 
 TINY = {"eye_width": 32, "eye_height": 32, "frames": 4, "fps": 60.0, "gaze": "fixed", "seed": 3}
+ANIMATION = fe.StudyAnimation(**TINY)
 LIGHT, HEAVY = (15.0, 30.0), (5.0, 10.0)
 
 
@@ -39,7 +40,7 @@ def scene():
 @pytest.fixture(scope="module")
 def sequence(scene):
     fovjax.render.clear_compile_cache()
-    return fe.study_sequence(scene, **TINY)
+    return fe.study_sequence(scene, ANIMATION)
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +65,8 @@ def test_sequence_compiles_once_for_the_full_and_once_for_the_foveated_frames(se
 
 def test_scanpath_gaze_moves_and_fixed_gaze_stays_at_the_centre(scene, sequence):
     assert np.all(sequence.gaze == 0.5)
-    path = fe.study_sequence(scene, levels=[HEAVY], **{**TINY, "gaze": "scanpath", "frames": 30, "seed": 0})
+    animation = fe.StudyAnimation(**{**TINY, "levels": [HEAVY], "gaze": "scanpath", "frames": 30, "seed": 0})
+    path = fe.study_sequence(scene, animation)
     g = path.gaze
     assert g.shape == (30, 2, 2) and np.all((g >= 0) & (g <= 1))
     assert np.array_equal(g[:, 0], g[:, 1])  # both eyes at the same point
@@ -150,9 +152,9 @@ BAD = [
     ({"seed": -2}, "seed must be a whole number >= 0, got -2"),
     ({"levels": [(10.0, 5.0)]}, "0 <= fovea <= periphery"),
     ({"peak_luminance": 0.0}, "peak_luminance must be a number > 0 (cd/m²), got 0.0"),
-    ({"observers": 0}, "observers must be a whole number >= 1, got 0"),
+    ({"observers": 0}, "n (observers) must be a whole number >= 1, got 0"),
     ({"noise_sd": -0.1}, "noise_sd must be a finite number >= 0, got -0.1"),
-    ({"threshold": math.inf}, "threshold must be a finite number >= 0 (JOD), got inf"),
+    ({"threshold": math.inf}, "threshold must be None or a finite number >= 0, got inf"),
 ]
 
 
@@ -160,7 +162,12 @@ BAD = [
 def test_bad_arguments_are_refused_before_rendering(monkeypatch, scene, kwargs, message):
     monkeypatch.setattr(fovjax.render, "render_stereo", _trap)
     with pytest.raises(ValueError, match=re.escape(message)):
-        fe.video_study(scene, **{**TINY, **kwargs})
+        options = {**TINY, **kwargs}
+        panel = {k: options.pop(k) for k in ("observers", "noise_sd", "threshold") if k in options}
+        if "observers" in panel:
+            panel["n"] = panel.pop("observers")
+        peak = {"peak_luminance": options.pop("peak_luminance")} if "peak_luminance" in options else {}
+        fe.video_study(scene, fe.StudyAnimation(**options), observers=fe.ObserverPanel(**panel), **peak)
 
 
 CLI_BAD = [

@@ -387,7 +387,7 @@ def test_levels_without_fast_simplification(spheres_rig, monkeypatch, tmp_path):
 
 def test_frame_program_without_levels_refuses_a_lod_fidelity(spheres_rig):
     scene, rig = spheres_rig
-    from fovjax.foveate.internal import foveated_stereo
+    from fovjax.foveate.internal import FrameOptions, foveated_stereo
     from fovjax.render import scene_arrays
     from fovjax.render.internal import bvh_for
 
@@ -401,8 +401,5 @@ def test_frame_program_without_levels_refuses_a_lod_fidelity(spheres_rig):
             np.full((2, 2), 0.5, np.float32),
             jax.random.key(0),
             f,
-            spp=1,
-            jitter=False,
-            config=CONFIG,
-            budget=2 * 48 * 32,
+            options=FrameOptions(spp=1, jitter=False, config=CONFIG, budget=2 * 48 * 32),
         )

@@ -18,6 +18,7 @@ from fovjax.eval import (
     DEFAULT_STEPS,
     FidelityPlan,
     HmdDisplay,
+    PlanSearch,
     default_options,
     error_by_eccentricity,
     flip,
@@ -46,9 +47,8 @@ def spheres():
 
 def _plan(spheres, threshold, options) -> FidelityPlan:
     scene, rig = spheres
-    return plan_fidelity(
-        scene, rig, FOVEATION, ("flip", threshold), gazes=GAZES, keys=KEYS, options=options, config=CONFIG
-    )
+    search = PlanSearch(gazes=GAZES, keys=KEYS, options=options)
+    return plan_fidelity(scene, rig, FOVEATION, ("flip", threshold), search=search, config=CONFIG)
 
 
 @pytest.fixture(scope="module")
@@ -136,11 +136,8 @@ def test_densities_are_planned_and_the_cheapest_is_kept(spheres):
         rig,
         FOVEATION,
         ("flip", 1.0),
-        gazes=GAZES,
-        keys=KEYS,
-        options=CHAIN,
+        search=PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN, densities=[(2, 4), (4, 8)]),
         config=CONFIG,
-        densities=[(2, 4), (4, 8)],
     )
     density = [s for s in plan.steps if s.region == "density"]
     assert [(s.candidate, s.passed) for s in density] == [((4, 8), True)]
@@ -160,11 +157,8 @@ def test_a_density_that_fails_at_full_fidelity_is_no_candidate(spheres):
         rig,
         FOVEATION,
         ("flip", 0.0),
-        gazes=GAZES,
-        keys=KEYS,
-        options=[FULL],
+        search=PlanSearch(gazes=GAZES, keys=KEYS, options=[FULL], densities=[(2, 4), (4, 8)]),
         config=CONFIG,
-        densities=[(2, 4), (4, 8)],
     )
     # Sparser blocks change pixels, so at threshold 0 they fail; plain foveation is the plan.
     assert [(s.region, s.candidate, s.passed) for s in plan.steps] == [("density", (4, 8), False)]
@@ -245,8 +239,6 @@ BAD = [
     ({"keys": [0, -1]}, r"keys\[1\] -1"),
     ({"keys": [1.5]}, r"keys\[0\] 1.5"),
     ({"keys": [True]}, r"keys\[0\] True"),
-    ({"spp": 3}, "spp 3"),
-    ({"spp": 0}, "spp 0"),
     ({"repeats": 0}, "repeats 0"),
     ({"render_kwargs": ["envmap"]}, "render_kwargs"),
     ({"options": []}, "options"),
@@ -274,9 +266,12 @@ def test_bad_arguments_fail_before_rendering(spheres, monkeypatch, change, messa
     monkeypatch.setattr(fovjax.foveate, "render_foveated", _trap)
     scene, rig = spheres
     args = {"scene": scene, "rig": rig, "foveation": FOVEATION, "criterion": ("flip", 0.05)}
-    kwargs = {"gazes": GAZES, "keys": KEYS, "config": CONFIG}
+    searched = {"gazes": GAZES, "keys": KEYS}
+    kwargs = {"config": CONFIG}
     for name, value in change.items():
-        (args if name in args else kwargs)[name] = value
+        where = args if name in args else searched if name in PlanSearch.__dataclass_fields__ else kwargs
+        where[name] = value
     with pytest.raises(ValueError, match=message) as err:
+        kwargs["search"] = PlanSearch(**searched)
         plan_fidelity(args["scene"], args["rig"], args["foveation"], args["criterion"], **kwargs)
     assert "plan_fidelity" in str(err.value)

@@ -79,7 +79,12 @@ def test_every_entry_point_renders_the_same_frame(prepared, tmp_path):
     # The session: its first frame (key folded with 0) at the gaze and thresholds it logged.
     out = tmp_path / "session"
     result = fovjax.run_session(
-        renderer, gaze="synthetic:fixed:0.4,0.45", frames=1, out=out, key=key, debug=True, progress=False
+        renderer,
+        gaze="synthetic:fixed:0.4,0.45",
+        session=fovjax.SessionConfig(frames=1),
+        out=fovjax.SessionOutput(out, debug=True),
+        key=key,
+        progress=False,
     )
     (row,) = result.frames
     thresholds = (row.fovea_deg, row.periphery_deg)

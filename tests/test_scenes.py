@@ -153,7 +153,7 @@ def test_atrium_solids_are_closed():
 
 def test_arch_bay_volume_matches_its_profile():
     mb = _geometry.MeshBuilder()
-    _geometry.add_arch_bay(mb, 0.0, 1.5, 1.1, 3.4, 5.2, -0.35, 0.35, 64, 2, 1, 0)
+    _geometry.add_arch_bay(mb, _geometry.ArchBay(0.0, 1.5, 1.1, 3.4, 5.2, -0.35, 0.35, 64, 2, 1), 0)
     v, f, _, _ = mb.build()
     mesh = trimesh.Trimesh(v, f, process=False)
     mesh.merge_vertices(digits_vertex=12)

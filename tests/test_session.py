@@ -8,6 +8,7 @@ widening step and the full screen (the policy below widens in two steps)."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import re
@@ -20,10 +21,11 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax import foveate
+from fovjax import FoveatedRenderer, foveate
 from fovjax.devices import EyeGaze, FallbackPolicy, GazeSample, GazeTracker, Source, load_recording
 from fovjax.foveate import Foveation
 from fovjax.render import RenderConfig, StereoRig
+from fovjax.session import SessionConfig, SessionOutput
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "data" / "recordings"
 SCANPATH = RECORDINGS / "synthetic_scanpath_seed0.jsonl"
@@ -45,11 +47,20 @@ def rig(scene):
     return StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=EYE_W, eye_height=EYE_H)
 
 
-def session(scene, rig, **kwargs):
-    kwargs.setdefault("foveation", FOVEATION)
-    kwargs.setdefault("config", CONFIG)
+SESSION_FIELDS = ("frames", "seconds", "fps", "clock", "fresh_key_per_frame", "warmup", "wait")
+
+
+def session(scene, rig, *, out=None, video=False, debug=False, policy=None, **kwargs):
+    """`run_session` on a renderer of the test's foveation and config, the session's length
+    and clock, output, fallback policy and foveation given as keywords for brevity."""
+    renderer = FoveatedRenderer(scene, rig, kwargs.pop("foveation", FOVEATION), CONFIG)
+    config = SessionConfig(**{k: kwargs.pop(k) for k in SESSION_FIELDS if k in kwargs})
+    if out is not None:
+        out = SessionOutput(out, video=video, debug=debug)
+    if policy is not None:
+        kwargs["tracker"] = GazeTracker(policy=policy)
     kwargs.setdefault("progress", False)
-    return fovjax.run_session(scene, rig, **kwargs)
+    return fovjax.run_session(renderer, session=config, out=out, **kwargs)
 
 
 @pytest.fixture(scope="module")
@@ -399,6 +410,7 @@ def test_cli_errors(tmp_path, capsys, extra, message):
         ({"seconds": 0.01}, "need at least one frame"),
         ({"seconds": math.nan}, "seconds must be a finite number"),
         ({}, "give frames= or seconds="),
+        ({"frames": 2, "wait": -1.0}, "wait must be a finite number of seconds >= 0, got -1.0"),
         ({"frames": 2, "seconds": 1.0}, "not both"),
         ({"frames": 2, "fps": 0}, "fps must be a positive number"),
         ({"frames": 2, "gaze": "bogus:thing"}, "unknown scheme 'bogus'"),
@@ -407,8 +419,6 @@ def test_cli_errors(tmp_path, capsys, extra, message):
         ({"frames": 2, "gaze": (0.5, 0.5)}, "gaze must be a source spec"),
         ({"frames": 2, "head": f"replay:{SCANPATH}"}, "is a gaze recording, not head"),
         ({"frames": 2, "clock": "sundial"}, "clock must be one of"),
-        ({"frames": 2, "video": True}, "give out="),
-        ({"frames": 2, "policy": POLICY, "tracker": GazeTracker()}, "not both"),
     ],
 )
 @pytest.mark.no_typecheck
@@ -446,3 +456,55 @@ def test_temporal_method_carries_its_history_and_resets_on_tracking_loss(scene, 
         elif i > 0 and states[i - 1] == "ok":
             assert f.reused_pixels > 0 and f.primary_rays < every
     assert sum(f.compile_s > 0 for f in result.frames) == 1
+
+
+def test_the_old_keywords_still_work_with_a_deprecation(scene, rig, tmp_path):
+    """The tutorials' earlier call (scene, rig, foveation=, config=, policy=, frames=, fps=,
+    out=, debug=) renders what the new one does, and says what replaces each keyword."""
+    gaze = f"replay:{SCANPATH}"
+    with pytest.warns(DeprecationWarning) as caught:
+        old = fovjax.run_session(
+            scene, rig, gaze=gaze, foveation=FOVEATION, config=CONFIG, policy=POLICY,
+            frames=2, fps=10, out=tmp_path / "old", debug=True, progress=False,
+        )  # fmt: skip
+    said = " ".join(str(w.message) for w in caught)
+    for replacement in ("SessionConfig(", "SessionOutput(", "GazeTracker(policy=", "FoveatedRenderer("):
+        assert replacement in said
+    new = session(scene, rig, gaze=gaze, frames=2, fps=10, out=tmp_path / "new", debug=True, policy=POLICY)
+
+    def untimed(rows):  # the frames' paths and measured times differ between the runs
+        return [dataclasses.replace(f, path="", render_s=0.0, compile_s=0.0) for f in rows]
+
+    assert untimed(old.frames) == untimed(new.frames)
+    for name in ("frame_00001.png", "debug_00001.png"):
+        old_image, new_image = (iio.imread(tmp_path / run / name) for run in ("old", "new"))
+        np.testing.assert_array_equal(old_image, new_image)
+
+
+@pytest.mark.no_typecheck
+def test_a_keyword_that_never_existed_is_a_type_error(scene, rig):
+    with pytest.raises(TypeError, match="unexpected keyword argument 'frame'"):
+        fovjax.run_session(scene, rig, gaze=f"replay:{SCANPATH}", frame=2)
+
+
+@pytest.mark.no_typecheck
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: SessionOutput(None), "directory must be a path (str or pathlib.Path), got None"),
+        (lambda: SessionOutput("out", video="yes"), "video must be True or False, got 'yes'"),
+        (lambda: SessionConfig(frames=3, clock="sundial"), "clock must be one of"),
+    ],
+)
+def test_options_check_their_values(make, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make()
+
+
+@pytest.mark.no_typecheck
+def test_a_renderer_brings_its_own_rig(scene, rig):
+    renderer = FoveatedRenderer(scene, rig, FOVEATION, CONFIG)
+    with pytest.raises(ValueError, match="the renderer has its own rig"):
+        fovjax.run_session(renderer, rig, gaze=f"replay:{SCANPATH}", session=SessionConfig(frames=1))
+    with pytest.raises(TypeError, match="session must be a SessionConfig, got dict"):
+        fovjax.run_session(renderer, gaze=f"replay:{SCANPATH}", session={"frames": 1})

@@ -369,8 +369,9 @@ def test_any_hit_traversal_finds_a_face_on_the_ray_iff_there_is_one(soup, opts):
     """The any-hit traversal (`occluded`, its own kernel) against brute force: the same hit/miss
     as the closest-hit traversal and as every-ray-against-every-triangle, and the face it stops
     at lies on the ray within (tmin, tmax)."""
+    from fovjax.trace import Traversal
     from fovjax.trace._packet import traverse_packets
-    from fovjax.trace._traverse import traverse
+    from fovjax.trace._traverse import Nodes, traverse
 
     V, F, bvh = soup
     rng = np.random.default_rng(7)
@@ -379,12 +380,13 @@ def test_any_hit_traversal_finds_a_face_on_the_ray_iff_there_is_one(soup, opts):
     d = rng.normal(size=(n, 3)).astype(np.float32)
     tmin = rng.uniform(0, 1, n).astype(np.float32)
     tmax = (tmin + rng.uniform(0, 4, n)).astype(np.float32)
-    args = (jnp.asarray(bvh.table), bvh.num_nodes, bvh.stack_size, *map(jnp.asarray, (o, d, tmin, tmax)))
+    nodes = Nodes(jnp.asarray(bvh.table), bvh.num_nodes, bvh.stack_size)
+    args = (nodes, *map(jnp.asarray, (o, d, tmin, tmax)))
     if "packet" in opts:
-        kw = {"packet_size": opts["packet"], "packets": 32, "steps_per_refill": 4}
+        kw = {"packet_size": opts["packet"], "traversal": Traversal(packets=32, steps_per_refill=4)}
         run = traverse_packets
     else:
-        kw = {"lanes": 512, "steps_per_refill": 4}
+        kw = {"traversal": Traversal(lanes=512, steps_per_refill=4)}
         run = traverse
     _, prim_any = run(*args, any_hit=True, **kw)
     _, prim_closest = run(*args, any_hit=False, **kw)

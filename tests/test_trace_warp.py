@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax.trace import brute_force_closest_hit, build_bvh, merge_bvhs
+from fovjax.trace import Traversal, brute_force_closest_hit, build_bvh, merge_bvhs
 from fovjax.trace._query import _raw_query
 
 _extras.require("warp", module_level=True)
@@ -23,7 +23,7 @@ from fovjax.trace._warp import ffi_target_names, warp_query  # noqa: E402
 
 N = 1024
 RTOL, ATOL = 1e-4, 1e-5
-JAX_OPTS = dict(packet_size=None, lanes=256, packets=16, steps_per_refill=4)
+JAX_OPTS = dict(packet_size=None, traversal=Traversal(lanes=256, packets=16, steps_per_refill=4))
 
 
 @jax.jit

@@ -14,6 +14,7 @@ in process with the renderer replaced (`study_sequence` itself: tests/test_eval_
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import re
@@ -152,7 +153,8 @@ def test_clips_are_rendered_once_and_reused(tmp_path, monkeypatch, capsys):
 
     calls = []
 
-    def fake_sequence(scene, **kwargs):
+    def fake_sequence(scene, animation, **kwargs):
+        kwargs = {**dataclasses.asdict(animation), **kwargs}
         calls.append(kwargs)
         image = np.zeros((kwargs["frames"], kwargs["eye_height"], 2 * kwargs["eye_width"], 3), np.float32)
         return argparse.Namespace(

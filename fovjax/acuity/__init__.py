@@ -4,7 +4,7 @@ emcee or the bootstrap, model choice, and a stability sweep of the solvers.
     import fovjax.acuity as fa
     data = fa.load_csv("data/mandelbaum/curve_samples.csv")
     result = fa.fit(data, "exponential")          # Levenberg–Marquardt by default
-    samples = fa.sample_posterior(data, "exponential", start=result)
+    samples = fa.sample_posterior(data, "exponential", start=result)  # sampler=fa.EmceeOptions(...)
     fa.compare(data).chosen                       # simplest model within ΔAIC < 2 of the best
     model = fa.load_fit("fits/curve_samples.json")  # model(omega) works on float32 arrays under jit
 """
@@ -35,6 +35,7 @@ from ._io import fit_record, load_fit, read_fit, save_fit
 from ._models import MODEL_FAMILIES, THESIS_MODEL, AcuityModel, Exponential, LinearMAR, PowerMAR, model_family
 from ._plot import plot_corner, plot_fit
 from ._posterior import (
+    EmceeOptions,
     PosteriorConvergenceError,
     PosteriorConvergenceWarning,
     Samples,
@@ -55,6 +56,7 @@ __all__ = [
     "CandidateScore",
     "Comparison",
     "DivergenceError",
+    "EmceeOptions",
     "Exponential",
     "FitError",
     "FitResult",

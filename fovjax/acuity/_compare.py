@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._fit import FitError, FitResult, _as_data, _single_condition, batch_fit, fit
+from ._fit import FitError, FitResult, SolverOptions, _as_data, _single_condition, batch_fit, fit
 from ._models import AcuityModel, model_family
 
 DELTA_AIC = 2.0
@@ -106,7 +106,7 @@ def leave_one_out(result: FitResult) -> tuple[np.ndarray, int]:
         weight,
         np.tile(p0, (n, 1)),
         free=free,
-        solver=result.solver,
+        options=SolverOptions(result.solver),
     )
     ok = out.kind == "ok"
     with jax.enable_x64(True):

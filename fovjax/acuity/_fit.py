@@ -258,6 +258,34 @@ class BatchFit:
     converged_at_limit: np.ndarray  # [B] hit max_steps, but the remaining step was below tolerance
 
 
+@dataclass(frozen=True)
+class SolverOptions:
+    """The least-squares solver of a fit and when it stops: `solver` (a name of `SOLVERS`, or
+    the aliases "lm", "gn"; kept as the full name), its step limit `max_steps` and its relative
+    and absolute tolerances `rtol`, `atol`.
+
+    Raises:
+        ValueError: an unknown solver, a step limit below 1 or a tolerance that is not a finite
+            number > 0.
+    """
+
+    solver: str = "levenberg_marquardt"
+    max_steps: int = 500
+    rtol: float = 1e-8
+    atol: float = 1e-10
+
+    def __post_init__(self):
+        object.__setattr__(self, "solver", solver_name(self.solver))
+        steps = self.max_steps
+        if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1:
+            raise ValueError(f"SolverOptions: max_steps must be a whole number >= 1, got {steps!r}")
+        for name in ("rtol", "atol"):
+            value = getattr(self, name)
+            ok = isinstance(value, int | float) and not isinstance(value, bool)
+            if not (ok and math.isfinite(value) and value > 0):
+                raise ValueError(f"SolverOptions: {name} must be a finite number > 0, got {value!r}")
+
+
 def batch_fit(
     family: type[AcuityModel],
     omega: np.ndarray,
@@ -266,17 +294,16 @@ def batch_fit(
     start: np.ndarray,
     fixed_p: np.ndarray | None = None,
     free: tuple[int, ...] | None = None,
-    solver: str = "levenberg_marquardt",
-    max_steps: int = 500,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
+    options: SolverOptions | None = None,
 ) -> BatchFit:
-    """Fit B problems at once (arrays [B, N]; weight 0 drops a point; start [B, P] natural).
+    """Fit B problems at once (arrays [B, N]; weight 0 drops a point; start [B, P] natural)
+    with the solver and tolerances of `options` (default `SolverOptions()`).
 
     Used by `fit` (B = 1), leave-one-out, the bootstrap and the stability sweep. Classifies each
     outcome but raises nothing.
     """
-    solver = solver_name(solver)
+    options = SolverOptions() if options is None else options
+    solver, max_steps, rtol, atol = options.solver, options.max_steps, options.rtol, options.atol
     omega, acuity, weight = (np.atleast_2d(np.asarray(x, np.float64)) for x in (omega, acuity, weight))
     start = np.atleast_2d(np.asarray(start, np.float64))
     nb, n = omega.shape
@@ -690,10 +717,7 @@ def fit(
         weight[None],
         start[None],
         free=free,
-        solver=solver,
-        max_steps=max_steps,
-        rtol=rtol,
-        atol=atol,
+        options=SolverOptions(solver, max_steps, rtol, atol),
     )
     p, kind, steps = out.p[0], out.kind[0], int(out.steps[0])
     if kind != "ok":

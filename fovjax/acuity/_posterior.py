@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._data import AcuityData
-from ._fit import FitResult, _as_data, _single_condition, batch_fit, fit
+from ._fit import FitResult, SolverOptions, _as_data, _single_condition, batch_fit, fit
 from ._models import AcuityModel, model_family
 
 
@@ -119,6 +119,32 @@ def _log_prob_fn(family, free, fixed_p, data: AcuityData):
     return jax.jit(jax.vmap(log_prob)), is_log, lo, hi
 
 
+ON_FAIL = ("raise", "warn")
+
+
+@dataclass(frozen=True)
+class EmceeOptions:
+    """How `sample_posterior` runs emcee: `nwalkers` walkers for `nsteps` steps, and what an
+    unconverged chain does: `on_fail="raise"` a `PosteriorConvergenceError`, "warn" a
+    `PosteriorConvergenceWarning`.
+
+    Raises:
+        ValueError: fewer than 2 walkers or 1 step, or an `on_fail` not in `ON_FAIL`.
+    """
+
+    nwalkers: int = 32
+    nsteps: int = 5000
+    on_fail: str = "raise"
+
+    def __post_init__(self):
+        for name, least in (("nwalkers", 2), ("nsteps", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
+                raise ValueError(f"EmceeOptions: {name} must be a whole number >= {least}, got {value!r}")
+        if self.on_fail not in ON_FAIL:
+            raise ValueError(f"EmceeOptions: on_fail must be 'raise' or 'warn', not {self.on_fail!r}")
+
+
 def sample_posterior(
     data,
     model: str | type[AcuityModel] | AcuityModel = "exponential",
@@ -127,22 +153,24 @@ def sample_posterior(
     condition: str | None = None,
     solver: str = "levenberg_marquardt",
     start: FitResult | None = None,
-    nwalkers: int = 32,
-    nsteps: int = 5000,
+    sampler: EmceeOptions | None = None,
     seed: int = 0,
     level: float = 0.95,
-    on_fail: str = "raise",
 ) -> Samples:
-    """Sample the posterior of a model's free parameters with emcee.
+    """Sample the posterior of a model's free parameters with emcee (`sampler`, default
+    `EmceeOptions()`: 32 walkers, 5000 steps).
 
     Walkers start as draws from the Laplace approximation around the least-squares fit (`start`,
     or a fresh `fit`). After the run: the integrated autocorrelation time τ of every parameter must satisfy
     nsteps ≥ 50·τ, and the mean acceptance fraction must lie in [0.15, 0.9]; otherwise
-    `PosteriorConvergenceError` is raised (`on_fail="raise"`) or a `PosteriorConvergenceWarning`
-    issued (`on_fail="warn"`). Burn-in of 3·max τ steps is discarded and chains are thinned by τ/2.
+    `PosteriorConvergenceError` is raised (`sampler.on_fail="raise"`) or a
+    `PosteriorConvergenceWarning` issued (`on_fail="warn"`). Burn-in of 3·max τ steps is
+    discarded and chains are thinned by τ/2.
     """
-    if on_fail not in ("raise", "warn"):
-        raise ValueError(f"on_fail must be 'raise' or 'warn', not {on_fail!r}")
+    sampler = EmceeOptions() if sampler is None else sampler
+    if not isinstance(sampler, EmceeOptions):
+        raise TypeError(f"sample_posterior: sampler must be an EmceeOptions, got {type(sampler).__name__}")
+    nwalkers, nsteps, on_fail = sampler.nwalkers, sampler.nsteps, sampler.on_fail
     import emcee  # imported on use: it pulls in scipy.stats (~1.5 s)
 
     family = model_family(model)
@@ -178,12 +206,12 @@ def sample_posterior(
         def host_log_prob(x):
             return np.asarray(log_prob(jnp.asarray(x)))
 
-        sampler = emcee.EnsembleSampler(nwalkers, len(free), host_log_prob, vectorize=True)
-        sampler.random_state = np.random.RandomState(seed).get_state()
-        sampler.run_mcmc(x0, nsteps, progress=False)
+        ensemble = emcee.EnsembleSampler(nwalkers, len(free), host_log_prob, vectorize=True)
+        ensemble.random_state = np.random.RandomState(seed).get_state()
+        ensemble.run_mcmc(x0, nsteps, progress=False)
 
-    tau = sampler.get_autocorr_time(tol=0, quiet=True)
-    acceptance = float(np.mean(sampler.acceptance_fraction))
+    tau = ensemble.get_autocorr_time(tol=0, quiet=True)
+    acceptance = float(np.mean(ensemble.acceptance_fraction))
     problems = []
     if not np.all(np.isfinite(tau)) or nsteps < MIN_TAU_MULTIPLE * np.max(tau):
         problems.append(
@@ -202,7 +230,7 @@ def sample_posterior(
     tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else nsteps / 10
     burn = min(int(3 * tau_max), nsteps // 2)
     thin = max(1, int(tau_max / 2))
-    x = sampler.get_chain(discard=burn, thin=thin, flat=True)
+    x = ensemble.get_chain(discard=burn, thin=thin, flat=True)
     draws = np.where(is_log, np.exp(x), x)
     return Samples(
         family=family,
@@ -273,7 +301,7 @@ def bootstrap(
         weight,
         np.broadcast_to(p_best, (n_boot, p_best.size)),
         free=free,
-        solver=best.solver,
+        options=SolverOptions(best.solver),
     )
     ok = out.kind == "ok"
     failed = int((~ok).sum())

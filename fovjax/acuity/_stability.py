@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._fit import SOLVERS, batch_fit
+from ._fit import SOLVERS, SolverOptions, batch_fit
 from ._models import THESIS_MODEL, Exponential
 
 TRUTH = np.array([0.90964, 2.9661, 0.00792])
@@ -109,8 +109,7 @@ def run_sweep(cfg: SweepConfig = SweepConfig()) -> list[dict]:
             np.array(vv),
             np.array(ww),
             np.array(starts),
-            solver=solver,
-            max_steps=cfg.max_steps,
+            options=SolverOptions(solver, max_steps=cfg.max_steps),
         )
         seconds = time.perf_counter() - t0
         with np.errstate(over="ignore", invalid="ignore"):

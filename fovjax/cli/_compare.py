@@ -157,7 +157,7 @@ def run(args) -> int:
     import jax
 
     import fovjax
-    from fovjax.eval import HIGHER_IS_BETTER, compare_thresholds
+    from fovjax.eval import HIGHER_IS_BETTER, ThresholdSweep, compare_thresholds
     from fovjax.render import RenderConfig, StereoRig
 
     name = {"cornell": "cornell_box"}.get(args.scene, args.scene)  # the alias `render` takes
@@ -165,21 +165,24 @@ def run(args) -> int:
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
-    result = compare_thresholds(
-        scene,
-        rig,
+    renderer = fovjax.FoveatedRenderer(
+        scene, rig, config=RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    )
+    sweep = ThresholdSweep(
         thresholds=args.thresholds,
         spp=args.spp,
         gazes=args.gazes,
         keys=args.keys,
-        config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
+        regions=args.regions,
+        methods=args.methods,
+    )
+    result = compare_thresholds(
+        renderer,
+        sweep=sweep,
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
-        regions=args.regions,
+        plan=("flip", args.fidelity_threshold) if args.fidelity == "auto" else None,
         shard=args.shard,
-        fidelity=args.fidelity,
-        plan_criterion=("flip", args.fidelity_threshold),
-        methods=args.methods,
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them
         return 0

@@ -131,6 +131,7 @@ def run_fit(args) -> int:
     from fovjax import cli
     from fovjax.acuity import (
         AcuityDataError,
+        EmceeOptions,
         FitError,
         PosteriorConvergenceError,
         bootstrap,
@@ -178,8 +179,7 @@ def run_fit(args) -> int:
                 result.data,
                 result.family,
                 start=result,
-                nwalkers=args.nwalkers,
-                nsteps=args.nsteps,
+                sampler=EmceeOptions(nwalkers=args.nwalkers, nsteps=args.nsteps),
                 seed=args.seed,
             )
         elif args.posterior == "bootstrap":

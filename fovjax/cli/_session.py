@@ -137,28 +137,30 @@ def run(args) -> int:
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
     )
+    foveation = cli.regions(
+        Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
+    )
+    renderer = fovjax.FoveatedRenderer(
+        scene, rig, foveation, RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    )
+    session = fovjax.SessionConfig(
+        frames=args.frames,
+        seconds=args.seconds,
+        fps=args.fps,
+        clock=None if args.clock == "auto" else args.clock,
+        fresh_key_per_frame=not args.fixed_key,
+        wait=DEFAULT_CONNECT_TIMEOUT if args.wait is None else args.wait,
+    )
     try:
         result = fovjax.run_session(
-            scene,
-            rig,
+            renderer,
             gaze=args.gaze,
             head=args.head,
-            foveation=cli.regions(
-                Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
-            ),
-            frames=args.frames,
-            seconds=args.seconds,
-            fps=args.fps,
-            out=args.output,
-            key=jax.random.key(args.seed),
-            fresh_key_per_frame=not args.fixed_key,
-            clock=None if args.clock == "auto" else args.clock,
+            session=session,
+            out=fovjax.SessionOutput(args.output, video=args.video, debug=args.show_samples),
             tracker=tracker,
-            config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
-            video=args.video,
-            debug=args.show_samples,
+            key=jax.random.key(args.seed),
             progress=not args.no_progress,
-            wait=DEFAULT_CONNECT_TIMEOUT if args.wait is None else args.wait,
         )
     except ConnectTimeoutError as err:
         raise ConnectTimeoutError(f"{err} (--wait SECONDS keeps trying longer)") from None

@@ -37,7 +37,7 @@ def validate_stability(args) -> None:
 def run_stability(args) -> int:
     from fovjax import cli
     from fovjax.devices import Scanpath, SmoothPursuit
-    from fovjax.eval import HmdDisplay, temporal_stability
+    from fovjax.eval import FullRenders, HmdDisplay, temporal_stability
 
     validate_stability(args)
     scene, rig, foveation, config = _setup(args)
@@ -59,14 +59,12 @@ def run_stability(args) -> int:
 
         bar = tqdm(unit="frame", desc="stability")
     result = temporal_stability(
-        scene,
-        rig,
+        FullRenders(scene, rig, config),
         gaze,
         foveation,
         frames=args.frames,
         fps=args.fps,
         seed=args.seed,
-        config=config,
         progress=None if bar is None else (lambda: bar.update(1)),
     )
     if bar is not None:

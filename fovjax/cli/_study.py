@@ -180,7 +180,13 @@ def response_files(name) -> list[Path]:
 def _observers(args, parser, levels):
     """The automatic observers of `--comparison` (or `--beside`) with the table's summary
     printed; returns them."""
-    from fovjax.eval import STUDY_METRICS, default_metric, observers_from_comparison, read_comparison
+    from fovjax.eval import (
+        STUDY_METRICS,
+        ObserverPanel,
+        default_metric,
+        observers_from_comparison,
+        read_comparison,
+    )
 
     option = "--comparison" if args.comparison is not None else "--beside"
     csv_path = _comparison_csv(args.comparison or args.beside, parser, option)
@@ -199,10 +205,9 @@ def _observers(args, parser, levels):
         metric=metric,
         spp=args.spp,
         model=args.model,
-        n=args.observers,
-        noise_sd=args.noise_sd,
-        seed=args.seed,
-        threshold=args.threshold,
+        observers=ObserverPanel(
+            n=args.observers, noise_sd=args.noise_sd, threshold=args.threshold, seed=args.seed
+        ),
         levels=levels,
         where=str(csv_path),
         lines=lines,

@@ -93,7 +93,7 @@ def validate(args) -> None:
 def run(args) -> int:
     import fovjax
     from fovjax import cli
-    from fovjax.eval import require_extra, video_study
+    from fovjax.eval import ObserverPanel, StudyAnimation, require_extra, video_study
 
     require_extra("pyfvvdp", "fvvdp", "fovjax study --video (FovVideoVDP)")
     spp = 4 if args.spp is None else args.spp
@@ -112,8 +112,7 @@ def run(args) -> int:
         f"walk {args.walk_speed:g} m/s, peak {args.peak_luminance:g} cd/m²"
     )
     start = time.perf_counter()
-    study = video_study(
-        scene,
+    animation = StudyAnimation(
         eye_width=args.width,
         eye_height=args.height,
         frames=args.frames,
@@ -125,10 +124,12 @@ def run(args) -> int:
         keys=args.keys,
         walk_speed=args.walk_speed,
         seed=seed,
+    )
+    study = video_study(
+        scene,
+        animation,
+        observers=ObserverPanel(n=observers, noise_sd=noise_sd, threshold=threshold, seed=seed),
         peak_luminance=args.peak_luminance,
-        observers=observers,
-        noise_sd=noise_sd,
-        threshold=threshold,
         progress=lambda text: print(f"  {text} ({time.perf_counter() - start:.0f} s)", flush=True),
     )
     total = time.perf_counter() - start

@@ -210,7 +210,7 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
     """The clips [(name, [JPEG per frame])] and their manifest: from --clips DIR when given;
     else from DIR/clips/<key>/ when an earlier session rendered them with the same settings;
     else rendered now and stored there (`write_clips`)."""
-    from fovjax.eval import study_sequence
+    from fovjax.eval import StudyAnimation, study_sequence
     from fovjax.render import RenderConfig
     from fovjax.view import encode_jpeg
 
@@ -231,8 +231,7 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
         flush=True,
     )
     t0 = time.perf_counter()
-    sequence = study_sequence(
-        load_scene(args),
+    animation = StudyAnimation(
         eye_width=args.width,
         eye_height=args.height,
         frames=args.frames,
@@ -240,6 +239,10 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
         spp=args.spp,
         gaze="fixed",
         regions=args.regions,
+    )
+    sequence = study_sequence(
+        load_scene(args),
+        animation,
         config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
     )
     wall = time.perf_counter() - t0

@@ -18,7 +18,8 @@ tables and charts, and the thesis's user-study protocols with an automatic obser
     observers = fe.observers_from_comparison(fe.read_csv("out/compare/comparison.csv"), spp=4)
     fe.study_majorities(fe.run_study(observers))                       # {"pair": 12.5, ...}
     # the study emulated on video: an animation, FovVideoVDP in video mode, the SX111 display
-    study = fe.video_study(fovjax.scenes.atrium(), eye_width=160, eye_height=128, frames=30)
+    animation = fe.StudyAnimation(eye_width=160, eye_height=128, frames=30)  # and levels, gaze, rule, ...
+    study = fe.video_study(fovjax.scenes.atrium(), animation)
     study.jods, study.majorities                                       # per level; per test
 """
 
@@ -39,7 +40,15 @@ from ._charts import (
     plot_tracking_error,
     write_study_report,
 )
-from ._compare import DEFAULT_CRITERION, DEFAULT_GAZES, HIGHER_IS_BETTER, Comparison, compare_thresholds
+from ._compare import (
+    DEFAULT_CRITERION,
+    DEFAULT_GAZES,
+    HIGHER_IS_BETTER,
+    THESIS_THRESHOLDS,
+    Comparison,
+    ThresholdSweep,
+    compare_thresholds,
+)
 from ._failures import (
     CASES as FAILURE_CASES,
 )
@@ -49,6 +58,8 @@ from ._failures import (
     EqualBudget,
     FailureCase,
     FailureReport,
+    PursuitFlicker,
+    SaccadeTrial,
     acuity_models,
     after_saccade,
     checkerboard,
@@ -94,6 +105,7 @@ from ._plan import (
     DEFAULT_PLAN_GAZES,
     DEFAULT_STEPS,
     FidelityPlan,
+    PlanSearch,
     PlanStep,
     default_options,
     plan_fidelity,
@@ -147,6 +159,7 @@ from ._study import (
     STUDY_METRICS,
     THESIS_LEVEL,
     LevelDifference,
+    ObserverPanel,
     default_metric,
     difference_from_comparison,
     observers_from_comparison,
@@ -170,6 +183,7 @@ from ._video_study import (
     GAZE_MODES as VIDEO_GAZE_MODES,
 )
 from ._video_study import (
+    StudyAnimation,
     StudySequence,
     VideoStudy,
     judge_sequence,
@@ -183,6 +197,7 @@ __all__ = [
     "DEFAULT_PLAN_GAZES",
     "DEFAULT_STEPS",
     "FidelityPlan",
+    "PlanSearch",
     "PlanStep",
     "default_options",
     "plan_fidelity",
@@ -191,7 +206,9 @@ __all__ = [
     "DEFAULT_CRITERION",
     "DEFAULT_GAZES",
     "HIGHER_IS_BETTER",
+    "THESIS_THRESHOLDS",
     "Comparison",
+    "ThresholdSweep",
     "compare_thresholds",
     "FrameBatch",
     "frame_mesh",
@@ -276,9 +293,11 @@ __all__ = [
     "LevelDifference",
     "default_metric",
     "difference_from_comparison",
+    "ObserverPanel",
     "observers_from_comparison",
     "study_majorities",
     "VIDEO_GAZE_MODES",
+    "StudyAnimation",
     "StudySequence",
     "VideoStudy",
     "judge_sequence",
@@ -292,6 +311,8 @@ __all__ = [
     "EqualBudget",
     "FailureCase",
     "FailureReport",
+    "PursuitFlicker",
+    "SaccadeTrial",
     "acuity_models",
     "after_saccade",
     "checkerboard",

@@ -25,6 +25,9 @@ DEFAULT_CRITERION = ("flip", 0.05)
 HIGHER_IS_BETTER = ("psnr", "ssim", "jod")
 
 
+THESIS_THRESHOLDS = ((5, 10), (7.5, 15), (10, 20), (12.5, 25), (15, 30))
+
+
 def _sense(metric: str) -> str:
     return "max" if metric in HIGHER_IS_BETTER else "min"
 
@@ -34,7 +37,7 @@ class Comparison:
     """`records`: one per configuration (CSV-writable); `rings`: per configuration label, the
     mean |error| (sRGB) and primary rays per 5° eccentricity ring; `choice`: the cheapest
     configuration meeting `criterion` (None if none does); `full`: the full render's cost;
-    `plans`: with `fidelity="auto"`, the `FidelityPlan` of each planned configuration, by label.
+    `plans`: with `plan=`, the `FidelityPlan` of each planned configuration, by label.
     `criterion` (metric, threshold): the metric's whole interval must stay below the threshold
     (above it for PSNR, SSIM and JOD, where larger is better)."""
 
@@ -128,27 +131,135 @@ def _available(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
+def _finite(x) -> bool:
+    number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+    return bool(number and np.isfinite(x))
+
+
+@dataclasses.dataclass(frozen=True)
+class ThresholdSweep:
+    """The configurations `compare_thresholds` renders and the frames it measures them on.
+
+    Args:
+        thresholds: (fovea, periphery) pairs in degrees; default the thesis's five.
+        spp: samples per pixel to compare (perfect squares).
+        models: acuity models for P(ω) (None: the thesis's only).
+        gazes: gaze points, (x, y) for both eyes or one per eye.
+        keys: seeds of the frames' keys.
+        rule: the sampling rule of every foveation (`fovjax.foveate.SAMPLING_RULES`).
+        regions: the region reading (`fovjax.foveate.with_regions`, recorded per row): "angle"
+            (fovjax's exact-angle regions, the default) or "thesis" (the thesis's Table 2
+            reading; the one under which the thesis levels compare like-for-like with its
+            participants' answers).
+        methods: the foveation methods to sweep (names of `fovjax.foveate.METHODS` or method
+            instances; default the thesis's): every method × threshold pair × spp, recorded per
+            row (`method`, with `new_rays_per_frame` and `reused_pixels_per_frame`). A temporal
+            method (`Weier2016`, `Patney2016`) is measured on each still frame after one frame
+            of history of the same view (a reset, then the frame with the next key): its steady state on
+            a still view, where it reuses the most.
+
+    Raises:
+        ValueError: a bad pair, SPP, gaze, key, rule, reading or method, naming it and what was
+            expected.
+    """
+
+    thresholds: Sequence[tuple[float, float]] = THESIS_THRESHOLDS
+    spp: Sequence[int] = (1, 4)
+    models: Sequence | None = None
+    gazes: Sequence = DEFAULT_GAZES
+    keys: Sequence[int] = (0, 1)
+    rule: str = "either"
+    regions: str = "angle"
+    methods: Sequence = ("thesis",)
+
+    def __post_init__(self):
+        from ..foveate import REGION_READINGS, SAMPLING_RULES
+
+        where = "ThresholdSweep"
+        for name in ("thresholds", "spp", "gazes", "keys", "methods"):
+            value = getattr(self, name)
+            if isinstance(value, str | bytes) or not isinstance(value, Sequence) or len(value) == 0:
+                raise ValueError(f"{where}: {name} {value!r}: expected a non-empty sequence")
+        for i, pair in enumerate(self.thresholds):
+            ok = isinstance(pair, Sequence) and len(pair) == 2 and all(_finite(x) for x in pair)
+            if not ok or not 0 <= pair[0] <= pair[1]:
+                raise ValueError(
+                    f"{where}: thresholds[{i}] {pair!r}: expected (fovea, periphery) degrees, "
+                    "0 <= fovea <= periphery"
+                )
+        for i, s in enumerate(self.spp):
+            if isinstance(s, bool) or not isinstance(s, int | np.integer) or s < 1 or round(s**0.5) ** 2 != s:
+                raise ValueError(f"{where}: spp[{i}] {s!r}: expected a positive square (1, 4, 9, 16, ...)")
+        for i, g in enumerate(self.gazes):
+            try:
+                a = np.asarray(g, np.float64)
+            except (TypeError, ValueError):
+                a = None
+            if a is None or a.shape not in ((2,), (2, 2)) or not np.all((a >= 0) & (a <= 1)):
+                raise ValueError(
+                    f"{where}: gazes[{i}] {g!r}: expected (x, y) or ((lx, ly), (rx, ry)) in [0, 1]"
+                )
+        for i, k in enumerate(self.keys):
+            if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 0:
+                raise ValueError(f"{where}: keys[{i}] {k!r}: expected an integer seed >= 0")
+        if self.models is not None and (
+            isinstance(self.models, str) or not isinstance(self.models, Sequence)
+        ):
+            raise ValueError(f"{where}: models {self.models!r}: expected None or a sequence of acuity models")
+        if self.rule not in SAMPLING_RULES:
+            raise ValueError(f"{where}: rule {self.rule!r}: expected one of {SAMPLING_RULES}")
+        if self.regions not in REGION_READINGS:
+            raise ValueError(f"{where}: regions {self.regions!r}: expected one of {REGION_READINGS}")
+
+
+# The keywords `compare_thresholds` took before `ThresholdSweep` and the renderer, still accepted
+# (with a DeprecationWarning) because the README and the tutorials showed them.
+_OLD_SWEEP = ("thresholds", "spp", "models", "gazes", "keys", "rule", "regions", "methods")
+_OLD_RENDERER = ("config", "bvh")
+
+
+def _upgrade_old_keywords(old: dict, sweep):
+    """`sweep` and the renderer's arguments from the old keywords, each use warned of
+    with its replacement; an unknown keyword is a TypeError as Python's own."""
+    import warnings
+
+    unknown = sorted(set(old) - {*_OLD_SWEEP, *_OLD_RENDERER})
+    if unknown:
+        raise TypeError(f"compare_thresholds() got an unexpected keyword argument {unknown[0]!r}")
+
+    def moved(names, where):
+        warnings.warn(
+            f"compare_thresholds({', '.join(f'{n}=' for n in names)}) is deprecated; pass {where}",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+
+    given = [n for n in _OLD_SWEEP if n in old]
+    if given:
+        if sweep is not None:
+            raise ValueError(f"compare_thresholds: give sweep= or the old {', '.join(given)}=, not both")
+        moved(given, "sweep=fovjax.eval.ThresholdSweep(...)")
+        sweep = ThresholdSweep(**{n: old[n] for n in given})
+    renderer = {n: old[n] for n in _OLD_RENDERER if n in old}
+    if renderer:
+        moved(
+            list(renderer), "a fovjax.FoveatedRenderer(scene, rig, config=..., bvh=...) in place of the scene"
+        )
+    return sweep, renderer
+
+
 def compare_thresholds(
     scene,
-    rig,
+    rig=None,
+    sweep: ThresholdSweep | None = None,
     *,
-    thresholds: Sequence[tuple[float, float]] = ((5, 10), (7.5, 15), (10, 20), (12.5, 25), (15, 30)),
-    spp: Sequence[int] = (1, 4),
-    models: Sequence | None = None,
-    gazes: Sequence = DEFAULT_GAZES,
-    keys: Sequence[int] = (0, 1),
-    config=None,
     criterion: tuple[str, float] = DEFAULT_CRITERION,
     perceptual: bool | None = None,
-    rule: str = "either",
-    regions: str = "angle",
-    progress: bool = True,
-    bvh=None,
+    plan: tuple[str, float] | None = None,
     shard: bool = False,
     devices: Sequence | None = None,
-    fidelity: str | None = None,
-    plan_criterion: tuple[str, float] = ("flip", 0.01),
-    methods: Sequence = ("thesis",),
+    progress: bool = True,
+    **old,
 ) -> Comparison:
     """Compare fovea thresholds: cost against image error for every configuration.
 
@@ -160,41 +271,29 @@ def compare_thresholds(
     it cannot meet the criterion; `{metric}_n` counts the finite samples.
 
     Args:
-        scene: the `Scene`.
-        rig: the `StereoRig`.
-        thresholds: (fovea, periphery) pairs in degrees; default the thesis's five.
-        spp: samples per pixel to compare.
-        models: acuity models for P(ω) (default: the thesis's).
-        gazes: gaze points, (x, y) for both eyes or one per eye.
-        keys: seeds of the frames' keys.
-        config: the `RenderConfig` of every render (default: `render_stereo`'s).
+        scene: the `Scene`, or a `fovjax.FoveatedRenderer` (its scene, rig, render config and
+            BVH; its foveation is replaced by each configuration's).
+        rig: with a `Scene`, the `StereoRig`; None with a renderer.
+        sweep: the `ThresholdSweep`: threshold pairs, SPPs, acuity models, gazes, keys, sampling
+            rule and region reading (default `ThresholdSweep()`).
         criterion: (metric, threshold): the cheapest configuration (by ms per frame) whose metric's
             whole interval stays below the threshold (above it for PSNR, SSIM and JOD) is chosen.
         perceptual: measure FovVideoVDP (default: when pyfvvdp is installed).
-        rule: the sampling rule of every foveation.
-        progress: print a line per configuration.
-        bvh: a prebuilt BVH.
+        plan: (metric, threshold), e.g. ("flip", 0.01): also plan each configuration per region
+            with `plan_fidelity` (the cheapest `Fidelity` per region adding at most that per 5°
+            ring over plain foveation) and measure it: a record labelled "... planned" with
+            `planned` True and the plan in `fidelity` (plain records: `planned` False, `fidelity`
+            "full"). None (default): no plans.
         shard: render each configuration's frames in one program, vmapped and sharded over
             `devices` (default `jax.devices()`, every host's under `jax.distributed`; see
             `render_foveated_batch`). Its ms per frame is then the batch's wall time over its
             frames and includes what batching costs; images, rays and metrics are those of
             `shard=False`.
         devices: the devices of a sharded sweep.
-        fidelity: "auto" also plans each configuration per region with `plan_fidelity` (the
-            cheapest `Fidelity` per region adding at most `plan_criterion` per 5° ring over plain
-            foveation) and measures it: a record labelled "... planned" with `planned` True and the
-            plan in `fidelity` (plain records: `planned` False, `fidelity` "full").
-        plan_criterion: the criterion of those plans.
-        methods: the foveation methods to sweep (names of `fovjax.foveate.METHODS` or method
-            instances; default the thesis's): every method × threshold pair × spp, recorded per
-            row (`method`, with `new_rays_per_frame` and `reused_pixels_per_frame`). A temporal
-            method (`Weier2016`, `Patney2016`) is measured on each still frame after one frame of history
-            of the same view (a reset, then the frame with the next key): its steady state on
-            a still view, where it reuses the most.
-        regions: the region reading (`fovjax.foveate.with_regions`, recorded per row): "angle"
-            (fovjax's exact-angle regions, the default) or "thesis" (the thesis's Table 2
-            reading; the one under which the thesis levels compare like-for-like with its
-            participants' answers).
+        progress: print a line per configuration.
+        **old: the keywords of the earlier signature (`thresholds`, `spp`, `gazes`, `keys`,
+            `config`, `bvh`, ...): accepted with a `DeprecationWarning` naming the
+            replacement.
 
     Returns:
         A `Comparison`: `records` (one per configuration), `rings` (error per 5° ring), `choice`,
@@ -202,36 +301,52 @@ def compare_thresholds(
 
     Raises:
         MissingExtraError: the criterion's metric needs an extra that is not installed.
-        ValueError: a bad threshold pair, SPP, gaze or criterion.
+        ValueError: a bad criterion or plan criterion (the sweep checks its own fields).
 
     Example:
         ```python
-        cmp = fe.compare_thresholds(scene, rig, thresholds=[(5, 10), (12.5, 25)], spp=[1, 4])
+        sweep = fe.ThresholdSweep(thresholds=[(5, 10), (12.5, 25)], spp=[1, 4])
+        cmp = fe.compare_thresholds(scene, rig, sweep)
         cmp.write("out/compare")
         print(cmp.choice)
         ```
     """
-    from ..foveate import REGION_READINGS, FoveatedRenderer, Foveation, with_regions
-    from ..render import RenderConfig
-    from ._plan import _check_criterion, plan_fidelity
+    from ..foveate import FoveatedRenderer, Foveation, with_regions
+    from ..scene import Scene
+    from ._plan import PlanSearch, _check_criterion, plan_fidelity
 
-    methods = [Foveation(method=m).method for m in methods]  # names checked by Foveation
-    if not methods:
-        raise ValueError("compare_thresholds: methods is empty; expected at least one method name")
-    others = [m.name for m in methods if m.name != "thesis"]
-    if others and (shard or fidelity is not None or rule != "either"):
-        raise ValueError(
-            f"compare_thresholds: methods {others} take neither shard, fidelity nor a rule "
-            f"(got shard={shard}, fidelity={fidelity!r}, rule={rule!r}); those are the thesis's"
+    sweep, renderer_args = _upgrade_old_keywords(old, sweep)
+    sweep = ThresholdSweep() if sweep is None else sweep
+    if not isinstance(sweep, ThresholdSweep):
+        raise TypeError(f"compare_thresholds: sweep must be a ThresholdSweep, got {type(sweep).__name__}")
+    if plan is not None:
+        plan_criterion = _check_criterion(plan)
+    thresholds, spp, models = sweep.thresholds, list(sweep.spp), sweep.models
+    gazes, keys, rule, regions = sweep.gazes, list(sweep.keys), sweep.rule, sweep.regions
+    if isinstance(scene, FoveatedRenderer):
+        clashing = [name for name, value in {"rig": rig, **renderer_args}.items() if value is not None]
+        if clashing:
+            raise ValueError(
+                f"compare_thresholds: the renderer has its own {', '.join(clashing)}; "
+                "pass them when making it"
+            )
+        given = scene
+        scene, rig, config, bvh = given.scene, given.rig, given.config, given.bvh
+    elif isinstance(scene, Scene):
+        given = None
+        config, bvh = renderer_args.get("config"), renderer_args.get("bvh")
+    else:
+        raise TypeError(
+            "compare_thresholds: scene must be a fovjax.Scene or a fovjax.FoveatedRenderer, "
+            f"got {type(scene).__name__}"
         )
-
-    if regions not in REGION_READINGS:
-        raise ValueError(f"compare_thresholds: regions {regions!r}: expected one of {REGION_READINGS}")
-    if fidelity not in (None, "auto"):
-        raise ValueError(f"compare_thresholds: fidelity {fidelity!r}: expected None or 'auto'")
-    if fidelity == "auto":
-        plan_criterion = _check_criterion(plan_criterion)
-    config = RenderConfig() if config is None else config
+    methods = [Foveation(method=m).method for m in sweep.methods]  # names checked by Foveation
+    others = [m.name for m in methods if m.name != "thesis"]
+    if others and (shard or plan is not None or rule != "either"):
+        raise ValueError(
+            f"compare_thresholds: methods {others} take neither shard, plan nor a rule "
+            f"(got shard={shard}, plan={plan!r}, rule={rule!r}); those are the thesis's"
+        )
     models = list(models) if models is not None else [None]
     display = HmdDisplay.from_camera(rig.eye_cameras()[0])
     use_flip = _available("flip_evaluator")
@@ -253,7 +368,11 @@ def compare_thresholds(
     # variant of it. Only the per-pixel outputs read here: the traced samples and eccentricity
     # (a batch's program also returns the regions, as `render_foveated_batch`'s: one program).
     diagnostics = ("traced", "region", "eccentricity") if shard else ("traced", "eccentricity")
-    base = FoveatedRenderer(scene, rig, Foveation(spp=spp[0]), config, bvh=bvh, diagnostics=diagnostics)
+    if given is not None:
+        base = given.with_foveation(Foveation(spp=spp[0]), diagnostics=diagnostics)
+    else:
+        base = FoveatedRenderer(scene, rig, Foveation(spp=spp[0]), config, bvh=bvh, diagnostics=diagnostics)
+    config = base.config
     full, references = {}, {}
     for s in spp:
         renderer = base.with_foveation(Foveation(spp=s))
@@ -379,25 +498,24 @@ def compare_thresholds(
             "model": model_name,
             "regions": regions,
         }
-        planned = {"planned": False, "fidelity": "full"} if fidelity == "auto" else {}
+        planned = {"planned": False, "fidelity": "full"} if plan is not None else {}
         evaluate(s, fov, label, {**fields, **planned})
-        if fidelity == "auto":
-            plan = plan_fidelity(
+        if plan is not None:
+            found = plan_fidelity(
                 scene,
                 rig,
                 fov,
                 plan_criterion,
-                gazes=gazes,
-                keys=keys,
+                search=PlanSearch(gazes=gazes, keys=keys),
                 config=config,
-                bvh=bvh,
+                bvh=base.bvh,
                 _references={k: references[s, k] for k in keys},
             )
-            plans[label + " planned"] = plan
+            plans[label + " planned"] = found
             if bar is not None:
                 bar.total += len(gazes) * len(keys)
-            extra = {"planned": True, "fidelity": plan.describe_plan()}
-            evaluate(s, plan.foveation, label + " planned", {**fields, **extra})
+            extra = {"planned": True, "fidelity": found.describe_plan()}
+            evaluate(s, found.foveation, label + " planned", {**fields, **extra})
     if bar is not None:
         bar.close()
     metric, threshold = criterion

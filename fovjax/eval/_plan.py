@@ -351,6 +351,41 @@ def _check_int(value, name: str, ge: int) -> int:
     return int(value)
 
 
+@dataclasses.dataclass(frozen=True)
+class PlanSearch:
+    """What `plan_fidelity` judges candidates on and which it tries.
+
+    Args:
+        gazes: the gaze points ((x, y), or one per eye) of the frames every candidate is
+            judged on.
+        keys: the seeds of those frames' keys.
+        options: the candidates, a chain dearest first with each candidate doing no more work
+            than the one before (the search assumes it): one sequence of `Fidelity` for every
+            region, or three (fovea, periphery, outside). None: `default_options(config.max_depth,
+            lights)`, built from `DEFAULT_STEPS` (reflection depth, then shadow rays); checked
+            against the render config when planning.
+        densities: sampling densities to plan at, each a `Foveation.blocks` pair (periphery,
+            outside block edges in pixels; None: the foveation's own only); checked against the
+            foveation when planning.
+        repeats: after the search, plain foveation and the plan are rendered alternately over
+            the frames this many times to time them.
+
+    Raises:
+        ValueError: a bad gaze, key or repeat count, naming it and what was expected.
+    """
+
+    gazes: Sequence = DEFAULT_PLAN_GAZES
+    keys: Sequence[int] = (0, 1)
+    options: object = None
+    densities: Sequence | None = None
+    repeats: int = 1
+
+    def __post_init__(self):
+        _check_gazes(self.gazes)
+        object.__setattr__(self, "keys", tuple(_check_keys(self.keys)))
+        _check_int(self.repeats, "repeats", 1)
+
+
 # -- evaluation -------------------------------------------------------------------------------
 @dataclasses.dataclass
 class _Evaluation:
@@ -454,16 +489,11 @@ def plan_fidelity(
     foveation,
     criterion: tuple[str, float] = ("flip", 0.05),
     *,
-    gazes: Sequence = DEFAULT_PLAN_GAZES,
-    spp: int | None = None,
-    keys: Sequence[int] = (0, 1),
-    options=None,
+    search: PlanSearch | None = None,
     config=None,
-    repeats: int = 1,
     bvh=None,
     render_kwargs: dict | None = None,
     log: Callable[[str], None] | None = None,
-    densities: Sequence | None = None,
     _references: dict | None = None,
 ) -> FidelityPlan:
     """The cheapest per-region shading fidelity for `foveation` (a `fovjax.foveate.Foveation`)
@@ -475,24 +505,20 @@ def plan_fidelity(
     (the FLIP map at the rig's pixels per degree, extra [flip]) or "abs" (mean |difference| of
     sRGB-encoded values). Threshold 0: only changes that change no pixel.
 
-    `options`: the candidates, a chain dearest first with each candidate doing no more work
-    than the one before (the search assumes it): one sequence of `Fidelity` for every region,
-    or three (fovea, periphery, outside). Default: `default_options(config.max_depth, lights)`,
-    built from `DEFAULT_STEPS` (reflection depth, then shadow rays). A region whose candidates
-    all fail keeps the foveation's own fidelity for it (full when `foveation.fidelity` is None).
-    `gazes` ((x, y) or per eye) and `keys` (seeds) fix the frames every candidate is judged on;
-    `spp` overrides `foveation.spp`; `config`: the `RenderConfig` (default: `RenderConfig()`).
-    The search: module docstring. Cost: after the search, plain foveation and the plan are
-    rendered alternately over the frames `repeats` times; median ms per frame (compile
-    excluded) and mean rays per frame. `render_kwargs`: more keyword arguments of every
-    `render_foveated` call that change nothing at full fidelity (the full render does not get
-    them), e.g. the levels of detail a `Fidelity.lod` needs. `log`: a line per evaluation.
-    `densities`: sampling densities to plan at, each a `Foveation.blocks` pair (periphery,
-    outside block edges in pixels; None: the foveation's own only). A density is a candidate
-    where it passes the criterion at the foveation's own fidelity (against plain foveation at
-    its own blocks); the region search runs at each, and the plan is the one of them with the
-    least median ms per frame in the search (at SPP > 1 a denser grid at 1 SPP outside the
-    fovea can beat sparse blocks at full SPP: the sub-samples spent on pixels).
+    `search` (`PlanSearch`, default `PlanSearch()`): the frames (gazes × keys) every candidate
+    is judged on, the candidates (`options`) per region, the sampling `densities` and the timing
+    `repeats`. A region whose candidates all fail keeps the foveation's own fidelity for it
+    (full when `foveation.fidelity` is None). `config`: the `RenderConfig` (default:
+    `RenderConfig()`). The search: module docstring. Cost: after the search, plain foveation and
+    the plan are rendered alternately over the frames `search.repeats` times; median ms per
+    frame (compile excluded) and mean rays per frame. `render_kwargs`: more keyword arguments of
+    every `render_foveated` call that change nothing at full fidelity (the full render does not
+    get them), e.g. the levels of detail a `Fidelity.lod` needs. `log`: a line per evaluation.
+    Densities: a density is a candidate where it passes the criterion at the foveation's own
+    fidelity (against plain foveation at its own blocks); the region search runs at each, and
+    the plan is the one of them with the least median ms per frame in the search (at SPP > 1 a
+    denser grid at 1 SPP outside the fovea can beat sparse blocks at full SPP: the sub-samples
+    spent on pixels).
 
     Every argument is checked before anything is rendered (ValueError naming the argument, the
     value and what was expected; `MissingExtraError` when FLIP is not installed)."""
@@ -513,14 +539,11 @@ def plan_fidelity(
     elif not isinstance(config, RenderConfig):
         raise ValueError(f"{_where('config')}: expected a fovjax.RenderConfig, got {type(config).__name__}")
     metric, threshold = _check_criterion(criterion)
-    gazes = _check_gazes(gazes)
-    keys = _check_keys(keys)
-    if spp is not None:
-        spp = _check_int(spp, "spp", 1)
-        if round(spp**0.5) ** 2 != spp:
-            raise ValueError(f"{_where('spp')} {spp}: expected a positive square (1, 4, 9, 16, ...)")
-        foveation = dataclasses.replace(foveation, spp=spp)
-    repeats = _check_int(repeats, "repeats", 1)
+    search = PlanSearch() if search is None else search
+    if not isinstance(search, PlanSearch):
+        raise ValueError(f"{_where('search')}: expected a PlanSearch, got {type(search).__name__}")
+    gazes, keys, repeats = _check_gazes(search.gazes), list(search.keys), search.repeats
+    options, densities = search.options, search.densities
     lights = len(scene.lights) if scene.lights is not None else 0
     chains = _check_options(options, int(config.max_depth), lights, foveation.spp)
     if render_kwargs is not None and not isinstance(render_kwargs, dict):
@@ -581,7 +604,7 @@ def plan_fidelity(
         )
         return ok
 
-    def search(base, base_ev):
+    def search_regions(base, base_ev):
         """The region search at `base`'s density, from the foveation's own fidelity."""
         current = list(start)
         best_ev = base_ev
@@ -629,7 +652,7 @@ def plan_fidelity(
             blocks = tuple(base.blocks)
             if not record("density", blocks, f"blocks {blocks}", base_ev, tuple(start)):
                 continue
-        current, best_ev = search(base, base_ev)
+        current, best_ev = search_regions(base, base_ev)
         plans.append((statistics.median(best_ev.seconds), tuple(current), base, best_ev))
     if not plans:  # no density passed at full fidelity: plain foveation's own
         plans.append((statistics.median(plain_ev.seconds), tuple(start), foveation, plain_ev))

@@ -215,8 +215,7 @@ def gaze_step_deg(rig, gazes) -> np.ndarray:
 
 
 def temporal_stability(
-    scene,
-    rig,
+    full: FullRenders,
     gaze,
     foveation=None,
     *,
@@ -225,10 +224,7 @@ def temporal_stability(
     key_modes: str | Sequence[str] = KEY_MODES,
     seed: int = 0,
     head_poses=None,
-    config=None,
     transfer: str = "srgb",
-    bvh=None,
-    full: FullRenders | None = None,
     progress: Callable[[], None] | None = None,
 ) -> StabilityResult:
     """Render `frames` foveated stereo frames along `gaze` (see `gaze_sequence`; e.g. a
@@ -236,18 +232,20 @@ def temporal_stability(
     seed + t; "fixed": every frame uses key seed — and the full render with a fresh key per
     frame (the same keys as "fresh"), and measure flicker per region (see the module
     docstring). `head_poses`: per-frame (yaw, pitch, roll) degrees, or None for a still head.
-    `full`: a shared `FullRenders` of the same scene, rig and config (reuses its frames).
-    `progress`: called once per rendered frame."""
+    `full`: the `FullRenders(scene, rig, config, bvh)` of what to render (shared between
+    measurements, it reuses its full frames). `progress`: called once per rendered frame."""
     from ..foveate import Foveation, render_foveated
 
     modes = _key_modes(key_modes)
     foveation = foveation or Foveation()
     gazes = gaze_sequence(gaze, frames, fps)
     poses = _head_poses(head_poses, frames)
-    full = full or FullRenders(scene, rig, config, bvh)
-    if full.rig is not rig:
-        raise ValueError("temporal_stability: `full` renders another rig than `rig`")
-    config = full.config
+    if not isinstance(full, FullRenders):
+        raise TypeError(
+            "temporal_stability: the first argument must be a fovjax.eval.FullRenders(scene, rig, config), "
+            f"got {type(full).__name__}"
+        )
+    scene, rig, config = full.scene, full.rig, full.config
     tick = progress or (lambda: None)
 
     full_fresh = []

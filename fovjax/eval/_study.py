@@ -286,39 +286,74 @@ def observer_seeds(n: int, seed: int | None) -> list[int | None]:
     return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(n)]
 
 
+@dataclass(frozen=True)
+class ObserverPanel:
+    """Automatic observers who answer the study's tests: `n` of them ("auto01", ...), each
+    seeing a level when its difference exceeds `threshold` (None: the metric's default, e.g.
+    `JND_JOD` for JOD), with noise of `noise_sd` drawn from its own seed derived from `seed`
+    (None: fresh seeds); with `noise_sd` 0 they all answer alike.
+
+    Raises:
+        ValueError: a bad field, naming it, its value and what was expected.
+    """
+
+    n: int = 15
+    noise_sd: float = 0.0
+    threshold: float | None = None
+    seed: int | None = 0
+
+    def __post_init__(self):
+        def number(x) -> bool:
+            return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 1:
+            raise ValueError(f"ObserverPanel: n (observers) must be a whole number >= 1, got {self.n!r}")
+        if not (number(self.noise_sd) and self.noise_sd >= 0):
+            raise ValueError(f"ObserverPanel: noise_sd must be a finite number >= 0, got {self.noise_sd!r}")
+        if self.threshold is not None and not (number(self.threshold) and self.threshold >= 0):
+            raise ValueError(
+                f"ObserverPanel: threshold must be None or a finite number >= 0, got {self.threshold!r}"
+            )
+        if self.seed is not None and (
+            isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0
+        ):
+            raise ValueError(f"ObserverPanel: seed must be None or a whole number >= 0, got {self.seed!r}")
+
+
 def observers_from_comparison(
     table,
     *,
     metric: str | None = None,
     spp: int = 4,
     model: str | None = None,
-    n: int = 15,
-    noise_sd: float = 0.0,
-    seed: int | None = 0,
-    threshold: float | None = None,
+    observers: ObserverPanel | None = None,
     levels=APPENDIX_LEVELS,
     where: str = "comparison table",
     lines: Sequence[int] | None = None,
 ) -> list[MetricObserver]:
-    """`n` automatic observers ("auto01", ...) judging the difference of
-    `difference_from_comparison` (same arguments) against its threshold. With `noise_sd` > 0
-    each draws its own noise, from its own seed derived from `seed`; with 0 they all answer
-    alike."""
-    if n < 1:
-        raise ValueError(f"observers_from_comparison: n must be >= 1, got {n}")
+    """The automatic `observers` (`ObserverPanel`, default `ObserverPanel()`) judging the
+    difference of `difference_from_comparison` (same arguments; the panel's threshold) against
+    its threshold."""
+    panel = ObserverPanel() if observers is None else observers
+    if not isinstance(panel, ObserverPanel):
+        raise TypeError(
+            f"observers_from_comparison: observers must be an ObserverPanel, got {type(panel).__name__}"
+        )
     difference = difference_from_comparison(
         table,
         metric=metric,
         spp=spp,
         model=model,
-        threshold=threshold,
+        threshold=panel.threshold,
         levels=levels,
         where=where,
         lines=lines,
     )
     return [
-        MetricObserver(difference, difference.threshold, name=f"auto{k + 1:02d}", noise_sd=noise_sd, seed=s)
-        for k, s in enumerate(observer_seeds(n, seed))
+        MetricObserver(
+            difference, difference.threshold, name=f"auto{k + 1:02d}", noise_sd=panel.noise_sd, seed=s
+        )
+        for k, s in enumerate(observer_seeds(panel.n, panel.seed))
     ]
 
 

@@ -4,7 +4,8 @@ study level, judged by FovVideoVDP in video mode on a display model of the NVIS 
 pair, ramp and slider tests answered from those JODs by the automatic observers.
 
     import fovjax, fovjax.eval as fe
-    study = fe.video_study(fovjax.scenes.atrium(), eye_width=160, eye_height=128, frames=30)
+    animation = fe.StudyAnimation(eye_width=160, eye_height=128, frames=30)  # and levels, gaze, rule, ...
+    study = fe.video_study(fovjax.scenes.atrium(), animation)
     study.jods                  # {(5.0, 10.0): MetricValue(JOD), ...} worse eye, per level
     study.majorities            # {"pair": 12.5 or None, "ramp up": ..., "ramp down": ..., "slider": ...}
     study.write("out/video_study")
@@ -58,7 +59,7 @@ import numpy as np
 from ._metrics import JND_JOD, HmdDisplay, MetricValue, fovvdp
 from ._pareto import write_csv
 from ._protocols import APPENDIX_LEVELS, Response, _check_levels, run_study
-from ._study import THESIS_LEVEL, observers_from_comparison, study_majorities
+from ._study import THESIS_LEVEL, ObserverPanel, observers_from_comparison, study_majorities
 
 SX111_EYE = (1280, 1024)  # pixels per eye (thesis 2.1.3)
 SX111_VFOV_DEG = 64.0  # vertical field of view (thesis 2.1.3: 102° x 64°)
@@ -139,9 +140,9 @@ class StudySequence:
         return self.frames / self.fps
 
 
-def _check_int(value, name: str, lo: int) -> int:
+def _check_int(value, name: str, lo: int, where: str = "StudyAnimation") -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
-        raise ValueError(f"video_study: {name} must be a whole number >= {lo}, got {value!r}")
+        raise ValueError(f"{where}: {name} must be a whole number >= {lo}, got {value!r}")
     return int(value)
 
 
@@ -151,12 +152,12 @@ def _check_positive(value, name: str) -> float:
         or not isinstance(value, int | float)
         or not (math.isfinite(value) and value > 0)
     ):
-        raise ValueError(f"video_study: {name} must be a finite number > 0, got {value!r}")
+        raise ValueError(f"StudyAnimation: {name} must be a finite number > 0, got {value!r}")
     return float(value)
 
 
 def _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys="fresh"):
-    """Every argument of `study_sequence`, before any rendering."""
+    """Every field of a `StudyAnimation`, checked and normalised."""
     from ..foveate import SAMPLING_RULES
 
     eye_width = _check_int(eye_width, "eye_width", 8)
@@ -165,24 +166,34 @@ def _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed,
     fps = _check_positive(fps, "fps")
     spp = _check_int(spp, "spp", 1)
     if math.isqrt(spp) ** 2 != spp:
-        raise ValueError(f"video_study: spp must be a perfect square (1, 4, 9, 16, ...), got {spp}")
+        raise ValueError(f"StudyAnimation: spp must be a perfect square (1, 4, 9, 16, ...), got {spp}")
     if gaze not in GAZE_MODES:
-        raise ValueError(f"video_study: gaze must be one of {GAZE_MODES}, got {gaze!r}")
+        raise ValueError(f"StudyAnimation: gaze must be one of {GAZE_MODES}, got {gaze!r}")
     if keys not in KEY_MODES:
-        raise ValueError(f"video_study: keys must be one of {KEY_MODES}, got {keys!r}")
+        raise ValueError(f"StudyAnimation: keys must be one of {KEY_MODES}, got {keys!r}")
     if rule not in SAMPLING_RULES:
-        raise ValueError(f"video_study: rule must be one of {SAMPLING_RULES}, got {rule!r}")
+        raise ValueError(f"StudyAnimation: rule must be one of {SAMPLING_RULES}, got {rule!r}")
     if (
         isinstance(walk_speed, bool)
         or not isinstance(walk_speed, int | float)
         or not (math.isfinite(walk_speed) and walk_speed >= 0)
     ):
-        raise ValueError(f"video_study: walk_speed must be a finite number >= 0 (m/s), got {walk_speed!r}")
+        raise ValueError(f"StudyAnimation: walk_speed must be a finite number >= 0 (m/s), got {walk_speed!r}")
     seed = _check_int(seed, "seed", 0)
     if seed > 2**32 - 1 - frames:
-        raise ValueError(f"video_study: seed must be <= {2**32 - 1 - frames} (one key per frame), got {seed}")
-    levels = _check_levels(levels, "video_study")
+        raise ValueError(
+            f"StudyAnimation: seed must be <= {2**32 - 1 - frames} (one key per frame), got {seed}"
+        )
+    levels = _check_levels(levels, "StudyAnimation")
     return eye_width, eye_height, frames, fps, spp, float(walk_speed), seed, levels
+
+
+def _animation(animation, where: str) -> StudyAnimation:
+    if animation is None:
+        return StudyAnimation()
+    if not isinstance(animation, StudyAnimation):
+        raise TypeError(f"{where}: animation must be a StudyAnimation, got {type(animation).__name__}")
+    return animation
 
 
 def _head_poses(frames: int, fps: float) -> np.ndarray:
@@ -204,45 +215,83 @@ def _gazes(mode: str, frames: int, fps: float, seed: int, display: HmdDisplay) -
     return np.repeat(points[:, None, :], 2, axis=1)
 
 
+@dataclasses.dataclass(frozen=True)
+class StudyAnimation:
+    """What the study's animation is (see the module docstring): `frames` frames at `fps`, per
+    eye `eye_width` x `eye_height`, `spp` samples per pixel, foveated at each (fovea,
+    periphery) of `levels` with the sampling `rule` and the `regions` reading
+    (`fovjax.foveate.with_regions`: "thesis", the thesis's own, so the levels compare with its
+    participants' answers; or "angle", fovjax's exact-angle regions, about half the area on the
+    90° rig); the gaze ("scanpath" or "fixed"), the walk's `walk_speed` (m/s), and `seed`: the
+    scanpath's seed and the first frame's key (frame f uses seed + f with `keys="fresh"`, seed
+    with "fixed").
+
+    Raises:
+        ValueError: any bad field, naming it, its value and what was expected.
+    """
+
+    levels: Sequence = APPENDIX_LEVELS
+    eye_width: int = 160
+    eye_height: int = 128
+    frames: int = 30
+    fps: float = SX111_FPS
+    spp: int = STUDY_SPP
+    gaze: str = "scanpath"
+    rule: str = "either"
+    regions: str = "thesis"
+    walk_speed: float = WALK_SPEED
+    seed: int = 0
+    keys: str = "fresh"
+
+    def __post_init__(self):
+        from ..foveate import REGION_READINGS
+
+        checked = _check_args(
+            self.eye_width,
+            self.eye_height,
+            self.frames,
+            self.fps,
+            self.spp,
+            self.gaze,
+            self.rule,
+            self.walk_speed,
+            self.seed,
+            self.levels,
+            self.keys,
+        )
+        if self.regions not in REGION_READINGS:
+            raise ValueError(
+                f"StudyAnimation: regions must be one of {REGION_READINGS}, got {self.regions!r}"
+            )
+        names = ("eye_width", "eye_height", "frames", "fps", "spp", "walk_speed", "seed", "levels")
+        for name, value in zip(names, checked, strict=True):
+            object.__setattr__(self, name, tuple(value) if name == "levels" else value)
+
+
 def study_sequence(
     scene,
+    animation: StudyAnimation | None = None,
     *,
-    levels=APPENDIX_LEVELS,
-    eye_width: int = 160,
-    eye_height: int = 128,
-    frames: int = 30,
-    fps: float = SX111_FPS,
-    spp: int = STUDY_SPP,
-    gaze: str = "scanpath",
-    rule: str = "either",
-    regions: str = "thesis",
-    walk_speed: float = WALK_SPEED,
-    seed: int = 0,
-    keys: str = "fresh",
     config=None,
     progress: Callable[[str], None] | None = None,
 ) -> StudySequence:
-    """Render the study's animation (see the module docstring) full and foveated at every level:
-    `frames` frames at `fps`, per eye `eye_width` x `eye_height`, `spp` samples per pixel. Head
-    pose, head position, gaze, sampling key and the foveation thresholds change per frame as
-    traced values: the full render compiles once and the foveated render once for the whole
-    sequence. `seed`: the scanpath's seed and the first frame's key (frame f uses seed + f with
-    `keys="fresh"`, seed with "fixed"). `regions` (`fovjax.foveate.with_regions`): "thesis"
-    (default: the thesis's own reading, so the levels compare with its participants' answers)
-    or "angle" (fovjax's exact-angle regions, about half the area on the 90° rig).
-    `progress(text)` is called once per frame rendered."""
+    """Render the study's animation (`StudyAnimation`, default `StudyAnimation()`; see the module
+    docstring) full and foveated at every level, with the `RenderConfig` `config`. Head pose,
+    head position, gaze, sampling key and the foveation thresholds change per frame as traced
+    values: the full render compiles once and the foveated render once for the whole
+    sequence. `progress(text)` is called once per frame rendered."""
     import equinox as eqx
     import jax
 
-    from ..foveate import REGION_READINGS, FoveatedRenderer, Foveation, with_regions
+    from ..foveate import FoveatedRenderer, Foveation, with_regions
     from ..render import TRACE_COUNTS, RenderConfig, StereoRig
     from ..scenes import default_camera
 
-    eye_width, eye_height, frames, fps, spp, walk_speed, seed, levels = _check_args(
-        eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys
-    )
-    if regions not in REGION_READINGS:
-        raise ValueError(f"study_sequence: regions must be one of {REGION_READINGS}, got {regions!r}")
+    animation = _animation(animation, "study_sequence")
+    a = animation
+    eye_width, eye_height, frames, fps, spp = a.eye_width, a.eye_height, a.frames, a.fps, a.spp
+    levels, seed, gaze, rule, regions, keys = a.levels, a.seed, a.gaze, a.rule, a.regions, a.keys
+    walk_speed = a.walk_speed
     config = config or RenderConfig()
     tick = progress or (lambda text: None)
     display = sx111_display(eye_width, eye_height)
@@ -420,27 +469,17 @@ def verdict_from_jods(
     *,
     spp: int = STUDY_SPP,
     levels: Sequence = APPENDIX_LEVELS,
-    observers: int = 15,
-    noise_sd: float = 0.0,
-    seed: int = 0,
-    threshold: float = JND_JOD,
+    observers: ObserverPanel | None = None,
 ) -> tuple[list[Response], dict]:
-    """The pair, ramp and slider tests answered by `observers` automatic observers judging
-    d = 10 − JOD at each level (seen when d > `threshold`): (responses, majorities)."""
+    """The pair, ramp and slider tests answered by the automatic `observers` (`ObserverPanel`,
+    default `ObserverPanel()`) judging d = 10 − JOD at each level (seen when d > its threshold,
+    `JND_JOD` by default): (responses, majorities)."""
     table = [
         {"fovea_deg": level[0], "periphery_deg": level[1], "spp": spp, "jod": float(jod)}
         for level, jod in jods.items()
     ]
     observer_list = observers_from_comparison(
-        table,
-        metric="jod",
-        spp=spp,
-        n=observers,
-        noise_sd=noise_sd,
-        seed=seed,
-        threshold=threshold,
-        levels=levels,
-        where="video study",
+        table, metric="jod", spp=spp, observers=observers, levels=levels, where="video study"
     )
     responses = run_study(observer_list, levels)
     return responses, study_majorities(responses, levels)
@@ -448,63 +487,35 @@ def verdict_from_jods(
 
 def video_study(
     scene,
+    animation: StudyAnimation | None = None,
     *,
-    levels=APPENDIX_LEVELS,
-    eye_width: int = 160,
-    eye_height: int = 128,
-    frames: int = 30,
-    fps: float = SX111_FPS,
-    spp: int = STUDY_SPP,
-    gaze: str = "scanpath",
-    rule: str = "either",
-    regions: str = "thesis",
-    walk_speed: float = WALK_SPEED,
-    seed: int = 0,
-    keys: str = "fresh",
+    observers: ObserverPanel | None = None,
     peak_luminance: float = DEFAULT_PEAK_LUMINANCE,
-    observers: int = 15,
-    noise_sd: float = 0.0,
-    threshold: float = JND_JOD,
     check_reference: bool = True,
     config=None,
     sequence: StudySequence | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> VideoStudy:
     """The thesis's user study on video (see the module docstring): render the animation
-    (`study_sequence`, or reuse `sequence`), judge every level with FovVideoVDP on the SX111
-    display model at the rendered resolution (`sx111_display`, `peak_luminance` cd/m²), and run
-    the pair, ramp and slider tests with `observers` automatic observers (`verdict_from_jods`).
-    Every argument is checked before anything is rendered; FovVideoVDP needs the `[fvvdp]` extra
+    (`study_sequence(scene, animation)`, or reuse `sequence`), judge every level with
+    FovVideoVDP on the SX111 display model at the rendered resolution (`sx111_display`,
+    `peak_luminance` cd/m²), and run the pair, ramp and slider tests with the automatic
+    `observers` (`ObserverPanel`, default `ObserverPanel()`; `verdict_from_jods`). Every
+    argument is checked before anything is rendered; FovVideoVDP needs the `[fvvdp]` extra
     (checked first too). `check_reference` also judges the full render against itself."""
     from ._metrics import _require
 
     if not (isinstance(peak_luminance, int | float) and math.isfinite(peak_luminance) and peak_luminance > 0):
         raise ValueError(f"video_study: peak_luminance must be a number > 0 (cd/m²), got {peak_luminance!r}")
-    _check_int(observers, "observers", 1)
-    if not (isinstance(noise_sd, int | float) and math.isfinite(noise_sd) and noise_sd >= 0):
-        raise ValueError(f"video_study: noise_sd must be a finite number >= 0, got {noise_sd!r}")
-    if not (isinstance(threshold, int | float) and math.isfinite(threshold) and threshold >= 0):
-        raise ValueError(f"video_study: threshold must be a finite number >= 0 (JOD), got {threshold!r}")
+    panel = ObserverPanel() if observers is None else observers
+    if not isinstance(panel, ObserverPanel):
+        raise TypeError(f"video_study: observers must be an ObserverPanel, got {type(panel).__name__}")
     if sequence is None:
-        _check_args(eye_width, eye_height, frames, fps, spp, gaze, rule, walk_speed, seed, levels, keys)
+        animation = _animation(animation, "video_study")
         _require("pyfvvdp", "fvvdp", "the video study's FovVideoVDP")
-        sequence = study_sequence(
-            scene,
-            levels=levels,
-            eye_width=eye_width,
-            eye_height=eye_height,
-            frames=frames,
-            fps=fps,
-            spp=spp,
-            gaze=gaze,
-            rule=rule,
-            regions=regions,
-            walk_speed=walk_speed,
-            seed=seed,
-            keys=keys,
-            config=config,
-            progress=progress,
-        )
+        sequence = study_sequence(scene, animation, config=config, progress=progress)
+    elif animation is not None:
+        raise ValueError("video_study: give animation= or sequence= (rendered from one), not both")
     display = sx111_display(sequence.eye_width, sequence.eye_height, peak_luminance=float(peak_luminance))
     start = time.perf_counter()
     jods = judge_sequence(sequence, display)
@@ -514,15 +525,7 @@ def video_study(
             sequence.reference, sequence.reference, display, gaze_xy=sequence.gaze, fps=sequence.fps
         )
     metric_s = time.perf_counter() - start
-    responses, majorities = verdict_from_jods(
-        jods,
-        spp=sequence.spp,
-        levels=sequence.levels,
-        observers=observers,
-        noise_sd=noise_sd,
-        seed=seed,
-        threshold=threshold,
-    )
+    responses, majorities = verdict_from_jods(jods, spp=sequence.spp, levels=sequence.levels, observers=panel)
     return VideoStudy(
         sequence=sequence,
         display=display,
@@ -530,8 +533,8 @@ def video_study(
         reference_jod=reference_jod,
         responses=responses,
         majorities=majorities,
-        threshold=float(threshold),
-        observers=int(observers),
-        noise_sd=float(noise_sd),
+        threshold=JND_JOD if panel.threshold is None else float(panel.threshold),
+        observers=int(panel.n),
+        noise_sd=float(panel.noise_sd),
         metric_seconds=metric_s,
     )

@@ -20,6 +20,7 @@ from ._config import THESIS_PAIRS as THESIS_PAIRS
 from ._config import Constant as Constant
 from ._config import Fidelity as Fidelity
 from ._config import Foveation as Foveation
+from ._config import GazeLike as GazeLike
 from ._config import LinearFalloff as LinearFalloff
 from ._config import check_gaze as check_gaze
 from ._config import with_regions as with_regions
@@ -31,6 +32,7 @@ from ._eccentricity import thesis_pixel_pitch_mm as thesis_pixel_pitch_mm
 from ._fill import fill_and_blur as fill_and_blur
 from ._frame import DEBUG_VIEW_DIAGNOSTICS as DEBUG_VIEW_DIAGNOSTICS
 from ._frame import DIAGNOSTICS as DIAGNOSTICS
+from ._frame import DiagnosticsLike as DiagnosticsLike
 from ._methods import METHODS as METHODS
 from ._methods import Citation as Citation
 from ._methods import Guenter2012 as Guenter2012
@@ -71,6 +73,7 @@ __all__ = [
     "THESIS_PAIRS",
     "Constant",
     "Fidelity",
+    "GazeLike",
     "Foveation",
     "LinearFalloff",
     "check_gaze",
@@ -83,6 +86,7 @@ __all__ = [
     "fill_and_blur",
     "DEBUG_VIEW_DIAGNOSTICS",
     "DIAGNOSTICS",
+    "DiagnosticsLike",
     "METHODS",
     "Citation",
     "Guenter2012",

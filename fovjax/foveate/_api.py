@@ -8,8 +8,11 @@ from __future__ import annotations
 import jax
 
 from ..render import TRACE_COUNTS as TRACE_COUNTS  # shared by every entry point
-from ._config import Foveation
-from ._frame import DIAGNOSTICS
+from ..render import HeadPoseLike, RenderConfig, SceneArrays, StereoRig
+from ..scene import LODLevels, Scene
+from ..trace import BVH
+from ._config import Foveation, GazeLike
+from ._frame import DIAGNOSTICS, DiagnosticsLike
 from ._renderer import CENTRE_GAZE, FoveatedFrame, FoveatedRenderer
 from ._renderer import _budget_for as _budget_for  # the budget of every entry point
 from ._renderer import fovea_tile as fovea_tile
@@ -17,18 +20,17 @@ from ._renderer import uncapped as uncapped
 
 
 def render_foveated(
-    scene,
-    rig=None,
+    scene: Scene | SceneArrays,
+    rig: StereoRig | None = None,
     *,
-    gaze=CENTRE_GAZE,
+    gaze: GazeLike = CENTRE_GAZE,
     foveation: Foveation | None = None,
-    head_pose=None,
+    head_pose: HeadPoseLike = None,
     key: jax.Array | None = None,
-    config=None,
-    envmap=None,
-    bvh=None,
-    lod_levels=None,
-    diagnostics=DIAGNOSTICS,
+    config: RenderConfig | None = None,
+    bvh: BVH | None = None,
+    lod_levels: LODLevels | None = None,
+    diagnostics: DiagnosticsLike = DIAGNOSTICS,
 ) -> FoveatedFrame:
     """Render a foveated stereo frame (thesis chapter 4; the steps in `fovjax.foveate._frame`).
 
@@ -48,7 +50,6 @@ def render_foveated(
         key: the frame's PRNG key (sub-pixel jitter and sampling draws); None renders pixel-cell
             centres and a fixed sampling pattern.
         config: the `fovjax.render.RenderConfig`.
-        envmap: an environment map for rays that miss.
         bvh: a prebuilt BVH.
         lod_levels: the scene's levels of detail (`fovjax.scene.lod_levels`) that `Fidelity.lod`
             indexes; None: `lod_levels(scene)` at its default ratios (cached on disk) when a region
@@ -58,6 +59,10 @@ def render_foveated(
             default all; `DEBUG_VIEW_DIAGNOSTICS` for `debug_view`). A static choice (another set
             is another compiled program): on a CPU every screen-sized output is fresh memory each
             frame, so a frame loop asks only for what it reads.
+
+    An environment map for the rays that miss: `FoveatedRenderer(..., envmap=)` (the way to
+    render frames in a loop), or a `SceneArrays` made with one (`scene_arrays(scene, envmap=)`)
+    as `scene`, with `bvh`.
 
     Returns:
         The `FoveatedFrame`.
@@ -70,7 +75,6 @@ def render_foveated(
         rig,
         foveation,
         config,
-        envmap=envmap,
         bvh=bvh,
         lod_levels=lod_levels,
         diagnostics=diagnostics,

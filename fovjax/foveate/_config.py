@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Sequence
+from typing import Any, TypeAlias
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jax.core import Tracer
+from jaxtyping import Array, ArrayLike, Float, Real
 
-from ._methods._catalog import as_method
+from ._methods._catalog import FoveationMethod, as_method
 
 # The thesis's (fovea, periphery) pairs in degrees (section 5.1, tables 2-5).
 THESIS_PAIRS: tuple[tuple[float, float], ...] = (
@@ -26,6 +28,12 @@ ECCENTRICITY_MODES = ("angle", "planar")
 SAMPLING_RULES = ("either", "strict", "thesis-measured")
 # How the regions' eccentricity is measured (`with_regions`; every command's --regions).
 REGION_READINGS = ("angle", "thesis")
+
+# Both eyes' gaze points in normalised display coordinates (x right, y down, (0, 0) the top-left
+# of each eye's display): ((lx, ly), (rx, ry)) as nested sequences, a (2, 2) array or 4 numbers.
+GazeLike: TypeAlias = (
+    Real[ArrayLike, "2 2"] | Real[ArrayLike, " 4"] | Sequence[Sequence[float]] | Sequence[float]
+)
 
 
 class LinearFalloff(eqx.Module):
@@ -130,7 +138,7 @@ class Fidelity(eqx.Module):
 
 def _is_int(x, *, low: int) -> bool:
     """A Python or NumPy integer (not a bool, not a string) >= `low`."""
-    return not isinstance(x, bool | str) and isinstance(x, int | np.integer) and x >= low
+    return not isinstance(x, bool | str) and isinstance(x, int | np.integer) and bool(x >= low)
 
 
 REGION_NAMES = ("fovea", "periphery", "outside")
@@ -141,7 +149,8 @@ def region_spp(foveation) -> tuple[int, int, int] | None:
     every region takes the frame's `spp` (the program without per-region sample counts)."""
     if foveation.fidelity is None:
         return None
-    spp = tuple(foveation.spp if f.spp is None else int(f.spp) for f in foveation.fidelity)
+    fovea, periphery, outside = (foveation.spp if f.spp is None else int(f.spp) for f in foveation.fidelity)
+    spp = (fovea, periphery, outside)
     return None if all(s == foveation.spp for s in spp) else spp
 
 
@@ -228,9 +237,9 @@ def uses_texture_lod(foveation) -> bool:
 # ---- end texture level of detail ----
 
 
-def _angle(x):
+def _angle(x: Any) -> float | Array:
     """Thresholds are traced floats: one dtype whatever the caller passed (5, 5.0, np.float64)."""
-    return x if isinstance(x, jax.core.Tracer) else float(x)
+    return x if isinstance(x, Tracer) else float(x)
 
 
 def _thesis_model():
@@ -294,10 +303,11 @@ class Foveation(eqx.Module):
       thesis's frame has (`fidelity`, budgets, tiles) are refused with another method.
     """
 
-    fovea_deg: float = eqx.field(converter=_angle, default=5.0)
-    periphery_deg: float = eqx.field(converter=_angle, default=10.0)
+    # Floats, or traced under jit (a new pair compiles nothing).
+    fovea_deg: float | Array = eqx.field(converter=_angle, default=5.0)
+    periphery_deg: float | Array = eqx.field(converter=_angle, default=10.0)
     spp: int = eqx.field(static=True, default=1)
-    acuity: object = eqx.field(default_factory=_thesis_model)
+    acuity: Callable[..., Any] = eqx.field(default_factory=_thesis_model)
     blocks: tuple[int, int] = eqx.field(static=True, default=(2, 4))
     rule: str = eqx.field(static=True, default="either")
     blur_sigma: float = eqx.field(static=True, default=1.0)
@@ -311,12 +321,10 @@ class Foveation(eqx.Module):
     grid_tile: bool = eqx.field(static=True, default=False)
     fidelity: tuple | None = eqx.field(static=True, default=None)
     # The method (`fovjax.foveate.METHODS`; default the thesis's): a name or a method instance.
-    method: object = eqx.field(static=True, default="thesis", converter=as_method)
+    method: FoveationMethod = eqx.field(static=True, default="thesis", converter=as_method)
 
     def __check_init__(self):
-        traced = isinstance(self.fovea_deg, jax.core.Tracer) or isinstance(
-            self.periphery_deg, jax.core.Tracer
-        )
+        traced = isinstance(self.fovea_deg, Tracer) or isinstance(self.periphery_deg, Tracer)
         if not traced:
             self._check_thresholds()
         self._check_options()
@@ -396,14 +404,15 @@ class Foveation(eqx.Module):
                 )
 
     @classmethod
-    def thesis(cls, pair: int | tuple[float, float] = 0, **kwargs) -> Foveation:
-        """One of the thesis's pairs: an index into `THESIS_PAIRS` or a (fovea, periphery) pair."""
+    def thesis(cls, pair: int | tuple[float, float] = 0, **kwargs: Any) -> Foveation:
+        """One of the thesis's pairs: an index into `THESIS_PAIRS` or a (fovea, periphery) pair
+        (`kwargs`: the other fields)."""
         fovea, periphery = THESIS_PAIRS[pair] if isinstance(pair, int) else pair
         return cls(fovea_deg=float(fovea), periphery_deg=float(periphery), **kwargs)
 
     @classmethod
     def thesis_measured(
-        cls, pair: int | tuple[float, float] = 0, *, eye_height: int = 1024, **kwargs
+        cls, pair: int | tuple[float, float] = 0, *, eye_height: int = 1024, **kwargs: Any
     ) -> Foveation:
         """A thesis pair as the thesis measured it (Table 2): rule "thesis-measured" with the
         planar eccentricity (eq. 4-5, D = 24 mm) at the pitch `thesis_pixel_pitch_mm` gives
@@ -418,7 +427,7 @@ class Foveation(eqx.Module):
         kwargs.setdefault("pixel_pitch_mm", pitch)
         return cls.thesis(pair, **kwargs)
 
-    def probability(self, omega):
+    def probability(self, omega: Real[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
         """P(ω): 1 in the fovea, the acuity model beyond (thesis eq. 7), clipped to [0, 1]."""
         omega = jnp.asarray(omega, jnp.float32)
         p = jnp.clip(jnp.asarray(self.acuity(omega), jnp.float32), 0.0, 1.0)
@@ -447,7 +456,7 @@ def with_regions(foveation: Foveation, reading: str, eye_height: int) -> Foveati
     return dataclasses.replace(foveation, eccentricity="planar", eye_display_mm=24.0, pixel_pitch_mm=pitch)
 
 
-def check_gaze(gaze, name: str = "gaze") -> np.ndarray:
+def check_gaze(gaze: GazeLike, name: str = "gaze") -> Float[np.ndarray, "2 2"]:
     """Per-eye gaze in normalised display coordinates (x right, y down, (0, 0) top-left of each
     eye's display), shape (2, 2) for (left, right). Raises on NaN or off-screen values."""
     g = np.asarray(gaze, np.float64)

@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TypeAlias
+
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from ..scene import Camera
+from ._config import Foveation
+
+# One eye's gaze point in normalised display coordinates (x right, y down, [0, 1]).
+PointLike: TypeAlias = Real[ArrayLike, " 2"] | Sequence[float]
 
 
-def gaze_pixel(camera: Camera, gaze_xy: Float[np.ndarray | Array, " 2"]) -> Float[Array, " 2"]:
+def gaze_pixel(camera: Camera, gaze_xy: PointLike) -> Float[Array, " 2"]:
     """Normalised display coordinates (x right, y down, [0, 1]) to continuous pixel coordinates."""
     return jnp.asarray(gaze_xy, jnp.float32) * jnp.array([camera.width, camera.height], jnp.float32)
 
 
-def eccentricity_angle(camera: Camera, gaze_xy, pixel_xy) -> Float[Array, "..."]:
+def eccentricity_angle(
+    camera: Camera, gaze_xy: PointLike, pixel_xy: Real[ArrayLike, "*batch 2"]
+) -> Float[Array, "*batch"]:
     """Degrees between the ray through each pixel position and the ray through the gaze point,
     both through the eye's own camera model (projection offset included). atan2 of the cross
     and dot products stays accurate near 0, where acos loses ~0.03° in float32."""
@@ -82,14 +91,20 @@ def thesis_pixel_pitch_mm(
     return float(eye_display_mm * np.tan(np.deg2rad(display_vfov_deg / rows)))
 
 
-def eccentricity_planar(camera: Camera, gaze_xy, pixel_xy, eye_display_mm=24.0, pixel_pitch_mm=None):
+def eccentricity_planar(
+    camera: Camera,
+    gaze_xy: PointLike,
+    pixel_xy: Real[ArrayLike, "*batch 2"],
+    eye_display_mm: float = 24.0,
+    pixel_pitch_mm: float | None = None,
+) -> Float[Array, "*batch"]:
     """The thesis's eq. 4-5: S = Euclidean distance on the display (mm), V = 2·atan(S / 2D)."""
     pitch = display_pixel_pitch_mm(camera, eye_display_mm) if pixel_pitch_mm is None else pixel_pitch_mm
-    s = jnp.linalg.norm(pixel_xy - gaze_pixel(camera, gaze_xy), axis=-1) * pitch
+    s = jnp.linalg.norm(jnp.asarray(pixel_xy) - gaze_pixel(camera, gaze_xy), axis=-1) * pitch
     return jnp.rad2deg(2 * jnp.arctan(s / (2 * eye_display_mm)))
 
 
-def eccentricity_map(camera: Camera, gaze_xy, foveation) -> Float[Array, "H W"]:
+def eccentricity_map(camera: Camera, gaze_xy: PointLike, foveation: Foveation) -> Float[Array, "H W"]:
     """Eccentricity (degrees) of every pixel centre, in the foveation's mode."""
     if foveation.eccentricity == "angle":  # the pixel centres as a row and a column: one fused pass
         x = jnp.arange(camera.width, dtype=jnp.float32)[None, :] + 0.5

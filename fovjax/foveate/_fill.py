@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._config import Foveation
 from ._sampling import FOVEA, PERIPHERY
 
 # Width of the band outside the fovea over which the image blends from sharp to blurred.
@@ -60,7 +63,7 @@ def fill_and_blur(
     traced: Bool[Array, "S H W"],
     region: Int[Array, "H W"],
     ecc: Float[Array, "H W"],
-    foveation,
+    foveation: Foveation,
 ) -> tuple[Float[Array, "H W 3"], Bool[Array, "H W"]]:
     """One pass: every pixel with no traced sample takes its block's top-left value, then a 5×5
     Gaussian (σ = foveation.blur_sigma) smooths everything outside the fovea, blending in over
@@ -130,9 +133,10 @@ def blur_and_blend(
     def band(i, out):
         eye, first = i // n_bands, jnp.minimum((i % n_bands) * rows, h - rows)  # the last overlaps
         src = filled[eye, _reflect(first - r + jnp.arange(rows + 2 * r), h)]  # (rows + 2r, W, 3)
-        vertical = sum(float(t) * src[k : k + rows] for k, t in enumerate(taps))
+        # sum() of arrays is an array (the taps are never empty); cast says so to the checker.
+        vertical = cast(Array, sum(float(t) * src[k : k + rows] for k, t in enumerate(taps)))
         padded = jnp.pad(vertical, ((0, 0), (r, r), (0, 0)), mode="reflect")
-        result = sum(float(t) * padded[:, k : k + w] for k, t in enumerate(taps))
+        result = cast(Array, sum(float(t) * padded[:, k : k + w] for k, t in enumerate(taps)))
         if not foveation.blur_fovea:
             ecc_rows = jax.lax.dynamic_slice(ecc, (eye, first, 0), (1, rows, w))[0]
             t = jnp.clip((ecc_rows - foveation.fovea_deg) / FOVEA_BLEND_DEG, 0.0, 1.0)
@@ -184,7 +188,7 @@ def fill_and_blur_pixels(
     n: Int[Array, "H W"],
     region: Int[Array, "H W"],
     ecc: Float[Array, "H W"],
-    foveation,
+    foveation: Foveation,
 ) -> tuple[Float[Array, "H W 3"], Bool[Array, "H W"]]:
     """`fill_and_blur` from resolved pixels: the mean of each pixel's traced samples and how
     many there were."""

@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import NamedTuple
+from collections.abc import Collection
+from typing import NamedTuple, TypeAlias, cast
 
 import equinox as eqx
 import jax
@@ -42,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..render import RenderConfig
 from ._config import max_region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import blur_and_blend, fill_blanks
@@ -61,9 +63,11 @@ SAMPLING_STREAM = 0x5A3
 DIAGNOSTICS = ("traced", "region", "eccentricity", "prefill")
 # What `region_view` (the debug view) reads.
 DEBUG_VIEW_DIAGNOSTICS = ("traced", "region", "prefill")
+# Which of them to return: names of `DIAGNOSTICS` (any order), or one name.
+DiagnosticsLike: TypeAlias = str | Collection[str]
 
 
-def diagnostics_tuple(diagnostics, where: str = "render_foveated") -> tuple[str, ...]:
+def diagnostics_tuple(diagnostics: DiagnosticsLike, where: str = "render_foveated") -> tuple[str, ...]:
     """`diagnostics` (names of `DIAGNOSTICS`, any order, or one name) as the canonical static
     tuple (`DIAGNOSTICS`' order: the same set is the same compiled program)."""
     if isinstance(diagnostics, str):
@@ -78,6 +82,33 @@ def diagnostics_tuple(diagnostics, where: str = "render_foveated") -> tuple[str,
     if unknown:
         raise ValueError(f"{where}: unknown diagnostics {unknown}; expected names from {DIAGNOSTICS}")
     return tuple(n for n in DIAGNOSTICS if n in names)
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameOptions:
+    """The frame program's static options (hashable: one compiled program per distinct value;
+    everything else a frame takes is traced). `FoveatedRenderer` makes them.
+
+    - `spp`: samples per pixel (`Foveation.spp`);
+    - `jitter`: whether the sub-pixel positions are jittered from the frame key (a key was
+      given) or are the pixel cells' centres;
+    - `config`: the `fovjax.render.RenderConfig`;
+    - `budget`: the static number of ray slots of both eyes (the thesis's method; None for the
+      other methods' programs, which trace pixels without slots);
+    - `tile` (rows, cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images
+      in packets (None: not; only where the budget is every sample, so that their samples are
+      never dropped; see `Foveation.fovea_tile_deg`);
+    - `diagnostics`: which per-pixel outputs besides the image to return (`DIAGNOSTICS`, in
+      that order; the others are None: a CPU allocates each output fresh every frame).
+    """
+
+    spp: int
+    jitter: bool
+    config: RenderConfig
+    budget: int | None = None
+    tile: tuple[int, int] | None = None
+    grid: int | None = None
+    diagnostics: tuple[str, ...] = DIAGNOSTICS
 
 
 class FoveatedOutputs(NamedTuple):
@@ -157,13 +188,14 @@ def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
     in locality order (see the module docstring). `covered` (2, H, W): pixels traced as an
     image tile, left out of the slots (counted in `counts` all the same)."""
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
-    classes, region = zip(*(sample_classes(ecc[i], foveation, keys[i]) for i in range(2)), strict=True)
-    classes, region = jnp.stack(classes), jnp.stack(region)  # (2, S, H, W), (2, H, W)
+    per_eye = [sample_classes(ecc[i], foveation, keys[i]) for i in range(2)]
+    classes = jnp.stack([c for c, _ in per_eye])  # (2, S, H, W)
+    region = jnp.stack([r for _, r in per_eye])  # (2, H, W)
     _, spp, h, w = classes.shape
     perm = jnp.asarray(locality_order(h, w))
     listed = classes if covered is None else jnp.where(covered[:, None], SKIPPED, classes)
     local = listed.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
-    order, counts, rank = compaction_order(local, with_rank=True)
+    order, counts, rank = cast(tuple[Array, Array, Array], compaction_order(local, with_rank=True))
     n_slots = jnp.minimum(counts[MANDATORY] + counts[OPTIONAL], budget)
     if covered is not None:  # the tile's samples: counted, not listed
         in_tile = covered[:, None]
@@ -284,11 +316,8 @@ def trace_selection(
     positions,
     sel: Selection,
     *,
-    spp,
-    h,
-    w,
     config,
-    budget,
+    budget: int,
     tiles=(),
     classes=None,
     scale=None,
@@ -297,8 +326,11 @@ def trace_selection(
     tiles of rays) first; `classes`: the renderer's `ShadingClasses` per region (a sample's
     class is its region), None for full fidelity. Returns the per-slot radiance (padded to
     whole chunks), the tiles' and the ray counts. `scale`: as `radiance_in_chunks`'s (levels of
-    detail: the finest level's)."""
+    detail: the finest level's). The samples per pixel and the image size are the selection's
+    (`sel.classes` (2, S, H, W))."""
     from ..render.internal import radiance_in_chunks
+
+    _, spp, h, w = sel.classes.shape
 
     def rays_at(first, size):
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
@@ -311,7 +343,6 @@ def trace_selection(
 
     if classes is None:
         tiles = tuple(t._replace(shading_class=None) for t in tiles)
-        class_at = None
     return radiance_in_chunks(
         scene,
         bvh,
@@ -321,7 +352,7 @@ def trace_selection(
         config=config,
         tiles=tiles,
         classes=classes,
-        class_at=class_at,
+        class_at=None if classes is None else class_at,
         scale=scale,
     )
 
@@ -436,21 +467,11 @@ def foveated_stereo(
     lod=None,
     shading=None,
     *,
-    spp,
-    jitter,
-    config,
-    budget,
-    tile=None,
-    grid=None,
-    diagnostics=DIAGNOSTICS,
+    options: FrameOptions,
 ):
-    """One foveated stereo frame (see the module docstring). Pure; jit with the keyword
-    arguments static. `diagnostics`: which per-pixel outputs besides the image to return
-    (`DIAGNOSTICS`, in that order; the others are None: a CPU allocates each output fresh every
-    frame). `gaze` (2, 2): per-eye normalised display coordinates. `tile` (rows,
-    cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images in packets
-    (None: not; only where the budget is every sample, so that their samples are never
-    dropped; see `Foveation.fovea_tile_deg`). `lod`: with levels of detail per region
+    """One foveated stereo frame (see the module docstring). Pure; jit with `options` (the
+    `FrameOptions`) static. `gaze` (2, 2): per-eye normalised display coordinates. `lod`: with
+    levels of detail per region
     (`Fidelity.lod`), the `LODTables` of `scene` and `bvh` merged over the levels
     (`render_foveated` prepares them); None otherwise. `shading`: the per-region
     `ShadingClasses` tables of `program_fidelity` (traced values: the reflection depth and
@@ -464,7 +485,13 @@ def foveated_stereo(
     from ..render.internal import pixel_spread_angle
     from ..scene import pixel_sample_positions
 
-    diagnostics = diagnostics_tuple(diagnostics, "foveated_stereo")
+    if not isinstance(options, FrameOptions):
+        raise TypeError(f"foveated_stereo: options must be a FrameOptions, got {type(options).__name__}")
+    spp, jitter, config, budget = options.spp, options.jitter, options.config, options.budget
+    if budget is None:
+        raise ValueError("foveated_stereo: FrameOptions.budget is the frame's static ray slots, got None")
+    tile, grid = options.tile, options.grid
+    diagnostics = diagnostics_tuple(options.diagnostics, "foveated_stereo")
     if lod is None and lod_needed(foveation) is not None:
         raise ValueError(
             "foveated_stereo: Foveation.fidelity asks for levels of detail (Fidelity.lod); pass the "
@@ -488,16 +515,16 @@ def foveated_stereo(
     # the image tiles slice the full render's screen of them.
     frame_key = key if jitter else None
     positions = functools.partial(positions_at, frame_key, spp=spp, h=h, w=w)
-    tiles = ()
+    tiles: tuple = ()  # ImageTiles
     if tile is not None or grid is not None:
         screen = pixel_sample_positions(w, h, spp, frame_key)
-    if grid is not None:
-        tiles += (grid_rays(cameras, screen, sel, grid),)
-    if tile is not None:
-        ft = tile_rays(cameras, screen, sel, origins, tile)
-        if grid is not None:  # the grid's pixels are the grid tile's
-            ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
-        tiles += (ft,)
+        if grid is not None:
+            tiles += (grid_rays(cameras, screen, sel, grid),)
+        if tile is not None:
+            ft = tile_rays(cameras, screen, sel, origins, tile)
+            if grid is not None:  # the grid's pixels are the grid tile's
+                ft = ft._replace(active=ft.active & ~_tile_slice(on_grid, origins, tile, spp))
+            tiles += (ft,)
     size = min(config.chunk_size, budget)
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
@@ -520,9 +547,6 @@ def foveated_stereo(
         cameras,
         positions,
         sel,
-        spp=spp,
-        h=h,
-        w=w,
         config=config,
         budget=budget,
         tiles=tiles,
@@ -601,17 +625,18 @@ def region_view(outputs: FoveatedOutputs, *, dim: float = 0.12) -> Float[Array, 
     a traced sample in their rendered colour, the others in a dim colour of their region
     (periphery yellow, outside red) — and the fovea's edge drawn green. Needs the outputs of
     `DEBUG_VIEW_DIAGNOSTICS`."""
-    missing = [n for n in DEBUG_VIEW_DIAGNOSTICS if getattr(outputs, n) is None]
-    if missing:
+    traced, region, prefill = outputs.traced, outputs.region, outputs.prefill  # DEBUG_VIEW_DIAGNOSTICS
+    if traced is None or region is None or prefill is None:
+        missing = [n for n in DEBUG_VIEW_DIAGNOSTICS if getattr(outputs, n) is None]
         raise ValueError(
             f"region_view: the frame was rendered without the diagnostics {missing}; render it with "
             f"diagnostics including {DEBUG_VIEW_DIAGNOSTICS}"
         )
     colours = jnp.array([[0.0, 0.0, 0.0], [1.0, 0.8, 0.1], [1.0, 0.15, 0.1]], jnp.float32)
-    traced = jnp.any(outputs.traced, axis=1)[..., None]
-    shown = jnp.where(traced, outputs.prefill, dim * colours[outputs.region])
+    any_traced = jnp.any(traced, axis=1)[..., None]
+    shown = jnp.where(any_traced, prefill, dim * colours[region])
     # One-pixel ring where the region changes from fovea to periphery.
-    fovea = outputs.region == 0
+    fovea = region == 0
     edge = fovea & ~(
         jnp.roll(fovea, 1, 1) & jnp.roll(fovea, -1, 1) & jnp.roll(fovea, 1, 2) & jnp.roll(fovea, -1, 2)
     )

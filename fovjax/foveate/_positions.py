@@ -27,12 +27,15 @@ from ..scene import pixel_sample_positions, stratified_offsets
 
 def _per_sample_uniform(key) -> bool:
     """Whether `uniform_at` reproduces `jax.random.uniform` for this key (see the module)."""
-    if not jax.config.jax_threefry_partitionable:
+    # jax.config's options are set at run time (pyright cannot see it).
+    if not jax.config.jax_threefry_partitionable:  # pyright: ignore[reportAttributeAccessIssue]
         return False
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
         return str(jax.random.key_impl(key)) == "threefry2x32"
     raw = key.shape == (2,) and key.dtype == jnp.uint32
-    return raw and jax.config.jax_default_prng_impl == "threefry2x32"
+    # jax.config's options are set at run time (pyright cannot see it).
+    impl = jax.config.jax_default_prng_impl  # pyright: ignore[reportAttributeAccessIssue]
+    return raw and impl == "threefry2x32"
 
 
 def uniform_at(key, index: Int[Array, "*batch"]) -> Float[Array, "*batch"]:

@@ -20,16 +20,35 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import os
 import warnings
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Real
 
+from ..render import (
+    EnvmapLike,
+    Frame,
+    FrameBatch,
+    FrameStats,
+    HeadPoseLike,
+    HeadPosesLike,
+    KeysLike,
+    RenderConfig,
+    SceneArrays,
+    StereoRig,
+)
+from ..scene import LODLevels, Scene
+from ..trace import BVH
 from ._budget import plan_budget
 from ._config import (
     Foveation,
+    GazeLike,
     check_gaze,
     max_region_spp,
     program_fidelity,
@@ -38,8 +57,10 @@ from ._config import (
 )
 from ._frame import (
     DIAGNOSTICS,
+    DiagnosticsLike,
     FoveatedOutputs,
     FoveationStats,
+    FrameOptions,
     diagnostics_tuple,
     foveated_stereo,
     region_view,
@@ -122,7 +143,7 @@ class FoveatedFrame:
     (`FoveatedOutputs`; its `prefill` is each pixel's mean of its traced samples)."""
 
     image: np.ndarray
-    stats: object
+    stats: FrameStats
     foveation: FoveationStats
     sample_mask: np.ndarray | None
     regions: np.ndarray | None
@@ -136,7 +157,9 @@ class FoveatedFrame:
         diagnostics of `fovjax.foveate.DEBUG_VIEW_DIAGNOSTICS`)."""
         return np.asarray(region_view(self.outputs))
 
-    def save(self, path, **kwargs):
+    def save(self, path: str | os.PathLike, **kwargs: Any) -> Path:
+        """Save the image (see `fovjax.save_image`: PNG tone-mapped sRGB, EXR/HDR linear;
+        `kwargs` are its options)."""
         from ..files import save_image
 
         return save_image(path, self.image, **kwargs)
@@ -149,7 +172,6 @@ class FoveatedFrame:
 def _levels_of_detail(scene, arrays, bvh, foveation, rig, levels, top: int):
     """The merged scene arrays, BVH and `LODTables` of the levels `foveation` asks for; bad
     levels fail here, before any compile."""
-    from ..scene import LODLevels, Scene
     from ..scene import lod_levels as make_levels
 
     if not isinstance(scene, Scene):
@@ -185,11 +207,13 @@ def _rig_shape(rig) -> tuple:
     return rig.eye_width, rig.eye_height, rig.fov_axis, float(rig.fov_deg), offsets
 
 
-def _batch_program(scene, bvh, rig, foveation, lod, shading, head_poses, gazes, raw_keys, **static):
+def _batch_program(scene, bvh, rig, foveation, lod, shading, head_poses, gazes, raw_keys, *, options):
     def frame(xs):
         head_pose, gaze, key = xs
         key = jax.random.wrap_key_data(key)
-        return foveated_stereo(scene, bvh, rig, head_pose, gaze, key, foveation, lod, shading, **static)
+        return foveated_stereo(
+            scene, bvh, rig, head_pose, gaze, key, foveation, lod, shading, options=options
+        )
 
     # One frame after another (lax.map), not vmap: a foveated frame skips the chunks of slots it
     # does not trace with lax.cond, which vmap would turn into a select that runs every chunk.
@@ -231,17 +255,17 @@ class FoveatedRenderer:
 
     def __init__(
         self,
-        scene,
-        rig=None,
+        scene: Scene | SceneArrays,
+        rig: StereoRig | None = None,
         foveation: Foveation | None = None,
-        config=None,
+        config: RenderConfig | None = None,
         *,
-        envmap=None,
-        bvh=None,
-        lod_levels=None,
-        diagnostics=DIAGNOSTICS,
-    ):
-        from ..render import RenderConfig, SceneArrays, StereoRig, scene_arrays
+        envmap: EnvmapLike = None,
+        bvh: BVH | None = None,
+        lod_levels: LODLevels | None = None,
+        diagnostics: DiagnosticsLike = DIAGNOSTICS,
+    ) -> None:
+        from ..render import scene_arrays
         from ..render.internal import bvh_for
 
         foveation = Foveation() if foveation is None else foveation
@@ -253,7 +277,7 @@ class FoveatedRenderer:
         if not isinstance(config, RenderConfig):
             raise TypeError(f"FoveatedRenderer: config must be a RenderConfig, got {type(config).__name__}")
         if rig is None:
-            from ..scene import Scene, default_camera
+            from ..scene import default_camera
 
             if not isinstance(scene, Scene):
                 raise ValueError("FoveatedRenderer: pass a rig when the scene is not a fovjax.Scene")
@@ -273,7 +297,7 @@ class FoveatedRenderer:
         self._full_inputs = jax.tree.map(jnp.asarray, (self.arrays, self.bvh))
         self._configure(rig, foveation, diagnostics)
 
-    def _configure(self, rig, foveation: Foveation, diagnostics) -> None:
+    def _configure(self, rig: StereoRig, foveation: Foveation, diagnostics: DiagnosticsLike) -> None:
         """Everything that depends on the rig and the foveation (see the module docstring)."""
         from ..render.internal import with_texture_mips
 
@@ -305,7 +329,9 @@ class FoveatedRenderer:
 
     # ---- variants sharing the prepared scene ----
 
-    def with_foveation(self, foveation: Foveation, *, diagnostics=None) -> FoveatedRenderer:
+    def with_foveation(
+        self, foveation: Foveation, *, diagnostics: DiagnosticsLike | None = None
+    ) -> FoveatedRenderer:
         """This renderer with another foveation (and diagnostics): the scene's arrays and BVH are
         shared, the rest prepared again (a foveation of the same static options reuses the
         compiled program)."""
@@ -320,7 +346,7 @@ class FoveatedRenderer:
         to frame: the next frame starts from none (for the thesis's method, nothing changes)."""
         self._history.value = None
 
-    def with_rig(self, rig) -> FoveatedRenderer:
+    def with_rig(self, rig: StereoRig) -> FoveatedRenderer:
         """This renderer with the rig moved (its position, rotation, IPD, toe-out: traced values);
         the eye size, field of view and offsets must be this rig's (the budget, tiles and levels
         of detail are planned from them). A temporal method's history is shared with this
@@ -339,15 +365,17 @@ class FoveatedRenderer:
     # ---- frames ----
 
     def _static(self, jitter: bool, diagnostics: tuple[str, ...]) -> dict:
-        return {
-            "spp": self.foveation.spp,
-            "jitter": jitter,
-            "config": self.config,
-            "budget": self.budget,
-            "tile": self.tile,
-            "grid": self.grid,
-            "diagnostics": diagnostics,
-        }
+        """The frame program's static arguments (`run_compiled`'s `static`)."""
+        options = FrameOptions(
+            spp=self.foveation.spp,
+            jitter=jitter,
+            config=self.config,
+            budget=self.budget,
+            tile=self.tile,
+            grid=self.grid,
+            diagnostics=diagnostics,
+        )
+        return {"options": options}
 
     def _frame_foveation(self, thresholds) -> Foveation:
         """The program's foveation with the frame's (fovea, periphery) thresholds (traced)."""
@@ -359,12 +387,12 @@ class FoveatedRenderer:
 
     def render(
         self,
-        gaze=CENTRE_GAZE,
+        gaze: GazeLike = CENTRE_GAZE,
         *,
-        head_pose=None,
+        head_pose: HeadPoseLike = None,
         key: jax.Array | None = None,
         thresholds: tuple[float, float] | None = None,
-        diagnostics=None,
+        diagnostics: DiagnosticsLike | None = None,
         reset: bool = False,
     ) -> FoveatedFrame:
         """One foveated stereo frame.
@@ -429,8 +457,9 @@ class FoveatedRenderer:
             spp=self.foveation.spp,
             stereo=True,
         )
+        fovea, periphery, outside = (int(x) for x in out.primary_by_region)
         fstats = FoveationStats(
-            primary_by_region=tuple(int(x) for x in out.primary_by_region),
+            primary_by_region=(fovea, periphery, outside),
             mandatory=int(out.mandatory),
             optional=int(out.optional),
             budget=self.budget,
@@ -458,7 +487,7 @@ class FoveatedRenderer:
             history=self._history.value,
         )
 
-    def render_full(self, *, head_pose=None, key: jax.Array | None = None):
+    def render_full(self, *, head_pose: HeadPoseLike = None, key: jax.Array | None = None) -> Frame:
         """The full (unfoveated) stereo frame of the same scene, rig and render config at the
         foveation's samples per pixel: the reference a foveated frame is measured against
         (`fovjax.render.render_stereo`, a `fovjax.render.Frame`)."""
@@ -478,11 +507,11 @@ class FoveatedRenderer:
     def render_full_batch(
         self,
         *,
-        keys: Sequence | None = None,
-        head_poses: Sequence | None = None,
-        devices: Sequence | None = None,
+        keys: KeysLike = None,
+        head_poses: HeadPosesLike = None,
+        devices: Sequence[Any] | None = None,  # JAX devices
         partition: str = "shard_map",
-    ):
+    ) -> FrameBatch:
         """The full stereo frames of a batch (`fovjax.render.render_stereo_batch` of this
         renderer's scene, rig, render config and samples per pixel): the references of
         `render_batch`'s frames."""
@@ -502,13 +531,13 @@ class FoveatedRenderer:
 
     def render_batch(
         self,
-        gazes: Sequence = (CENTRE_GAZE,),
+        gazes: Sequence[GazeLike] | Real[ArrayLike, "B 2 2"] | Real[ArrayLike, "B 2"] = (CENTRE_GAZE,),
         *,
-        keys: Sequence | None = None,
-        head_poses: Sequence | None = None,
-        devices: Sequence | None = None,
+        keys: KeysLike = None,
+        head_poses: HeadPosesLike = None,
+        devices: Sequence[Any] | None = None,  # JAX devices
         partition: str = "shard_map",
-    ):
+    ) -> FrameBatch:
         """Foveated stereo frames for a batch in one compiled program, sharded over `devices`
         (default `jax.devices()`): one frame per entry of `gazes` (each ((lx, ly), (rx, ry)) or
         (x, y) for both eyes), `keys` (ints seed `jax.random.key`, or key arrays; None:
@@ -518,7 +547,7 @@ class FoveatedRenderer:
         (each device loops over its own frames) or "auto" (see `fovjax.render.PARTITIONS`).
         Returns a `fovjax.render.FrameBatch` (its per-pixel arrays None where the renderer's
         diagnostics leave them out; the pre-fill means are never returned)."""
-        from ..render import FrameBatch, frame_mesh
+        from ..render import frame_mesh
         from ..render import internal as render_internal
 
         if self.foveation.method.name != "thesis":

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._config import region_spp
+from ._config import Foveation, region_spp
 
 FOVEA = 0
 """Region code of the fovea (eccentricity ≤ `fovea_deg`) in `FoveatedFrame.regions`."""
@@ -26,7 +26,7 @@ SKIPPED = 2
 """Sample class: never traced (filled from its block)."""
 
 
-def regions(ecc: Float[Array, "H W"], foveation) -> Int[Array, "H W"]:
+def regions(ecc: Float[Array, "H W"], foveation: Foveation) -> Int[Array, "H W"]:
     """0 fovea (ω ≤ ω0), 1 periphery (ω0 < ω ≤ ω1), 2 outside (ω > ω1)."""
     return jnp.where(
         ecc <= foveation.fovea_deg, FOVEA, jnp.where(ecc <= foveation.periphery_deg, PERIPHERY, OUTSIDE)
@@ -88,7 +88,7 @@ def thesis_measured_mandatory(region: Int[ArrayLike, "H W"], spp: int) -> Bool[A
     Why: the thesis's Table 2 is exactly linear in SPP, rays = a + b·SPP, with b / b_full the
     share of pixels within ω1 and a the pixels beyond ω1 at about one sample each; see the
     docs/thesis.md, "Table 2: what its ray counts imply"."""
-    inside = (region != OUTSIDE)[None]
+    inside = (jnp.asarray(region) != OUTSIDE)[None]
     first = (jnp.arange(spp) == 0)[:, None, None]
     return inside | first
 
@@ -130,7 +130,7 @@ def allowed_samples(region: Int[ArrayLike, "H W"], foveation) -> Bool[Array, "S 
 DRAW_ROWS = 64
 
 
-def uniform_draws(key: jax.Array, shape: tuple[int, int, int]) -> Float[Array, "S H W"]:
+def uniform_draws(key: jax.Array, shape: tuple[int, ...]) -> Float[Array, "S H W"]:
     """`jax.random.uniform(key, shape)` (float32), the same values, drawn a band of rows at a
     time (`_positions.uniform_at`, a `lax.fori_loop`): the generator's intermediate arrays are
     a band's, not a screen's (on a CPU every screen-sized temporary is fresh memory on every

@@ -8,6 +8,7 @@ from ._budget import plan_budget as plan_budget
 from ._config import program_fidelity as program_fidelity
 from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
 from ._fill import resolve as resolve
+from ._frame import FrameOptions as FrameOptions
 from ._frame import foveated_stereo as foveated_stereo
 from ._renderer import _budget_for as budget_for
 from ._sampling import MANDATORY as MANDATORY
@@ -24,6 +25,7 @@ __all__ = [
     "fill_and_blur_pixels",
     "resolve",
     "foveated_stereo",
+    "FrameOptions",
     "MANDATORY",
     "OPTIONAL",
     "SKIPPED",

@@ -51,6 +51,8 @@ from ._arrays import SceneArrays as SceneArrays
 from ._arrays import scene_arrays as scene_arrays
 from ._batch import PARTITIONS as PARTITIONS
 from ._batch import FrameBatch as FrameBatch
+from ._batch import HeadPosesLike as HeadPosesLike
+from ._batch import KeysLike as KeysLike
 from ._batch import frame_mesh as frame_mesh
 from ._batch import render_stereo_batch as render_stereo_batch
 from ._compile_cache import compile_cache_dir as compile_cache_dir
@@ -60,6 +62,7 @@ from ._config import DEFAULT_CONFIG as DEFAULT_CONFIG
 from ._config import MAGENTA as MAGENTA
 from ._config import THESIS_BACKGROUND as THESIS_BACKGROUND
 from ._config import RenderConfig as RenderConfig
+from ._envmap import EnvmapLike as EnvmapLike
 from ._envmap import constant_envmap as constant_envmap
 from ._envmap import envmap_lookup as envmap_lookup
 from ._envmap import latlong_uv as latlong_uv
@@ -78,6 +81,7 @@ from ._frame import side_by_side as side_by_side
 from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
 from ._integrator import radiance as radiance
+from ._stereo import HeadPoseLike as HeadPoseLike
 from ._stereo import SampleRays as SampleRays
 from ._stereo import StereoRig as StereoRig
 from ._stereo import head_pose_angles as head_pose_angles
@@ -117,6 +121,8 @@ __all__ = [
     "scene_arrays",
     "PARTITIONS",
     "FrameBatch",
+    "HeadPosesLike",
+    "KeysLike",
     "frame_mesh",
     "render_stereo_batch",
     "compile_cache_dir",
@@ -126,6 +132,7 @@ __all__ = [
     "MAGENTA",
     "THESIS_BACKGROUND",
     "RenderConfig",
+    "EnvmapLike",
     "constant_envmap",
     "envmap_lookup",
     "latlong_uv",
@@ -144,6 +151,7 @@ __all__ = [
     "Radiance",
     "RayCounts",
     "radiance",
+    "HeadPoseLike",
     "SampleRays",
     "StereoRig",
     "head_pose_angles",

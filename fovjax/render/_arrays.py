@@ -8,12 +8,15 @@ with respect to any of its leaves (vertices, material colours, lights, the envir
 
 from __future__ import annotations
 
+import os
+from typing import cast
+
 import equinox as eqx
 import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ..scene import Scene
-from ._envmap import constant_envmap, load_envmap
+from ._envmap import ColorLike, EnvmapLike, constant_envmap, load_envmap
 
 
 class SceneArrays(eqx.Module):
@@ -47,16 +50,18 @@ class SceneArrays(eqx.Module):
         return int(np.shape(self.light_kind)[0])
 
 
-def scene_arrays(scene: Scene, *, envmap=None, background=(0.34, 0.55, 0.85)) -> SceneArrays:
+def scene_arrays(
+    scene: Scene, *, envmap: EnvmapLike = None, background: ColorLike = (0.34, 0.55, 0.85)
+) -> SceneArrays:
     """The `SceneArrays` of `scene`. `envmap`: a path to a lat-long image, an (He, We, 3) array,
     or None for a constant `background` colour. Works on traced scenes too (no host copies),
     except for loading an `envmap` path."""
-    if isinstance(envmap, str) or hasattr(envmap, "__fspath__"):
+    if isinstance(envmap, str | os.PathLike):
         environment = load_envmap(envmap)
     elif envmap is None:
         environment = constant_envmap(background)
-    else:
-        environment = envmap
+    else:  # an array: its shape is checked here
+        environment = cast(np.ndarray | Array, envmap)
         shape = np.shape(environment)
         if len(shape) != 3 or shape[-1] != 3 or shape[0] < 1 or shape[1] < 1:
             raise ValueError(f"scene_arrays: envmap must be an (He, We, 3) image, got shape {shape}")

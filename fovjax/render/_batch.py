@@ -33,19 +33,29 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any, TypeAlias
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
+from jaxtyping import ArrayLike, Real
 
+from ..scene import Scene
+from ..trace import BVH
 from ._arrays import SceneArrays, scene_arrays
-from ._config import DEFAULT_CONFIG
+from ._config import DEFAULT_CONFIG, RenderConfig
+from ._envmap import EnvmapLike
 from ._frame import run_compiled
-from ._stereo import StereoRig
+from ._stereo import HeadPoseLike, StereoRig
 
 FRAME_AXIS = "frames"
+# A batch's keys: one per frame, each a seed of `jax.random.key` or a key array (or an array of
+# keys), or None for pixel-cell centres; its head poses: one per frame ((B, 3) degrees or a
+# sequence of head poses), or None for level.
+KeysLike: TypeAlias = Sequence[int | np.integer | jax.Array] | jax.Array | None
+HeadPosesLike: TypeAlias = Sequence[HeadPoseLike] | Real[ArrayLike, "B 3"] | None
 # "shard_map": each device runs the vmapped frames of its own slice (its loops end with its own
 # slowest frame); "auto": jit's partitioner splits the one vmapped program, and every batched
 # loop condition becomes an all-reduce over the devices (each iteration synchronises them and
@@ -220,16 +230,16 @@ def _full_program(scene, bvh, rig, head_poses, raw_keys, **static):
 
 
 def render_stereo_batch(
-    scene,
-    rig=None,
+    scene: Scene | SceneArrays,
+    rig: StereoRig | None = None,
     *,
-    keys: Sequence | None = None,
-    head_poses: Sequence | None = None,
+    keys: KeysLike = None,
+    head_poses: HeadPosesLike = None,
     spp: int = 1,
-    config=None,
-    envmap=None,
-    bvh=None,
-    devices: Sequence | None = None,
+    config: RenderConfig | None = None,
+    envmap: EnvmapLike = None,
+    bvh: BVH | None = None,
+    devices: Sequence[Any] | None = None,  # JAX devices
     partition: str = "shard_map",
 ) -> FrameBatch:
     """Full stereo frames for a batch of `keys` and/or `head_poses` (as
@@ -245,6 +255,8 @@ def render_stereo_batch(
     if rig is None:
         from ..scene import default_camera
 
+        if not isinstance(scene, Scene):
+            raise ValueError("render_stereo_batch: pass a rig when the scene is not a fovjax.Scene")
         rig = StereoRig.from_pose(default_camera(scene))
     bvh = bvh_for(scene, bvh)
     arrays = (

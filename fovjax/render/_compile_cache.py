@@ -47,7 +47,8 @@ def enable_compile_cache(directory: str | os.PathLike | None = None) -> Path | N
     `jax_compilation_cache_dir` or `JAX_COMPILATION_CACHE_DIR`), that one is kept and returned.
     """
     global _PROBLEM
-    current = jax.config.jax_compilation_cache_dir
+    # jax.config's options are set at run time (pyright cannot see it).
+    current = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
     if current:
         return Path(current)
     path = Path(directory) if directory is not None else compile_cache_dir()

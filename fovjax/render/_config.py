@@ -20,7 +20,8 @@ def _rgb(name: str, value) -> tuple[float, float, float]:
     rgb = np.asarray(value, np.float64)
     if rgb.shape != (3,) or not np.isfinite(rgb).all():
         raise ValueError(f"RenderConfig.{name} must be 3 finite numbers, got {value!r}")
-    return tuple(float(c) for c in rgb)
+    r, g, b = (float(c) for c in rgb)
+    return r, g, b
 
 
 @dataclasses.dataclass(frozen=True)

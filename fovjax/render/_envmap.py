@@ -14,11 +14,14 @@ v. Without a map, misses see a constant background colour (a 1 x 1 map).
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TypeAlias
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from ..files import load_image
 from ._vec import dot
@@ -64,12 +67,19 @@ def envmap_lookup(
     return top * (1 - fy) + bottom * fy
 
 
-def constant_envmap(color) -> np.ndarray:
+# An environment map as the entry points take it: a path to a lat-long image, an (He, We, 3)
+# linear-RGB array, or None for the render config's constant background.
+EnvmapLike: TypeAlias = str | os.PathLike | Float[ArrayLike, "He We 3"] | None
+# A linear-RGB colour: 3 numbers.
+ColorLike: TypeAlias = Real[ArrayLike, " 3"] | Sequence[float]
+
+
+def constant_envmap(color: ColorLike) -> Float[np.ndarray, "1 1 3"]:
     """A 1 x 1 map of one colour: the background for misses without an environment map."""
     return np.asarray(color, np.float32).reshape(1, 1, 3)
 
 
-def load_envmap(path) -> np.ndarray:
+def load_envmap(path: str | os.PathLike) -> Float[np.ndarray, "He We 3"]:
     """A lat-long environment map from an image file, as linear-RGB float32 (He, We, 3).
 
     `.hdr` and `.exr` are read as linear radiance; LDR images (PNG, JPEG, ...) are

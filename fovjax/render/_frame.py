@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import os
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -25,15 +27,16 @@ from ..scene import Camera, Scene
 from ..trace import BVH, build_bvh
 from ._arrays import SceneArrays, scene_arrays
 from ._config import DEFAULT_CONFIG, RenderConfig
-from ._integrator import RayCounts, radiance
-from ._stereo import StereoRig, head_pose_angles, stereo_sample_rays
+from ._envmap import ColorLike, EnvmapLike
+from ._integrator import radiance
+from ._stereo import HeadPoseLike, StereoRig, head_pose_angles, stereo_sample_rays
 
 
 def resolve(
     rgb: Float[Array, "*lead spp H W 3"],
     bad: Bool[Array, "*lead spp H W"] | None = None,
     *,
-    bad_color=(1.0, 0.0, 1.0),
+    bad_color: ColorLike = (1.0, 0.0, 1.0),
 ) -> tuple[Float[Array, "*lead H W 3"], Bool[Array, "*lead H W"]]:
     """Box-filter the samples of each pixel (axis -4 of `rgb`) into the pixel. A pixel with any
     bad sample is `bad_color` outright (the thesis's exception program paints the pixel).
@@ -81,7 +84,7 @@ def render_stereo_image(
     scene: SceneArrays | Scene,
     bvh: BVH,
     rig: StereoRig,
-    head_pose=None,
+    head_pose: HeadPoseLike = None,
     *,
     spp: int = 1,
     key: jax.Array | None = None,
@@ -230,8 +233,9 @@ class Frame:
         half = self.image.shape[1] // 2
         return self.image[:, :half], self.image[:, half:]
 
-    def save(self, path, **kwargs) -> Path:
-        """Save the image (see `fovjax.save_image`: PNG tone-mapped sRGB, EXR/HDR linear)."""
+    def save(self, path: str | os.PathLike, **kwargs: Any) -> Path:
+        """Save the image (see `fovjax.save_image`: PNG tone-mapped sRGB, EXR/HDR linear;
+        `kwargs` are its options)."""
         from ..files import save_image
 
         return save_image(path, self.image, **kwargs)
@@ -272,12 +276,12 @@ def frame_stats(
 ) -> FrameStats:
     """The `FrameStats` of a frame program's outputs (ray counts and bad pixels as arrays or
     ints): the one stats builder of every entry point."""
-    counts = RayCounts(*(int(c) for c in counts))
+    primary, shadow, reflection, bad = (int(c) for c in counts)  # a RayCounts
     return FrameStats(
-        primary_rays=counts.primary,
-        shadow_rays=counts.shadow,
-        reflection_rays=counts.reflection,
-        bad_samples=counts.bad,
+        primary_rays=primary,
+        shadow_rays=shadow,
+        reflection_rays=reflection,
+        bad_samples=bad,
         bad_pixels=int(bad_pixels),
         compile_seconds=compile_s,
         render_seconds=render_s,
@@ -311,7 +315,7 @@ def render(
     spp: int = 1,
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
-    envmap=None,
+    envmap: EnvmapLike = None,
     bvh: BVH | None = None,
 ) -> Frame:
     """Render one camera's view of `scene` with the Whitted integrator.
@@ -338,11 +342,11 @@ def render_stereo(
     scene: Scene | SceneArrays,
     rig: StereoRig | None = None,
     *,
-    head_pose=None,
+    head_pose: HeadPoseLike = None,
     spp: int = 1,
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
-    envmap=None,
+    envmap: EnvmapLike = None,
     bvh: BVH | None = None,
 ) -> Frame:
     """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)

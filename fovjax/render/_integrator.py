@@ -37,12 +37,12 @@ ray hits and whether a shadow ray is blocked (visibility) are taken as given.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..scene import POINT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
@@ -64,7 +64,8 @@ class RayCounts(NamedTuple):
     bad: Int[Array, ""]
 
     @property
-    def total(self):
+    def total(self) -> Int[Array, ""]:
+        """Every ray traced: primary, shadow and reflection."""
         return self.primary + self.shadow + self.reflection
 
 
@@ -96,12 +97,12 @@ class ShadingClasses(NamedTuple):
     counted from its mirror (a lower bound of the cone's width: a finer level, never coarser).
     float32 arrays (K,)."""
 
-    max_depth: Int[Array, " K"]
-    shadows: Int[Array, " K"]
-    level: Int[Array, " K"] | None = None
+    max_depth: Int[np.ndarray | Array, " K"]
+    shadows: Int[np.ndarray | Array, " K"]
+    level: Int[np.ndarray | Array, " K"] | None = None
     # ---- texture level of detail ----
-    texture_level: Float[Array, " K"] | None = None
-    texture_cone: Float[Array, " K"] | None = None
+    texture_level: Float[np.ndarray | Array, " K"] | None = None
+    texture_cone: Float[np.ndarray | Array, " K"] | None = None
     # ---- end texture level of detail ----
 
 
@@ -191,6 +192,8 @@ def diffuse_color(scene: SceneArrays, material, uv, lod=None):
         if lod is None:
             value = bilinear_wrap(jnp.asarray(texture, jnp.float32), uv)
         else:  # a level of detail per ray
+            if scene.texture_mips is None:
+                raise ValueError("a texture level of detail needs the scene's mips (with_texture_mips)")
             level = mip_level(np.shape(texture), *lod)
             value = mip_lookup(jnp.asarray(scene.texture_mips[i], jnp.float32), np.shape(texture), level, uv)
         factor = jnp.where((index == i)[..., None], value, factor)
@@ -521,9 +524,9 @@ def _reflection_levels(scene, bvh, total, queue_a, n_a, *, offset, config, size)
 def radiance(
     scene: SceneArrays,
     bvh: BVH,
-    origins: Float[Array, "*batch 3"],
-    directions: Float[Array, "*batch 3"],
-    active: Bool[Array, "*batch"] | None = None,
+    origins: Float[ArrayLike, "*batch 3"],
+    directions: Float[ArrayLike, "*batch 3"],
+    active: Bool[ArrayLike, "*batch"] | None = None,
     *,
     config: RenderConfig = DEFAULT_CONFIG,
 ) -> Radiance:
@@ -587,7 +590,7 @@ class ChunkedRadiance(NamedTuple):
     primary: Int[Array, ""]
     shadow: Int[Array, ""]
     reflection: Int[Array, ""]
-    tiles: tuple = ()
+    tiles: tuple[Array, ...] = ()
 
 
 class ImageTile(NamedTuple):
@@ -716,7 +719,7 @@ def _primary_level(
         active = first + lanes < n_live
         weight = jnp.ones((size, 3), jnp.float32)
         fidelity, extra = None, ()
-        if classes is not None:
+        if classes is not None and class_at is not None:  # classes come with class_at (checked)
             cls = jnp.asarray(class_at(first, size), jnp.int32)
             fidelity, extra = (classes, cls, 0), (cls,)
         contribution, (o2, d2, w2, alive2), traced = _trace_and_shade(
@@ -969,9 +972,9 @@ def radiance_in_chunks(
     n_batches = jnp.minimum(n_batches, -(-chunks.count // batch.count))
     if tiles:
         n_batches = jnp.maximum(n_batches, 1)
-    _, (total, _, _, n_primary, n_shadow, n_reflection) = jax.lax.while_loop(
-        lambda state: state[0] < n_batches, one_batch, (zero, init + (zero,))
-    )
+    _, carry = jax.lax.while_loop(lambda state: state[0] < n_batches, one_batch, (zero, init + (zero,)))
+    # The carry's arrays (the checker reads while_loop's carry as one type for every element).
+    total, _, _, n_primary, n_shadow, n_reflection = cast(tuple[Array, ...], carry)
     parts, base = [], chunks.padded
     for tile in tiles:
         n = int(np.prod(tile.active.shape))

@@ -52,7 +52,8 @@ def _box_axis(x: np.ndarray, n: int, axis: int) -> np.ndarray:
     size = x.shape[axis]
     target = np.floor((np.arange(size) + 0.5) * n / size).astype(np.int64)
     summed = np.zeros(x.shape[:axis] + (n,) + x.shape[axis + 1 :], np.float64)
-    np.add.at(summed, (slice(None),) * axis + (target,), x)
+    # numpy's stubs reject a tuple of slices and an index array, which np.add.at takes.
+    np.add.at(summed, (slice(None),) * axis + (target,), x)  # pyright: ignore[reportArgumentType]
     count = np.bincount(target, minlength=n).reshape((1,) * axis + (n,) + (1,) * (x.ndim - axis - 1))
     return summed / count
 

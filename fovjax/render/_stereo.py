@@ -24,15 +24,17 @@ sit at `position + R_head @ (eye_centre ± (ipd/2, 0, 0))`.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from collections.abc import Sequence
+from typing import Any, NamedTuple, Protocol, SupportsFloat, TypeAlias, runtime_checkable
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float, Real
 
-from ..scene import Camera, look_at_rotation, pixel_sample_positions, vfov_from_hfov
+from ..scene import Camera, CameraPose, look_at_rotation, pixel_sample_positions, vfov_from_hfov
 
 # Thesis / NVIS SX111 defaults.
 EYE_WIDTH = 1280
@@ -41,6 +43,27 @@ FOV_DEG = 90.0
 TOE_OUT_DEG = 13.0
 IPD_M = 0.064
 FOV_AXES = ("horizontal", "vertical")
+
+
+@runtime_checkable
+class Orientation(Protocol):
+    """Anything with a yaw, pitch and roll in degrees (a `fovjax.devices.HeadPose`)."""
+
+    @property
+    def yaw(self) -> float: ...
+
+    @property
+    def pitch(self) -> float: ...
+
+    @property
+    def roll(self) -> float: ...
+
+
+# A head pose: (yaw, pitch, roll) degrees as a sequence or a (3,) array (traced under jit), a
+# `fovjax.devices.HeadPose`, or None (level, looking ahead).
+HeadPoseLike: TypeAlias = Orientation | Real[ArrayLike, " 3"] | Sequence[float] | None
+# A point in space, or a direction: 3 numbers.
+Vec3Like: TypeAlias = Real[ArrayLike, " 3"] | Sequence[SupportsFloat]
 
 
 def _rot_x(a):
@@ -61,12 +84,12 @@ def _rot_z(a):
     return jnp.stack([jnp.stack([c, -s, zero]), jnp.stack([s, c, zero]), jnp.stack([zero, zero, one])])
 
 
-def head_pose_angles(head_pose) -> np.ndarray | jax.Array:
+def head_pose_angles(head_pose: HeadPoseLike) -> Float[np.ndarray | Array, " 3"]:
     """(yaw, pitch, roll) in degrees from a `fovjax.devices.HeadPose`, a 3-sequence or None
     (= level, looking ahead)."""
     if head_pose is None:
         return np.zeros(3, np.float32)
-    if all(hasattr(head_pose, name) for name in ("yaw", "pitch", "roll")):
+    if isinstance(head_pose, Orientation):
         head_pose = (head_pose.yaw, head_pose.pitch, head_pose.roll)
     if isinstance(head_pose, jax.Array):  # concrete or traced: keep it on the device
         if head_pose.shape != (3,):
@@ -80,7 +103,7 @@ def head_pose_angles(head_pose) -> np.ndarray | jax.Array:
     return angles
 
 
-def head_rotation(head_pose) -> Float[Array, "3 3"]:
+def head_rotation(head_pose: HeadPoseLike) -> Float[Array, "3 3"]:
     """Head-from-neutral rotation, in the camera-style head frame (x right, y up, z backward),
     for yaw, pitch, roll in degrees (InertiaCube convention, see the module docstring)."""
     yaw, pitch, roll = jnp.deg2rad(jnp.asarray(head_pose_angles(head_pose), jnp.float32))
@@ -118,9 +141,9 @@ class StereoRig(eqx.Module):
     @classmethod
     def look_at(
         cls,
-        position,
-        look_at,
-        up=(0.0, 1.0, 0.0),
+        position: Vec3Like,
+        look_at: Vec3Like,
+        up: Vec3Like = (0.0, 1.0, 0.0),
         *,
         eye_width: int = EYE_WIDTH,
         eye_height: int = EYE_HEIGHT,
@@ -128,10 +151,10 @@ class StereoRig(eqx.Module):
         fov_axis: str = "horizontal",
         toe_out_deg: float = TOE_OUT_DEG,
         ipd: float = IPD_M,
-        offsets=((0.0, 0.0), (0.0, 0.0)),
-        eye_centre=(0.0, 0.0, 0.0),
     ) -> StereoRig:
-        """A rig whose head centre is at `position`, looking at `look_at` at zero head pose."""
+        """A rig whose head centre is at `position`, looking at `look_at` at zero head pose, its
+        eyes centred on the head centre with no projection offsets (`with_eye_placement` moves
+        them)."""
         if int(eye_width) <= 0 or int(eye_height) <= 0:
             raise ValueError(f"StereoRig: eye resolution must be positive, got {eye_width}x{eye_height}")
         if fov_axis not in FOV_AXES:
@@ -146,30 +169,50 @@ class StereoRig(eqx.Module):
         pos = np.asarray(position, np.float32)
         if pos.shape != (3,) or not np.isfinite(pos).all():
             raise ValueError(f"StereoRig: position must be 3 finite numbers, got {position}")
-        offsets = np.asarray(offsets, np.float32)
-        if offsets.shape != (2, 2) or not np.isfinite(offsets).all():
-            raise ValueError(
-                f"StereoRig: offsets must be ((x, y) left, (x, y) right), got {offsets.tolist()}"
-            )
-        centre = np.asarray(eye_centre, np.float32)
-        if centre.shape != (3,) or not np.isfinite(centre).all():
-            raise ValueError(f"StereoRig: eye_centre must be 3 finite numbers, got {eye_centre}")
         return cls(
             position=pos,
             rotation=look_at_rotation(position, look_at, up),
             ipd=np.float32(ipd),
             toe_out_deg=np.float32(toe_out_deg),
             fov_deg=np.float32(fov_deg),
-            offsets=offsets,
-            eye_centre=centre,
+            offsets=np.zeros((2, 2), np.float32),
+            eye_centre=np.zeros(3, np.float32),
             eye_width=int(eye_width),
             eye_height=int(eye_height),
             fov_axis=fov_axis,
         )
 
+    def with_eye_placement(
+        self,
+        *,
+        offsets: Real[ArrayLike, "2 2"] | Sequence[Sequence[float]] | None = None,
+        eye_centre: Vec3Like | None = None,
+    ) -> StereoRig:
+        """This rig with other per-eye projection-centre `offsets` ((x, y) left, (x, y) right, in
+        `Camera.offset` units: canted or off-axis displays) and/or another `eye_centre` (the
+        eyes' midpoint in the head frame relative to `position`, e.g. (0, 0.1, -0.08) to turn
+        about a neck below and behind the eyes); None keeps the rig's."""
+        if offsets is not None:
+            offsets = np.asarray(offsets, np.float32)
+            if offsets.shape != (2, 2) or not np.isfinite(offsets).all():
+                raise ValueError(
+                    f"StereoRig: offsets must be ((x, y) left, (x, y) right), got {offsets.tolist()}"
+                )
+        if eye_centre is not None:
+            centre = np.asarray(eye_centre, np.float32)
+            if centre.shape != (3,) or not np.isfinite(centre).all():
+                raise ValueError(f"StereoRig: eye_centre must be 3 finite numbers, got {eye_centre}")
+            eye_centre = centre
+        return dataclasses.replace(
+            self,
+            offsets=self.offsets if offsets is None else offsets,
+            eye_centre=self.eye_centre if eye_centre is None else eye_centre,
+        )
+
     @classmethod
-    def from_pose(cls, pose, **kwargs) -> StereoRig:
-        """From a `fovjax.scenes.CameraPose` (its field of view is not used: the rig has its own)."""
+    def from_pose(cls, pose: CameraPose, **kwargs: Any) -> StereoRig:
+        """From a `fovjax.scenes.CameraPose` (its field of view is not used: the rig has its own;
+        `kwargs` are `look_at`'s)."""
         return cls.look_at(pose.position, pose.look_at, pose.up, **kwargs)
 
     @property
@@ -181,12 +224,12 @@ class StereoRig(eqx.Module):
     def height(self) -> int:
         return self.eye_height
 
-    def vfov_deg(self):
+    def vfov_deg(self) -> Float[Array, ""]:
         if self.fov_axis == "vertical":
             return jnp.asarray(self.fov_deg, jnp.float32)
         return vfov_from_hfov(self.fov_deg, self.eye_width, self.eye_height)
 
-    def eye_cameras(self, head_pose=None) -> tuple[Camera, Camera]:
+    def eye_cameras(self, head_pose: HeadPoseLike = None) -> tuple[Camera, Camera]:
         """The (left, right) eye cameras for a head pose (yaw, pitch, roll in degrees, or a
         `HeadPose`). Jittable: the pose may be a traced (3,) array."""
         world_from_head = jnp.asarray(self.rotation, jnp.float32) @ head_rotation(head_pose)
@@ -223,7 +266,7 @@ class SampleRays(NamedTuple):
 
 
 def stereo_sample_rays(
-    rig: StereoRig, head_pose=None, spp: int = 1, key: jax.Array | None = None
+    rig: StereoRig, head_pose: HeadPoseLike = None, spp: int = 1, key: jax.Array | None = None
 ) -> SampleRays:
     """The primary rays of a stereo frame: `spp` stratified samples per pixel (jittered per
     pixel from `key`, cell centres without one) through both eyes. Static shapes; jittable."""

@@ -1,6 +1,6 @@
 """Scenes: the `Scene` pytree, cameras, loading from files, and the built-in procedural scenes.
 
-- `Scene`, `Materials`, `Lights` and their constructors `make_scene`, `make_materials`,
+- `Scene`, `Materials`, `Lights`, `Textures` and their constructors `make_scene`, `make_materials`,
   `make_lights` (`POINT_LIGHT`, `DIRECTIONAL_LIGHT` name the light kinds); `geometry_hash` and
   `validate_geometry` check and identify a triangle mesh (the BVH cache keys on the hash).
 - `Camera` (a pinhole camera with its primary rays), `look_at_rotation`, `vfov_from_hfov`,
@@ -43,6 +43,7 @@ from ._scene import POINT_LIGHT as POINT_LIGHT
 from ._scene import Lights as Lights
 from ._scene import Materials as Materials
 from ._scene import Scene as Scene
+from ._scene import Textures as Textures
 from ._scene import geometry_hash as geometry_hash
 from ._scene import make_lights as make_lights
 from ._scene import make_materials as make_materials
@@ -76,6 +77,7 @@ __all__ = [
     "Lights",
     "Materials",
     "Scene",
+    "Textures",
     "geometry_hash",
     "make_lights",
     "make_materials",

@@ -7,7 +7,7 @@ import functools
 import numpy as np
 
 from . import _geometry as g
-from ._scene import Scene, make_lights, make_materials, make_scene
+from ._scene import Scene, _build_scene, make_lights, make_materials
 
 # Layout, in metres, y up, the court's long axis along x (Sponza-like extent: 30 x 13 x 15 m).
 HALF_LENGTH = 15.0  # outer walls at x = +-15
@@ -114,8 +114,10 @@ def _plan(edge: float, floor_cells: tuple[int, int] | None = None) -> list[tuple
             n_depth = g.divisions(ARCADE_DEPTH, edge)
             for x_mid in (xs[:-1] + xs[1:]) / 2:
                 count = g.arch_count(n_arc, n_radial, n_depth, half_span, y_top - y_spring)
-                emit(count, g.add_arch_bay, x_mid, half_span, arch_radius, y_spring, y_top, z0, z1,
-                     n_arc, n_radial, n_depth, _M["stone_arcade"])  # fmt: skip
+                bay = g.ArchBay(
+                    x_mid, half_span, arch_radius, y_spring, y_top, z0, z1, n_arc, n_radial, n_depth
+                )
+                emit(count, g.add_arch_bay, bay, _M["stone_arcade"])
             # solid piers from the last column to the end walls
             box((xs[-1], y_base, z0), (INNER_X, y_top, z1), "stone_arcade")
             box((-INNER_X, y_base, z0), (xs[0], y_top, z1), "stone_arcade")
@@ -148,8 +150,8 @@ def _plan(edge: float, floor_cells: tuple[int, int] | None = None) -> list[tuple
             nu = g.divisions(xb - xa, curved, minimum=12)
             nv = g.divisions(y_hi - y_lo, 2 * curved, minimum=6)
             folds = max(2, round((xb - xa) / 0.5))
-            cloth = (xa, xb, y_hi, y_lo, z_cloth, folds, 0.07, 0.25, nu, nv, _M[material])
-            emit(g.sheet_count(nu, nv), g.add_cloth, *cloth, facing=-s)
+            cloth = g.Cloth(xa, xb, y_hi, y_lo, z_cloth, folds, 0.07, 0.25, nu, nv, facing=-s)
+            emit(g.sheet_count(nu, nv), g.add_cloth, cloth, _M[material])
     return plan
 
 
@@ -225,7 +227,8 @@ def atrium(triangles: int = 262_000, *, light_position=LIGHT_POSITION, light_col
     for add, args, kwargs, _ in _plan(edge, floor_cells):
         add(mb, *args, **kwargs)
     vertices, faces, normals, face_material = mb.build()
-    return make_scene(
+    return _build_scene(
+        f"atrium(triangles={triangles})",
         vertices,
         faces,
         face_material=face_material,
@@ -233,5 +236,4 @@ def atrium(triangles: int = 262_000, *, light_position=LIGHT_POSITION, light_col
         lights=make_lights([light_position], [light_color]),
         normals=normals,
         name="atrium",
-        where=f"atrium(triangles={triangles})",
     )

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _geometry as g
-from ._scene import Scene, make_lights, make_materials, make_scene
+from ._scene import Scene, _build_scene, make_lights, make_materials
 
 # Quads exactly as published, in millimetres (x, y, z); y is up, the open side faces -z.
 # The real box is not a perfect cube, so neither are these.
@@ -124,7 +124,8 @@ def cornell_box(
     # quads meeting at an edge interpolate it from opposite ends; snap so the edges match exactly
     vertices, faces, normals, face_material = mb.build(weld=1e-9 * 556.0 * scale)
     light_centre = np.asarray(LIGHT, np.float64).mean(axis=0) - (0.0, POINT_LIGHT_DROP_MM, 0.0)
-    return make_scene(
+    return _build_scene(
+        "cornell_box()",
         vertices,
         faces,
         face_material=face_material,
@@ -132,5 +133,4 @@ def cornell_box(
         lights=make_lights([light_centre * scale], [light_color]),
         normals=normals,
         name="cornell_box",
-        where="cornell_box()",
     )

@@ -10,6 +10,7 @@ shared by index, so each face keeps its own shading normals). Each primitive has
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -156,15 +157,55 @@ def arch_count(n_arc: int, n_radial: int, n_depth: int, half_span: float, height
     return 4 * k * n_radial + 4 * k * n_depth + 4 * n_radial * n_depth
 
 
-def add_arch_bay(mb, x_mid, half_span, radius, y_spring, y_top, z0, z1, n_arc, n_radial, n_depth, material):
-    """A closed solid: the rectangle [x_mid - half_span, x_mid + half_span] x [y_spring, y_top]
-    minus the half-disc of `radius` centred at (x_mid, y_spring), extruded from z0 to z1.
+@dataclasses.dataclass(frozen=True)
+class ArchBay:
+    """One bay of an arcade: the rectangle [x_mid - half_span, x_mid + half_span] x [y_spring,
+    y_top] minus the half-disc of `radius` centred at (x_mid, y_spring), extruded from z0 to
+    z1, cut into `n_arc` steps along the arc, `n_radial` from the arc outwards and `n_depth`
+    along z.
+
+    Raises:
+        ValueError: a radius outside (0, half_span], a top not above the arc's crown, z1 <= z0,
+            or a division count below 1.
+    """
+
+    x_mid: float
+    half_span: float
+    radius: float
+    y_spring: float
+    y_top: float
+    z0: float
+    z1: float
+    n_arc: int
+    n_radial: int
+    n_depth: int
+
+    def __post_init__(self):
+        if not 0 < self.radius <= self.half_span:
+            raise ValueError(f"ArchBay: radius must be in (0, half_span={self.half_span}], got {self.radius}")
+        if not self.y_top > self.y_spring + self.radius:
+            raise ValueError(
+                f"ArchBay: y_top {self.y_top} must be above the arc's crown y_spring + radius "
+                f"= {self.y_spring + self.radius}"
+            )
+        if not self.z1 > self.z0:
+            raise ValueError(f"ArchBay: z1 must be > z0, got z0={self.z0}, z1={self.z1}")
+        for name in ("n_arc", "n_radial", "n_depth"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"ArchBay: {name} must be a whole number >= 1, got {value!r}")
+
+
+def add_arch_bay(mb, bay: ArchBay, material):
+    """A closed solid: the bay's profile (`ArchBay`) extruded from z0 to z1.
 
     The profile is cut by rays from the arc centre: arc point A_k, outer boundary point B_k
     (on the bay's sides or top), and `n_radial` steps between them. The straight bits of the
     bottom (at angles 0 and pi, between the arc and the bay's corners) are the flats that rest
     on the columns' capitals.
     """
+    x_mid, half_span, radius, y_spring, y_top = bay.x_mid, bay.half_span, bay.radius, bay.y_spring, bay.y_top
+    z0, z1, n_arc, n_radial, n_depth = bay.z0, bay.z1, bay.n_arc, bay.n_radial, bay.n_depth
     h = y_top - y_spring
     theta, corner_right, corner_left = _arch_angles(n_arc, half_span, h)
     cos, sin = np.cos(theta), np.sin(theta)
@@ -227,10 +268,51 @@ def sheet_count(nu: int, nv: int) -> int:
     return 2 * nu * nv
 
 
-def add_cloth(mb, x0, x1, y_top, y_bottom, z, folds, depth, sag, nu, nv, material, facing=1.0):
-    """A cloth hanging in the plane z = const, with `folds` vertical sinusoidal folds of
-    amplitude `depth` and its bottom edge sagging by `sag` in the middle. Normals face
-    `facing * z`. A sheet, not a solid (cloth is thin)."""
+@dataclasses.dataclass(frozen=True)
+class Cloth:
+    """A cloth hanging from x0 to x1 between y_top and y_bottom in the plane z = const, with
+    `folds` vertical sinusoidal folds of amplitude `depth` and its bottom edge sagging by `sag`
+    in the middle, cut into `nu` x `nv` cells; its normals face `facing` * z (+1 or -1).
+
+    Raises:
+        ValueError: x1 <= x0, y_bottom >= y_top, a negative fold count, depth or sag, a cell
+            count below 1, or a `facing` other than +1 or -1.
+    """
+
+    x0: float
+    x1: float
+    y_top: float
+    y_bottom: float
+    z: float
+    folds: int
+    depth: float
+    sag: float
+    nu: int
+    nv: int
+    facing: float = 1.0
+
+    def __post_init__(self):
+        if not (self.x1 > self.x0 and self.y_top > self.y_bottom):
+            raise ValueError(
+                f"Cloth: need x1 > x0 and y_top > y_bottom, got x {self.x0}..{self.x1}, "
+                f"y {self.y_bottom}..{self.y_top}"
+            )
+        if self.folds < 0 or self.depth < 0 or self.sag < 0:
+            raise ValueError(
+                f"Cloth: folds, depth and sag must be >= 0, got {self.folds}, {self.depth}, {self.sag}"
+            )
+        for name in ("nu", "nv"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"Cloth: {name} must be a whole number >= 1, got {value!r}")
+        if self.facing not in (1.0, -1.0):
+            raise ValueError(f"Cloth: facing must be +1 or -1, got {self.facing!r}")
+
+
+def add_cloth(mb, cloth: Cloth, material):
+    """The `Cloth`: a sheet, not a solid (cloth is thin)."""
+    x0, x1, y_top, y_bottom, z = cloth.x0, cloth.x1, cloth.y_top, cloth.y_bottom, cloth.z
+    folds, depth, sag, nu, nv, facing = cloth.folds, cloth.depth, cloth.sag, cloth.nu, cloth.nv, cloth.facing
     u = np.linspace(0.0, 1.0, nu + 1)
     v = np.linspace(0.0, 1.0, nv + 1)
     uu, vv = np.meshgrid(u, v, indexing="ij")

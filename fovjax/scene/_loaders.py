@@ -33,7 +33,7 @@ from ._parts import (
     _TextureTable,
 )
 from ._ply import _load_ply
-from ._scene import Lights, Materials, Scene, make_lights, make_materials, make_scene
+from ._scene import Lights, Materials, Scene, Textures, _build_scene, make_lights, make_materials
 
 
 def load_scene(
@@ -182,7 +182,8 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
     if headlight:  # placeholder until the scene exists to place the camera in
         lights = make_lights([[0.0, 0.0, 0.0]], [[1.0, 1.0, 1.0]])
     materials: Materials = make_materials(specs, names=names)
-    scene = make_scene(
+    scene = _build_scene(
+        str(path),
         vertices,
         faces,
         face_material=face_material,
@@ -190,10 +191,8 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
         lights=lights,
         normals=normals,
         uvs=uvs,
-        textures=textures.images,
-        texture_paths=textures.names,
+        textures=Textures(tuple(textures.images), tuple(textures.names)),
         name=name or Path(path).stem,
-        where=str(path),
     )
     if headlight:
         from ._poses import default_camera

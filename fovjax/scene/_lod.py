@@ -56,7 +56,7 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Int
 
-from ._scene import Scene, drop_degenerate, geometry_hash, make_scene
+from ._scene import Scene, Textures, drop_degenerate, geometry_hash, make_scene
 
 FORMAT_VERSION = 4  # 3: welded before decimating, coplanar flips after; 4: normals per corner
 DEFAULT_RATIOS = (1.0, 0.5, 0.25, 0.1)
@@ -299,8 +299,7 @@ def _build(scene: Scene, ratio: float, arrays: dict) -> Scene:
         lights=scene.lights,
         normals=arrays["normals"],
         uvs=arrays["uvs"],
-        textures=scene.textures,
-        texture_paths=scene.texture_paths,
+        textures=Textures(scene.textures, scene.texture_paths),
         ambient=scene.ambient,
         name=f"{scene.name}@lod{ratio:g}",
     )

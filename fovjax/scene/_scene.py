@@ -8,6 +8,7 @@ lives in static fields so it never becomes a tracer.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 
 import equinox as eqx
@@ -189,6 +190,30 @@ def drop_degenerate(vertices: np.ndarray, faces: np.ndarray, rel_eps: float = 1e
     return area2 > rel_eps * max(extent, 1e-30) ** 2
 
 
+@dataclasses.dataclass(frozen=True)
+class Textures:
+    """Texture images (each (H, W, 3) float, linear RGB) with the files they came from
+    (`paths`: empty, or one name per image), as `make_scene` takes them.
+
+    Raises:
+        ValueError: `paths` neither empty nor one string per image.
+    """
+
+    images: tuple
+    paths: tuple = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "images", tuple(self.images))
+        object.__setattr__(self, "paths", tuple(self.paths))
+        if self.paths and (
+            len(self.paths) != len(self.images) or not all(isinstance(p, str) for p in self.paths)
+        ):
+            raise ValueError(
+                f"Textures: paths must be empty or one string per image ({len(self.images)} images), "
+                f"got {self.paths!r}"
+            )
+
+
 def make_scene(
     vertices,
     faces,
@@ -199,15 +224,49 @@ def make_scene(
     normals=None,
     uvs=None,
     textures=(),
-    texture_paths=(),
     ambient=(0.1, 0.1, 0.1),
     name: str = "scene",
-    where: str | None = None,
 ) -> Scene:
-    """Validate arrays and build a `Scene`. Zero-area triangles are dropped with a warning."""
+    """Validate arrays and build a `Scene`. Zero-area triangles are dropped with a warning;
+    errors and warnings name the scene by `name`.
+
+    `textures`: the images (H, W, 3) `Materials.texture` indexes, a sequence, or `Textures`
+    (the images with the files they came from, kept as `Scene.texture_paths`)."""
+    return _build_scene(
+        name,
+        vertices,
+        faces,
+        face_material=face_material,
+        materials=materials,
+        lights=lights,
+        normals=normals,
+        uvs=uvs,
+        textures=textures,
+        ambient=ambient,
+        name=name,
+    )
+
+
+def _build_scene(
+    where,
+    vertices,
+    faces,
+    *,
+    face_material=None,
+    materials=None,
+    lights=None,
+    normals=None,
+    uvs=None,
+    textures=(),
+    ambient=(0.1, 0.1, 0.1),
+    name="scene",
+) -> Scene:
+    """`make_scene`, with errors and warnings naming `where` (a loader's file, or the name)."""
     import warnings
 
-    where = where or name
+    if not isinstance(textures, Textures):
+        textures = Textures(tuple(textures))
+    texture_paths, textures = textures.paths, textures.images
     v, f = validate_geometry(vertices, faces, where)
     nf = f.shape[0]
     fm = np.zeros(nf, np.int32) if face_material is None else np.asarray(face_material, np.int32)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _geometry as g
-from ._scene import Scene, make_lights, make_materials, make_scene
+from ._scene import Scene, _build_scene, make_lights, make_materials
 
 # (centre, radius, material name); they rest on the ground plane y = 0
 SPHERES = (
@@ -50,7 +50,8 @@ def spheres(*, subdivisions: int = 3, ground_cells: int = 8, light_color=(1.0, 1
     for centre, radius, material in SPHERES:
         g.add_icosphere(mb, centre, radius, int(subdivisions), index[material])
     vertices, faces, normals, face_material = mb.build()
-    return make_scene(
+    return _build_scene(
+        "spheres()",
         vertices,
         faces,
         face_material=face_material,
@@ -58,5 +59,4 @@ def spheres(*, subdivisions: int = 3, ground_cells: int = 8, light_color=(1.0, 1
         lights=make_lights([LIGHT_POSITION], [light_color]),
         normals=normals,
         name="spheres",
-        where="spheres()",
     )

@@ -193,28 +193,153 @@ def full_eccentricity(rig, foveation) -> float:
 
 def _check_count(frames, seconds, fps) -> int:
     if frames is None and seconds is None:
-        raise ValueError("run_session: give frames= or seconds=")
+        raise ValueError("SessionConfig: give frames= or seconds=")
     if frames is not None and seconds is not None:
-        raise ValueError(f"run_session: give frames= or seconds=, not both (got {frames}, {seconds})")
+        raise ValueError(f"SessionConfig: give frames= or seconds=, not both (got {frames}, {seconds})")
     try:
         rate = float(fps)
     except (TypeError, ValueError):
         rate = math.nan
     if isinstance(fps, bool) or not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"run_session: fps must be a positive number, got {fps!r}")
+        raise ValueError(f"SessionConfig: fps must be a positive number, got {fps!r}")
     if frames is not None:
         if isinstance(frames, bool) or not isinstance(frames, int | np.integer):
-            raise ValueError(f"run_session: frames must be an integer, got {frames!r}")
+            raise ValueError(f"SessionConfig: frames must be an integer, got {frames!r}")
         n = int(frames)
     else:
         if isinstance(seconds, bool) or not (isinstance(seconds, int | float) and math.isfinite(seconds)):
-            raise ValueError(f"run_session: seconds must be a finite number, got {seconds!r}")
+            raise ValueError(f"SessionConfig: seconds must be a finite number, got {seconds!r}")
         n = int(round(seconds * rate))
     if n < 1:
         raise ValueError(
-            f"run_session: need at least one frame, got frames={frames}, seconds={seconds}, fps={fps}"
+            f"SessionConfig: need at least one frame, got frames={frames}, seconds={seconds}, fps={fps}"
         )
     return n
+
+
+@dataclasses.dataclass(frozen=True)
+class SessionConfig:
+    """How long a session runs and on which clock (`run_session(session=...)`).
+
+    Args:
+        frames: how many frames; or `seconds` × `fps` (give one of the two).
+        seconds: the session's length in seconds (instead of `frames`).
+        fps: frames per second of the session's clock.
+        clock: "virtual" (frame k at k/fps, sources paced on the same clock: deterministic),
+            "wall", or None (wall for live devices, else virtual).
+        fresh_key_per_frame: a new sampling pattern every frame (the key folded with the frame
+            number); False renders every frame with the session's key.
+        warmup: compile every widening level before the first frame (None: on the wall clock
+            only).
+        wait: seconds a live device may take to connect (None:
+            `fovjax.devices.DEFAULT_CONNECT_TIMEOUT`).
+
+    Raises:
+        ValueError: neither or both of `frames` and `seconds`, fewer than one frame, a bad `fps`,
+            `clock` or `wait` (naming the value).
+    """
+
+    frames: int | None = None
+    seconds: float | None = None
+    fps: float = 30.0
+    clock: str | None = None
+    fresh_key_per_frame: bool = True
+    warmup: bool | None = None
+    wait: float | None = None
+
+    def __post_init__(self):
+        _check_count(self.frames, self.seconds, self.fps)
+        if self.clock is not None and self.clock not in CLOCKS:
+            raise ValueError(f"SessionConfig: clock must be one of {CLOCKS} or None, got {self.clock!r}")
+        if self.wait is not None and (
+            isinstance(self.wait, bool)
+            or not isinstance(self.wait, int | float)
+            or not (math.isfinite(self.wait) and self.wait >= 0)
+        ):
+            raise ValueError(
+                f"SessionConfig: wait must be a finite number of seconds >= 0, got {self.wait!r}"
+            )
+
+    @property
+    def n_frames(self) -> int:
+        """The number of frames the session renders."""
+        return _check_count(self.frames, self.seconds, self.fps)
+
+
+@dataclasses.dataclass(frozen=True)
+class SessionOutput:
+    """What a session writes (`run_session(out=...)`; a plain path is `SessionOutput(path)`).
+
+    Args:
+        directory: the directory for `frame_00000.png`..., `session.csv` (one row per frame) and
+            `session.json` (``{"summary": ..., "frames": [...]}``).
+        video: also write `session.mp4` (the `video` extra).
+        debug: also write the regions and samples view, `debug_00000.png`...
+    """
+
+    directory: str | Path
+    video: bool = False
+    debug: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.directory, str | Path):
+            raise ValueError(
+                f"SessionOutput: directory must be a path (str or pathlib.Path), got {self.directory!r}"
+            )
+        for name in ("video", "debug"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"SessionOutput: {name} must be True or False, got {getattr(self, name)!r}")
+
+
+# The keywords `run_session` took before `SessionConfig`, `SessionOutput` and `FoveatedRenderer`,
+# still accepted (with a DeprecationWarning) because the tutorials showed them.
+_OLD_SESSION = ("frames", "seconds", "fps", "clock", "fresh_key_per_frame", "warmup", "wait")
+_OLD_OUTPUT = ("video", "debug")
+_OLD_RENDERER = ("foveation", "config", "envmap", "bvh")
+
+
+def _upgrade_old_keywords(old: dict, session, out, tracker):
+    """`session`, `out`, `tracker` and the renderer's arguments from the old keywords in `old`,
+    each use warned of with its replacement; an unknown keyword is a TypeError as Python's own."""
+    unknown = sorted(set(old) - {*_OLD_SESSION, *_OLD_OUTPUT, *_OLD_RENDERER, "policy"})
+    if unknown:
+        raise TypeError(f"run_session() got an unexpected keyword argument {unknown[0]!r}")
+    if not old:
+        return session, out, tracker, {}
+
+    def moved(names, where):
+        warnings.warn(
+            f"run_session({', '.join(f'{n}=' for n in names)}) is deprecated; pass {where}",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+
+    given = [n for n in _OLD_SESSION if n in old]
+    if given:
+        if session is not None:
+            raise ValueError(f"run_session: give session= or the old {', '.join(given)}=, not both")
+        moved(given, "session=fovjax.session.SessionConfig(...)")
+        session = SessionConfig(**{n: old[n] for n in given})
+    given = [n for n in _OLD_OUTPUT if n in old]
+    if given:
+        if any(old[n] for n in given):
+            if out is None:
+                raise ValueError("run_session: video=True and debug=True write files; give out=")
+            if isinstance(out, SessionOutput):
+                raise ValueError(f"run_session: give out=SessionOutput(...) or the old {', '.join(given)}=")
+            out = SessionOutput(out, **{n: old[n] for n in given})
+        moved(given, "out=fovjax.session.SessionOutput(directory, video=..., debug=...)")
+    if "policy" in old:
+        if tracker is not None:
+            raise ValueError("run_session: give policy= or tracker=, not both (the tracker has its policy)")
+        from ..devices import GazeTracker
+
+        moved(["policy"], "tracker=fovjax.devices.GazeTracker(policy=...)")
+        tracker = GazeTracker(policy=old["policy"])
+    renderer = {n: old[n] for n in _OLD_RENDERER if n in old}
+    if renderer:
+        moved(list(renderer), "a fovjax.FoveatedRenderer(scene, rig, foveation, config, envmap=, bvh=)")
+    return session, out, tracker, renderer
 
 
 def _describe(spec_or_source) -> str | None:
@@ -224,29 +349,17 @@ def _describe(spec_or_source) -> str | None:
 
 
 def run_session(
-    scene,
+    renderer,
     rig=None,
     *,
     gaze,
     head=None,
-    foveation=None,
-    frames: int | None = None,
-    seconds: float | None = None,
-    fps: float = 30.0,
-    out=None,
-    key: jax.Array | None = None,
-    fresh_key_per_frame: bool = True,
-    clock: str | None = None,
-    policy=None,
+    session: SessionConfig | None = None,
+    out: SessionOutput | str | Path | None = None,
     tracker=None,
-    config=None,
-    envmap=None,
-    video: bool = False,
-    debug: bool = False,
-    warmup: bool | None = None,
+    key: jax.Array | None = None,
     progress: bool = True,
-    bvh=None,
-    wait: float | None = None,
+    **old,
 ) -> SessionResult:
     """Render a session: foveated stereo frames following a gaze source (and a head source).
 
@@ -257,35 +370,24 @@ def run_session(
     (``summary["interrupted"]``); every file written is complete.
 
     Args:
-        scene: the `Scene`, or a `fovjax.FoveatedRenderer` prepared from one (then it brings the
-            rig, foveation, render config, environment map and BVH, and those arguments stay None).
-        rig: the `StereoRig` (default: the scene's default camera at the rig's default size).
+        renderer: the `fovjax.FoveatedRenderer` (scene, rig, foveation when tracking is good,
+            render config), or a `Scene` to render with `FoveatedRenderer(scene, rig)`.
+        rig: with a `Scene`, its `StereoRig` (default: the scene's default camera at the rig's
+            default size); None with a renderer (it has its rig).
         gaze: a spec ("synthetic:scanpath:0", "replay:FILE", "serial:PORT", "pupil:HOST:PORT",
             ...) or an unopened `fovjax.devices` source.
         head: a head-pose source or spec, or None (head still).
-        foveation: the `Foveation` when tracking is good (default `Foveation()`).
-        frames: how many frames; or `seconds` × `fps`.
-        seconds: the session's length in seconds (instead of `frames`).
-        fps: frames per second of the session's clock.
-        out: a directory for `frame_00000.png`..., `session.csv` (one row per frame) and
-            `session.json` (``{"summary": ..., "frames": [...]}``); None writes nothing.
+        session: the `SessionConfig`: frames (or seconds), fps, clock, warm-up, connect wait.
+        out: where to write the frames and the log: a `SessionOutput` (with the video and the
+            debug views), a directory (`SessionOutput(directory)`), or None (nothing written).
+        tracker: the `fovjax.devices.GazeTracker` (default `GazeTracker()`; its `policy` sets
+            the fallback).
         key: the PRNG key (default key 0), folded with the frame number unless
-            `fresh_key_per_frame` is False.
-        fresh_key_per_frame: a new sampling pattern every frame.
-        clock: "virtual" (frame k at k/fps, sources paced on the same clock: deterministic),
-            "wall", or None (wall for live devices, else virtual).
-        policy: the `FallbackPolicy` of the default tracker.
-        tracker: a `GazeTracker` (e.g. with smoothing) instead of the default one.
-        config: the `RenderConfig`.
-        envmap: an environment map for rays that miss.
-        video: also write `session.mp4` (the `video` extra).
-        debug: also write the regions and samples view, `debug_00000.png`...
-        warmup: compile every widening level before the first frame (default: on the wall clock
-            only).
+            `session.fresh_key_per_frame` is False.
         progress: print progress.
-        bvh: a prebuilt BVH.
-        wait: seconds a live device may take to connect (default
-            `fovjax.devices.DEFAULT_CONNECT_TIMEOUT`).
+        **old: the keywords of the earlier signature (`frames`, `fps`, `out`'s `video`/`debug`,
+            `policy`, `foveation`, `config`, ...): accepted with a `DeprecationWarning` naming
+            the replacement.
 
     Returns:
         A `SessionResult`: the frames' `SessionFrame` rows (tracking state, widening, latency,
@@ -293,53 +395,69 @@ def run_session(
         (``summary["sources"]``, ``summary["warnings"]`` when a source never delivered a sample).
 
     Raises:
-        DeviceError: a live device did not connect within `wait` seconds (naming the spec, the
-            device and the reason).
+        DeviceError: a live device did not connect within `session.wait` seconds (naming the
+            spec, the device and the reason).
         ValueError: a bad spec or argument.
+        TypeError: `session` is not a `SessionConfig`, `renderer` neither a renderer nor a scene.
 
     Example:
         ```python
-        result = fovjax.run_session(scene, rig, gaze="replay:data/recordings/synthetic_scanpath_seed0.jsonl",
-                                    frames=30, fps=30, out="out/session")
+        renderer = fovjax.FoveatedRenderer(scene, rig, Foveation(fovea_deg=5, periphery_deg=10))
+        result = fovjax.run_session(renderer, gaze="replay:data/recordings/synthetic_scanpath_seed0.jsonl",
+                                    session=fovjax.SessionConfig(frames=30, fps=30), out="out/session")
         print(result.summary["tracking_states"])
         ```
     """
     from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
     from ..files import deferred_interrupt, interrupt_flag
     from ..foveate import DEBUG_VIEW_DIAGNOSTICS, FoveatedRenderer
+    from ..scene import Scene
 
-    n_frames = _check_count(frames, seconds, fps)
-    rate = float(fps)
+    session, out, tracker, renderer_args = _upgrade_old_keywords(old, session, out, tracker)
+    if session is None:
+        raise ValueError("run_session: give session=SessionConfig(frames=...) (or seconds=...)")
+    if not isinstance(session, SessionConfig):
+        raise TypeError(f"run_session: session must be a SessionConfig, got {type(session).__name__}")
+    if tracker is not None and not isinstance(tracker, GazeTracker):
+        raise TypeError(
+            f"run_session: tracker must be a fovjax.devices.GazeTracker, got {type(tracker).__name__}"
+        )
+    if out is not None and not isinstance(out, SessionOutput):
+        out = SessionOutput(out)
+    n_frames = session.n_frames
+    rate = float(session.fps)
     if gaze is None:
         raise ValueError("run_session: gaze must be a source spec or a fovjax.devices source, got None")
+    clock = session.clock
     if clock is None:
         clock = "wall" if (_is_live(gaze) or _is_live(head)) else "virtual"
-    if clock not in CLOCKS:
-        raise ValueError(f"run_session: clock must be one of {CLOCKS} or None, got {clock!r}")
-    if tracker is not None and policy is not None:
-        raise ValueError("run_session: give policy= or tracker=, not both (the tracker has its policy)")
-    if (video or debug) and out is None:
-        raise ValueError("run_session: video=True and debug=True write files; give out=")
+    video, debug = (out.video, out.debug) if out is not None else (False, False)
     if video and importlib.util.find_spec("imageio_ffmpeg") is None:
-        raise ImportError("run_session(video=True) needs imageio-ffmpeg: pip install 'fovjax[video]'")
-    tracker = tracker or GazeTracker(policy=policy)
+        raise ImportError(
+            "run_session: SessionOutput(video=True) needs imageio-ffmpeg: pip install 'fovjax[video]'"
+        )
+    tracker = tracker or GazeTracker()
     head_tracker = HeadTracker()
     # Only the per-pixel outputs the loop reads (the regions: `fovea_pixels`; the debug view's
     # with `debug`), fixed for the session: one compiled program.
     diagnostics = ("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",)
     # The scene prepared once (arrays, BVH, budget, levels of detail), not per frame.
-    if isinstance(scene, FoveatedRenderer):
-        given = {"rig": rig, "foveation": foveation, "config": config, "envmap": envmap, "bvh": bvh}
-        clashing = [name for name, value in given.items() if value is not None]
+    if isinstance(renderer, FoveatedRenderer):
+        clashing = [name for name, value in {"rig": rig, **renderer_args}.items() if value is not None]
         if clashing:
             raise ValueError(
-                f"run_session: the scene is a FoveatedRenderer, which has its own {', '.join(clashing)}; "
-                "pass them when making it"
+                f"run_session: the renderer has its own {', '.join(clashing)}; pass them when making it"
             )
-        renderer = scene.with_foveation(scene.foveation, diagnostics=diagnostics)
-    else:
+        renderer = renderer.with_foveation(renderer.foveation, diagnostics=diagnostics)
+    elif isinstance(renderer, Scene):
+        foveation, config = renderer_args.pop("foveation", None), renderer_args.pop("config", None)
         renderer = FoveatedRenderer(
-            scene, rig, foveation, config, envmap=envmap, bvh=bvh, diagnostics=diagnostics
+            renderer, rig, foveation, config, diagnostics=diagnostics, **renderer_args
+        )
+    else:
+        raise TypeError(
+            "run_session: renderer must be a fovjax.FoveatedRenderer or a fovjax.Scene, "
+            f"got {type(renderer).__name__}"
         )
     rig, foveation = renderer.rig, renderer.foveation
     omega_full = max(full_eccentricity(rig, foveation), foveation.periphery_deg)
@@ -350,18 +468,18 @@ def run_session(
     # Synthetic sources end after `duration`; on the wall clock rendering may be slower than the
     # timeline, so there they never end.
     duration = n_frames / rate + 1.0 if vclock is not None else None
-    wait = DEFAULT_CONNECT_TIMEOUT if wait is None else wait
+    wait = DEFAULT_CONNECT_TIMEOUT if session.wait is None else session.wait
     gaze_source = _source(gaze, "gaze", now, duration, "gaze", wait)
     head_source = _source(head, "head", now, duration, "head", wait)
     key = jax.random.key(0) if key is None else key
-    out = Path(out) if out is not None else None
+    out = Path(out.directory) if out is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
 
     def thresholds_at(widening: float) -> tuple[float, float]:
         return widen_thresholds(foveation.fovea_deg, foveation.periphery_deg, widening, omega_full)
 
-    warmup = clock == "wall" if warmup is None else warmup
+    warmup = clock == "wall" if session.warmup is None else session.warmup
     warmup_s = 0.0
     rows: list[SessionFrame] = []
     last_sample = {"gaze": -math.inf, "head": -math.inf}
@@ -419,7 +537,7 @@ def run_session(
             pose = (hf.yaw, hf.pitch, hf.roll) if hf is not None else (0.0, 0.0, 0.0)
             thresholds = thresholds_at(tf.widening)
             gaze_xy = np.clip(np.array([tf.left, tf.right], np.float32), 0.0, 1.0)
-            frame_key = jax.random.fold_in(key, k) if fresh_key_per_frame else key
+            frame_key = jax.random.fold_in(key, k) if session.fresh_key_per_frame else key
             # Tracking lost: a temporal method's history is dropped (the frame starts from none).
             lost = str(tf.state) == "lost" and previous_state != "lost"
             previous_state = str(tf.state)

@@ -7,7 +7,8 @@ on a backend: `"auto"` (default: Embree through XLA's FFI on CPU, Warp on CUDA, 
 chosen per platform inside the program), `"embree"`, `"warp"` or `"jax"` (the `while_loop`
 traversal, any XLA device: the reference the others are tested against); `describe_backend()`
 names what "auto" runs and why, `embree_status()` whether the Embree FFI handler built;
-- `merge_bvhs(bvhs)` → one BVH of several trees (levels of detail), queried with `level=` per ray.
+- `merge_bvhs(bvhs)` → one BVH of several trees (levels of detail), queried with `level=` per ray;
+- `Traversal(lanes=, packets=, steps_per_refill=)`: the JAX traversal's tuning (`traversal=`).
 """
 
 from ._build import BuildParams as BuildParams
@@ -41,6 +42,7 @@ from ._query import (
 from ._query import (
     resolve_backend as resolve_backend,
 )
+from ._traverse import Traversal as Traversal
 
 __all__ = [
     "BuildParams",
@@ -58,4 +60,5 @@ __all__ = [
     "hit_geometry",
     "occluded",
     "resolve_backend",
+    "Traversal",
 ]

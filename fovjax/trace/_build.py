@@ -99,7 +99,7 @@ def _sah_group(orders, starts, counts, nb, centroid_axis, tri_lo_axis, tri_hi_ax
 
     def axis_best(a):
         """Best split along axis a (an int, or an array giving each node's own axis)."""
-        if np.isscalar(a):
+        if isinstance(a, int | np.integer):
             t_a = orders[a][pos]
             b = (centroid_axis[a][t_a] - cmin[:, a][seg]) * scale[:, a][seg]
         else:

@@ -15,17 +15,24 @@ import json
 import os
 import time
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import TypeAlias
 
 import equinox as eqx
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int, Real
 
+from ..scene import Scene
 from ._build import BuildParams, build_tree
 from ._wide import ROW_WORDS, pack
 
 FORMAT_VERSION = 2
+
+# A mesh as arrays or nested sequences: (V, 3) corner positions, (F, 3) corner indices per face.
+VerticesLike: TypeAlias = Real[ArrayLike, "V 3"] | Sequence[Sequence[float]]
+FacesLike: TypeAlias = Int[ArrayLike, "F 3"] | Sequence[Sequence[int]]
 
 # Host copies of each BVH's geometry for host callbacks (the Embree backend), indexed by
 # `BVH.host_id`. The id is an array leaf, not a static field, so a new scene of the same array
@@ -56,7 +63,7 @@ class BVH(eqx.Module):
     # build one scene per tree from it); None: one tree.
     first_face: Int[np.ndarray | Array, " L1"] | None = None
 
-    def tree_faces(self):
+    def tree_faces(self) -> Int[np.ndarray | Array, " L1"]:
         """The first face of each tree and the face count: [0, F] for a single tree."""
         if self.first_face is None:
             return np.array([0, self.num_triangles], np.int32)
@@ -141,10 +148,10 @@ LAST_BUILD: dict = {}
 
 
 def build_bvh(
-    scene=None,
+    scene: Scene | None = None,
     *,
-    vertices=None,
-    faces=None,
+    vertices: VerticesLike | None = None,
+    faces: FacesLike | None = None,
     params: BuildParams | None = None,
     cache: bool = True,
     cache_dir: str | os.PathLike | None = None,
@@ -199,7 +206,7 @@ def build_bvh(
     )
 
 
-def merge_bvhs(bvhs) -> BVH:
+def merge_bvhs(bvhs: Iterable[BVH]) -> BVH:
     """One BVH holding several trees (e.g. a scene's levels of detail), each still its own tree.
 
     The table is every tree's node rows, then every tree's triangle rows (so `item < num_nodes`

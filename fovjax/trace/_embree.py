@@ -38,7 +38,8 @@ def embree_scene(key: str, vertices: np.ndarray, faces: np.ndarray):
 
     scene = _SCENES.get(key)
     if scene is None:
-        scene = rtcore_scene.EmbreeScene()
+        # embreex's package __getattr__ returns a str, which the checker reads rtcore_scene as.
+        scene = rtcore_scene.EmbreeScene()  # pyright: ignore[reportAttributeAccessIssue]
         TriangleMesh(
             scene=scene, vertices=np.asarray(vertices, np.float32), indices=np.asarray(faces, np.int32)
         )

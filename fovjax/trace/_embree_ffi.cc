@@ -357,7 +357,9 @@ template <int W>
 void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit) {
   const int64_t trees = static_cast<int64_t>(s.trees.size());
   RayHitW<W> rh;
-  int valid[W];
+  // Embree reads the valid mask with aligned vector loads (the packet's width in bytes): an
+  // unaligned mask crashes its 16-wide path on AVX-512 machines.
+  alignas(4 * W) int valid[W];
   int32_t tree[W];
   bool any = false;
   for (int k = 0; k < W; ++k) {
@@ -523,7 +525,7 @@ bool CheckPacket(const std::shared_ptr<NativeScene>& s, std::string* error) {
     alignas(64) unsigned char buffer[sizeof(RayHitW<W>) + kGuard];
     std::memset(buffer, kByte, sizeof(buffer));
     auto* rh = reinterpret_cast<RayHitW<W>*>(buffer);
-    int valid[W];
+    alignas(4 * W) int valid[W];  // aligned as Embree's vector loads need (see PacketW)
     for (int k = 0; k < W; ++k) {
       valid[k] = -1;
       rh->ray.org_x[k] = 0.01f * k - 0.005f * W;

@@ -89,7 +89,8 @@ def _build(compiler: str) -> tuple[Path, float]:
     digest = hashlib.sha256()
     for part in (
         SOURCE.read_bytes(),
-        jaxlib.__version__.encode(),
+        # jaxlib's version attribute (pyright cannot see it).
+        jaxlib.__version__.encode(),  # pyright: ignore[reportPrivateImportUsage]
         version.encode(),
         " ".join(_FLAGS).encode(),
     ):

@@ -12,10 +12,13 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
+from jaxtyping import Array, Float, Int
 
 from ._traverse import (
     ITEM_DONE,
     ITEM_POP,
+    Nodes,
+    Traversal,
     _decode_boxes,
     _fmax,
     _fmin,
@@ -116,23 +119,21 @@ def _packet_step(table, num_nodes, stack_size, any_hit, rays, state):
 
 
 def traverse_packets(
-    table,
-    num_nodes,
-    stack_size,
-    o,
-    d,
-    tmin,
-    tmax,
+    nodes: Nodes,
+    o: Float[Array, "n 3"],
+    d: Float[Array, "n 3"],
+    tmin: Float[Array, " n"],
+    tmax: Float[Array, " n"],
     *,
-    any_hit,
-    packet_size,
-    packets,
-    steps_per_refill,
-    root=None,
-):
+    any_hit: bool,
+    packet_size: int,
+    traversal: Traversal,
+    root: Int[Array, " n_packets"] | None = None,
+) -> tuple[Float[Array, " n"], Int[Array, " n"]]:
     """Like `traverse`, for rays grouped into packets of `packet_size` consecutive rays, with
-    `packets` packets in flight. Returns (t, prim), t = tmax on a miss. `root` (n_packets,)
-    int32: the item each packet starts at (None: item 0)."""
+    `traversal.packets` packets in flight. Returns (t, prim), t = tmax on a miss. `root`
+    (n_packets,) int32: the item each packet starts at (None: item 0)."""
+    table, num_nodes, stack_size = nodes
     n = o.shape[0]
     p = int(packet_size)
     n_packets = -(-n // p)
@@ -150,7 +151,7 @@ def traverse_packets(
     all_rays = (*map(minor, (o_all, inv_d_all, perm_all, shear_all)), group(tmin_all))
     valid, tmax_all = group(valid), group(tmax_all)
 
-    k = lanes_for(n_packets, packets, floor=16)
+    k = lanes_for(n_packets, traversal.packets, floor=16)
     # Only packets with a live ray are queued (see `traverse`).
     n_live, queue = live_first(jnp.any(valid, axis=1))
     lane_packet = jnp.full(k, n_packets, jnp.int32)
@@ -201,7 +202,15 @@ def traverse_packets(
         next_packet = jnp.minimum(next_packet + jnp.sum(idle.astype(jnp.int32)), n_live)
         state = (cur, sp, stack, t_best, prim, done, *_load(table, cur))
         state = _run_steps(
-            _packet_step, table, num_nodes, stack_size, any_hit, rays, state, steps_per_refill, next_packet
+            _packet_step,
+            table,
+            num_nodes,
+            stack_size,
+            any_hit,
+            rays,
+            state,
+            traversal.steps_per_refill,
+            next_packet,
         )
         return next_packet, lane_packet, rays, state, out_t, out_prim
 

@@ -19,18 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ._bvh import BVH
+from ._bvh import BVH, FacesLike, VerticesLike
 from ._order import inverse_order, spatial_order
 from ._packet import traverse_packets
-from ._traverse import traverse
+from ._traverse import Nodes, Traversal, traverse
 
 BACKENDS = ("auto", "jax", "embree", "warp")
 
-# Traversal tuning, measured with benchmarks/trace_throughput.py on a 2-core CPU: rays (or
-# packets) in flight, and traversal steps between refills of finished lanes.
-DEFAULT_LANES = 1 << 14
-DEFAULT_PACKETS = 256
-DEFAULT_STEPS_PER_REFILL = 4
+DEFAULT_TRAVERSAL = Traversal()
 # Packet size of `packet="sorted"` (rays regrouped by their origins): 16, 32 and 64 measured
 # alike on the atrium's shadow rays in pixel order; 64 fastest once they are sorted.
 SORTED_PACKET = 64
@@ -103,7 +99,13 @@ def _per_ray(x, n):
     return jnp.broadcast_to(x, (n,)) if x.ndim == 0 else x
 
 
-def hit_geometry(vertices, faces, prim, origins, directions):
+def hit_geometry(
+    vertices: VerticesLike,
+    faces: FacesLike,
+    prim: Int[ArrayLike, "*batch"],
+    origins: Float[ArrayLike, "*batch 3"],
+    directions: Float[ArrayLike, "*batch 3"],
+) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"], Float[Array, "*batch"]]:
     """Differentiable (t, u, v) of rays against the faces `prim` (-1: miss → t = inf, u = v = 0).
 
     Möller–Trumbore in closed form: smooth in vertices, origins and directions. Visibility (which
@@ -115,7 +117,7 @@ def hit_geometry(vertices, faces, prim, origins, directions):
     level gave that region's samples differing in the last bit
     (tests/test_fidelity_texture_lod.py), and the per-region guarantees are bit-exact.
     """
-    prim = jax.lax.stop_gradient(prim)
+    prim = jax.lax.stop_gradient(jnp.asarray(prim))
     hit = prim >= 0
     tri = jnp.asarray(vertices)[jnp.asarray(faces)[jnp.where(hit, prim, 0)]]
     p0, p1, p2 = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
@@ -184,9 +186,7 @@ def _split_over(devices, run, table, num_nodes, o, d, tmin, tmax, granule: int, 
         "backend",
         "any_hit",
         "packet_size",
-        "lanes",
-        "packets",
-        "steps_per_refill",
+        "traversal",
         "sort",
         "tile",
         "batch",
@@ -203,9 +203,7 @@ def _raw_query(
     backend,
     any_hit,
     packet_size,
-    lanes,
-    packets,
-    steps_per_refill,
+    traversal,
     sort=False,
     tile=None,
     batch=None,
@@ -233,9 +231,7 @@ def _raw_query(
         backend=backend,
         any_hit=any_hit,
         packet_size=packet_size,
-        lanes=lanes,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
+        traversal=traversal,
         tile=tile,
         batch=batch,
     )
@@ -250,7 +246,7 @@ def _warp_installed() -> bool:
 
     return (
         importlib.util.find_spec("warp") is not None
-        and importlib.util.find_spec(__package__ + "._warp") is not None
+        and importlib.util.find_spec(f"{__package__}._warp") is not None
     )
 
 
@@ -302,22 +298,12 @@ def _query_backend(
     backend,
     any_hit,
     packet_size,
-    lanes,
-    packets,
-    steps_per_refill,
+    traversal,
     tile=None,
     batch=None,
 ):
     """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s jit)."""
-    kw = dict(
-        any_hit=any_hit,
-        packet_size=packet_size,
-        lanes=lanes,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
-        tile=tile,
-        batch=batch,
-    )
+    kw = dict(any_hit=any_hit, packet_size=packet_size, traversal=traversal, tile=tile, batch=batch)
     if backend != "auto":
         return _run_backend(backend, bvh, o, d, tmin, tmax, level, split=True, **kw)
     on_cpu, on_cuda = resolve_backend("auto", "cpu"), resolve_backend("auto", "cuda")
@@ -349,9 +335,7 @@ def _run_backend(
     split,
     any_hit,
     packet_size,
-    lanes,
-    packets,
-    steps_per_refill,
+    traversal,
     tile=None,
     batch=None,
 ):
@@ -379,9 +363,7 @@ def _run_backend(
         split=split,
         any_hit=any_hit,
         packet_size=packet_size,
-        lanes=lanes,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
+        traversal=traversal,
         tile=tile,
         batch=batch,
     )
@@ -402,9 +384,7 @@ def _face_query(
     split,
     any_hit,
     packet_size,
-    lanes,
-    packets,
-    steps_per_refill,
+    traversal,
     tile=None,
     batch=None,
 ):
@@ -426,40 +406,37 @@ def _face_query(
         return warp_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit)
     if tile is not None:
         return _tiled_jax(
-            bvh, o, d, tmin, tmax, level, split=split, tile=tile, batch=batch, **_jax_kw(locals())
+            bvh,
+            o,
+            d,
+            tmin,
+            tmax,
+            level,
+            split=split,
+            tile=tile,
+            batch=batch,
+            any_hit=any_hit,
+            packet_size=packet_size,
+            traversal=traversal,
         )
     tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
     stack_size = bvh.stack_size
     roots = bvh.roots
 
     def per_ray(table, num_nodes, o, d, tmin, tmax, root=None):
-        return traverse(
-            table,
-            num_nodes,
-            stack_size,
-            o,
-            d,
-            tmin,
-            tmax,
-            any_hit=any_hit,
-            lanes=lanes,
-            steps_per_refill=steps_per_refill,
-            root=root,
-        )
+        nodes = Nodes(table, num_nodes, stack_size)
+        return traverse(nodes, o, d, tmin, tmax, any_hit=any_hit, traversal=traversal, root=root)
 
     def packets_of(table, num_nodes, o, d, tmin, tmax, root=None):
         return traverse_packets(
-            table,
-            num_nodes,
-            stack_size,
+            Nodes(table, num_nodes, stack_size),
             o,
             d,
             tmin,
             tmax,
             any_hit=any_hit,
             packet_size=packet_size,
-            packets=packets,
-            steps_per_refill=steps_per_refill,
+            traversal=traversal,
             root=root,
         )
 
@@ -478,10 +455,6 @@ def _face_query(
     if devices is None:
         return run(bvh.table, bvh.num_nodes, o, d, tmin, tmax, *level)
     return _split_over(devices, run, bvh.table, bvh.num_nodes, o, d, tmin, tmax, packet_size or 1, *level)
-
-
-def _jax_kw(scope):
-    return {k: scope[k] for k in ("any_hit", "packet_size", "lanes", "packets", "steps_per_refill")}
 
 
 def _tiled_jax(bvh, o, d, tmin, tmax, level, *, split, tile, batch, **kw):
@@ -542,12 +515,12 @@ def _query(
     any_hit,
     backend,
     packet,
-    lanes,
-    packets,
-    steps_per_refill,
+    traversal,
     level=None,
 ):
     _check(backend, packet)
+    if not isinstance(traversal, Traversal):
+        raise TypeError(f"traversal must be a fovjax.trace.Traversal, got {type(traversal).__name__}")
     batch, o, d, tmin_f, tmax_f = _prepare(origins, directions, tmin, tmax)
     level = _levels(bvh, level, batch)
     tile = tuple(packet) if isinstance(packet, tuple | list) else None
@@ -565,9 +538,7 @@ def _query(
         backend=backend,
         any_hit=any_hit,
         packet_size=packet_size,
-        lanes=lanes,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
+        traversal=traversal,
         sort=sort,
         tile=tile,
         batch=batch if tile is not None else None,
@@ -605,10 +576,8 @@ def closest_hit(
     backend: str = "auto",
     packet: Packet = None,
     vertices: Float[ArrayLike, "V 3"] | None = None,
-    lanes: int = DEFAULT_LANES,
-    packets: int = DEFAULT_PACKETS,
-    steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
     level: Int[ArrayLike, "*#batch"] | None = None,
+    traversal: Traversal = DEFAULT_TRAVERSAL,
 ) -> Hit:
     """The nearest triangle hit by each ray with tmin < t < tmax.
 
@@ -634,6 +603,9 @@ def closest_hit(
     broadcast against the batch; traced values, clipped to the trees); `prim` then indexes the
     merged faces. One traversal for any mix of levels; a packet whose rays are not all of one
     level has its rays traced one by one.
+
+    `traversal`: the JAX traversal's tuning (`Traversal`: rays and packets in flight, steps
+    between refills); the hits are the same whatever it is.
     """
     batch, o, d, (t_b, prim, u_b, v_b) = _query(
         bvh,
@@ -644,9 +616,7 @@ def closest_hit(
         any_hit=False,
         backend=backend,
         packet=packet,
-        lanes=lanes,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
+        traversal=traversal,
         level=level,
     )
     if vertices is None:  # the build-time geometry the backend traced: its own t, u, v
@@ -667,13 +637,12 @@ def occluded(
     tmin: float | Float[ArrayLike, "*#batch"] = 0.0,
     backend: str = "auto",
     packet: Packet = None,
-    lanes: int = DEFAULT_LANES,
-    packets: int = DEFAULT_PACKETS,
-    steps_per_refill: int = DEFAULT_STEPS_PER_REFILL,
     level: Int[ArrayLike, "*#batch"] | None = None,
+    traversal: Traversal = DEFAULT_TRAVERSAL,
 ) -> Bool[Array, "..."]:
     """Whether anything lies on each ray with tmin < t < tmax (a shadow ray; stops at the
-    first hit found, not the nearest). Options (and `level`) as for `closest_hit`."""
+    first hit found, not the nearest). Options (`packet`, `level`, `traversal`) as for
+    `closest_hit`."""
     batch, _, _, (_, prim, _, _) = _query(
         bvh,
         origins,
@@ -683,15 +652,20 @@ def occluded(
         any_hit=True,
         backend=backend,
         packet=packet,
-        lanes=lanes,
-        packets=packets,
-        steps_per_refill=steps_per_refill,
+        traversal=traversal,
         level=level,
     )
     return (prim >= 0).reshape(batch)
 
 
-def brute_force_closest_hit(vertices, faces, origins, directions, tmin=0.0, tmax=np.inf):
+def brute_force_closest_hit(
+    vertices: VerticesLike,
+    faces: FacesLike,
+    origins: Float[ArrayLike, "*batch 3"],
+    directions: Float[ArrayLike, "*batch 3"],
+    tmin: float | Float[ArrayLike, "*batch"] = 0.0,
+    tmax: float | Float[ArrayLike, "*batch"] = np.inf,
+) -> tuple[Float[np.ndarray, " n"], Int[np.ndarray, " n"], Float[np.ndarray, "n F"]]:
     """Reference: every ray against every triangle, float64 Möller–Trumbore with an
     inclusive edge test, on the host. Returns (t, prim, t_all) with t = inf, prim = -1 on a
     miss and t_all the (rays, faces) distances (inf where a face is missed). For small meshes."""

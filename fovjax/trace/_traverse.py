@@ -22,10 +22,14 @@ recompute the hit from the triangle's vertices (`hit_geometry`).
 
 from __future__ import annotations
 
+import dataclasses
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from jaxtyping import Array, ArrayLike, Float, Int
 
 F32_EPS = float(np.finfo(np.float32).eps) / 2
 GAMMA3 = 3 * F32_EPS / (1 - 3 * F32_EPS)
@@ -37,6 +41,44 @@ EDGE_ULPS = 8 * float(np.finfo(np.float32).eps)
 
 ITEM_DONE = -1
 ITEM_POP = -2
+
+# Traversal tuning, measured with benchmarks/trace_throughput.py on a 2-core CPU: rays (or
+# packets) in flight, and traversal steps between refills of finished lanes.
+DEFAULT_LANES = 1 << 14
+DEFAULT_PACKETS = 256
+DEFAULT_STEPS_PER_REFILL = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class Traversal:
+    """How the JAX traversal runs (`backend="jax"`, or "auto" where no native backend is
+    available): its tuning, not its results (the hits are the same whatever the values).
+    Hashable: each distinct value is its own compiled program.
+
+    - `lanes`: rays in flight when rays are traced one by one (fewer for small batches);
+    - `packets`: packets in flight when rays are traced in packets (`packet=`);
+    - `steps_per_refill`: traversal steps between refills of the lanes whose ray finished.
+    """
+
+    lanes: int = DEFAULT_LANES
+    packets: int = DEFAULT_PACKETS
+    steps_per_refill: int = DEFAULT_STEPS_PER_REFILL
+
+    def __post_init__(self):
+        for name in ("lanes", "packets", "steps_per_refill"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"Traversal.{name} must be a positive int, got {value!r}")
+            object.__setattr__(self, name, int(value))
+
+
+class Nodes(NamedTuple):
+    """What the traversal reads of a `BVH`: its table of rows, the number of inner-node rows
+    (the rows after them are triangles) and the depth of a ray's stack (static)."""
+
+    table: Int[ArrayLike, "R 16"]
+    num_nodes: Int[ArrayLike, ""]
+    stack_size: int
 
 
 def _ray_setup(o, d):
@@ -345,11 +387,22 @@ def _run_steps(step, table, num_nodes, stack_size, any_hit, rays, state, count, 
     return lax.while_loop(lambda c: c[0] < count, body, (jnp.int32(0), state))[1]
 
 
-def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, steps_per_refill, root=None):
+def traverse(
+    nodes: Nodes,
+    o: Float[Array, "n 3"],
+    d: Float[Array, "n 3"],
+    tmin: Float[Array, " n"],
+    tmax: Float[Array, " n"],
+    *,
+    any_hit: bool,
+    traversal: Traversal,
+    root: Int[Array, " n"] | None = None,
+) -> tuple[Float[Array, " n"], Int[Array, " n"]]:
     """Trace flat rays o, d (n, 3) with per-ray tmin, tmax (n,). Returns (t, prim), t = tmax on a miss.
     `root` (n,) int32: the item each ray starts at (a merged BVH's level roots); None: item 0.
 
-    A fixed set of `lanes` rays is in flight; every `steps_per_refill` steps, lanes whose ray has
+    A fixed set of `traversal.lanes` rays is in flight; every `traversal.steps_per_refill`
+    steps, lanes whose ray has
     finished write its result and take the next ray from the queue (in input order, so
     neighbouring lanes trace neighbouring rays). One loop body, one compiled program, full lanes
     until the queue runs dry.
@@ -358,8 +411,9 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
     rays it does not want traced with tmax <= tmin and they cost nothing: this is the
     compaction foveation relies on, with static array shapes and no bucket sizes.
     """
+    table, num_nodes, stack_size = nodes
     n = o.shape[0]
-    w = lanes_for(n, lanes)
+    w = lanes_for(n, traversal.lanes)
     valid, o_all, inv_d_all, perm_all, shear_all = _ray_setup(o, d)
     valid = valid & (tmax > tmin)
     all_rays = (o_all, inv_d_all, perm_all, shear_all, tmin)
@@ -416,7 +470,7 @@ def traverse(table, num_nodes, stack_size, o, d, tmin, tmax, *, any_hit, lanes, 
             any_hit,
             rays,
             state,
-            steps_per_refill,
+            traversal.steps_per_refill,
             next_ray,
         )
         return next_ray, lane_ray, rays, state, out_t, out_prim

@@ -38,6 +38,11 @@ keyed by it), so the HLO of two traces of the same function differs by that numb
 cache is unaffected, but a persistent-compilation-cache hit needs the same trace order.
 """
 
+# Warp kernels are Warp's language, not Python's: their parameters are annotated with
+# `wp.array(dtype=...)` calls and their values are Warp's types, which the type checker reads as
+# Python (`wp.tid()` as any of its overloads, a mesh query's fields as unknown).
+# pyright: reportInvalidTypeForm=false, reportArgumentType=false, reportAttributeAccessIssue=false
+
 import functools
 import logging
 import threading
@@ -253,7 +258,8 @@ def _callables():
 def ffi_target_names() -> tuple[str, str]:
     """The XLA FFI target names of the closest-hit and any-hit calls (registered for "cpu" and
     "CUDA" on first use), e.g. for `jax.export`'s `DisabledSafetyChecks.custom_call`."""
-    return tuple(c.name for c in _callables())
+    closest, anyhit = _callables()
+    return closest.name, anyhit.name
 
 
 def warp_query(bvh: BVH, o, d, tmin, tmax, level=None, *, any_hit: bool):

@@ -35,7 +35,9 @@ from ._acuity_models import EqualBudget as EqualBudget
 from ._acuity_models import acuity_models as acuity_models
 from ._acuity_models import default_models as default_models
 from ._acuity_models import equal_budget_foveations as equal_budget_foveations
+from ._after_saccade import SaccadeTrial as SaccadeTrial
 from ._after_saccade import after_saccade as after_saccade
+from ._checkerboard import PursuitFlicker as PursuitFlicker
 from ._checkerboard import checkerboard as checkerboard
 from ._checkerboard import checkerboard_scene as checkerboard_scene
 from ._common import CASES as CASES

@@ -22,6 +22,7 @@ from ._common import (
     _mean,
     _metric,
     _ring_rows,
+    _scene_rig,
     _side,
 )
 
@@ -231,8 +232,7 @@ def default_models(fit: str | Path | None = None) -> dict[str, object]:
 
 
 def acuity_models(
-    scene,
-    rig,
+    full: FullRenders,
     foveation=None,
     *,
     models: Mapping[str, object] | None = None,
@@ -241,8 +241,6 @@ def acuity_models(
     rules: Sequence[str] = ("either", "strict"),
     ring_deg: float = 5.0,
     budgets: Mapping[str, EqualBudget] | None = None,
-    config=None,
-    full: FullRenders | None = None,
     progress=None,
 ) -> FailureCase:
     """Acuity models at the same ray budget (`equal_budget_foveations`), under each sampling
@@ -251,6 +249,7 @@ def acuity_models(
     reuses ones already made. Per rule, model, gaze and key the primary rays (and their
     difference from the rule's reference model's), frame error and FLIP ("frame" rows), and
     error and primary rays per ring ("ring" rows); `arm` names rule and model."""
+    scene, rig = _scene_rig(full, "acuity_models")
     from ...foveate import SAMPLING_RULES, Foveation, check_gaze
 
     t0 = time.perf_counter()
@@ -271,7 +270,7 @@ def acuity_models(
             budgets[rule] = equal_budget_foveations(
                 rig, dataclasses.replace(foveation, rule=rule), models, gazes=gazes
             )
-    bench = _Bench.make(scene, rig, config, full, progress)
+    bench = _Bench.make(full, progress)
     records, rays_ref = [], {}
     for rule in rules:
         budget = budgets[rule]

@@ -3,6 +3,7 @@ predicted and the true gaze."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -19,6 +20,7 @@ from ._common import (
     _gaze_angle,
     _masked,
     _metric,
+    _scene_rig,
     _side,
     _true_eccentricity,
     offset_gaze,
@@ -39,55 +41,80 @@ def _saccade_path(rig, start, amplitude_deg, direction_deg, onset_s):
     return at, onset_s + duration, duration
 
 
+@dataclasses.dataclass(frozen=True)
+class SaccadeTrial:
+    """The saccade `after_saccade` shows and how it is tracked: one saccade of `amplitude_deg`
+    from `start` (normalised display coordinates) in `direction_deg`, displayed at `fps` from
+    `before_frames` frames before its onset to `after_s` seconds after it lands; a tracker
+    sampling at `tracker_hz` seen `latencies_s` late.
+
+    Raises:
+        ValueError: a bad field, naming it, its value and what was expected.
+    """
+
+    start: tuple = (0.3, 0.5)
+    amplitude_deg: float = 20.0
+    direction_deg: float = 0.0
+    fps: float = 60.0
+    latencies_s: Sequence[float] = (0.025, 0.05)
+    tracker_hz: float = 120.0
+    before_frames: int = 2
+    after_s: float = 0.1
+
+    def __post_init__(self):
+        for name in ("fps", "tracker_hz", "amplitude_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"SaccadeTrial: {name} must be > 0, got {value}")
+        latencies = [float(x) for x in self.latencies_s]
+        if not latencies or any(not (math.isfinite(x) and x >= 0) for x in latencies):
+            raise ValueError(
+                f"SaccadeTrial: latencies_s must be finite seconds >= 0, got {self.latencies_s!r}"
+            )
+        if not (self.after_s >= 0) or self.before_frames < 1:
+            raise ValueError(
+                "SaccadeTrial: need after_s >= 0 and before_frames >= 1, "
+                f"got {self.after_s}, {self.before_frames}"
+            )
+
+
 def after_saccade(
-    scene,
-    rig,
+    full: FullRenders,
     foveation=None,
     *,
-    start=(0.3, 0.5),
-    amplitude_deg: float = 20.0,
-    direction_deg: float = 0.0,
-    fps: float = 60.0,
-    latencies_s: Sequence[float] = (0.025, 0.05),
-    tracker_hz: float = 120.0,
-    before_frames: int = 2,
-    after_s: float = 0.1,
+    saccade: SaccadeTrial | None = None,
     key: int = 0,
     central_deg: float = CENTRAL_DEG,
     policies: Sequence[str] = SACCADE_POLICIES,
-    config=None,
-    full: FullRenders | None = None,
     progress=None,
 ) -> FailureCase:
-    """Frames around one saccade (main-sequence duration, minimum-jerk profile, as
-    `fovjax.devices.Scanpath`) of `amplitude_deg` from `start`, displayed at `fps`. The frame
-    shown at time t is foveated on: "perfect" the true gaze at t; "latest" the last tracker
-    sample (at `tracker_hz`) taken a latency before t, for each of `latencies_s`; "predicted"
-    that sample extrapolated at the velocity of the last two samples to t
-    (`fovjax.devices.GazePredictor`, horizon at most 50 ms). Error around the true gaze at t
-    (true fovea, central `central_deg`), frame by frame; the key is fixed so a still frame with
-    perfect tracking has no error in the fovea. `display` names policy and latency."""
+    """Frames around one saccade (`saccade`, default `SaccadeTrial()`: main-sequence duration,
+    minimum-jerk profile, as `fovjax.devices.Scanpath`) of `amplitude_deg` from `start`,
+    displayed at `fps`. The frame shown at time t is foveated on: "perfect" the true gaze at t;
+    "latest" the last tracker sample (at `tracker_hz`) taken a latency before t, for each of
+    `latencies_s`; "predicted" that sample extrapolated at the velocity of the last two samples
+    to t (`fovjax.devices.GazePredictor`, horizon at most 50 ms). Error around the true gaze at
+    t (true fovea, central `central_deg`), frame by frame; the key is fixed so a still frame
+    with perfect tracking has no error in the fovea. `display` names policy and latency.
+    `full`: the `FullRenders(scene, rig, config)` of what to render."""
     from ...devices import GazePredictor
     from ...foveate import Foveation
 
+    scene, rig = _scene_rig(full, "after_saccade")
     t0 = time.perf_counter()
     foveation = foveation or Foveation.thesis(2)
+    saccade = SaccadeTrial() if saccade is None else saccade
+    if not isinstance(saccade, SaccadeTrial):
+        raise TypeError(f"after_saccade: saccade must be a SaccadeTrial, got {type(saccade).__name__}")
     if any(p not in SACCADE_POLICIES for p in policies) or not policies:
         raise ValueError(f"after_saccade: policies must be among {SACCADE_POLICIES}, got {policies!r}")
-    for name, value in (("fps", fps), ("tracker_hz", tracker_hz), ("amplitude_deg", amplitude_deg)):
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"after_saccade: {name} must be > 0, got {value}")
-    latencies = [float(x) for x in latencies_s]
-    if not latencies or any(not (math.isfinite(x) and x >= 0) for x in latencies):
-        raise ValueError(f"after_saccade: latencies_s must be finite seconds >= 0, got {latencies_s!r}")
-    if not (after_s >= 0) or before_frames < 1:
-        raise ValueError(
-            f"after_saccade: need after_s >= 0 and before_frames >= 1, got {after_s}, {before_frames}"
-        )
+    start, amplitude_deg, direction_deg = saccade.start, saccade.amplitude_deg, saccade.direction_deg
+    fps, tracker_hz, after_s = saccade.fps, saccade.tracker_hz, saccade.after_s
+    before_frames, latencies = saccade.before_frames, [float(x) for x in saccade.latencies_s]
     onset = (before_frames - 0.5) / fps
     path, landing, duration = _saccade_path(rig, start, amplitude_deg, direction_deg, onset)
     predictor = GazePredictor()
-    bench = _Bench.make(scene, rig, config, full, progress)
+    bench = _Bench.make(full, progress)
     ref = bench.reference(key)
     n_frames = int(math.ceil((landing + after_s) * fps)) + 1
     records = []

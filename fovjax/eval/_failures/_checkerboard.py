@@ -3,6 +3,7 @@ in its mean grey; error per ring and flicker along a pursuit."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 import time
@@ -10,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._stability import temporal_stability
+from .._stability import FullRenders, temporal_stability
 from ._common import (
     FailureCase,
     _Bench,
@@ -83,6 +84,32 @@ def _rig_at(rig, pose):
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class PursuitFlicker:
+    """The flicker half of `checkerboard`: `frames` frames at `fps` along a circular smooth
+    pursuit of radius 0.1 (normalised display units) at `hz` laps per second.
+
+    Raises:
+        ValueError: fewer than 2 frames, or a non-positive or non-finite `fps` or `hz`.
+    """
+
+    frames: int = 8
+    fps: float = 90.0
+    hz: float = 0.5
+
+    def __post_init__(self):
+        if isinstance(self.frames, bool) or not isinstance(self.frames, int | np.integer) or self.frames < 2:
+            raise ValueError(f"PursuitFlicker: frames must be a whole number >= 2, got {self.frames!r}")
+        for name in ("fps", "hz"):
+            value = getattr(self, name)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not (math.isfinite(value) and value > 0)
+            ):
+                raise ValueError(f"PursuitFlicker: {name} must be a finite number > 0, got {value!r}")
+
+
 def checkerboard(
     rig,
     foveation=None,
@@ -90,22 +117,24 @@ def checkerboard(
     check_size: float = 0.02,
     keys: Sequence[int] = (0, 1),
     gaze=(0.5, 0.5),
-    frames: int = 8,
-    fps: float = 90.0,
-    pursuit_hz: float = 0.5,
     ring_deg: float = 5.0,
+    flicker: PursuitFlicker | None = None,
     config=None,
     progress=None,
 ) -> FailureCase:
     """A fine checkerboard filling the periphery (`checkerboard_scene`) against the same wall
     in its mean grey, seen with `rig`'s intrinsics: error per ring at `gaze` ("ring" rows) and
-    flicker along a circular pursuit of radius 0.1 at `pursuit_hz` laps per second, fresh
-    against fixed key ("flicker" rows, see `temporal_stability`)."""
+    flicker along a circular pursuit (`flicker`, default `PursuitFlicker()`: 8 frames at 90 Hz,
+    0.5 laps per second), fresh against fixed key ("flicker" rows, see `temporal_stability`)."""
     from ...devices import SmoothPursuit
     from ...foveate import Foveation, check_gaze
 
     t0 = time.perf_counter()
     foveation = foveation or Foveation.thesis(2)
+    flicker = PursuitFlicker() if flicker is None else flicker
+    if not isinstance(flicker, PursuitFlicker):
+        raise TypeError(f"checkerboard: flicker must be a PursuitFlicker, got {type(flicker).__name__}")
+    frames, fps, pursuit_hz = flicker.frames, flicker.fps, flicker.hz
     if not keys:
         raise ValueError("checkerboard: need at least one key")
     g = check_gaze(np.broadcast_to(np.asarray(gaze, np.float64).reshape(-1, 2), (2, 2)), "checkerboard gaze")
@@ -113,7 +142,7 @@ def checkerboard(
     for smooth in (False, True):
         scene, pose = checkerboard_scene(check_size=check_size, smooth=smooth)
         wall_rig = _rig_at(rig, pose)
-        bench = _Bench.make(scene, wall_rig, config, None, progress)
+        bench = _Bench.make(FullRenders(scene, wall_rig, config), progress)
         label = "smooth" if smooth else "checkerboard"
         for k in keys:
             frame = bench.foveated(g, foveation, k)
@@ -126,15 +155,7 @@ def checkerboard(
             records += [{**common, **row} for row in rows]
         pursuit = SmoothPursuit(centre=(0.5, 0.5), radius=(0.1, 0.1), frequency=pursuit_hz)
         result = temporal_stability(
-            scene,
-            wall_rig,
-            pursuit,
-            foveation,
-            frames=frames,
-            fps=fps,
-            seed=int(keys[0]),
-            full=bench.full,
-            progress=bench.tick,
+            bench.full, pursuit, foveation, frames=frames, fps=fps, seed=int(keys[0]), progress=bench.tick
         )
         for row in result.summary:
             records.append({"kind": "flicker", "scene": label, **row})

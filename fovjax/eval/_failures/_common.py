@@ -92,6 +92,16 @@ def _gaze_angle(rig, a, b) -> float:
     return float(np.asarray(eccentricity_angle(cam, jnp.asarray(a), px))[0])
 
 
+def _scene_rig(full, where: str):
+    """The scene and rig of a case's `FullRenders` (its render config and BVH are the case's too)."""
+    if not isinstance(full, FullRenders):
+        raise TypeError(
+            f"{where}: the first argument must be a fovjax.eval.FullRenders(scene, rig, config), "
+            f"got {type(full).__name__}"
+        )
+    return full.scene, full.rig
+
+
 @dataclasses.dataclass
 class _Bench:
     """What every case needs: the scene, rig and config, memoised full renders, the display's
@@ -104,12 +114,13 @@ class _Bench:
     use_flip: bool
 
     @classmethod
-    def make(cls, scene, rig, config=None, full=None, progress=None, use_flip=None) -> _Bench:
-        full = full or FullRenders(scene, rig, config)
-        if full.rig is not rig:
-            raise ValueError("failure cases: `full` renders another rig than `rig`")
+    def make(cls, full: FullRenders, progress=None, use_flip=None) -> _Bench:
         return cls(
-            scene, rig, full, progress or (lambda: None), _has_flip() if use_flip is None else use_flip
+            full.scene,
+            full.rig,
+            full,
+            progress or (lambda: None),
+            _has_flip() if use_flip is None else use_flip,
         )
 
     @property

@@ -16,32 +16,31 @@ from ._common import (
     _frame_metrics,
     _metric,
     _ring_rows,
+    _scene_rig,
     _side,
 )
 
 
 def corner_gaze(
-    scene,
-    rig,
+    full: FullRenders,
     foveation=None,
     *,
     corner=(0.02, 0.02),
     centre=(0.5, 0.5),
     keys: Sequence[int] = (0, 1),
     ring_deg: float = 5.0,
-    config=None,
-    full: FullRenders | None = None,
     progress=None,
 ) -> FailureCase:
     """Gaze at a screen corner (both eyes) against the centre: error and FLIP per eccentricity
     ring, primary rays in the fovea, samples dropped beyond the budget."""
+    scene, rig = _scene_rig(full, "corner_gaze")
     from ...foveate import Foveation, check_gaze
 
     t0 = time.perf_counter()
     foveation = foveation or Foveation.thesis(2)
     if not keys:
         raise ValueError("corner_gaze: need at least one key")
-    bench = _Bench.make(scene, rig, config, full, progress)
+    bench = _Bench.make(full, progress)
     records = []
     for label, point in (("centre", centre), ("corner", corner)):
         g = check_gaze(

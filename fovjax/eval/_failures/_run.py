@@ -39,7 +39,7 @@ def failure_cases(
     thesis's by default, with the common ray budget) is the foveation of every other case, so
     they share one compiled program; `foveation` sets the thresholds (default the thesis's
     10°/20°). `high_spp` runs at `small_resolution` per eye. `options`: per-case keyword
-    arguments (e.g. {"after_saccade": {"latency_s": 0.05}})."""
+    arguments (e.g. {"after_saccade": {"saccade": SaccadeTrial(latencies_s=(0.05,))}})."""
     from ...foveate import Foveation
 
     unknown = [c for c in cases if c not in CASES]
@@ -62,41 +62,40 @@ def failure_cases(
     models = models or default_models()
     budget = equal_budget_foveations(rig, foveation, models, gazes=gazes)
     base = budget.foveations[budget.reference]
-    common = {"config": config, "progress": tick}
+    common = {"progress": tick}  # the render config: `full`'s, or given to the cases without it
     report = {}
     for name in cases:
         if bar is not None:
             bar.set_description(name)
         opts = dict(options.get(name, {}))
         if name == "corner_gaze":
-            case = corner_gaze(scene, rig, base, full=full, **common, **opts)
+            case = corner_gaze(full, base, **common, **opts)
         elif name == "tracking_error":
             fovs = opts.pop("foveations", [Foveation(2.0, 4.0, acuity=base.acuity), base])
-            case = tracking_error(scene, rig, fovs, full=full, **common, **opts)
+            case = tracking_error(full, fovs, **common, **opts)
         elif name == "after_saccade":
-            case = after_saccade(scene, rig, base, full=full, **common, **opts)
+            case = after_saccade(full, base, **common, **opts)
         elif name == "high_spp":
             small = dataclasses.replace(
                 rig, eye_width=int(small_resolution[0]), eye_height=int(small_resolution[1])
             )
             opts.setdefault("spp", high_spp_values)
-            case = high_spp(scene, small, (foveation.fovea_deg, foveation.periphery_deg), **common, **opts)
+            thresholds = (foveation.fovea_deg, foveation.periphery_deg)
+            case = high_spp(scene, small, thresholds, config=config, **common, **opts)
         elif name == "checkerboard":
-            case = checkerboard(rig, base, **common, **opts)
+            case = checkerboard(rig, base, config=config, **common, **opts)
         elif name == "acuity_models":
             case = acuity_models(
-                scene,
-                rig,
+                full,
                 foveation,
                 gazes=gazes,
                 budgets={foveation.rule: budget},
                 models=models,
-                full=full,
                 **common,
                 **model_opts,
             )
         else:
-            case = scanpath_flicker(scene, rig, base, full=full, **common, **opts)
+            case = scanpath_flicker(full, base, **common, **opts)
         report[name] = case
     if bar is not None:
         bar.close()

@@ -10,25 +10,24 @@ from ._common import (
     FailureCase,
     _Bench,
     _case,
+    _scene_rig,
 )
 
 
 def scanpath_flicker(
-    scene,
-    rig,
+    full: FullRenders,
     foveation=None,
     *,
     seed: int = 3,
     frames: int = 16,
     fps: float = 90.0,
     lead_frames: int = 4,
-    config=None,
-    full: FullRenders | None = None,
     progress=None,
 ) -> FailureCase:
     """`temporal_stability` along `fovjax.devices.Scanpath(seed)` (its degree scale set to the
     rig's field of view) from `lead_frames` before its first saccade, fresh against fixed key;
     the rows are its per-step records."""
+    scene, rig = _scene_rig(full, "scanpath_flicker")
     from ...devices import Scanpath
     from ...foveate import Foveation
 
@@ -40,16 +39,14 @@ def scanpath_flicker(
     # Start `lead_frames` before the first saccade, so the window holds gaze motion.
     onset = next(start for kind, start, _, _ in path.segments_until(60.0) if kind == "saccade")
     start_s = max(0.0, onset - lead_frames / fps)
-    bench = _Bench.make(scene, rig, config, full, progress)
+    bench = _Bench.make(full, progress)
     result = temporal_stability(
-        scene,
-        rig,
+        bench.full,
         lambda t: path.position(t + start_s),
         foveation,
         frames=frames,
         fps=fps,
         seed=seed,
-        full=bench.full,
         progress=bench.tick,
     )
     by = {r["key_mode"]: r for r in result.summary}

@@ -20,6 +20,7 @@ from ._common import (
     _masked,
     _mean,
     _metric,
+    _scene_rig,
     _side,
     _true_eccentricity,
     offset_gaze,
@@ -27,8 +28,7 @@ from ._common import (
 
 
 def tracking_error(
-    scene,
-    rig,
+    full: FullRenders,
     foveations: Sequence | None = None,
     *,
     errors_deg: Sequence[float] = (0.0, 1.0, 2.0, 4.0),
@@ -36,14 +36,13 @@ def tracking_error(
     gaze=(0.5, 0.5),
     keys: Sequence[int] = (0,),
     central_deg: float = CENTRAL_DEG,
-    config=None,
-    full: FullRenders | None = None,
     progress=None,
 ) -> FailureCase:
     """The frame foveated on a gaze `error` degrees off the true one (each of
     `directions_deg`), error measured around the true gaze: inside the true fovea radius, inside
     the central `central_deg`, and the share of true-fovea pixels the rendered fovea covers.
     `foveations`: default a 2° fovea (smaller than a 2-4° tracker error) and the thesis's 10°."""
+    scene, rig = _scene_rig(full, "tracking_error")
     from ...foveate import Foveation, check_gaze
 
     t0 = time.perf_counter()
@@ -60,7 +59,7 @@ def tracking_error(
     true = check_gaze(
         np.broadcast_to(np.asarray(gaze, np.float64).reshape(-1, 2), (2, 2)), "tracking_error gaze"
     )
-    bench = _Bench.make(scene, rig, config, full, progress)
+    bench = _Bench.make(full, progress)
     records = []
     for fov in foveations:
         ecc = _true_eccentricity(rig, true, fov)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TypeAlias
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,7 +171,8 @@ class Guenter2012:
         if not (math.isfinite(pixel_deg) and pixel_deg > 0):
             raise ValueError(f"Guenter2012.layer_radii: pixel_deg must be > 0, got {pixel_deg!r}")
         m = self.slope_arcmin_per_deg / 60.0
-        return tuple(float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
+        inner, middle = (float((s * pixel_deg - pixel_deg) / m) for s in self.strides)
+        return inner, middle
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,7 +183,7 @@ class Patney2016:
 
     Per eye and frame (fovjax's reading for a ray tracer, `fovjax.foveate._methods._patney`):
 
-    - coarse sampling: the paper's coarse pixel shading, one shade per s×s block held over the
+    - coarse sampling: as the paper's coarse pixel shading, one shade per s×s block held over the
       block; s is 1 in the fovea (ω ≤ `Foveation.fovea_deg`), `strides[0]` up to
       `periphery_deg` and `strides[1]` beyond, the layers blended by eccentricity over
       `blend_deg` (a smoothstep, as `Guenter2012`); a block's top-left pixel is traced (whole,
@@ -197,8 +199,9 @@ class Patney2016:
       `window_per_sigma`·σ, the gain within [1, `max_gain`]).
 
     Parameters:
-        strides: the middle and outer shading rates in display pixels (the paper's coarse
-            pixel shading rates 2×2 and 4×4: (2, 4)).
+        strides: the middle and outer shading rates in display pixels (fovjax's choice,
+            (2, 4): coarse pixels of 2×2 and 4×4; the paper's exact rates could not be read
+            here).
         blend_deg: width of the blend between rates (fovjax's choice, 1°: the thesis's blend).
         blur_per_stride: the blur's σ per display pixel of the shading rate (fovjax's choice,
             0.5: Albert et al. 2017, "Latency Requirements for Foveated Rendering in Virtual
@@ -261,15 +264,17 @@ class Patney2016:
 
 METHODS: dict[str, type] = {m.name: m for m in (Thesis, Guenter2012, Patney2016, Weier2016)}
 """The methods by name (`Foveation(method=name)`, `fovjax compare --methods`)."""
+# A foveation method: an instance of one of `METHODS`' classes.
+FoveationMethod: TypeAlias = Thesis | Guenter2012 | Patney2016 | Weier2016
 
 
-def as_method(method):
+def as_method(method: object) -> FoveationMethod:
     """A method instance from a name of `METHODS` or an instance of one of its classes."""
     if isinstance(method, str):
         if method not in METHODS:
             raise ValueError(f"Foveation.method must be one of {tuple(METHODS)}, got {method!r}")
         return METHODS[method]()
-    if isinstance(method, tuple(METHODS.values())):
+    if isinstance(method, Thesis | Guenter2012 | Weier2016):  # METHODS' classes
         return method
     raise ValueError(
         f"Foveation.method must be a name of {tuple(METHODS)} or an instance of "

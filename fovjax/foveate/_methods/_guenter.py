@@ -8,7 +8,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._frame import DIAGNOSTICS, FoveatedOutputs, diagnostics_tuple, eccentricities
+from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
 from ._sparse import trace_pixels
 
 
@@ -74,14 +74,13 @@ def guenter_stereo(
     foveation,
     history=None,
     *,
-    spp,
-    jitter,
-    config,
-    diagnostics=DIAGNOSTICS,
+    options: FrameOptions,
 ) -> tuple[FoveatedOutputs, Int[Array, ""], None]:
     """One stereo frame of Guenter et al. 2012 (`Guenter2012`): (the frame's outputs, 0 pixels
-    reused, no history). Pure; jit with the keyword arguments static."""
-    diagnostics = diagnostics_tuple(diagnostics, "guenter_stereo")
+    reused, no history). Pure; jit with `options`
+    (the `FrameOptions`: its spp, jitter, config and diagnostics) static."""
+    spp, jitter, config = options.spp, options.jitter, options.config
+    diagnostics = diagnostics_tuple(options.diagnostics, "guenter_stereo")
     method = foveation.method
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width

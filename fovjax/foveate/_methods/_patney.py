@@ -17,7 +17,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._frame import DIAGNOSTICS, FoveatedOutputs, diagnostics_tuple, eccentricities
+from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
 from ._guenter import layer_weights
 from ._sparse import trace_pixels
 
@@ -153,15 +153,14 @@ def patney_stereo(
     foveation,
     history: TaaHistory,
     *,
-    spp,
-    jitter,
-    config,
-    diagnostics=DIAGNOSTICS,
+    options: FrameOptions,
 ) -> tuple[FoveatedOutputs, Int[Array, ""], TaaHistory]:
     """One stereo frame of Patney et al. 2016 (`Patney2016`) from the previous frame's
     `history`: (the frame's outputs, the pixels that blended a history, this frame's history).
-    Pure; jit with the keyword arguments static."""
-    diagnostics = diagnostics_tuple(diagnostics, "patney_stereo")
+    Pure; jit with `options` (the `FrameOptions`: its spp, jitter, config and diagnostics)
+    static."""
+    spp, jitter, config = options.spp, options.jitter, options.config
+    diagnostics = diagnostics_tuple(options.diagnostics, "patney_stereo")
     method = foveation.method
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width

@@ -53,7 +53,10 @@ def render_with_method(renderer, foveation, frame_args, *, jitter, diagnostics, 
     history = renderer._history.value
     if reset or history is None:
         history = jax.tree.map(jnp.asarray, initial_history(method, renderer.rig))
-    static = {"spp": foveation.spp, "jitter": jitter, "config": renderer.config, "diagnostics": diagnostics}
+    from .._frame import FrameOptions
+
+    options = FrameOptions(spp=foveation.spp, jitter=jitter, config=renderer.config, diagnostics=diagnostics)
+    static = {"options": options}
     args = (arrays, bvh, rig, *frame_args, foveation, history)
     (out, reused, history), compile_s, render_s = run_compiled(entry, program, args, static)
     if method.temporal:

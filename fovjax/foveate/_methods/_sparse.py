@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import cast
 
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
@@ -23,7 +24,7 @@ def select_pixels(ecc, trace_pixel, *, spp: int, foveation) -> Selection:
     _, _, h, w = classes.shape
     perm = jnp.asarray(locality_order(h, w))
     local = classes.reshape(2, spp, h * w)[:, :, perm].transpose(0, 2, 1).reshape(-1)
-    order, counts, rank = compaction_order(local, with_rank=True)
+    order, counts, rank = cast(tuple[Array, Array, Array], compaction_order(local, with_rank=True))
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)])
     return Selection(ecc, region, classes, counts, order, rank, counts[MANDATORY])
 
@@ -81,9 +82,7 @@ def trace_pixels(
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
     positions = functools.partial(positions_at, key if jitter else None, spp=spp, h=h, w=w)
-    traced = trace_selection(
-        scene, bvh, cameras, positions, sel, spp=spp, h=h, w=w, config=config, budget=budget
-    )
+    traced = trace_selection(scene, bvh, cameras, positions, sel, config=config, budget=budget)
     mask = sel.classes != SKIPPED
     n = traced_count(mask, spp)
     zero = jnp.minimum(traced.primary, 0)  # see `foveated_stereo`: not hoisted to the start

@@ -16,9 +16,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._frame import (
-    DIAGNOSTICS,
     SAMPLING_STREAM,
     FoveatedOutputs,
+    FrameOptions,
     Selection,
     _slot_samples,
     diagnostics_tuple,
@@ -144,15 +144,13 @@ def weier_stereo(
     foveation,
     history: WeierHistory,
     *,
-    spp,
-    jitter,
-    config,
-    diagnostics=DIAGNOSTICS,
+    options: FrameOptions,
 ) -> tuple[FoveatedOutputs, Int[Array, ""], WeierHistory]:
     """One stereo frame of Weier et al. 2016 (`Weier2016`) from the previous frame's `history`:
     (the frame's outputs, the pixels shown from the history, this frame's history). Pure; jit
-    with the keyword arguments static."""
-    diagnostics = diagnostics_tuple(diagnostics, "weier_stereo")
+    with `options` (the `FrameOptions`: its spp, jitter, config and diagnostics) static."""
+    spp, jitter, config = options.spp, options.jitter, options.config
+    diagnostics = diagnostics_tuple(options.diagnostics, "weier_stereo")
     method = foveation.method
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width

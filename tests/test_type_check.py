@@ -1,0 +1,28 @@
+"""The type checker passes on the package: pyright, configured in pyproject.toml
+(`[tool.pyright]`: basic mode, the packages it checks and those not yet checked), the version
+pinned in the `dev` extra (a new one can find new errors). It reads the annotations
+statically, where tests/test_types.py checks them on calls."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import _extras
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_pyright_passes_on_the_package():
+    _extras.require("pyright")
+    result = subprocess.run(
+        [sys.executable, "-m", "pyright", "--pythonpath", sys.executable],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    report = (result.stdout + result.stderr)[-20000:]
+    assert result.returncode == 0, f"pyright found errors (pyproject.toml [tool.pyright]):\n{report}"
+    assert "0 errors" in result.stdout, report
