@@ -274,7 +274,7 @@ def as_method(method: object) -> FoveationMethod:
         if method not in METHODS:
             raise ValueError(f"Foveation.method must be one of {tuple(METHODS)}, got {method!r}")
         return METHODS[method]()
-    if isinstance(method, Thesis | Guenter2012 | Weier2016):  # METHODS' classes
+    if isinstance(method, Thesis | Guenter2012 | Patney2016 | Weier2016):  # METHODS' classes
         return method
     raise ValueError(
         f"Foveation.method must be a name of {tuple(METHODS)} or an instance of "

@@ -52,11 +52,15 @@ def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, 
     total = sum(taps)
     taps = [t / total for t in taps]
     _, h, w, _ = image.shape
-    out = image
-    padded = jnp.pad(out, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge")
-    out = sum(t * padded[:, k : k + h] for k, t in enumerate(taps))
+    padded = jnp.pad(image, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge")
+    out = taps[0] * padded[:, :h]
+    for k in range(1, len(taps)):
+        out = out + taps[k] * padded[:, k : k + h]
     padded = jnp.pad(out, ((0, 0), (0, 0), (radius, radius), (0, 0)), mode="edge")
-    return sum(t * padded[:, :, k : k + w] for k, t in enumerate(taps))
+    result = taps[0] * padded[:, :, :w]
+    for k in range(1, len(taps)):
+        result = result + taps[k] * padded[:, :, k : k + w]
+    return result
 
 
 def luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
