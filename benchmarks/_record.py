@@ -74,6 +74,8 @@ def machine() -> dict:
         "platform": platform.platform(),
         "python": platform.python_version(),
         "gpus": _gpus(),
+        # malloc's settings (the fovjax program starts with huge-page advice: fovjax/_startup.py)
+        "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
     }
     try:
         info["load_average"] = [round(x, 2) for x in os.getloadavg()]

@@ -782,6 +782,11 @@ def _json_default(x):
 
 
 if __name__ == "__main__":
+    # As the `fovjax` program runs (fovjax/_startup.py): malloc's large blocks on huge pages, for
+    # both renderers in this process (FOVJAX_HUGE_PAGES=0: the system's default).
+    from fovjax._startup import relaunch_with_huge_pages
+
+    relaunch_with_huge_pages()
     from _record import write_record
 
     figures = main()

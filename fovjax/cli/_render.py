@@ -10,6 +10,7 @@ geometry preview (primary rays only, coloured by surface normal and darkened wit
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -103,6 +104,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "-o", "--output", default=None, help="output image (.png, .exr, .hdr); default out/SCENE.png"
     )
     p.set_defaults(func=run)
+
+
+def _pages() -> str:
+    """How this process's large buffers are paged (fovjax/_startup.py)."""
+    from .._startup import HUGE_PAGES_TUNABLE, huge_pages_in_use
+
+    if huge_pages_in_use():
+        return f"large buffers on transparent huge pages (GLIBC_TUNABLES={HUGE_PAGES_TUNABLE})"
+    tunables = os.environ.get("GLIBC_TUNABLES")
+    return f"malloc's own paging (GLIBC_TUNABLES={tunables or 'unset'}; FOVJAX_HUGE_PAGES=0 or not glibc)"
 
 
 def _progress(step: int, total: int, text: str) -> None:
@@ -243,6 +254,8 @@ def _run(args, out: Path) -> int:
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
     platform = jax.devices()[0].platform
     print(f"ray queries: {describe_backend(config.backend, platform)}")
+    if sys.platform.startswith("linux"):
+        print(f"memory: {_pages()}")
     if foveated:
         f = frame.foveation
         print(

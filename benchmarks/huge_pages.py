@@ -1,0 +1,167 @@
+"""Frames with and without glibc's huge-page advice for large blocks, in alternating processes.
+
+    python benchmarks/huge_pages.py                      # the atrium, 2 x 1280x1024, SPP 1
+    python benchmarks/huge_pages.py --rounds 3 --repeats 7 --size 640 512
+    python benchmarks/huge_pages.py --variants "huge pages" "kept memory"
+
+XLA allocates a frame program's buffers on every call and frees them after, so each call faults
+its pages in afresh (`benchmarks/mitsuba_frame.py` prints them as "fresh MiB"). The `fovjax`
+program starts with `GLIBC_TUNABLES=glibc.malloc.hugetlb=1` (fovjax/_startup.py), which asks
+the kernel for 2 MiB pages for malloc's large blocks. The setting is read when a process starts,
+so the two variants run in separate processes, in turn (`--rounds` pairs, the order alternated),
+each one the same renderer (`FoveatedRenderer`: the full frame and the foveated 5°/10° frame at
+an off-centre gaze) compiled once then timed `--repeats` times. Printed per variant: the
+median wall and CPU ms per frame, the kernel (sys) ms and the minor page faults per frame, and
+the ratio with huge pages over without (< 1: faster with them). Writes a record.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+TUNABLE = "glibc.malloc.hugetlb=1"
+# malloc keeping freed memory (one arena, no mmap, no trimming): no fresh pages at all after the
+# first frame, at the cost of never returning memory to the system (measured for comparison).
+KEEP = "glibc.malloc.arena_max=1:glibc.malloc.mmap_max=0:glibc.malloc.trim_threshold=4294967295"
+VARIANTS = {"default pages": None, "huge pages": TUNABLE, "kept memory": KEEP}
+
+
+def child(args) -> None:
+    """One process: compile, then time each frame `repeats` times; print one JSON line."""
+    import jax
+
+    import fovjax
+    import fovjax.scenes
+    from fovjax.foveate import Foveation
+    from fovjax.render import RenderConfig, StereoRig
+
+    scene = fovjax.scenes.atrium()
+    w, h = args.size
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    foveation = Foveation(fovea_deg=5, periphery_deg=10, spp=1)
+    renderer = fovjax.FoveatedRenderer(scene, rig, foveation, RenderConfig(max_depth=5), diagnostics=())
+    gaze = ((0.4, 0.45), (0.4, 0.45))
+    frames = {"full": renderer.render_full, "foveated": lambda: renderer.render(gaze)}
+    out = {}
+    for name, render in frames.items():
+        jax.block_until_ready(render().image)  # compiles
+        rows = []
+        for _ in range(args.repeats):
+            u0, t0, c0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter(), time.process_time()
+            jax.block_until_ready(render().image)
+            t1, c1, u1 = time.perf_counter(), time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
+            rows.append((t1 - t0, c1 - c0, u1.ru_stime - u0.ru_stime, u1.ru_minflt - u0.ru_minflt))
+        out[name] = [statistics.median(r[i] for r in rows) for i in range(4)]
+    print("RESULT " + json.dumps({"tunables": os.environ.get("GLIBC_TUNABLES", ""), "frames": out}))
+
+
+def run_variant(tunables: str | None, args) -> dict:
+    env = dict(os.environ)
+    env.pop("GLIBC_TUNABLES", None)
+    if tunables:
+        env["GLIBC_TUNABLES"] = tunables
+    cmd = [
+        sys.executable,
+        __file__,
+        "--child",
+        "--repeats",
+        str(args.repeats),
+        "--size",
+        *map(str, args.size),
+    ]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
+    lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
+    if done.returncode != 0 or not lines:
+        sys.exit(f"huge_pages: a measuring process failed ({done.returncode}): {done.stderr[-2000:]}")
+    return json.loads(lines[-1][len("RESULT ") :])
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=2, help="pairs of processes, the order alternated")
+    ap.add_argument("--repeats", type=int, default=7, help="timed frames per process and frame")
+    ap.add_argument("--size", type=int, nargs=2, default=(1280, 1024), metavar=("W", "H"))
+    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=("default pages", "huge pages"))
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.rounds < 1 or args.repeats < 1 or min(args.size) < 8:
+        ap.error(
+            "--rounds, --repeats must be >= 1 and --size at least 8 x 8, "
+            f"got {args.rounds}, {args.repeats}, {args.size}"
+        )
+    if args.child:
+        child(args)
+        return
+    if not sys.platform.startswith("linux") or not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
+        sys.exit("huge_pages: needs Linux with glibc (its malloc tunables)")
+    variants = list(dict.fromkeys(["default pages", *args.variants]))
+    runs = {name: [] for name in variants}
+    for r in range(args.rounds):
+        order = variants if r % 2 == 0 else variants[::-1]
+        for name in order:
+            result = run_variant(VARIANTS[name], args)
+            runs[name].append(result["frames"])
+            f = result["frames"]
+            print(
+                f"round {r + 1} {name:14s} full {1e3 * f['full'][0]:7.1f} ms  "
+                f"foveated {1e3 * f['foveated'][0]:7.1f} ms",
+                flush=True,
+            )
+    w, h = args.size
+    rows, figures = [], {}
+    for frame in ("full", "foveated"):
+        med = {
+            name: [statistics.median(run[frame][i] for run in runs[name]) for i in range(4)]
+            for name in VARIANTS
+        }
+        for name in VARIANTS:
+            wall, cpu, sys_s, faults = med[name]
+            rows.append(
+                [frame, name, round(1e3 * wall, 1), round(1e3 * cpu, 1), round(1e3 * sys_s, 1), int(faults)]
+            )
+        for name in variants[1:]:
+            key = name.replace(" ", "_")
+            figures[f"{frame}_{key}_wall_ratio"] = round(med[name][0] / med["default pages"][0], 3)
+            figures[f"{frame}_{key}_cpu_ratio"] = round(med[name][1] / med["default pages"][1], 3)
+    print(
+        f"\n2 x {w}x{h}, SPP 1, the atrium; medians over {args.rounds} processes x {args.repeats} frames each"
+    )
+    print(f"  {'frame':9s} {'variant':14s} {'wall ms':>8s} {'CPU ms':>8s} {'sys ms':>7s} {'faults':>8s}")
+    for row in rows:
+        print(f"  {row[0]:9s} {row[1]:14s} {row[2]:8.1f} {row[3]:8.1f} {row[4]:7.1f} {row[5]:8d}")
+    for name in variants[1:]:
+        key = name.replace(" ", "_")
+        print(
+            f"  time ratios, {name} / default pages (< 1: faster): "
+            f"full {figures[f'full_{key}_wall_ratio']:.3f} (CPU {figures[f'full_{key}_cpu_ratio']:.3f}), "
+            f"foveated {figures[f'foveated_{key}_wall_ratio']:.3f} "
+            f"(CPU {figures[f'foveated_{key}_cpu_ratio']:.3f})"
+        )
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _record import write_record
+
+    figures["tables"] = [
+        {
+            "title": (
+                f"malloc's settings: default, large blocks on huge pages (GLIBC_TUNABLES={TUNABLE}, "
+                f"how the fovjax program starts) and kept memory ({KEEP}) as run: the atrium, "
+                f"2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; medians of "
+                f"{args.rounds} processes per variant, {args.repeats} frames each"
+            ),
+            "columns": ["frame", "malloc", "wall ms", "CPU ms", "sys ms", "minor faults"],
+            "rows": rows,
+        }
+    ]
+    write_record("huge_pages", figures)
+
+
+if __name__ == "__main__":
+    main()
