@@ -37,9 +37,10 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
 After the warm-ups the three frames are timed in turn, --repeats rounds, so that all three see the
 same momentary load of a shared machine; each row also gives the median wall time of the whole
 call and the process CPU time of the frame (every thread's: the work done, which a loaded
-machine's waits for a core do not inflate), the fresh memory of the frame (MiB of pages it touched
-for the first time: each a minor page fault the kernel maps and zeroes, on some virtual machines
-several microseconds a page) and the kernel time it spent. Then the ratios (fovjax foveated /
+machine's waits for a core do not inflate), the minor page faults of the frame (memory it touched
+for the first time, which the kernel maps and zeroes: 4 KiB a fault, or up to 2 MiB where malloc
+asks for huge pages, as it does here, the way the `fovjax` program runs; FOVJAX_HUGE_PAGES=0
+keeps the system's default) and the kernel time it spent. Then the ratios (fovjax foveated /
 Mitsuba full, fovjax full / Mitsuba full; > 1 means slower than Mitsuba; also in CPU time), the
 ray counts of Mitsuba against fovjax's full frame (primary, shadow, reflection; they agree up to
 ties and float rounding), and the PSNR of Mitsuba's image against fovjax's full frame
@@ -76,7 +77,6 @@ MIN_LLVM = 16
 LLVM_HINT = "install Debian package libllvm19, or set DRJIT_LIBLLVM_PATH to a libLLVM.so of version >= 16"
 DEFAULT_GAZE = ((0.4, 0.45), (0.4, 0.45))
 PSNR_EXPECTED = 40.0
-PAGE = resource.getpagesize()
 
 
 class Unavailable(Exception):
@@ -514,7 +514,7 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
         last["mitsuba"] = integrator.frame(prepared)
 
     runs = {"mitsuba_full": mitsuba_full, **runs}
-    timed = {name: {"ms": [], "wall": [], "cpu": [], "fresh": [], "sys": []} for name in runs}
+    timed = {name: {"ms": [], "wall": [], "cpu": [], "faults": [], "sys": []} for name in runs}
     for _ in range(args.repeats):
         for name, fn in runs.items():
             u0 = resource.getrusage(resource.RUSAGE_SELF)
@@ -524,7 +524,7 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
             u1 = resource.getrusage(resource.RUSAGE_SELF)
             # Memory the frame touched for the first time (minor page faults: pages the kernel
             # had to map and zero, kernel time the frame pays), and that kernel time.
-            timed[name]["fresh"].append((u1.ru_minflt - u0.ru_minflt) * PAGE / 2**20)
+            timed[name]["faults"].append(u1.ru_minflt - u0.ru_minflt)
             timed[name]["sys"].append(u1.ru_stime - u0.ru_stime)
             # fovjax: the compiled program's own time; Mitsuba: its frame (rays in -> image).
             timed[name]["ms"].append(wall if result is None else result.stats.render_seconds)
@@ -536,7 +536,7 @@ def run_spp(scene, rig, bvh, config, integrator, args, spp):
         out[f"{name}_ms"] = _median_ms(t["ms"])
         out[f"{name}_wall_ms"] = _median_ms(t["wall"])
         out[f"{name}_cpu_ms"] = _median_ms(t["cpu"])
-        out[f"{name}_fresh_mib"] = statistics.median(t["fresh"])
+        out[f"{name}_page_faults"] = statistics.median(t["faults"])
         out[f"{name}_sys_ms"] = _median_ms(t["sys"])
     image, mi_counts = last["mitsuba"]
     out["mitsuba_compile_s"] = max(out["mitsuba_warmup_s"] - out["mitsuba_full_ms"] / 1000, 0.0)
@@ -565,14 +565,14 @@ def report(r, args) -> None:
         names.append((f"fovjax foveated {args.fovea[0]:g}°/{args.fovea[1]:g}°", "fovjax_foveated"))
     print(
         f"  {'frame':28s} {'ms/frame':>9s} {'wall ms':>9s} {'CPU ms':>9s} {'rays/frame':>11s} "
-        f"{'Mrays/s':>8s} {'fresh MiB':>9s} {'sys ms':>7s}   primary / shadow / reflection"
+        f"{'Mrays/s':>8s} {'faults':>9s} {'sys ms':>7s}   primary / shadow / reflection"
     )
     for label, key in names:
         counts, ms = r[f"{key}_rays"], r[f"{key}_ms"]
         n = _rays(counts)
         print(
             f"  {label:28s} {ms:9,.1f} {r[f'{key}_wall_ms']:9,.0f} {r[f'{key}_cpu_ms']:9,.0f} {n:11,} "
-            f"{n / ms / 1e3:8.2f} {r[f'{key}_fresh_mib']:9,.0f} {r[f'{key}_sys_ms']:7,.0f}   "
+            f"{n / ms / 1e3:8.2f} {r[f'{key}_page_faults']:9,.0f} {r[f'{key}_sys_ms']:7,.0f}   "
             f"{counts['primary']:,} / {counts['shadow']:,} / {counts['reflection']:,}"
         )
     ratios, cpu_ratios = [], []
@@ -715,6 +715,7 @@ def main(argv=None) -> dict | None:
         "repeats": args.repeats,
         "backend": args.backend,
         "hits": args.hits,
+        "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
         "gaze": gaze,
         "fovea_deg": args.fovea,
         "results": results,
@@ -747,7 +748,7 @@ def frame_tables(record: dict) -> list[dict]:
                     n,
                     round(n / r[f"{key}_ms"] / 1e3, 2),
                     round(ratio, 3),
-                    round(r[f"{key}_fresh_mib"]) if f"{key}_fresh_mib" in r else "–",
+                    round(r[f"{key}_page_faults"]) if f"{key}_page_faults" in r else "–",
                 ]
             )
         tables.append(
@@ -755,6 +756,7 @@ def frame_tables(record: dict) -> list[dict]:
                 "title": f"{record['scene']}, 2 × {r['width']}×{r['height']}, SPP {r['spp']}, depth "
                 f"{record['max_depth']}, backend {record['backend']}, "
                 f"hits {record.get('hits', 'recomputed')}, "
+                f"GLIBC_TUNABLES {record.get('glibc_tunables') or 'unset'}, "
                 f"foveated {record['fovea_deg']}° "
                 f"at gaze {record['gaze']}; PSNR of Mitsuba's frame against fovjax's full frame "
                 f"{r['psnr_db']:.1f} dB",
@@ -765,7 +767,7 @@ def frame_tables(record: dict) -> list[dict]:
                     "rays",
                     "Mrays/s",
                     "time / Mitsuba full",
-                    "fresh MiB",
+                    "page faults",
                 ],
                 "rows": rows,
             }
