@@ -107,12 +107,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _pages() -> str:
-    """How this process's large buffers are paged (fovjax/_startup.py)."""
-    from .._startup import HUGE_PAGES_TUNABLE, huge_pages_in_use
-
-    if huge_pages_in_use():
-        return f"large buffers on transparent huge pages (GLIBC_TUNABLES={HUGE_PAGES_TUNABLE})"
-    tunables = os.environ.get("GLIBC_TUNABLES")
+    """How this process's large buffers are paged: the `fovjax` program starts with malloc's
+    huge-page advice (fovjax/_startup.py) unless FOVJAX_HUGE_PAGES=0."""
+    tunables = os.environ.get("GLIBC_TUNABLES", "")
+    if "glibc.malloc.hugetlb=1" in tunables.split(":"):
+        return "large buffers on transparent huge pages (GLIBC_TUNABLES=glibc.malloc.hugetlb=1)"
     return f"malloc's own paging (GLIBC_TUNABLES={tunables or 'unset'}; FOVJAX_HUGE_PAGES=0 or not glibc)"
 
 

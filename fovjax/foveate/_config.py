@@ -84,7 +84,8 @@ class Fidelity(eqx.Module):
       default the ratios (1, 0.5, 0.25, 0.1)), or "auto": the coarsest level whose error the eye
       cannot resolve at the region's inner eccentricity (see `fovjax.foveate._lod`). The region's
       rays, their shadow rays and reflections are traced against that level and shaded with its
-      normals, UVs and materials.
+      normals, UVs and materials. Experimental: correct and tested, but measured as not making
+      frames faster on this renderer (docs/how-to-choose.md, "Experimental").
     - `texture_lod`: None (texture lookups at full resolution, level 0), an integer
       level >= 0 of the texture's box-filtered mip pyramid (level l: texels 2^l times as wide),
       or "auto": the level of the ray's footprint (a ray cone, see `fovjax.render.ShadingClasses`)
