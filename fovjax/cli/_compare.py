@@ -322,7 +322,9 @@ def _run_video(args, renderer) -> int:
             print(
                 f"new rays, {r['method']} / thesis at "
                 f"{r['fovea_deg']:g}/{r['periphery_deg']:g} spp{r['spp']}: "
-                f"{m['new_rays_ratio']:.3f}; {metric} {m[a]:.3f} [{m[a + '_lo']:.3f}, {m[a + '_hi']:.3f}] "
+                f"{m['new_rays_ratio']:.3f} (frames tracked ok after the first: "
+                f"{m['new_rays_ratio_ok']:.3f}); "
+                f"{metric} {m[a]:.3f} [{m[a + '_lo']:.3f}, {m[a + '_hi']:.3f}] "
                 f"against {m[b]:.3f} [{m[b + '_lo']:.3f}, {m[b + '_hi']:.3f}]"
             )
     print(f"wrote {paths['csv'].parent.resolve()}/")

@@ -34,7 +34,10 @@ What the sequence is:
 - Cost: ms per frame is the median of the frames' run times (compile excluded); new primary
   rays per frame (`FrameStats.primary_rays`: the rays traced this frame; a temporal method's
   reused pixels cost none) and rays per frame (with shadow and reflection rays) are means over
-  the frames; reused pixels per frame is the mean of `FoveationStats.reused`.
+  the frames (`new_rays_per_frame_ok`: over the frames where tracking is ok and no history was
+  reset, a temporal method's steady state; the first frame, which has no history, and the
+  widened frames of a tracking loss, which render the whole screen, are left out of it);
+  reused pixels per frame is the mean of `FoveationStats.reused`.
 - Quality: FovVideoVDP (`fovvdp`, video mode at `fps`, foveated, fixation = the frame's gaze per
   eye) of the whole sequence against the full sequence on the SX111 display model at the
   rendered resolution (`sx111_display`); `jod` is the worse eye's. Interval: the sequence is
@@ -296,12 +299,18 @@ class VideoComparison:
 
     def measure(self, method: str, baseline: str, thresholds: Sequence[float], spp: int = 1) -> dict:
         """`method` against `baseline` at the same thresholds and SPP: the ratio of their new
-        primary rays per frame, both JODs with their intervals, `at_most_half` (ratio <= 0.5)
-        and `jod_no_lower` (the method's JOD interval reaches the baseline's: its upper end is
-        at least the baseline's lower end, i.e. the method's JOD is not lower within the
-        intervals; None without JOD intervals)."""
+        primary rays per frame (`new_rays_ratio`, over every frame; `new_rays_ratio_ok`, over the
+        frames where tracking is ok and no history was reset), both JODs with their intervals,
+        `at_most_half` (ratio <= 0.5) and `jod_no_lower` (the method's JOD interval reaches
+        the baseline's: its upper end is at least the baseline's lower end, i.e. the method's
+        JOD is not lower within the intervals; None without JOD intervals)."""
         a, b = self.record(method, thresholds, spp), self.record(baseline, thresholds, spp)
         ratio = a["new_rays_per_frame"] / b["new_rays_per_frame"] if b["new_rays_per_frame"] else math.nan
+        ok = (
+            a["new_rays_per_frame_ok"] / b["new_rays_per_frame_ok"]
+            if b["new_rays_per_frame_ok"]
+            else math.nan
+        )
         out = {
             "method": method,
             "baseline": baseline,
@@ -310,6 +319,7 @@ class VideoComparison:
             "spp": spp,
             "new_rays_ratio": ratio,
             "at_most_half": bool(ratio <= 0.5),
+            "new_rays_ratio_ok": ok,
         }
         m = self.metric
         for who, r in ((method, a), (baseline, b)):
@@ -360,6 +370,7 @@ RECORD_FIELDS = (
     "speedup",
     "new_rays_per_frame",
     "new_rays_fraction",
+    "new_rays_per_frame_ok",
     "rays_per_frame",
     "full_primary_rays_per_frame",
     "full_rays_per_frame",
@@ -479,6 +490,10 @@ def compare_methods_on_recording(
             new_rays.append(int(frame.stats.primary_rays))
             rays.append(int(frame.stats.rays))
             reused.append(int(frame.foveation.reused))
+        # Frames where tracking is ok and the history is not reset on them: the steady state.
+        ok_rays = [
+            n for n, row in zip(new_rays, tracking, strict=True) if row["state"] == "ok" and not row["reset"]
+        ]
         test = np.stack(images)
         ref = references[fields["spp"]]
         f = full[fields["spp"]]
@@ -492,6 +507,7 @@ def compare_methods_on_recording(
             "full_ms_per_frame": f["ms_per_frame"],
             "speedup": f["ms_per_frame"] / statistics.median(ms),
             "new_rays_per_frame": float(np.mean(new_rays)),
+            "new_rays_per_frame_ok": float(np.mean(ok_rays)) if ok_rays else math.nan,
             "new_rays_fraction": float(np.mean(new_rays)) / f["primary_rays_per_frame"],
             "rays_per_frame": float(np.mean(rays)),
             "full_primary_rays_per_frame": f["primary_rays_per_frame"],
