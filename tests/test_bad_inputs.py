@@ -279,6 +279,8 @@ ROWS = [
     ("compare --spp 1 8 -o {tmp}/c", 2, "--spp 8"),
     ("compare --gazes 0.5,1.2 -o {tmp}/c", 2, "1.2"),
     ("compare --width 0 -o {tmp}/c", 2, "--width 0"),
+    ("compare --frames 4 -o {tmp}/c", 2, "--frames needs --video"),
+    ("compare --video {tmp}/missing.csv -o {tmp}/c", 2, "no such file"),
     ("compare --threshold nan -o {tmp}/c", 2, "nan"),
     ("compare --criterion flip --threshold 2 -o {tmp}/c", 2, "--threshold (of flip) 2"),
     ("compare --criterion ssim --threshold -3 -o {tmp}/c", 2, "-3"),

@@ -91,6 +91,31 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="foveation methods to sweep with every threshold pair (fovjax.foveate.METHODS: thesis, "
         "guenter2012, patney2016, weier2016); one table and one chart across them",
     )
+    p.add_argument(
+        "--video",
+        metavar="RECORDING",
+        default=None,
+        help="compare on an animated sequence instead of still frames: the gaze of this recording "
+        "(.csv or .jsonl) replayed frame by frame with run_session's tracking fallback, every method "
+        "x threshold pair judged by FovVideoVDP in video mode against the full render of the same "
+        "frames; writes video_comparison.csv and video_comparison.png (--gazes, --keys after the "
+        "first, --criterion and --threshold are not used)",
+    )
+    p.add_argument("--frames", type=int, default=None, help="with --video: frames (default 60)")
+    p.add_argument("--fps", type=float, default=None, help="with --video: frames per second (default 30)")
+    p.add_argument(
+        "--start",
+        type=float,
+        default=None,
+        help="with --video: the first frame's time in the recording, s (default 0)",
+    )
+    p.add_argument(
+        "--blocks",
+        type=int,
+        default=None,
+        help="with --video: consecutive blocks of frames the JOD's interval is measured over "
+        "(default 4; 0: no interval)",
+    )
     p.add_argument("-o", "--output", default="out/compare")
     cli.add_regions(p)
     p.set_defaults(func=run)
@@ -98,6 +123,36 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 # Metrics a criterion can name, and the range of each one's values.
 METRIC_RANGES = {"flip": (0.0, 1.0), "ssim": (-1.0, 1.0), "psnr": (0.0, None), "jod": (None, 10.0)}
+
+
+VIDEO_OPTIONS = ("frames", "fps", "start", "blocks")
+VIDEO_DEFAULTS = {"frames": 60, "fps": 30.0, "start": 0.0, "blocks": 4}
+
+
+def _validate_video(args) -> None:
+    """`--video` and its options: a readable recording, the frames, rate, start and blocks."""
+    import importlib.util
+
+    given = [name for name in VIDEO_OPTIONS if getattr(args, name) is not None]
+    if args.video is None:
+        if given:
+            raise cli.UsageError(f"--{given[0]} needs --video RECORDING (it sets the animated sequence)")
+        return
+    for name, value in VIDEO_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    cli.input_file(args.video, "--video", suffixes=(".csv", ".jsonl"))
+    cli.number(args.frames, "--frames", ge=2, integer=True)
+    cli.number(args.fps, "--fps", gt=0.0)
+    cli.number(args.start, "--start", ge=0.0)
+    if args.blocks != 0:
+        cli.number(args.blocks, "--blocks (0, or 2 to --frames / 2)", ge=2, le=args.frames // 2, integer=True)
+    if args.shard or args.distributed or args.fidelity:
+        raise cli.UsageError("--video: --shard, --distributed and --fidelity are for still frames")
+    if not args.no_perceptual and importlib.util.find_spec("pyfvvdp") is None:
+        raise cli.UsageError(
+            "--video: JOD needs FovVideoVDP (pip install 'fovjax[fvvdp]'; or --no-perceptual)"
+        )
 
 
 def validate(args) -> None:
@@ -131,6 +186,9 @@ def validate(args) -> None:
             "--methods other than thesis: --shard, --distributed and --fidelity are the thesis's method's"
         )
     cli.output(args.output, "-o", directory=True)
+    _validate_video(args)
+    if args.video is not None:
+        return
     # Installed extras last: every row of tests/test_bad_inputs.py answers the same without them.
     if args.criterion == "flip" and importlib.util.find_spec("flip_evaluator") is None:
         raise cli.UsageError("--criterion flip: needs flip-evaluator (pip install 'fovjax[flip]')")
@@ -168,6 +226,8 @@ def run(args) -> int:
     renderer = fovjax.FoveatedRenderer(
         scene, rig, config=RenderConfig(max_depth=args.max_depth, backend=args.backend)
     )
+    if args.video is not None:
+        return _run_video(args, renderer)
     sweep = ThresholdSweep(
         thresholds=args.thresholds,
         spp=args.spp,
@@ -206,5 +266,66 @@ def run(args) -> int:
         print(f"no configuration keeps {metric} {side[0]} {threshold:g} over its whole interval")
     else:
         print(f"cheapest with {metric} {side[1]} {threshold:g} (whole 95% interval): {result.choice.name}")
+    print(f"wrote {paths['csv'].parent.resolve()}/")
+    return 0
+
+
+def _run_video(args, renderer) -> int:
+    """`fovjax compare --video`: the methods along the recording, one table and one chart."""
+    from fovjax.eval import ThresholdSweep, compare_methods_on_recording
+
+    sweep = ThresholdSweep(
+        thresholds=args.thresholds,
+        spp=args.spp,
+        keys=args.keys[:1],
+        regions=args.regions,
+        methods=args.methods,
+    )
+    result = compare_methods_on_recording(
+        renderer,
+        args.video,
+        sweep,
+        frames=args.frames,
+        fps=args.fps,
+        start_s=args.start,
+        blocks=args.blocks,
+        perceptual=not args.no_perceptual,
+    )
+    with cli.deferred_interrupt():
+        paths = result.write(args.output)
+        cli.wrote(*paths.values())
+    metric = result.metric
+    cols = ["config", "ms_per_frame", "new_rays_per_frame", "reused_pixels_per_frame", metric]
+    cols += [f"{metric}_lo", f"{metric}_hi", "pareto"]
+    print("  ".join(f"{c:>16s}" for c in cols))
+    for r in result.records:
+        cells = [f"{r[c]:16.4g}" if isinstance(r[c], float) else f"{r[c]!s:>16s}" for c in cols]
+        print("  ".join(cells))
+    states = [f["state"] for f in result.frames]
+    summary = ", ".join(f"{s} {states.count(s)}" for s in dict.fromkeys(states))
+    print(
+        f"tracking over {len(states)} frames: {summary}; "
+        f"histories reset on {result.records[0]['resets']} frame(s)"
+    )
+    for s, f in sorted(result.full.items()):
+        print(
+            f"full spp {s}: {f['primary_rays_per_frame']:,.0f} primary rays, "
+            f"{f['ms_per_frame']:.0f} ms per frame"
+        )
+    methods = {r["method"] for r in result.records}
+    if "thesis" in methods:
+        for r in result.records:
+            if r["method"] == "thesis":
+                continue
+            m = result.measure(r["method"], "thesis", (r["fovea_deg"], r["periphery_deg"]), r["spp"])
+            a, b = f"{r['method']}_{metric}", f"thesis_{metric}"
+            print(
+                f"new rays, {r['method']} / thesis at "
+                f"{r['fovea_deg']:g}/{r['periphery_deg']:g} spp{r['spp']}: "
+                f"{m['new_rays_ratio']:.3f} (frames tracked ok after the first: "
+                f"{m['new_rays_ratio_ok']:.3f}); "
+                f"{metric} {m[a]:.3f} [{m[a + '_lo']:.3f}, {m[a + '_hi']:.3f}] "
+                f"against {m[b]:.3f} [{m[b + '_lo']:.3f}, {m[b + '_hi']:.3f}]"
+            )
     print(f"wrote {paths['csv'].parent.resolve()}/")
     return 0

@@ -31,6 +31,7 @@ from ._charts import (
     plot_cost_accuracy,
     plot_flicker,
     plot_high_spp,
+    plot_methods_cost_quality,
     plot_metric_bars,
     plot_pair_test,
     plot_ramp_test,
@@ -179,6 +180,8 @@ from ._study_log import (
     study_sequence_of,
     timing_problems,
 )
+from ._video_compare import RECORD_FIELDS as VIDEO_RECORD_FIELDS
+from ._video_compare import VideoComparison, compare_methods_on_recording
 from ._video_study import (
     GAZE_MODES as VIDEO_GAZE_MODES,
 )
@@ -210,6 +213,10 @@ __all__ = [
     "Comparison",
     "ThresholdSweep",
     "compare_thresholds",
+    "VIDEO_RECORD_FIELDS",
+    "VideoComparison",
+    "compare_methods_on_recording",
+    "plot_methods_cost_quality",
     "FrameBatch",
     "frame_mesh",
     "render_foveated_batch",

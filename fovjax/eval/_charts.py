@@ -720,3 +720,69 @@ def plot_acuity_models(records, path, *, title: str | None = None) -> Path:
     ax.grid(axis="y", alpha=0.3)
     fig.suptitle(title or "acuity models at an equal ray budget")
     return _save(fig, path)
+
+
+def plot_methods_cost_quality(
+    table,
+    path,
+    *,
+    costs: Sequence[str] = ("new_rays_per_frame", "ms_per_frame"),
+    quality: str = "jod",
+    method: str = "method",
+    label: str = "config",
+    title: str | None = None,
+) -> Path:
+    """One panel per cost column (x) against the `quality` column (y, higher is better), one
+    colour and marker per `method`, intervals as error bars where `quality_lo/_hi` exist, and
+    in each panel the Pareto front (least cost, best quality) across methods ringed and joined
+    by a step line; every point labelled with its `label` column."""
+    records = as_records(table)
+    if not records or not costs:
+        raise ValueError("plot_methods_cost_quality: need records and at least one cost column")
+    y = _column(records, quality, "plot_methods_cost_quality")
+    err = _interval(records, quality, "plot_methods_cost_quality")
+    methods = list(dict.fromkeys(str(r.get(method, "")) for r in records))
+    colours = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive")
+    markers = ("o", "s", "^", "D", "v", "P", "X")
+    fig = _figure((6.0 * len(costs), 5.2))
+    axes = fig.subplots(1, len(costs), squeeze=False)[0]
+    names = _labels(records, label)
+    for ax, cost in zip(axes, costs, strict=True):
+        x = _column(records, cost, "plot_methods_cost_quality")
+        for i, name in enumerate(methods):
+            pick = np.array([str(r.get(method, "")) == name for r in records])
+            yerr = None if err is None else err[:, pick]
+            ax.errorbar(
+                x[pick],
+                y[pick],
+                yerr=yerr,
+                fmt=markers[i % len(markers)],
+                color=colours[i % len(colours)],
+                ecolor="0.6",
+                capsize=2,
+                ms=7,
+                label=name,
+                zorder=2,
+            )
+        front = pareto_front(records, {cost: "min", quality: "max"})
+        order = np.argsort(x[front], kind="stable")
+        ax.step(x[front][order], y[front][order], where="post", color="tab:red", lw=1.2, zorder=1)
+        ax.scatter(
+            x[front],
+            y[front],
+            s=180,
+            facecolors="none",
+            edgecolors="tab:red",
+            lw=1.5,
+            zorder=3,
+            label="Pareto front",
+        )
+        for xi, yi, text in zip(x, y, names, strict=True):
+            if math.isfinite(xi) and math.isfinite(yi):
+                ax.annotate(text, (xi, yi), xytext=(4, 4), textcoords="offset points", fontsize=7)
+        ax.set_xlabel(cost)
+        ax.set_ylabel(f"{quality} (higher is better)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title or f"{quality} against cost by method", fontsize=10)
+    return _save(fig, path)

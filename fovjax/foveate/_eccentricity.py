@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TypeAlias
 
@@ -112,3 +113,15 @@ def eccentricity_map(camera: Camera, gaze_xy: PointLike, foveation: Foveation) -
         return jnp.broadcast_to(_angle_to_gaze(camera, gaze_xy, x, y), (camera.height, camera.width))
     pixels = camera.pixel_centres()
     return eccentricity_planar(camera, gaze_xy, pixels, foveation.eye_display_mm, foveation.pixel_pitch_mm)
+
+
+def full_eccentricity(rig, foveation) -> float:
+    """The largest eccentricity (degrees) any pixel of either eye's display can have for any
+    gaze on that display -- the fovea that covers the whole screen -- rounded up to 0.1°.
+    Eccentricity is measured in the eye's own camera, so the head pose does not matter."""
+    corners = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0))
+    worst = 0.0
+    for camera in rig.eye_cameras(None):
+        for corner in corners:
+            worst = max(worst, float(jnp.max(eccentricity_map(camera, jnp.asarray(corner), foveation))))
+    return min(180.0, math.ceil(worst * 10.0 + 1e-6) / 10.0)

@@ -6,6 +6,7 @@ importing it)."""
 
 from ._budget import plan_budget as plan_budget
 from ._config import program_fidelity as program_fidelity
+from ._eccentricity import full_eccentricity as full_eccentricity
 from ._fill import fill_and_blur_pixels as fill_and_blur_pixels
 from ._fill import resolve as resolve
 from ._frame import FrameOptions as FrameOptions
@@ -34,4 +35,5 @@ __all__ = [
     "subsample_rank",
     "top_left",
     "budget_for",
+    "full_eccentricity",
 ]

@@ -37,7 +37,6 @@ import warnings
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 # Schemes of live devices: their samples arrive in real time, so the default clock is "wall".
@@ -181,14 +180,9 @@ def full_eccentricity(rig, foveation) -> float:
     """The largest eccentricity (degrees) any pixel of either eye's display can have for any
     gaze on that display -- the fovea that covers the whole screen -- rounded up to 0.1°.
     Eccentricity is measured in the eye's own camera, so the head pose does not matter."""
-    from ..foveate import eccentricity_map
+    from ..foveate.internal import full_eccentricity as largest
 
-    corners = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0))
-    worst = 0.0
-    for camera in rig.eye_cameras(None):
-        for corner in corners:
-            worst = max(worst, float(jnp.max(eccentricity_map(camera, jnp.asarray(corner), foveation))))
-    return min(180.0, math.ceil(worst * 10.0 + 1e-6) / 10.0)
+    return largest(rig, foveation)
 
 
 def _check_count(frames, seconds, fps) -> int:
