@@ -198,12 +198,24 @@ def test_fixed_key_is_stable_and_fresh_key_is_not(camera):
     assert (np.asarray(a) != np.asarray(c)).any()
 
 
-def test_compaction_order_is_a_stable_partition():
-    rng = np.random.default_rng(0)
-    cls = rng.integers(0, 3, 1000).astype(np.int32)
-    order, counts = compaction_order(jnp.asarray(cls))
+@pytest.mark.parametrize(
+    ("n", "classes"),
+    [
+        (1000, (0, 1, 2)),  # within one block of the running sums
+        (5000, (0, 1, 2)),  # several blocks, the last one partial
+        (4096, (0, 1)),  # whole blocks of the two counted classes only: each count up to the block
+        (3072, (1,)),  # every entry in the high half of the packed running sum
+    ],
+)
+def test_compaction_order_is_a_stable_partition(n, classes):
+    """Oracle: numpy's counts and stable order, and the rank the inverse permutation."""
+    rng = np.random.default_rng(n)
+    cls = rng.choice(np.asarray(classes, np.int32), n)
+    order, counts, rank = compaction_order(jnp.asarray(cls), with_rank=True)
     order = np.asarray(order)
-    assert sorted(order.tolist()) == list(range(1000))
+    assert sorted(order.tolist()) == list(range(n))
+    np.testing.assert_array_equal(np.asarray(rank)[order], np.arange(n))
+    np.testing.assert_array_equal(order, np.argsort(cls, kind="stable"))
     np.testing.assert_array_equal(np.asarray(counts), [(cls == c).sum() for c in range(3)])
     ordered = cls[order]
     assert (np.diff(ordered) >= 0).all()

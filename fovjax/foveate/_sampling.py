@@ -189,17 +189,29 @@ def sample_classes(
     return jax.lax.optimization_barrier(cls), region
 
 
-def _prefix_sum(x: Int[Array, " N"], block: int = 1024) -> Int[Array, " N"]:
-    """Inclusive running sum, in blocks: each block's own running sum plus the sum of the
-    blocks before it. The same integers as jnp.cumsum, several times faster over millions of
-    entries on XLA:CPU, where a flat cumsum of one long axis is slow."""
-    n = x.shape[0]
+def _two_prefix_sums(
+    a: Int[Array, " N"], b: Int[Array, " N"], block: int = 1024
+) -> tuple[Int[Array, " N"], Int[Array, " N"]]:
+    """The inclusive running sums of two arrays of 0/1 entries: the same integers as
+    `jnp.cumsum(a)`, `jnp.cumsum(b)`, several times faster over millions of entries on XLA:CPU,
+    where a flat cumsum of one long axis is slow. In blocks: each block's own running sum plus
+    the sum of the blocks before it. Within a block each count stays below 2**16, so both
+    travel in one int32 (b in the high half) through the long running sum, the costly one;
+    only the short sums of the blocks before are per array."""
+    if block >= 2**16:
+        raise ValueError(f"_two_prefix_sums: block {block} must be below 2**16 (the packed halves)")
+    n = a.shape[0]
     if n <= block:
-        return jnp.cumsum(x)
+        return jnp.cumsum(a), jnp.cumsum(b)
     padded = -(-n // block) * block
-    within = jnp.cumsum(jnp.pad(x, (0, padded - n)).reshape(-1, block), axis=1)
-    before = jnp.cumsum(within[:, -1]) - within[:, -1]
-    return (within + before[:, None]).reshape(-1)[:n]
+    packed = jnp.pad(a + (b << 16), (0, padded - n)).reshape(-1, block)
+    within = jnp.cumsum(packed, axis=1)
+    within_a, within_b = within & 0xFFFF, within >> 16
+    outs = []
+    for w in (within_a, within_b):
+        before = jnp.cumsum(w[:, -1]) - w[:, -1]
+        outs.append((w + before[:, None]).reshape(-1)[:n])
+    return outs[0], outs[1]
 
 
 def compaction_order(classes: Int[Array, " N"], *, with_rank: bool = False):
@@ -207,7 +219,7 @@ def compaction_order(classes: Int[Array, " N"], *, with_rank: bool = False):
     in its original, spatially coherent order), and the count of each class. O(N), no sort;
     the counts are the running sums' last entries (no separate reductions). `with_rank`: also
     each sample's position in that order (the inverse permutation)."""
-    ones = [_prefix_sum((classes == c).astype(jnp.int32)) for c in (MANDATORY, OPTIONAL)]
+    ones = _two_prefix_sums(*((classes == c).astype(jnp.int32) for c in (MANDATORY, OPTIONAL)))
     index = jnp.arange(1, classes.shape[0] + 1, dtype=jnp.int32)
     running = [*ones, index - ones[0] - ones[1]]  # the skipped ones: the rest
     counts = jnp.stack([r[-1] for r in running])
