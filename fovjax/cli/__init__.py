@@ -46,7 +46,7 @@ INTERRUPTED = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fovjax", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="fovjax", description=(__doc__ or "fovjax").splitlines()[0])
     parser.add_argument(
         "--debug", action="store_true", help="show the Python traceback of an error (for bug reports)"
     )
@@ -54,6 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
     for name in _SUBCOMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser
+
+
+def _first_command(parser: argparse.ArgumentParser) -> str:
+    """The first registered subcommand: what `fovjax` alone runs."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return next(iter(action.choices))
+    raise RuntimeError("fovjax: no subcommand is registered")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     if not argv and _SUBCOMMAND_MODULES:
-        argv.append(next(iter(parser._subparsers._group_actions[0].choices)))
+        argv.append(_first_command(parser))
     args = parser.parse_args(argv)
     args.debug = debug
     if getattr(args, "func", None) is None:

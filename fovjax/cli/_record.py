@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from fovjax.devices import (
         DEFAULT_CONNECT_TIMEOUT,
         ConnectTimeoutError,
+        ReplaySource,
         load_recording,
         record,
         source_from_spec,
@@ -109,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     )
     synthetic = spec.startswith("synthetic")
     if spec.startswith("replay:"):
-        synthetic = bool(getattr(source, "recording", None) and source.recording.metadata.get("synthetic"))
+        synthetic = isinstance(source, ReplaySource) and bool(source.recording.metadata.get("synthetic"))
     metadata = {"source": spec, "synthetic": synthetic}
     if args.fast:
         metadata["clock"] = "the source's own timeline, seconds (recorded unpaced with --fast)"

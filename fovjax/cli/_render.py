@@ -255,7 +255,7 @@ def _run(args, out: Path) -> int:
     print(f"ray queries: {describe_backend(config.backend, platform)}")
     if sys.platform.startswith("linux"):
         print(f"memory: {_pages()}")
-    if foveated:
+    if foveated and isinstance(frame, fovjax.FoveatedFrame):
         f = frame.foveation
         print(
             f"foveated {f.fovea_deg:g}°/{f.periphery_deg:g}° {frame.stats.summary()} on {platform} -> "

@@ -190,7 +190,8 @@ def run(args) -> int:
     kinds = "frame_*.png, " + ("debug_*.png, " if args.show_samples else "") + "session.csv, session.json"
     if result.video is not None:
         kinds += ", session.mp4"
-    print(f"wrote {result.out.resolve()}/ ({kinds})")
+    if result.out is not None:  # the command always writes its frames
+        print(f"wrote {result.out.resolve()}/ ({kinds})")
     if s["interrupted"]:
         raise KeyboardInterrupt
     return 1 if s["warnings"] else 0

@@ -54,10 +54,17 @@ def run_stability(args) -> int:
     else:
         gaze = (0.5, 0.5)
     bar = None
+    progress = None
     if not args.no_progress:
         from tqdm import tqdm
 
         bar = tqdm(unit="frame", desc="stability")
+
+        def step() -> None:
+            bar.update(1)
+
+        progress = step
+
     result = temporal_stability(
         FullRenders(scene, rig, config),
         gaze,
@@ -65,7 +72,7 @@ def run_stability(args) -> int:
         frames=args.frames,
         fps=args.fps,
         seed=args.seed,
-        progress=None if bar is None else (lambda: bar.update(1)),
+        progress=progress,
     )
     if bar is not None:
         bar.close()

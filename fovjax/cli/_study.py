@@ -350,11 +350,18 @@ def run(args) -> int:
             continue
         fovea = majorities[test]
         line = f"{test:>10s}  {_level_text(fovea, levels):<32s}  "
-        row = {"test": test, "majority_fovea_deg": fovea, "majority_periphery_deg": dict(levels).get(fovea)}
+        row = {
+            "test": test,
+            "majority_fovea_deg": fovea,
+            "majority_periphery_deg": None if fovea is None else dict(levels).get(fovea),
+        }
         if beside_majorities is not None:
             auto = beside_majorities.get(test)
             line += f"{_level_text(auto, levels):<32s}  "
-            row.update(observers_fovea_deg=auto, observers_periphery_deg=dict(levels).get(auto))
+            row.update(
+                observers_fovea_deg=auto,
+                observers_periphery_deg=None if auto is None else dict(levels).get(auto),
+            )
         print(line + thesis)
         row.update(thesis_fovea_deg=THESIS_LEVEL[0], thesis_periphery_deg=THESIS_LEVEL[1])
         rows.append(row)

@@ -10,10 +10,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from ._samples import EyeGaze
+
+
+@runtime_checkable
+class GazeFilter(Protocol):
+    """A smoothing filter of one eye's gaze: `filter(t, xy)` the smoothed point, `velocity` its
+    latest velocity (per second), `reset()` forgets the past (`ExponentialMovingAverage`,
+    `OneEuroFilter`, or a user's factory's product)."""
+
+    velocity: np.ndarray
+
+    def __call__(self, t: float, x) -> np.ndarray: ...
+
+    def reset(self) -> None: ...
 
 
 @dataclass(frozen=True)

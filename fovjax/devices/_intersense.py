@@ -156,13 +156,19 @@ class InterSenseSource(ThreadedSource):
     def describe(self) -> str:
         return f"InterSense tracker on port {self.port}"
 
+    def _sdk(self):
+        """The SDK library, loaded by `_open`."""
+        if self._lib is None:
+            raise DeviceError(f"{self.describe()}: the InterSense SDK is not loaded (open the source first)")
+        return self._lib
+
     def _connect(self) -> None:
-        handle = self._lib.ISD_OpenTracker(None, self.port, False, False)
+        handle = self._sdk().ISD_OpenTracker(None, self.port, False, False)
         if handle < 1:
             raise DeviceError(f"ISD_OpenTracker(port={self.port}) found no tracker (handle {handle})")
         self._handle = handle
         if self.reset_heading:
-            self._lib.ISD_ResetHeading(handle, self.station)
+            self._sdk().ISD_ResetHeading(handle, self.station)
 
     def reset_heading_now(self) -> bool:
         """Zero the yaw of the configured station now (``ISD_ResetHeading``)."""
@@ -172,7 +178,7 @@ class InterSenseSource(ThreadedSource):
 
     def _read_some(self) -> list[HeadPose]:
         self._stop.wait(self.poll_interval)
-        if not self._lib.ISD_GetTrackingData(self._handle, ctypes.byref(self._data)):
+        if not self._sdk().ISD_GetTrackingData(self._handle, ctypes.byref(self._data)):
             raise DeviceError(f"ISD_GetTrackingData(handle={self._handle}) failed")
         record = self._data.Station[self.station - 1]
         if not record.NewData:
@@ -183,5 +189,5 @@ class InterSenseSource(ThreadedSource):
 
     def _disconnect(self) -> None:
         handle, self._handle = self._handle, 0
-        if handle > 0:
+        if handle > 0 and self._lib is not None:
             self._lib.ISD_CloseTracker(handle)

@@ -82,6 +82,8 @@ class PacedSource(Source):
         return self._closed or (count is not None and self._next >= count)
 
     def _due(self, i: int) -> float:
+        if self.speed is None:  # unpaced: samples are due at once
+            raise ValueError("an unpaced source has no due times")
         return self._t0 + self._offset(i) / self.speed
 
     def _stamp(self, i: int) -> float:

@@ -159,6 +159,8 @@ class PupilSource(ThreadedSource):
     def _read_some(self) -> list[GazeSample]:
         zmq = self._zmq
         sub = self._sub
+        if sub is None:
+            raise DeviceError(f"{self.describe()}: not subscribed (open the source first)")
         if not sub.poll(int(self.poll_interval * 1000)):
             if (
                 self.silence_timeout is not None

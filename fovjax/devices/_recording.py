@@ -102,6 +102,8 @@ class Recorder:
                 k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()
             }
             self._file.write(json.dumps(clean, allow_nan=False) + "\n")
+        elif self._csv is None:
+            raise ValueError(f"Recorder({self.path}): closed")
         else:
             self._csv.writerow([_csv_cell(row[name]) for name in FIELDS[self.kind]])
         self.count += 1

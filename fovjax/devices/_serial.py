@@ -6,7 +6,7 @@ import time
 
 from ._protocol import LineParser
 from ._samples import GazeSample, HeadPose
-from ._source import Clock, ThreadedSource
+from ._source import Clock, DeviceError, ThreadedSource
 
 
 class SerialSource(ThreadedSource):
@@ -78,6 +78,8 @@ class SerialSource(ThreadedSource):
 
     def _read_some(self) -> list:
         ser = self._serial
+        if ser is None:
+            raise DeviceError(f"{self.describe()}: the port is not open (open the source first)")
         # Block for the first byte (up to read_timeout), then take whatever else is waiting.
         chunk = ser.read(1)
         waiting = ser.in_waiting

@@ -72,6 +72,14 @@ class Source(Generic[S]):
         self._closed = False
 
     # -- lifecycle -------------------------------------------------------------------------
+    def _open(self) -> None:
+        """Connect (a subclass's)."""
+        raise NotImplementedError(f"{type(self).__name__} does not implement _open")
+
+    def _close(self) -> None:
+        """Disconnect (a subclass's)."""
+        raise NotImplementedError(f"{type(self).__name__} does not implement _close")
+
     def open(self):
         if self._closed:
             raise DeviceError(f"{type(self).__name__}: cannot reopen a closed source; make a new one")

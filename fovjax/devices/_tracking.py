@@ -35,11 +35,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import cast
 
 import numpy as np
 
 from ._filters import (
     ExponentialMovingAverage,
+    GazeFilter,
     GazePredictor,
     OneEuroFilter,
     QualityFilter,
@@ -147,7 +149,7 @@ _DEFAULT_PREDICTOR = GazePredictor()
 _EPS = 1e-9
 
 
-def _make_filter(smoothing):
+def _make_filter(smoothing) -> GazeFilter | None:
     if smoothing is None:
         return None
     if smoothing == "ema":
@@ -155,7 +157,7 @@ def _make_filter(smoothing):
     if smoothing == "one_euro":
         return OneEuroFilter()
     if callable(smoothing):
-        return smoothing()
+        return cast(GazeFilter, smoothing())  # a user's factory: used as the two above are
     raise ValueError(
         f"GazeTracker: smoothing must be None, 'ema', 'one_euro' or a factory, got {smoothing!r}"
     )

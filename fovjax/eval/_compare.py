@@ -13,7 +13,7 @@ import jax
 import numpy as np
 
 from ._metrics import HmdDisplay, MissingExtraError, error_by_eccentricity, flip, fovvdp, psnr, ssim
-from ._pareto import cheapest_within, mean_interval, pareto_front, write_csv
+from ._pareto import Choice, cheapest_within, mean_interval, pareto_front, write_csv
 
 # Gaze positions (per-eye normalised display coordinates, both eyes the same) averaged over by
 # default: the centre and two off-centre points.
@@ -44,7 +44,7 @@ class Comparison:
     records: list[dict]
     rings: dict
     ring_rays: dict
-    choice: object
+    choice: Choice | None
     criterion: tuple[str, float]
     full: dict
     plans: dict = dataclasses.field(default_factory=dict)

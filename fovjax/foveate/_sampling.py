@@ -219,7 +219,8 @@ def compaction_order(classes: Int[Array, " N"], *, with_rank: bool = False):
     in its original, spatially coherent order), and the count of each class. O(N), no sort;
     the counts are the running sums' last entries (no separate reductions). `with_rank`: also
     each sample's position in that order (the inverse permutation)."""
-    ones = _two_prefix_sums(*((classes == c).astype(jnp.int32) for c in (MANDATORY, OPTIONAL)))
+    is_mandatory, is_optional = ((classes == c).astype(jnp.int32) for c in (MANDATORY, OPTIONAL))
+    ones = _two_prefix_sums(is_mandatory, is_optional)
     index = jnp.arange(1, classes.shape[0] + 1, dtype=jnp.int32)
     running = [*ones, index - ones[0] - ones[1]]  # the skipped ones: the rest
     counts = jnp.stack([r[-1] for r in running])
