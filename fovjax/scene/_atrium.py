@@ -176,18 +176,20 @@ def _tessellation(triangles: int) -> tuple[float, tuple[int, int] | None]:
     """Edge length and floor grid for a triangle budget. The common edge length gets close;
     the floor grid (about a sixth of the triangles) then takes up the remainder, as the other
     parts change in steps of many triangles at once (e.g. all 26 upper columns together)."""
-    best = None
+    best: tuple[float, float, tuple[int, int] | None] | None = None
     for edge in _edge_bracket(triangles):
         plan = _plan(edge)
         floor = sum(p[3] for p in plan if p[0] is g.add_floor)
         total = sum(p[3] for p in plan)
-        candidates = [(abs(total - triangles), edge, None)]
+        candidates: list[tuple[float, float, tuple[int, int] | None]] = [(abs(total - triangles), edge, None)]
         wanted = triangles - (total - floor)
         if floor / 4 <= wanted <= floor * 4:
             nz = max(1, round(np.sqrt(wanted / 2 * HALF_WIDTH / HALF_LENGTH)))
             nx = max(1, round(wanted / (2 * nz)))
             candidates.append((abs(total - floor + g.floor_count(nx, nz) - triangles), edge, (nx, nz)))
         best = min([best, *candidates] if best else candidates, key=lambda c: c[0])
+    if best is None:
+        raise ValueError(f"atrium: no tessellation for {triangles} triangles")
     return best[1], best[2]
 
 

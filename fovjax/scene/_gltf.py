@@ -57,6 +57,8 @@ def _load_gltf(path: Path, data: bytes, textures: _TextureTable):
         scene = trimesh.load(path, force="scene", process=False)
     except Exception as e:  # trimesh raises assorted errors on malformed files
         raise ValueError(f"{path}: could not parse {SUPPORTED_FORMATS[path.suffix.lower()]} ({e})") from e
+    if not isinstance(scene, trimesh.Scene):  # force="scene" makes one
+        raise ValueError(f"{path}: trimesh did not read a scene from it")
     specs, names, lookup = [], [], {}
     parts = []
     for node in scene.graph.nodes_geometry:

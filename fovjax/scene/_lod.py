@@ -123,9 +123,9 @@ def _carry_attributes(
     flat-shaded box, a UV seam) broken by agreement with that triangle's own normal. A new vertex
     whose corners take different originals is split into one vertex per original, so a crease
     the decimator sees as one vertex (the mesh is welded for it) stays a sharp crease."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
-    tree = cKDTree(old_v[pool].astype(np.float64))
+    tree = KDTree(old_v[pool].astype(np.float64))
     k = min(4, len(pool))
     dist, idx = tree.query(new_v.astype(np.float64), k=k)
     dist, idx = dist.reshape(len(new_v), k), idx.reshape(len(new_v), k)
@@ -256,9 +256,10 @@ def _decimate_arrays(scene: Scene, ratio: float, preserve_border: bool = True) -
         local = local.reshape(-1, 3).astype(np.int32)
         if targets[m] < len(faces_m):
             pts, tris = _weld(v[used].astype(np.float64), local, WELD * extent)
-            pts, tris = fs.simplify(
+            simplified = fs.simplify(
                 pts, tris, target_count=int(targets[m]), agg=AGGRESSION, preserve_border=preserve_border
             )
+            pts, tris = simplified[0], simplified[1]
             pts, tris = np.asarray(pts, np.float64), np.asarray(tris, np.int64)
             tris = flip_coplanar(pts, tris, FLAT * extent, FLIP_ROUNDS)
             pts = pts.astype(np.float32)
@@ -387,7 +388,7 @@ def surface_distance(
     """Per point, an upper bound on its distance to the triangle surface (vertices, faces): the
     exact distance to the nearest of the triangles owning its `CANDIDATES` nearest surface samples
     (module docstring)."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
     v = np.asarray(vertices, np.float32)
     f = np.asarray(faces, np.int64)
@@ -419,7 +420,7 @@ def surface_distance(
         ]
     )
     owners = np.concatenate([vertex_owner[used], ids, long_f, long_f, long_f, owner_r])
-    tree = cKDTree(samples)
+    tree = KDTree(samples)
     p = np.asarray(points, np.float32)
     # First the triangle owning the nearest sample: most points of a decimated scene lie on the
     # new surface (flat regions keep their plane), and an upper bound of ~0 needs no more work.
@@ -487,7 +488,7 @@ def geometric_error(
     if level is original or level.content_hash == original.content_hash:
         return 0.0
     points = _original_points(original) if _points is None else _points
-    bound = surface_distance(points, level.vertices, level.faces)
+    bound = surface_distance(points, np.asarray(level.vertices), np.asarray(level.faces))
     order = np.argsort(-bound, kind="stable")
     tri = level.triangles()
     exact_max, step = 0.0, 32
@@ -529,7 +530,7 @@ def _cache_dir(cache_dir) -> Path:
 
 
 def _cache_key(scene: Scene, ratio: float, preserve_border: bool) -> str:
-    ghash = scene.content_hash or geometry_hash(scene.vertices, scene.faces)
+    ghash = scene.content_hash or geometry_hash(np.asarray(scene.vertices), np.asarray(scene.faces))
     h = hashlib.sha256()
     for a in (scene.face_material, scene.normals, scene.uvs):
         h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())

@@ -8,6 +8,7 @@ import io
 import re
 import warnings
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -44,7 +45,7 @@ _WIDTH = {"v": 3, "vt": 1, "vn": 3}
 
 
 def _load_obj(path: Path, data: bytes, textures: _TextureTable):
-    import trimesh
+    import trimesh.exchange.obj
 
     text = data.decode("utf-8", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
     text = "\n" + text  # so that every line, the first too, starts after a newline
@@ -78,9 +79,9 @@ def _load_obj(path: Path, data: bytes, textures: _TextureTable):
     if material_names:
         text = f"mtllib {_SYNTHETIC_MTL}" + text  # on the empty line 0 we added
     try:
-        loaded = trimesh.exchange.obj.load_obj(
-            io.StringIO(text), resolver=_OneFileResolver(_SYNTHETIC_MTL, synthetic), group_material=True
-        )
+        # Duck-typed: trimesh only calls the resolver's get/[] (see `_OneFileResolver`).
+        resolver = cast(Any, _OneFileResolver(_SYNTHETIC_MTL, synthetic))
+        loaded = trimesh.exchange.obj.load_obj(io.StringIO(text), resolver=resolver, group_material=True)
     except Exception as e:  # trimesh raises assorted errors on malformed files: find the line
         _walk_lines(text, path)
         raise ValueError(f"{path}: could not parse OBJ ({type(e).__name__}: {e})") from e
@@ -304,7 +305,7 @@ def _parse_mtl(mtl_path: Path, textures: _TextureTable) -> dict[str, dict]:
         warnings.warn(f"{mtl_path}: cannot read material library ({e}); using defaults", stacklevel=4)
         return {}
     specs: dict[str, dict] = {}
-    current = None
+    current: dict[str, object] | None = None
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if not line:

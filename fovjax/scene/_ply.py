@@ -17,7 +17,7 @@ from ._parts import (
 
 
 def _load_ply(path: Path, data: bytes):
-    import trimesh
+    import trimesh.exchange.ply
 
     try:
         loaded = trimesh.exchange.ply.load_ply(io.BytesIO(data))

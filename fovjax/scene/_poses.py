@@ -29,10 +29,10 @@ class CameraPose:
             if value.shape != (3,) or not np.isfinite(value).all():
                 raise ValueError(f"CameraPose.{name} must be 3 finite numbers, got {getattr(self, name)}")
             object.__setattr__(self, name, tuple(float(x) for x in value))
-        forward = np.subtract(self.look_at, self.position)
+        forward = np.subtract(np.asarray(self.look_at), np.asarray(self.position))
         if np.linalg.norm(forward) == 0:
             raise ValueError("CameraPose: position and look_at coincide")
-        if np.linalg.norm(np.cross(forward, self.up)) == 0:
+        if np.linalg.norm(np.cross(forward, np.asarray(self.up))) == 0:
             raise ValueError("CameraPose: up is parallel to the viewing direction")
         if not 0 < self.vfov_deg < 180:
             raise ValueError(f"CameraPose.vfov_deg must be in (0, 180), got {self.vfov_deg}")

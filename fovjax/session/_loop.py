@@ -454,7 +454,7 @@ def run_session(
             f"got {type(renderer).__name__}"
         )
     rig, foveation = renderer.rig, renderer.foveation
-    omega_full = max(full_eccentricity(rig, foveation), foveation.periphery_deg)
+    omega_full = float(max(full_eccentricity(rig, foveation), foveation.periphery_deg))
 
     vclock = VirtualClock() if clock == "virtual" else None
     # Wall clock: a source object keeps its own clock and the session runs on it.
@@ -464,14 +464,18 @@ def run_session(
     duration = n_frames / rate + 1.0 if vclock is not None else None
     wait = DEFAULT_CONNECT_TIMEOUT if session.wait is None else session.wait
     gaze_source = _source(gaze, "gaze", now, duration, "gaze", wait)
+    if gaze_source is None:  # not reached: gaze was checked above
+        raise ValueError("run_session: gaze must be a source spec or a fovjax.devices source, got None")
     head_source = _source(head, "head", now, duration, "head", wait)
     key = jax.random.key(0) if key is None else key
     out = Path(out.directory) if out is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
+    video_path = out / "session.mp4" if (out is not None and video) else None
 
     def thresholds_at(widening: float) -> tuple[float, float]:
-        return widen_thresholds(foveation.fovea_deg, foveation.periphery_deg, widening, omega_full)
+        fovea, periphery = float(foveation.fovea_deg), float(foveation.periphery_deg)
+        return widen_thresholds(fovea, periphery, widening, omega_full)
 
     warmup = clock == "wall" if session.warmup is None else session.warmup
     warmup_s = 0.0
@@ -504,12 +508,12 @@ def run_session(
             from tqdm import tqdm
 
             bar = tqdm(total=n_frames, unit="frame", desc="session")
-        if video:
+        if video_path is not None:
             import imageio.v2 as iio
 
             with _forking_ffmpeg():
                 writer = iio.get_writer(
-                    out / "session.mp4", format="FFMPEG", fps=rate, codec="libx264", macro_block_size=1
+                    video_path, format="FFMPEG", fps=rate, codec="libx264", macro_block_size=1
                 )
         last_frame_s = 0.0
         for k in range(n_frames):
@@ -561,10 +565,10 @@ def run_session(
                         latency_s=float(shown - tf.sample_timestamp)
                         if math.isfinite(tf.sample_timestamp)
                         else math.inf,
-                        gaze_left=tuple(float(x) for x in gaze_xy[0]),
-                        gaze_right=tuple(float(x) for x in gaze_xy[1]),
+                        gaze_left=(float(gaze_xy[0][0]), float(gaze_xy[0][1])),
+                        gaze_right=(float(gaze_xy[1][0]), float(gaze_xy[1][1])),
                         head_state=str(hf.state) if hf is not None else "none",
-                        head_pose=tuple(float(x) for x in pose),
+                        head_pose=(float(pose[0]), float(pose[1]), float(pose[2])),
                         fovea_deg=float(frame.foveation.fovea_deg),
                         periphery_deg=float(frame.foveation.periphery_deg),
                         fovea_pixels=int(np.count_nonzero(frame.regions == 0)),
@@ -623,7 +627,7 @@ def run_session(
         frames=rows,
         summary=summary,
         out=out,
-        video=(out / "session.mp4") if video else None,
+        video=video_path,
     )
 
 
