@@ -1,5 +1,6 @@
 """The type checker passes on the package: pyright, configured in pyproject.toml
-(`[tool.pyright]`: basic mode, the packages it checks and those not yet checked), the version
+(`[tool.pyright]`: basic mode on the package, `exclude` naming what is not checked yet: the
+acuity and eval packages), the version
 pinned in the `dev` extra (a new one can find new errors). It reads the annotations
 statically, where tests/test_types.py checks them on calls."""
 

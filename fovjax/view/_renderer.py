@@ -25,6 +25,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from ..foveate import FoveatedFrame
+
 HEAD_STEP_DEG = 5.0
 FOVEA_STEP_DEG = 0.5
 PERIPHERY_STEP_DEG = 1.0
@@ -244,7 +246,10 @@ class LiveRenderer:
         from ..devices import widen_thresholds
         from ..session import full_eccentricity
 
-        tf = self.tracker.step(now, self.gaze_source.drain(), display_time=now + self._last_frame_s)
+        tracker, source = self.tracker, self.gaze_source
+        if tracker is None or source is None:
+            raise RuntimeError("the viewer has no gaze source to track")
+        tf = tracker.step(now, source.drain(), display_time=now + self._last_frame_s)
         fovea, periphery = self.fovea_deg, self.periphery_deg
         if tf.widening > 0:
             if self._omega_full is None:
@@ -274,7 +279,7 @@ class LiveRenderer:
             yaw_keys, pitch_keys = self.head_keys
         head_state = "keys"
         pose = [yaw_keys, pitch_keys, 0.0]
-        if self.head_tracker is not None:
+        if self.head_tracker is not None and self.head_source is not None:
             hf = self.head_tracker.step(now, self.head_source.drain())
             pose = [hf.yaw + yaw_keys, hf.pitch + pitch_keys, hf.roll]
             head_state = str(hf.state)
@@ -307,7 +312,8 @@ class LiveRenderer:
         frame = self._render(self._last_gaze, foveation, tuple(pose), full, frame_key, debug)
         call_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        debug_image = frame.debug_view if (debug and not full) else None
+        foveated = frame if isinstance(frame, FoveatedFrame) else None
+        debug_image = foveated.debug_view if (debug and foveated is not None) else None
         debug_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         jpeg = encode_jpeg(debug_image if debug_image is not None else frame.image)
@@ -344,14 +350,15 @@ class LiveRenderer:
             },
             **info,
         }
-        if not full:
-            fs = frame.foveation
+        if foveated is not None:
+            fs = foveated.foveation
             stats["rays_by_region"] = dict(
                 zip(("fovea", "periphery", "outside"), fs.primary_by_region, strict=True)
             )
             stats["budget"] = fs.budget
             stats["dropped_samples"] = fs.dropped
-            stats["fovea_centre"] = _fovea_centre(frame.regions)
+            if foveated.regions is not None:  # the viewer always asks for them
+                stats["fovea_centre"] = _fovea_centre(foveated.regions)
         stats["ms"]["frame"] = (time.perf_counter() - t_start) * 1e3
         self._last_frame_s = time.perf_counter() - t_start
         result = RenderedFrame(

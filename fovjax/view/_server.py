@@ -37,8 +37,12 @@ import statistics
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ._protocol import MAX_MESSAGE_BYTES, MessageError, parse_message
+
+if TYPE_CHECKING:
+    from ._renderer import RenderedFrame
 
 log = logging.getLogger("fovjax.view")
 
@@ -60,7 +64,7 @@ def is_loopback(host: str) -> bool:
 
 
 def _static(name: str) -> bytes:
-    return importlib.resources.files(__package__).joinpath("static", name).read_bytes()
+    return importlib.resources.files(__package__ or "fovjax.view").joinpath("static", name).read_bytes()
 
 
 class RenderThread(concurrent.futures.Executor):
@@ -140,7 +144,7 @@ class Viewer:
         self._executor = RenderThread()
         self._runner = None
         self._tasks: list[asyncio.Task] = []
-        self._sent: dict[int, object] = {}
+        self._sent: dict[int, RenderedFrame] = {}
         self._shown_times: collections.deque = collections.deque(maxlen=30)
 
     # ---- HTTP ----------------------------------------------------------------------------------
