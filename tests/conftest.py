@@ -44,7 +44,53 @@ if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
     install_import_hook("fovjax", "_fovjax_typecheck.typecheck")
 
 
+# FOVJAX_TEST_COMPILE_LOG=DIR: every worker appends what JAX spends compiling (tracing, lowering,
+# XLA, persistent-cache reads) to DIR/compiles-<worker>.jsonl, one line per event, with the test
+# that caused it; `python tests/compile_report.py DIR` sums it by file and test. Timing only: the
+# suite's results do not depend on it.
+_COMPILE_LOG = os.environ.get("FOVJAX_TEST_COMPILE_LOG")
+_current_test = ["(collection)"]
+
+
+def _log_compiles(directory: str) -> None:
+    import json
+
+    import jax.monitoring
+
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    os.makedirs(directory, exist_ok=True)
+    log = open(os.path.join(directory, f"compiles-{worker}.jsonl"), "a", buffering=1)  # noqa: SIM115
+    events = {
+        "/jax/core/compile/jaxpr_trace_duration": "trace",
+        "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+        "/jax/core/compile/backend_compile_duration": "xla",
+        "/jax/compilation_cache/cache_retrieval_time_sec": "cache_read",
+    }
+
+    def listener(event, duration, **kwargs):
+        kind = events.get(event)
+        if kind is not None and duration >= 0.01:
+            row = {
+                "test": _current_test[0],
+                "kind": kind,
+                "s": round(duration, 4),
+                "fun": kwargs.get("fun_name"),
+            }
+            log.write(json.dumps(row) + "\n")
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    _current_test[0] = item.nodeid
+    yield
+    _current_test[0] = "(between tests)"
+
+
 def pytest_configure(config):
+    if _COMPILE_LOG:
+        _log_compiles(_COMPILE_LOG)
     if os.environ.get(_SHARED):
         import jax
 

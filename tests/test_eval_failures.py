@@ -144,6 +144,21 @@ def test_equal_budget_models_match_rays(tiny):
     assert strict.gains != budget.gains
 
 
+def test_high_spp_compares_the_foveated_frame_with_the_full_one(tiny):
+    scene, rig, fov, _ = tiny
+    case = high_spp(
+        scene, rig, (float(fov.fovea_deg), float(fov.periphery_deg)), spp=(1,), keys=(0,), config=CONFIG
+    )
+    (row,) = case.records
+    assert row["spp"] == 1 and row["key"] == 0
+    assert 0 < row["foveated_primary_rays"] < row["full_primary_rays"]
+    assert row["ray_reduction"] > 0
+    # One key: the "converged" image is the full frame itself.
+    assert row["abs_full_vs_converged"] == 0.0
+    assert row["abs_foveated_vs_full"] == row["abs_foveated_vs_converged"] > 0
+    assert case.parameters["resolution"] == (rig.eye_width, rig.eye_height)
+
+
 def test_checkerboard_scene_is_a_textured_wall_and_its_smooth_twin_shares_shapes():
     scene, pose = checkerboard_scene(check_size=0.05)
     smooth, _ = checkerboard_scene(check_size=0.05, smooth=True)

@@ -113,7 +113,9 @@ def fit_record(
         }
     if comparison is not None:
         record["comparison"] = comparison
-    return _clean(record)
+    cleaned = _clean(record)
+    assert isinstance(cleaned, dict)  # _clean maps a dict to a dict
+    return cleaned
 
 
 def save_fit(path: str | Path, record: dict) -> Path:

@@ -25,8 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+# A parameter as stored: a host float64 scalar, or a JAX array inside jit/vmap/grad.
+ParamScalar = Float[Array | np.ndarray, ""]
 
-def _param(x):
+
+def _param(x: ArrayLike) -> Array | np.ndarray:
     # Tracers and device arrays pass through (models are rebuilt inside jit/vmap); plain numbers
     # become float64 host scalars so no precision is lost before a fit decides its dtype.
     if isinstance(x, jax.Array):
@@ -62,6 +65,8 @@ class AcuityModel(eqx.Module):
 
     @classmethod
     def from_vector(cls, p: ArrayLike) -> AcuityModel:
+        if not isinstance(p, jax.Array | np.ndarray):
+            p = np.asarray(p, dtype=np.float64)
         return cls(*[p[i] for i in range(len(cls.param_names))])
 
     def params(self) -> dict[str, float]:
@@ -107,9 +112,9 @@ class Exponential(AcuityModel):
     the minus sign was lost in typesetting.
     """
 
-    a: Float[Array, ""] = eqx.field(converter=_param, default=0.90964)
-    b: Float[Array, ""] = eqx.field(converter=_param, default=2.9661)
-    c: Float[Array, ""] = eqx.field(converter=_param, default=0.00792)
+    a: ParamScalar = eqx.field(converter=_param, default=0.90964)
+    b: ParamScalar = eqx.field(converter=_param, default=2.9661)
+    c: ParamScalar = eqx.field(converter=_param, default=0.00792)
 
     name: ClassVar[str] = "exponential"
     formula: ClassVar[str] = "V = a*exp(-omega/b) + c"
@@ -172,8 +177,8 @@ class LinearMAR(AcuityModel):
     with E2 = 2.72°.
     """
 
-    a: Float[Array, ""] = eqx.field(converter=_param, default=1.0)
-    e2: Float[Array, ""] = eqx.field(converter=_param, default=2.72)
+    a: ParamScalar = eqx.field(converter=_param, default=1.0)
+    e2: ParamScalar = eqx.field(converter=_param, default=2.72)
 
     name: ClassVar[str] = "linear_mar"
     formula: ClassVar[str] = "V = a / (1 + omega/e2)"
@@ -233,9 +238,9 @@ class PowerMAR(AcuityModel):
     one; E2 keeps its meaning (V(E2) = a/2) and the inverse stays closed-form.
     """
 
-    a: Float[Array, ""] = eqx.field(converter=_param, default=1.0)
-    e2: Float[Array, ""] = eqx.field(converter=_param, default=2.72)
-    p: Float[Array, ""] = eqx.field(converter=_param, default=1.0)
+    a: ParamScalar = eqx.field(converter=_param, default=1.0)
+    e2: ParamScalar = eqx.field(converter=_param, default=2.72)
+    p: ParamScalar = eqx.field(converter=_param, default=1.0)
 
     name: ClassVar[str] = "power_mar"
     formula: ClassVar[str] = "V = a / (1 + (omega/e2)**p)"

@@ -55,7 +55,7 @@ def plot_fit(
     for ax, log in zip(axes, (False, True), strict=True):
         ax.fill_between(omega, lo, hi, color="tab:blue", alpha=0.25, lw=0, label=band_label)
         ax.plot(omega, fitted, color="tab:blue", lw=1.8, label=f"fit: {result.family.formula}")
-        if reference is not None:
+        if ref is not None:
             ax.plot(omega, ref, "--", color="0.4", lw=1.2, label=reference_label)
         ax.errorbar(
             data.eccentricity_deg,
@@ -137,7 +137,8 @@ def plot_corner(samples: Samples, path: str | Path, laplace: FitResult | None = 
                 ax.axvline(samples.median[names[i]], color="k", lw=1)
                 if laplace is not None:
                     mu, sd = laplace.params[names[i]], laplace.stderr[names[i]]
-                    x = np.linspace(*ax.get_xlim(), 200)
+                    x_lo, x_hi = ax.get_xlim()
+                    x = np.linspace(x_lo, x_hi, 200)
                     ax.plot(
                         x,
                         np.exp(-0.5 * ((x - mu) / sd) ** 2) / (sd * np.sqrt(2 * np.pi)),

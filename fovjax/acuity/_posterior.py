@@ -74,9 +74,8 @@ class Samples:
         """Central intervals holding `level` of the draws."""
         level = self.level if level is None else level
         q = 100 * np.array([0.5 - level / 2, 0.5 + level / 2])
-        return {
-            k: tuple(float(x) for x in np.percentile(self.draws[:, i], q)) for i, k in enumerate(self.names)
-        }
+        bounds = {k: np.percentile(self.draws[:, i], q) for i, k in enumerate(self.names)}
+        return {k: (float(b[0]), float(b[1])) for k, b in bounds.items()}
 
     def median_model(self) -> AcuityModel:
         return self.family.from_params({**self.fixed, **self.median})
@@ -230,7 +229,7 @@ def sample_posterior(
     tau_max = float(np.nanmax(tau)) if np.any(np.isfinite(tau)) else nsteps / 10
     burn = min(int(3 * tau_max), nsteps // 2)
     thin = max(1, int(tau_max / 2))
-    x = ensemble.get_chain(discard=burn, thin=thin, flat=True)
+    x = np.asarray(ensemble.get_chain(discard=burn, thin=thin, flat=True))
     draws = np.where(is_log, np.exp(x), x)
     return Samples(
         family=family,

@@ -228,6 +228,8 @@ def plot_sweep(runs: list[dict], cfg: SweepConfig, path: Path) -> Path:
         bar.set_title("outcomes, n ≥ 4, all starts and σ", fontsize=9)
         if s_i == len(solvers) - 1:
             bar.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    if image is None:
+        raise ValueError("stability chart: no solvers to draw")
     fig.colorbar(image, ax=fig.axes[: 2 * len(solvers) : 2], shrink=0.6, label="fraction ok")
     fig.suptitle(
         "Exponential fit to the thesis curve: success by solver, eccentricity range ω_max, points n, "

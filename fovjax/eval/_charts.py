@@ -14,6 +14,13 @@ from ._metrics import RingErrors
 from ._pareto import CI_SUFFIXES, _column, as_records, cheapest_within, pareto_front
 
 
+def _two_rows(fig, height_ratios):
+    """The figure's two stacked sub-figures (matplotlib types them as one or an array)."""
+    rows = fig.subfigures(2, 1, height_ratios=height_ratios)
+    assert isinstance(rows, np.ndarray)  # two rows: always an array
+    return rows[0], rows[1]
+
+
 def _figure(size):
     from matplotlib.figure import Figure  # imported on use: matplotlib is slow to import
 
@@ -346,7 +353,10 @@ def plot_slider_test(
     else:
         ax.bar(pos, counts, 0.6, color="tab:green", alpha=0.85)
         ax.set_ylabel("participants")
-        ax.yaxis.get_major_locator().set_params(integer=True)
+        from matplotlib.ticker import MaxNLocator
+
+        # The default locator's steps, whole participants only.
+        ax.yaxis.set_major_locator(MaxNLocator(nbins="auto", steps=[1, 2, 2.5, 5, 10], integer=True))
     ax.set_xticks(pos, _level_names(rows))
     ax.set_xlabel("lowest level reported equivalent to the reference")
     ax.set_title(title or f"Slider test (cf. thesis fig. 68): {sum(counts)} participant(s)")
@@ -380,24 +390,23 @@ def write_study_report(
         for name, rows in other.items():
             if rows and (name != "slider" or any(r["participants"] for r in rows)):
                 paths[f"{name}_observers_csv"] = write_csv(rows, out / f"{name}_test_observers.csv")
-    options = {"labels": labels}
     if pair:
         paths["pair_csv"] = write_csv(pair, out / "pair_test.csv")
         paths["pair_png"] = plot_pair_test(
-            pair, out / "fig66_pair_test.png", beside=other and other["pair"], **options
+            pair, out / "fig66_pair_test.png", beside=other["pair"] if other else None, labels=labels
         )
     if ramp:
         paths["ramp_csv"] = write_csv(ramp, out / "ramp_test.csv")
         paths["ramp_png"] = plot_ramp_test(
-            ramp, out / "fig67_ramp_test.png", beside=other and other["ramp"], **options
+            ramp, out / "fig67_ramp_test.png", beside=other["ramp"] if other else None, labels=labels
         )
     if any(r["participants"] for r in slider):
         paths["slider_csv"] = write_csv(slider, out / "slider_test.csv")
-        other_slider = other and other["slider"]
+        other_slider = other["slider"] if other else None
         if other_slider and not any(r["participants"] for r in other_slider):
             other_slider = None
         paths["slider_png"] = plot_slider_test(
-            slider, out / "fig68_slider_test.png", beside=other_slider, **options
+            slider, out / "fig68_slider_test.png", beside=other_slider, labels=labels
         )
     return paths
 
@@ -654,7 +663,7 @@ def plot_checkerboard(records, path, *, title: str | None = None) -> Path:
         raise ValueError("plot_checkerboard: need both 'ring' and 'flicker' records")
     metrics = _error_metrics(rings, "abs_error", "flip")
     fig = _figure((8.5, 3.0 * (len(metrics) + 1)))
-    sub = fig.subfigures(2, 1, height_ratios=[len(metrics), 1])
+    sub = _two_rows(fig, [len(metrics), 1])
     _ring_panels(sub[0], rings, "scene", metrics)
     ax = sub[1].subplots()
     scenes = list(dict.fromkeys(r["scene"] for r in flick))
@@ -691,7 +700,7 @@ def plot_acuity_models(records, path, *, title: str | None = None) -> Path:
         raise ValueError("plot_acuity_models: need both 'ring' and 'frame' records")
     metric = "flip" if "flip" in rings[0] else "abs_error"
     fig = _figure((9, 10))
-    sub = fig.subfigures(2, 1, height_ratios=[2, 1])
+    sub = _two_rows(fig, [2, 1])
     group = "arm" if "arm" in rings[0] else "model"
     models = list(dict.fromkeys(r["model"] for r in rings))
     rules = list(dict.fromkeys(r.get("rule", "") for r in rings))

@@ -273,7 +273,8 @@ def compare_thresholds(
     Args:
         scene: the `Scene`, or a `fovjax.FoveatedRenderer` (its scene, rig, render config and
             BVH; its foveation is replaced by each configuration's).
-        rig: with a `Scene`, the `StereoRig`; None with a renderer.
+        rig: with a `Scene`, the `StereoRig` (default: the thesis HMD at the scene's default
+            viewpoint, as `FoveatedRenderer`'s); None with a renderer.
         sweep: the `ThresholdSweep`: threshold pairs, SPPs, acuity models, gazes, keys, sampling
             rule and region reading (default `ThresholdSweep()`).
         criterion: (metric, threshold): the cheapest configuration (by ms per frame) whose metric's
@@ -312,7 +313,8 @@ def compare_thresholds(
         ```
     """
     from ..foveate import FoveatedRenderer, Foveation, with_regions
-    from ..scene import Scene
+    from ..render import StereoRig
+    from ..scene import Scene, default_camera
     from ._plan import PlanSearch, _check_criterion, plan_fidelity
 
     sweep, renderer_args = _upgrade_old_keywords(old, sweep)
@@ -334,6 +336,8 @@ def compare_thresholds(
         scene, rig, config, bvh = given.scene, given.rig, given.config, given.bvh
     elif isinstance(scene, Scene):
         given = None
+        if rig is None:
+            rig = StereoRig.from_pose(default_camera(scene))
         config, bvh = renderer_args.get("config"), renderer_args.get("bvh")
     else:
         raise TypeError(
@@ -411,6 +415,7 @@ def compare_thresholds(
             if batch.compile_seconds > 0:  # the first batch compiled: time it again
                 batch = renderer.render_batch(frame_gazes, keys=frame_keys, devices=devices)
             # (image, eccentricity, sample mask, rays) per frame, as frames one by one give them.
+            assert batch.eccentricity is not None and batch.sample_mask is not None  # in diagnostics
             rendered = [
                 (batch.images[i], batch.eccentricity[i], batch.sample_mask[i], batch.rays[i])
                 for i in range(len(frames))

@@ -133,7 +133,7 @@ def inspect_scene(
     import jax.numpy as jnp
 
     from ..foveate import Foveation, check_gaze, eccentricity_angle, eccentricity_map, eccentricity_planar
-    from ..render import DEFAULT_CONFIG, StereoRig, render_stereo, scene_arrays
+    from ..render import DEFAULT_CONFIG, RenderConfig, StereoRig, render_stereo, scene_arrays
     from ..scene import Scene, default_camera, make_lights
     from ..trace import build_bvh
 
@@ -146,6 +146,10 @@ def inspect_scene(
     g = check_gaze(gaze, "inspect_scene: gaze")
     foveation = foveation if foveation is not None else Foveation()
     config = config if config is not None else DEFAULT_CONFIG
+    if not isinstance(config, RenderConfig):
+        raise TypeError(
+            f"inspect_scene: config must be a fovjax.render.RenderConfig, got {type(config).__name__}"
+        )
     rig = rig if rig is not None else StereoRig.from_pose(default_camera(scene))
     head = np.asarray(head_pose, np.float32)
 
@@ -192,11 +196,7 @@ def inspect_scene(
 
     def frame(s, depth):
         arrays = scene_arrays(s, background=config.background)
-        cfg = (
-            dataclasses.replace(config, max_depth=depth)
-            if dataclasses.is_dataclass(config)
-            else _with_depth(config, depth)
-        )
+        cfg = dataclasses.replace(config, max_depth=depth)
         return _eyes(render_stereo(arrays, rig, head_pose=head, spp=spp, config=cfg, bvh=bvh).image)
 
     by_depth = [frame(scene, d) for d in range(max_depth + 1)]
@@ -227,7 +227,7 @@ def inspect_scene(
             "head_pitch_deg": float(head[1]),
             "head_roll_deg": float(head[2]),
         },
-        gaze=(tuple(float(x) for x in g[0]), tuple(float(x) for x in g[1])),
+        gaze=((float(g[0, 0]), float(g[0, 1])), (float(g[1, 0]), float(g[1, 1]))),
         fovea_deg=float(foveation.fovea_deg),
         periphery_deg=float(foveation.periphery_deg),
         max_depth=int(max_depth),
@@ -241,9 +241,3 @@ def inspect_scene(
 
 def _fields(scene) -> dict:
     return {f.name: getattr(scene, f.name) for f in dataclasses.fields(scene)}
-
-
-def _with_depth(config, depth):
-    import equinox as eqx
-
-    return eqx.tree_at(lambda c: c.max_depth, config, depth)

@@ -29,6 +29,7 @@ import math
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Literal, overload
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -191,6 +192,14 @@ def pixels_per_degree(width_px: float, fov_deg: float, *, at_deg: float = 0.0) -
     return focal_px * (math.pi / 180.0) / math.cos(math.radians(at_deg)) ** 2
 
 
+@overload
+def flip(
+    test, reference, *, ppd: float, dynamic_range: str = ..., return_map: Literal[False] = ...
+) -> MetricValue: ...
+@overload
+def flip(
+    test, reference, *, ppd: float, dynamic_range: str = ..., return_map: Literal[True]
+) -> tuple[MetricValue, np.ndarray]: ...
 def flip(
     test, reference, *, ppd: float, dynamic_range: str = "ldr", return_map: bool = False
 ) -> MetricValue | tuple[MetricValue, np.ndarray]:

@@ -73,11 +73,11 @@ def pareto_front(table, objectives: Mapping[str, str]) -> np.ndarray:
     if not records:
         return np.zeros(0, bool)
     x = np.stack(cols, axis=1)
-    valid = np.isfinite(x).all(axis=1)
+    valid = np.asarray(np.isfinite(x).all(axis=1))
     front = valid.copy()
     for i in np.flatnonzero(valid):
         others = x[valid]
-        dominated = np.any(np.all(others <= x[i], axis=1) & np.any(others < x[i], axis=1))
+        dominated = bool(np.any(np.all(others <= x[i], axis=1) & np.any(others < x[i], axis=1)))
         front[i] = not dominated
     return front
 

@@ -35,6 +35,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ..foveate import Foveation
 from ._metrics import HmdDisplay, MissingExtraError, error_by_eccentricity
 
 REGIONS = ("fovea", "periphery", "outside")
@@ -125,8 +126,8 @@ class FidelityPlan:
     `rays_per_frame` (mean). `plan_metric`/`plain_metric`: the whole-frame metric's mean and
     95% interval over the frames (mean, lo, hi). `steps`: the search, in order."""
 
-    foveation: object
-    plain: object
+    foveation: Foveation
+    plain: Foveation
     criterion: tuple[str, float]
     ring_lower_deg: np.ndarray
     ring_upper_deg: np.ndarray
@@ -301,7 +302,7 @@ def _check_options(options, max_depth: int, lights: int, spp: int) -> list[tuple
                 raise ValueError(
                     f"{_where(f'options ({name})[{i}]')} {f!r}: expected a fovjax.foveate.Fidelity"
                 )
-            if f.max_depth is not None and int(f.max_depth) > max_depth:
+            if isinstance(f.max_depth, int | np.integer) and int(f.max_depth) > max_depth:
                 raise ValueError(
                     f"{_where(f'options ({name})[{i}]')} max_depth {f.max_depth}: expected at most the "
                     f"render config's max_depth {max_depth}"
@@ -449,6 +450,7 @@ class _Judge:
             frame = self.render(foveation, gaze, key)
             ref = self.references[key]
             emap = self.error_map(frame.image, ref)
+            assert frame.eccentricity is not None  # the search's renders ask for it
             ecc = np.concatenate(list(frame.eccentricity), axis=1)
             rings = error_by_eccentricity(frame.image, ref, ecc, error_map=emap)
             n = max(len(ev.ring_sum), len(rings.mean_error))

@@ -44,8 +44,11 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
+
+_T = TypeVar("_T")
 
 APPENDIX_LEVELS: tuple[tuple[float, float], ...] = (
     (5.0, 10.0),
@@ -151,6 +154,7 @@ class Trial:
     def condition(self) -> str:
         level = _level_label(self.fovea_deg, self.periphery_deg)
         if self.test == "pair":
+            assert self.order is not None  # a pair trial has an order (checked when made)
             return f"pair {level} {self.order.replace('_', '-')}"
         if self.test == "ramp":
             return f"ramp {self.direction} step {self.step} {level}"
@@ -338,16 +342,20 @@ def write_responses(responses: Iterable[Response], path) -> Path:
 
 
 def _parse_row(row: dict, where: str, levels) -> Response:
-    def field(name, convert, optional=False):
+    def optional_field(name: str, convert: Callable[[str], _T]) -> _T | None:
         value = row.get(name)
         if value is None or value == "":
-            if optional:
-                return None
-            raise ResultsFileError(f"{where}: field {name!r} is missing")
+            return None
         try:
             return convert(value)
         except (TypeError, ValueError) as err:
             raise ResultsFileError(f"{where}: field {name!r}: bad value {value!r} ({err})") from None
+
+    def field(name: str, convert: Callable[[str], _T]) -> _T:
+        value = optional_field(name, convert)
+        if value is None:
+            raise ResultsFileError(f"{where}: field {name!r} is missing")
+        return value
 
     missing = [k for k in RESULT_FIELDS if k not in row]
     if missing:
@@ -358,9 +366,9 @@ def _parse_row(row: dict, where: str, levels) -> Response:
             index=field("trial", int),
             fovea_deg=field("fovea_deg", float),
             periphery_deg=field("periphery_deg", float),
-            order=field("order", str, optional=True),
-            direction=field("direction", str, optional=True),
-            step=field("step", int, optional=True),
+            order=optional_field("order", str),
+            direction=optional_field("direction", str),
+            step=optional_field("step", int),
             levels=levels,
         )
         if trial.condition != row["condition"]:
@@ -368,7 +376,7 @@ def _parse_row(row: dict, where: str, levels) -> Response:
                 f"condition {row['condition']!r} disagrees with the other columns ({trial.condition!r})"
             )
         return Response(
-            field("participant", str), trial, field("answer", str), field("time_s", float, optional=True)
+            field("participant", str), trial, field("answer", str), optional_field("time_s", float)
         )
     except ResultsFileError:
         raise
@@ -471,6 +479,7 @@ class MetricObserver:
                 else:
                     answer = "first" if trial.order == "reference_first" else "second"
             elif trial.test == "ramp":
+                assert trial.direction is not None  # a ramp trial has a direction (checked when made)
                 d = self._d(trial)
                 d_before = 0.0 if trial.step == 0 else previous.get(trial.direction, 0.0)
                 previous[trial.direction] = d

@@ -146,9 +146,11 @@ def check_form(form) -> dict:
     return {name: form[name] for name in PARTICIPANT_FORM}
 
 
-def _number(value, name: str, where: str, *, optional: bool = False) -> float | None:
-    if value is None and optional:
-        return None
+def _optional_number(value, name: str, where: str) -> float | None:
+    return None if value is None else _number(value, name, where)
+
+
+def _number(value, name: str, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise StudyLogError(f"{where}: {name} must be a finite number, got {value!r}")
     return float(value)
@@ -416,7 +418,7 @@ class StudyLog:
             "presented": presented,
             "stimulus_end_ms": end_ms,
             "answer_ms": answer_ms,
-            "time_origin_ms": _number(measured.get("time_origin_ms"), "time_origin_ms", where, optional=True),
+            "time_origin_ms": _optional_number(measured.get("time_origin_ms"), "time_origin_ms", where),
             "answered_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="milliseconds"),
             "frame_interval_ms": frame_ms,
             "frames_drawn": _count(measured.get("frames_drawn"), "frames_drawn", where),

@@ -200,9 +200,14 @@ def _head_poses(frames: int, fps: float) -> np.ndarray:
     from ..devices import SyntheticHeadSource
 
     source = SyntheticHeadSource(rate=fps, duration=(frames - 1) / fps, speed=None)
+    angles = []
     with source:
-        poses = [source.read() for _ in range(frames)]
-    return np.asarray([(p.yaw, p.pitch, p.roll) for p in poses], np.float32)
+        for f in range(frames):
+            pose = source.read()
+            if pose is None:  # the source's duration covers every frame: never expected
+                raise RuntimeError(f"the synthetic head source ended at frame {f} of {frames}")
+            angles.append((pose.yaw, pose.pitch, pose.roll))
+    return np.asarray(angles, np.float32)
 
 
 def _gazes(mode: str, frames: int, fps: float, seed: int, display: HmdDisplay) -> np.ndarray:
@@ -263,9 +268,11 @@ class StudyAnimation:
             raise ValueError(
                 f"StudyAnimation: regions must be one of {REGION_READINGS}, got {self.regions!r}"
             )
-        names = ("eye_width", "eye_height", "frames", "fps", "spp", "walk_speed", "seed", "levels")
-        for name, value in zip(names, checked, strict=True):
-            object.__setattr__(self, name, tuple(value) if name == "levels" else value)
+        *numbers, levels = checked
+        names = ("eye_width", "eye_height", "frames", "fps", "spp", "walk_speed", "seed")
+        for name, value in zip(names, numbers, strict=True):
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "levels", tuple(levels))
 
 
 def study_sequence(

@@ -281,6 +281,7 @@ def acuity_models(
                     ref = bench.reference(k)
                     maps = bench.maps(frame.image, ref)
                     ecc = _side(frame.eccentricity)
+                    assert frame.sample_mask is not None  # the bench asks for it
                     traced = _side(frame.sample_mask.sum(axis=1))
                     primary = frame.stats.primary_rays
                     rays_ref.setdefault((rule, gi, k), primary)

@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...render import SceneArrays, StereoRig
+from ...scene import Scene
 from .._metrics import HmdDisplay, display_encode, error_by_eccentricity, flip, psnr
 from .._pareto import write_csv
 from .._stability import FullRenders
@@ -107,8 +109,8 @@ class _Bench:
     """What every case needs: the scene, rig and config, memoised full renders, the display's
     ppd for FLIP, and a progress callback."""
 
-    scene: object
-    rig: object
+    scene: Scene | SceneArrays
+    rig: StereoRig
     full: FullRenders
     tick: Callable[[], None]
     use_flip: bool
@@ -156,7 +158,7 @@ class _Bench:
 
 def _masked(maps: Mapping[str, np.ndarray], mask: np.ndarray, suffix: str) -> dict[str, float]:
     n = int(mask.sum())
-    out = {f"pixels_{suffix}": n}
+    out: dict[str, float] = {f"pixels_{suffix}": n}
     for name, m in maps.items():
         out[f"{name}_{suffix}"] = float(m[mask].mean()) if n else math.nan
     return out

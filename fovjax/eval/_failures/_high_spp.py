@@ -9,6 +9,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._metrics import psnr
+from .._stability import FullRenders
 from ._common import (
     FailureCase,
     _Bench,
@@ -41,7 +42,7 @@ def high_spp(
     if not keys:
         raise ValueError("high_spp: need at least one key")
     g = check_gaze(np.broadcast_to(np.asarray(gaze, np.float64).reshape(-1, 2), (2, 2)), "high_spp gaze")
-    bench = _Bench.make(scene, rig, config, None, progress)
+    bench = _Bench.make(FullRenders(scene, rig, config), progress)
     fulls, fovs = {}, {}
     for s in spp:
         fov = Foveation(fovea_deg=float(fovea_pair[0]), periphery_deg=float(fovea_pair[1]), spp=s)

@@ -80,7 +80,7 @@ def failure_cases(
                 rig, eye_width=int(small_resolution[0]), eye_height=int(small_resolution[1])
             )
             opts.setdefault("spp", high_spp_values)
-            thresholds = (foveation.fovea_deg, foveation.periphery_deg)
+            thresholds = (float(foveation.fovea_deg), float(foveation.periphery_deg))
             case = high_spp(scene, small, thresholds, config=config, **common, **opts)
         elif name == "checkerboard":
             case = checkerboard(rig, base, config=config, **common, **opts)
