@@ -120,9 +120,9 @@ def main(argv=None) -> None:
     for frame in ("full", "foveated"):
         med = {
             name: [statistics.median(run[frame][i] for run in runs[name]) for i in range(4)]
-            for name in VARIANTS
+            for name in variants
         }
-        for name in VARIANTS:
+        for name in variants:
             wall, cpu, sys_s, faults = med[name]
             rows.append(
                 [frame, name, round(1e3 * wall, 1), round(1e3 * cpu, 1), round(1e3 * sys_s, 1), int(faults)]

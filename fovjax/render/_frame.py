@@ -111,6 +111,21 @@ TRACE_COUNTS: collections.Counter = collections.Counter()
 LOWERING_HOOKS: list = []
 
 
+# XLA options every frame program compiles with. XLA:CPU's newer fusion emitters (its default)
+# take about 1.5x as long to compile a foveated frame program as its loop emitters, and the frames
+# run as fast either way (`benchmarks/compile_options.py`); the two round some sums differently, so
+# images differ in the last bits. The option only concerns XLA:CPU: other backends ignore it.
+# FOVJAX_XLA_FUSION_EMITTERS=1 keeps XLA's default (read when a program compiles).
+LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
+
+
+def frame_compiler_options() -> dict[str, Any]:
+    """The XLA compiler options frame programs compile with (see `LOOP_EMITTERS`)."""
+    if os.environ.get("FOVJAX_XLA_FUSION_EMITTERS", "0") == "1":
+        return {}
+    return dict(LOOP_EMITTERS)
+
+
 def compile_cache_info() -> dict[str, int]:
     """Compiled programs held per entry point ("mono", "stereo", "foveated", "batch:...")."""
     counts = collections.Counter(key[0] for key in _COMPILED)
@@ -155,7 +170,7 @@ def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *
         for hook in LOWERING_HOOKS:  # e.g. the test that exports every frame program for CUDA
             hook(entry, jitted, args)
         start = time.perf_counter()
-        compiled = jitted.lower(*args).compile()
+        compiled = jitted.lower(*args).compile(compiler_options=frame_compiler_options() or None)
         compile_seconds = time.perf_counter() - start
         _COMPILED[cache_key] = compiled
     start = time.perf_counter()

@@ -1,0 +1,158 @@
+"""Frame programs compiled with XLA:CPU's fusion emitters (XLA's default) and with its loop
+emitters (fovjax's choice, `fovjax.render.LOOP_EMITTERS`), in alternating processes.
+
+    python benchmarks/compile_options.py                   # the atrium, 2 x 1280x1024, SPP 1
+    python benchmarks/compile_options.py --rounds 3 --size 64 48
+
+Each process builds one `FoveatedRenderer` (the atrium, max depth 5, SPP 1) and, for the full
+frame and the foveated 5°/10° frame at an off-centre gaze, compiles the program (compile
+seconds: tracing, lowering and XLA, with the on-disk compile cache off), then times `--repeats`
+frames. FOVJAX_XLA_FUSION_EMITTERS=1 selects XLA's default. Printed per variant: median compile
+seconds and ms per frame, the ratios loop / fusion emitters (< 1: faster), and how far the two
+variants' images are apart (the emitters round some sums differently). Writes a record.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+VARIANTS = {"fusion emitters": "1", "loop emitters": "0"}  # FOVJAX_XLA_FUSION_EMITTERS
+
+
+def child(args) -> None:
+    """One process: compile each frame once, then time it `repeats` times; print one JSON line."""
+    import jax
+    import numpy as np
+
+    import fovjax
+    import fovjax.scenes
+    from fovjax.foveate import Foveation
+    from fovjax.render import RenderConfig, StereoRig, frame_compiler_options
+
+    scene = fovjax.scenes.atrium()
+    w, h = args.size
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    foveation = Foveation(fovea_deg=5, periphery_deg=10, spp=1)
+    renderer = fovjax.FoveatedRenderer(scene, rig, foveation, RenderConfig(max_depth=5), diagnostics=())
+    gaze = ((0.4, 0.45), (0.4, 0.45))
+    key = jax.random.key(3)
+    frames = {
+        "full": lambda: renderer.render_full(key=key),
+        "foveated": lambda: renderer.render(gaze, key=key),
+    }
+    out = {}
+    for name, render in frames.items():
+        first = render()
+        np.save(Path(args.child) / f"{name}.npy", np.asarray(first.image))
+        times = []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(render().image)
+            times.append(time.perf_counter() - t0)
+        out[name] = [first.stats.compile_seconds, statistics.median(times)]
+    print("RESULT " + json.dumps({"options": frame_compiler_options(), "frames": out}))
+
+
+def run_variant(name: str, args, folder: Path) -> dict:
+    env = dict(os.environ, FOVJAX_XLA_FUSION_EMITTERS=VARIANTS[name], FOVJAX_COMPILE_CACHE="0")
+    cmd = [sys.executable, __file__, "--child", str(folder), "--repeats", str(args.repeats)]
+    cmd += ["--size", *map(str, args.size)]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
+    lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
+    if done.returncode != 0 or not lines:
+        sys.exit(f"compile_options: a measuring process failed ({done.returncode}): {done.stderr[-2000:]}")
+    return json.loads(lines[-1][len("RESULT ") :])
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=2, help="pairs of processes, the order alternated")
+    ap.add_argument("--repeats", type=int, default=5, help="timed frames per process and frame")
+    ap.add_argument("--size", type=int, nargs=2, default=(1280, 1024), metavar=("W", "H"))
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.rounds < 1 or args.repeats < 1 or min(args.size) < 8:
+        ap.error(
+            "--rounds, --repeats must be >= 1 and --size at least 8 x 8, "
+            f"got {args.rounds}, {args.repeats}, {args.size}"
+        )
+    if args.child:
+        child(args)
+        return
+    import numpy as np
+
+    names = list(VARIANTS)
+    runs = {name: [] for name in names}
+    with tempfile.TemporaryDirectory() as tmp:
+        folders = {name: Path(tmp) / name.replace(" ", "_") for name in names}
+        for folder in folders.values():
+            folder.mkdir()
+        for r in range(args.rounds):
+            for name in names if r % 2 == 0 else names[::-1]:
+                result = run_variant(name, args, folders[name])
+                runs[name].append(result["frames"])
+                f = result["frames"]
+                print(
+                    f"round {r + 1} {name:15s} options {result['options']}: full compile "
+                    f"{f['full'][0]:.2f} s, {1e3 * f['full'][1]:.0f} ms; foveated compile "
+                    f"{f['foveated'][0]:.2f} s, {1e3 * f['foveated'][1]:.0f} ms",
+                    flush=True,
+                )
+        images = {
+            frame: [np.load(folders[name] / f"{frame}.npy") for name in names]
+            for frame in ("full", "foveated")
+        }
+    w, h = args.size
+    rows, figures = [], {}
+    for frame in ("full", "foveated"):
+        med = {
+            name: [statistics.median(run[frame][i] for run in runs[name]) for i in range(2)] for name in names
+        }
+        a, b = images[frame]
+        diff = np.abs(a.astype(np.float64) - b.astype(np.float64))
+        for name in names:
+            rows.append([frame, name, round(med[name][0], 2), round(1e3 * med[name][1], 1)])
+        figures[f"{frame}_compile_ratio"] = round(med["loop emitters"][0] / med["fusion emitters"][0], 3)
+        figures[f"{frame}_frame_ratio"] = round(med["loop emitters"][1] / med["fusion emitters"][1], 3)
+        figures[f"{frame}_loop_compile_s"] = round(med["loop emitters"][0], 2)
+        figures[f"{frame}_fusion_compile_s"] = round(med["fusion emitters"][0], 2)
+        figures[f"{frame}_image_max_abs_diff"] = float(f"{diff.max():.3g}")
+        figures[f"{frame}_image_values_differing"] = round(float(np.mean(diff > 0)), 4)
+    print(f"\n2 x {w}x{h}, SPP 1, the atrium; medians over {args.rounds} processes x {args.repeats} frames")
+    print(f"  {'frame':9s} {'emitters':15s} {'compile s':>9s} {'ms/frame':>9s}")
+    for row in rows:
+        print(f"  {row[0]:9s} {row[1]:15s} {row[2]:9.2f} {row[3]:9.1f}")
+    for frame in ("full", "foveated"):
+        print(
+            f"  {frame}: loop / fusion emitters: compile {figures[f'{frame}_compile_ratio']:.3f}, "
+            f"frame {figures[f'{frame}_frame_ratio']:.3f}; images: max |difference| "
+            f"{figures[f'{frame}_image_max_abs_diff']:.3g}, values differing "
+            f"{figures[f'{frame}_image_values_differing']:.4f}"
+        )
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _record import write_record
+
+    figures["tables"] = [
+        {
+            "title": (
+                f"XLA:CPU's fusion emitters (XLA's default) and loop emitters (fovjax's frame programs): "
+                f"the atrium, 2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; medians of "
+                f"{args.rounds} processes per variant, {args.repeats} frames each"
+            ),
+            "columns": ["frame", "emitters", "compile s", "ms per frame"],
+            "rows": rows,
+        }
+    ]
+    write_record("compile_options", figures)
+
+
+if __name__ == "__main__":
+    main()
