@@ -1,5 +1,6 @@
 """Frame programs compiled with XLA:CPU's fusion emitters (XLA's default) and with its loop
-emitters (fovjax's choice, `fovjax.render.LOOP_EMITTERS`), in alternating processes.
+emitters (`fovjax.render.LOOP_EMITTERS`), in alternating processes: what fovjax's choice per
+program (loop emitters for full frames, fusion emitters for foveated ones) rests on.
 
     python benchmarks/compile_options.py                   # the atrium, 2 x 1280x1024, SPP 1
     python benchmarks/compile_options.py --rounds 3 --size 64 48
@@ -7,9 +8,10 @@ emitters (fovjax's choice, `fovjax.render.LOOP_EMITTERS`), in alternating proces
 Each process builds one `FoveatedRenderer` (the atrium, max depth 5, SPP 1) and, for the full
 frame and the foveated 5°/10° frame at an off-centre gaze, compiles the program (compile
 seconds: tracing, lowering and XLA, with the on-disk compile cache off), then times `--repeats`
-frames. FOVJAX_XLA_FUSION_EMITTERS=1 selects XLA's default. Printed per variant: median compile
-seconds and ms per frame, the ratios loop / fusion emitters (< 1: faster), and how far the two
-variants' images are apart (the emitters round some sums differently). Writes a record.
+frames. FOVJAX_XLA_EMITTERS=fusion or =loop selects the emitters of every frame program.
+Printed per variant: median compile seconds and ms per frame, the ratios loop / fusion emitters
+(< 1: faster), and how far the two variants' images are apart (the emitters round some sums
+differently). Writes a record.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-VARIANTS = {"fusion emitters": "1", "loop emitters": "0"}  # FOVJAX_XLA_FUSION_EMITTERS
+VARIANTS = {"fusion emitters": "fusion", "loop emitters": "loop"}  # FOVJAX_XLA_EMITTERS
 
 
 def child(args) -> None:
@@ -58,11 +60,14 @@ def child(args) -> None:
             jax.block_until_ready(render().image)
             times.append(time.perf_counter() - t0)
         out[name] = [first.stats.compile_seconds, statistics.median(times)]
-    print("RESULT " + json.dumps({"options": frame_compiler_options(), "frames": out}))
+    options = {
+        name: frame_compiler_options(entry) for name, entry in (("full", "stereo"), ("foveated", "foveated"))
+    }
+    print("RESULT " + json.dumps({"options": options, "frames": out}))
 
 
 def run_variant(name: str, args, folder: Path) -> dict:
-    env = dict(os.environ, FOVJAX_XLA_FUSION_EMITTERS=VARIANTS[name], FOVJAX_COMPILE_CACHE="0")
+    env = dict(os.environ, FOVJAX_XLA_EMITTERS=VARIANTS[name], FOVJAX_COMPILE_CACHE="0")
     cmd = [sys.executable, __file__, "--child", str(folder), "--repeats", str(args.repeats)]
     cmd += ["--size", *map(str, args.size)]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
@@ -101,7 +106,7 @@ def main(argv=None) -> None:
                 runs[name].append(result["frames"])
                 f = result["frames"]
                 print(
-                    f"round {r + 1} {name:15s} options {result['options']}: full compile "
+                    f"round {r + 1} {name:15s} full compile "
                     f"{f['full'][0]:.2f} s, {1e3 * f['full'][1]:.0f} ms; foveated compile "
                     f"{f['foveated'][0]:.2f} s, {1e3 * f['foveated'][1]:.0f} ms",
                     flush=True,

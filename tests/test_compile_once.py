@@ -97,3 +97,21 @@ def test_a_session_with_tracking_loss_compiles_once(tmp_path, capsys, show_sampl
     assert (compile_s[1:] == 0).all() and compile_s[0] > 0
     assert len(list(out.glob("debug_*.png"))) == (40 if show_samples else 0)
     assert all(int(r["fovea_pixels"]) > 0 for r in rows)  # the regions the frame returned
+
+
+def test_full_frames_compile_with_loop_emitters_and_foveated_ones_with_xla_default(monkeypatch):
+    from fovjax.render import LOOP_EMITTERS, frame_compiler_options
+
+    monkeypatch.delenv("FOVJAX_XLA_EMITTERS", raising=False)
+    assert LOOP_EMITTERS == {"xla_cpu_use_fusion_emitters": False}
+    for entry in ("mono", "stereo", "batch:full"):
+        assert frame_compiler_options(entry) == LOOP_EMITTERS, entry
+    for entry in ("foveated", "batch:foveated"):
+        assert frame_compiler_options(entry) == {}, entry
+    monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "loop")
+    assert frame_compiler_options("foveated") == LOOP_EMITTERS
+    monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fusion")
+    assert frame_compiler_options("stereo") == {}
+    monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fast")
+    with pytest.raises(ValueError, match="FOVJAX_XLA_EMITTERS must be one of .*got 'fast'"):
+        frame_compiler_options("stereo")

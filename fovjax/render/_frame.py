@@ -111,19 +111,27 @@ TRACE_COUNTS: collections.Counter = collections.Counter()
 LOWERING_HOOKS: list = []
 
 
-# XLA options every frame program compiles with. XLA:CPU's newer fusion emitters (its default)
-# take about 1.5x as long to compile a foveated frame program as its loop emitters, and the frames
-# run as fast either way (`benchmarks/compile_options.py`); the two round some sums differently, so
-# images differ in the last bits. The option only concerns XLA:CPU: other backends ignore it.
-# FOVJAX_XLA_FUSION_EMITTERS=1 keeps XLA's default (read when a program compiles).
+# XLA:CPU emits fused loops two ways: its newer fusion emitters (XLA's default) and its loop
+# emitters. Measured in one process on the atrium (`benchmarks/compile_options.py`): with loop
+# emitters the full frame runs about 10% faster and compiles a little faster, the foveated frame
+# runs 3-7% slower (and compiles about 1.5 s faster). So full-frame programs use loop emitters and
+# foveated ones XLA's default. The two round some sums differently (images differ in the last
+# bits; the full and foveated programs were never bit-identical: they are compiled apart). The
+# option concerns XLA:CPU only: other backends ignore it. FOVJAX_XLA_EMITTERS=fusion or =loop
+# makes every frame program use one (to measure them); unset or "auto", the choice above.
 LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
+FULL_FRAME_ENTRIES = ("mono", "stereo", "batch:full")
+EMITTER_CHOICES = ("auto", "fusion", "loop")
 
 
-def frame_compiler_options() -> dict[str, Any]:
-    """The XLA compiler options frame programs compile with (see `LOOP_EMITTERS`)."""
-    if os.environ.get("FOVJAX_XLA_FUSION_EMITTERS", "0") == "1":
-        return {}
-    return dict(LOOP_EMITTERS)
+def frame_compiler_options(entry: str) -> dict[str, Any]:
+    """The XLA compiler options the frame program of `entry` compiles with (see `LOOP_EMITTERS`)."""
+    choice = os.environ.get("FOVJAX_XLA_EMITTERS", "auto") or "auto"
+    if choice not in EMITTER_CHOICES:
+        raise ValueError(f"FOVJAX_XLA_EMITTERS must be one of {EMITTER_CHOICES}, got {choice!r}")
+    if choice == "loop" or (choice == "auto" and entry in FULL_FRAME_ENTRIES):
+        return dict(LOOP_EMITTERS)
+    return {}
 
 
 def compile_cache_info() -> dict[str, int]:
@@ -170,7 +178,9 @@ def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *
         for hook in LOWERING_HOOKS:  # e.g. the test that exports every frame program for CUDA
             hook(entry, jitted, args)
         start = time.perf_counter()
-        compiled = jitted.lower(*args).compile(compiler_options=frame_compiler_options() or None)
+        options = frame_compiler_options(entry)  # before lowering: a bad setting costs nothing
+        lowered = jitted.lower(*args)
+        compiled = lowered.compile(compiler_options=options or None)
         compile_seconds = time.perf_counter() - start
         _COMPILED[cache_key] = compiled
     start = time.perf_counter()
