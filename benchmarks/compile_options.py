@@ -1,6 +1,6 @@
 """Frame programs compiled with XLA:CPU's fusion emitters (XLA's default) and with its loop
-emitters (`fovjax.render.LOOP_EMITTERS`), in alternating processes: what fovjax's choice per
-program (loop emitters for full frames, fusion emitters for foveated ones) rests on.
+emitters (`fovjax.render.LOOP_EMITTERS`, fovjax's choice for every frame program), in
+alternating processes.
 
     python benchmarks/compile_options.py                   # the atrium, 2 x 1280x1024, SPP 1
     python benchmarks/compile_options.py --rounds 3 --size 64 48

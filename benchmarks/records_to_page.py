@@ -34,6 +34,7 @@ SECTIONS = [
     ("render", "Full frames"),
     ("foveation", "Foveated frames"),
     ("profile_frame", "Inside the frame program"),
+    ("compile_options", "XLA's emitters: compile and frame times"),
     ("fidelity", "Fidelity per region"),
     ("fidelity_density", "Sampling density"),
     ("plan_fidelity", "Planned fidelity"),

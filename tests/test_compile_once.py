@@ -99,19 +99,20 @@ def test_a_session_with_tracking_loss_compiles_once(tmp_path, capsys, show_sampl
     assert all(int(r["fovea_pixels"]) > 0 for r in rows)  # the regions the frame returned
 
 
-def test_full_frames_compile_with_loop_emitters_and_foveated_ones_with_xla_default(monkeypatch):
+def test_frame_programs_compile_with_loop_emitters_unless_told_otherwise(monkeypatch):
     from fovjax.render import LOOP_EMITTERS, frame_compiler_options
 
     monkeypatch.delenv("FOVJAX_XLA_EMITTERS", raising=False)
     assert LOOP_EMITTERS == {"xla_cpu_use_fusion_emitters": False}
-    for entry in ("mono", "stereo", "batch:full"):
+    for entry in ("mono", "stereo", "batch:full", "foveated", "batch:foveated"):
         assert frame_compiler_options(entry) == LOOP_EMITTERS, entry
-    for entry in ("foveated", "batch:foveated"):
-        assert frame_compiler_options(entry) == {}, entry
-    monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "loop")
-    assert frame_compiler_options("foveated") == LOOP_EMITTERS
     monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fusion")
-    assert frame_compiler_options("stereo") == {}
+    assert frame_compiler_options("foveated") == {}
     monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fast")
     with pytest.raises(ValueError, match="FOVJAX_XLA_EMITTERS must be one of .*got 'fast'"):
         frame_compiler_options("stereo")
+    # Read when a program compiles: a bad setting is said before any work.
+    scene = fovjax.scenes.spheres(subdivisions=0, ground_cells=1)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=8, eye_height=8)
+    with pytest.raises(ValueError, match="'fast'"):
+        fovjax.render.render_stereo(scene, rig, config=RenderConfig(max_depth=0))
