@@ -115,8 +115,10 @@ LOWERING_HOOKS: list = []
 # emitters. Measured on the atrium (`benchmarks/compile_options.py`, and frames of both programs
 # alternated in one process): with loop emitters the foveated frame program compiles about a
 # quarter faster (XLA's own CPU time about 40% less), the full frame runs 9-20% faster, and the
-# foveated frame runs as fast (its ratio between 0.94 and 1.09 over five runs). So every frame
-# program compiles with loop emitters. The two round some sums differently: images differ in the
+# foveated frame within a few percent (loop / fusion 0.97-1.07 over five runs alternating frames
+# in one process, median 1.03; under the per-operation profiler its screen passes run slower,
+# `benchmarks/profile_frame.py` with FOVJAX_XLA_EMITTERS=fusion). So every frame program
+# compiles with loop emitters. The two round some sums differently: images differ in the
 # last bits. The option concerns XLA:CPU only (other backends ignore it).
 # FOVJAX_XLA_EMITTERS=fusion keeps XLA's default (to measure it), read when a program compiles.
 LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
