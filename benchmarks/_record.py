@@ -65,6 +65,9 @@ def _gpus() -> list[str]:
     return [line.strip() for line in out.stdout.splitlines() if line.strip()] if out.returncode == 0 else []
 
 
+SETTINGS = ("FOVJAX_XLA_EMITTERS", "FOVJAX_HUGE_PAGES", "XLA_FLAGS")
+
+
 def machine() -> dict:
     """CPU model, cores, load average at the time, GPUs (nvidia-smi), and JAX's devices if JAX
     was already imported (a record never imports JAX itself: it would pick a backend)."""
@@ -76,6 +79,8 @@ def machine() -> dict:
         "gpus": _gpus(),
         # malloc's settings (the fovjax program starts with huge-page advice: fovjax/_startup.py)
         "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
+        # Settings that change how frame programs compile or run (fovjax's own and XLA's).
+        "settings": {k: os.environ[k] for k in SETTINGS if k in os.environ},
     }
     try:
         info["load_average"] = [round(x, 2) for x in os.getloadavg()]
