@@ -258,6 +258,37 @@ def test_tracker_gaze_and_full_mode_in_process(tmp_path):
         r.close()
 
 
+def test_tracking_loss_resets_a_temporal_history_once(monkeypatch):
+    """As in run_session: the frame where the tracker's state becomes "lost" drops the history
+    (a temporal method's reused samples); staying lost or tracking again does not."""
+    import fovjax
+    from fovjax.foveate import Foveation
+    from fovjax.render import StereoRig
+    from fovjax.view import LiveRenderer
+
+    scene = fovjax.scenes.BUILTIN["spheres"]()
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=48, eye_height=32)
+    r = LiveRenderer(
+        scene, rig, Foveation(fovea_deg=10.0, periphery_deg=20.0), gaze="synthetic:fixed:0.3,0.4"
+    )
+    states = iter(["ok", "lost", "lost", "ok", "degraded", "lost"])
+    gaze = np.array([[0.3, 0.4], [0.3, 0.4]], np.float32)
+
+    def tracked(now):
+        return gaze, 10.0, 20.0, {"tracking_state": next(states)}, math.nan
+
+    monkeypatch.setattr(r, "_tracked_gaze", tracked)
+    resets, render = [], r.renderer.render
+
+    def spy(*args, **kwargs):
+        resets.append(kwargs["reset"])
+        return render(*args, **kwargs)
+
+    monkeypatch.setattr(r.renderer, "render", spy)
+    shown = [r.render_next().stats["history_reset"] for _ in range(6)]
+    assert resets == shown == [False, True, False, False, False, True]
+
+
 async def _serve_tracker(renderer):
     from fovjax.view import Viewer
 

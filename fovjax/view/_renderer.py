@@ -134,6 +134,7 @@ class LiveRenderer:
         self._mouse_inside = False
         self._used_seq = -1
         self._used_timestamp = math.nan
+        self._tracking_state: str | None = None  # the gaze tracker's state at the last frame
         self._last_gaze = np.full((2, 2), 0.5, np.float32)
         self._last_frame_s = 0.0
         self.frames = 0
@@ -225,10 +226,12 @@ class LiveRenderer:
 
         return binocular_gaze(self.bvh, self.rig, pose, eye, xy)
 
-    def _render(self, gaze, foveation, pose, full, key=None, debug=False):
+    def _render(self, gaze, foveation, pose, full, key=None, debug=False, reset=False):
         from ..foveate import DEBUG_VIEW_DIAGNOSTICS
 
         if full:
+            if reset:  # full frames keep no history, but the foveated ones after them would
+                self.renderer.reset_history()
             return self.renderer.render_full(head_pose=pose, key=key)
         # Only the per-pixel outputs the frame shows: the regions (the fovea's centre), and the
         # debug view's while it is on (its first frame compiles that program, as the first
@@ -239,6 +242,7 @@ class LiveRenderer:
             key=key,
             thresholds=(foveation.fovea_deg, foveation.periphery_deg),
             diagnostics=("region", *DEBUG_VIEW_DIAGNOSTICS) if debug else ("region",),
+            reset=reset,
         )
 
     def _tracked_gaze(self, now: float):
@@ -285,6 +289,7 @@ class LiveRenderer:
             head_state = str(hf.state)
         gaze_t = gaze_timestamp = None
         gaze_new = False
+        reset = False
         t0 = time.perf_counter()
         if self.gaze_source is None:
             if mouse is None:
@@ -299,6 +304,11 @@ class LiveRenderer:
                 info = {"tracking_state": f"mouse ({eye} eye)" if inside else "mouse left the frame: held"}
         else:
             gaze, fovea, periphery, info, gaze_timestamp = self._tracked_gaze(now)
+            # Tracking lost: a temporal method's history is dropped (as run_session does), so
+            # the frames after the loss do not reuse samples shaded for a gaze no longer known.
+            state = str(info["tracking_state"])
+            reset = state == "lost" and self._tracking_state != "lost"
+            self._tracking_state = state
             if math.isfinite(gaze_timestamp):
                 gaze_new = gaze_timestamp != self._used_timestamp
                 self._used_timestamp = gaze_timestamp
@@ -309,7 +319,7 @@ class LiveRenderer:
         foveation = self.foveation(fovea, periphery)
         frame_key = jax.random.fold_in(self.key, self.frames)
         t0 = time.perf_counter()
-        frame = self._render(self._last_gaze, foveation, tuple(pose), full, frame_key, debug)
+        frame = self._render(self._last_gaze, foveation, tuple(pose), full, frame_key, debug, reset)
         call_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         foveated = frame if isinstance(frame, FoveatedFrame) else None
@@ -330,6 +340,7 @@ class LiveRenderer:
             "gaze_new": gaze_new,
             "head_source": "keys" if self.head_source is None else self.head_spec,
             "head_state": head_state,
+            "history_reset": reset,
             "head_pose": [float(v) for v in pose],
             "fovea_deg": None if full else fovea,
             "periphery_deg": None if full else periphery,
