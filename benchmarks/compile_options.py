@@ -1,5 +1,5 @@
 """Frame programs compiled with XLA:CPU's fusion emitters (XLA's default) and with its loop
-emitters (`fovjax.render.LOOP_EMITTERS`, fovjax's choice for every frame program), in
+emitters (`fovjax.render.internal.LOOP_EMITTERS`, fovjax's choice for every frame program), in
 alternating processes.
 
     python benchmarks/compile_options.py                   # the atrium, 2 x 1280x1024, SPP 1
@@ -17,14 +17,22 @@ differently). Writes a record.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _processes import (  # noqa: E402
+    GAZE,
+    add_arguments,
+    atrium_renderer,
+    check_arguments,
+    print_result,
+    run_measuring_process,
+)
 
 VARIANTS = {"fusion emitters": "fusion", "loop emitters": "loop"}  # FOVJAX_XLA_EMITTERS
 
@@ -34,17 +42,9 @@ def child(args) -> None:
     import jax
     import numpy as np
 
-    import fovjax
-    import fovjax.scenes
-    from fovjax.foveate import Foveation
-    from fovjax.render import RenderConfig, StereoRig, frame_compiler_options
+    from fovjax.render.internal import frame_compiler_options
 
-    scene = fovjax.scenes.atrium()
-    w, h = args.size
-    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
-    foveation = Foveation(fovea_deg=5, periphery_deg=10, spp=1)
-    renderer = fovjax.FoveatedRenderer(scene, rig, foveation, RenderConfig(max_depth=5), diagnostics=())
-    gaze = ((0.4, 0.45), (0.4, 0.45))
+    renderer, gaze = atrium_renderer(args.size), GAZE
     key = jax.random.key(3)
     frames = {
         "full": lambda: renderer.render_full(key=key),
@@ -63,32 +63,21 @@ def child(args) -> None:
     options = {
         name: frame_compiler_options(entry) for name, entry in (("full", "stereo"), ("foveated", "foveated"))
     }
-    print("RESULT " + json.dumps({"options": options, "frames": out}))
+    print_result({"options": options, "frames": out})
 
 
 def run_variant(name: str, args, folder: Path) -> dict:
     env = dict(os.environ, FOVJAX_XLA_EMITTERS=VARIANTS[name], FOVJAX_COMPILE_CACHE="0")
-    cmd = [sys.executable, __file__, "--child", str(folder), "--repeats", str(args.repeats)]
-    cmd += ["--size", *map(str, args.size)]
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
-    lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
-    if done.returncode != 0 or not lines:
-        sys.exit(f"compile_options: a measuring process failed ({done.returncode}): {done.stderr[-2000:]}")
-    return json.loads(lines[-1][len("RESULT ") :])
+    argv = ["--child", str(folder), "--repeats", str(args.repeats), "--size", *map(str, args.size)]
+    return run_measuring_process("compile_options", __file__, argv, env)
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rounds", type=int, default=2, help="pairs of processes, the order alternated")
-    ap.add_argument("--repeats", type=int, default=5, help="timed frames per process and frame")
-    ap.add_argument("--size", type=int, nargs=2, default=(1280, 1024), metavar=("W", "H"))
+    add_arguments(ap, repeats=5)
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.rounds < 1 or args.repeats < 1 or min(args.size) < 8:
-        ap.error(
-            "--rounds, --repeats must be >= 1 and --size at least 8 x 8, "
-            f"got {args.rounds}, {args.repeats}, {args.size}"
-        )
+    check_arguments(ap, args)
     if args.child:
         child(args)
         return

@@ -18,14 +18,22 @@ the ratio with huge pages over without (< 1: faster with them). Writes a record.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import resource
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _processes import (  # noqa: E402
+    GAZE,
+    add_arguments,
+    atrium_renderer,
+    check_arguments,
+    print_result,
+    run_measuring_process,
+)
 
 TUNABLE = "glibc.malloc.hugetlb=1"
 # malloc keeping freed memory (one arena, no mmap, no trimming): no fresh pages at all after the
@@ -38,17 +46,7 @@ def child(args) -> None:
     """One process: compile, then time each frame `repeats` times; print one JSON line."""
     import jax
 
-    import fovjax
-    import fovjax.scenes
-    from fovjax.foveate import Foveation
-    from fovjax.render import RenderConfig, StereoRig
-
-    scene = fovjax.scenes.atrium()
-    w, h = args.size
-    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
-    foveation = Foveation(fovea_deg=5, periphery_deg=10, spp=1)
-    renderer = fovjax.FoveatedRenderer(scene, rig, foveation, RenderConfig(max_depth=5), diagnostics=())
-    gaze = ((0.4, 0.45), (0.4, 0.45))
+    renderer, gaze = atrium_renderer(args.size), GAZE
     frames = {"full": renderer.render_full, "foveated": lambda: renderer.render(gaze)}
     out = {}
     for name, render in frames.items():
@@ -60,7 +58,7 @@ def child(args) -> None:
             t1, c1, u1 = time.perf_counter(), time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
             rows.append((t1 - t0, c1 - c0, u1.ru_stime - u0.ru_stime, u1.ru_minflt - u0.ru_minflt))
         out[name] = [statistics.median(r[i] for r in rows) for i in range(4)]
-    print("RESULT " + json.dumps({"tunables": os.environ.get("GLIBC_TUNABLES", ""), "frames": out}))
+    print_result({"tunables": os.environ.get("GLIBC_TUNABLES", ""), "frames": out})
 
 
 def run_variant(tunables: str | None, args) -> dict:
@@ -68,35 +66,17 @@ def run_variant(tunables: str | None, args) -> dict:
     env.pop("GLIBC_TUNABLES", None)
     if tunables:
         env["GLIBC_TUNABLES"] = tunables
-    cmd = [
-        sys.executable,
-        __file__,
-        "--child",
-        "--repeats",
-        str(args.repeats),
-        "--size",
-        *map(str, args.size),
-    ]
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
-    lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
-    if done.returncode != 0 or not lines:
-        sys.exit(f"huge_pages: a measuring process failed ({done.returncode}): {done.stderr[-2000:]}")
-    return json.loads(lines[-1][len("RESULT ") :])
+    argv = ["--child", "--repeats", str(args.repeats), "--size", *map(str, args.size)]
+    return run_measuring_process("huge_pages", __file__, argv, env)
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rounds", type=int, default=2, help="pairs of processes, the order alternated")
-    ap.add_argument("--repeats", type=int, default=7, help="timed frames per process and frame")
-    ap.add_argument("--size", type=int, nargs=2, default=(1280, 1024), metavar=("W", "H"))
+    add_arguments(ap, repeats=7)
     ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=("default pages", "huge pages"))
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.rounds < 1 or args.repeats < 1 or min(args.size) < 8:
-        ap.error(
-            "--rounds, --repeats must be >= 1 and --size at least 8 x 8, "
-            f"got {args.rounds}, {args.repeats}, {args.size}"
-        )
+    check_arguments(ap, args)
     if args.child:
         child(args)
         return

@@ -100,7 +100,7 @@ def test_a_session_with_tracking_loss_compiles_once(tmp_path, capsys, show_sampl
 
 
 def test_frame_programs_compile_with_loop_emitters_unless_told_otherwise(monkeypatch):
-    from fovjax.render import LOOP_EMITTERS, frame_compiler_options
+    from fovjax.render.internal import LOOP_EMITTERS, frame_compiler_options
 
     monkeypatch.delenv("FOVJAX_XLA_EMITTERS", raising=False)
     assert LOOP_EMITTERS == {"xla_cpu_use_fusion_emitters": False}

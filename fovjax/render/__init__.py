@@ -67,13 +67,11 @@ from ._envmap import constant_envmap as constant_envmap
 from ._envmap import envmap_lookup as envmap_lookup
 from ._envmap import latlong_uv as latlong_uv
 from ._envmap import load_envmap as load_envmap
-from ._frame import LOOP_EMITTERS as LOOP_EMITTERS
 from ._frame import TRACE_COUNTS as TRACE_COUNTS
 from ._frame import Frame as Frame
 from ._frame import FrameStats as FrameStats
 from ._frame import clear_compile_cache as clear_compile_cache
 from ._frame import compile_cache_info as compile_cache_info
-from ._frame import frame_compiler_options as frame_compiler_options
 from ._frame import render as render
 from ._frame import render_image as render_image
 from ._frame import render_stereo as render_stereo
@@ -144,8 +142,6 @@ __all__ = [
     "FrameStats",
     "clear_compile_cache",
     "compile_cache_info",
-    "frame_compiler_options",
-    "LOOP_EMITTERS",
     "render",
     "render_image",
     "render_stereo",

@@ -176,13 +176,12 @@ def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *
             TRACE_COUNTS[entry] += 1
             return program(*a, **static)
 
+        options = frame_compiler_options(entry)  # first: a bad setting is said before any work
         jitted = (jit or jax.jit)(counted)
         for hook in LOWERING_HOOKS:  # e.g. the test that exports every frame program for CUDA
             hook(entry, jitted, args)
         start = time.perf_counter()
-        options = frame_compiler_options(entry)  # before lowering: a bad setting costs nothing
-        lowered = jitted.lower(*args)
-        compiled = lowered.compile(compiler_options=options or None)
+        compiled = jitted.lower(*args).compile(compiler_options=options or None)
         compile_seconds = time.perf_counter() - start
         _COMPILED[cache_key] = compiled
     start = time.perf_counter()

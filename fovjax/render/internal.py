@@ -9,10 +9,12 @@ from ._batch import head_poses_array as head_poses_array
 from ._batch import key_data as key_data
 from ._batch import per_frame as per_frame
 from ._batch import run_sharded as run_sharded
+from ._frame import LOOP_EMITTERS as LOOP_EMITTERS
 from ._frame import LOWERING_HOOKS as LOWERING_HOOKS
 from ._frame import _key_args as key_args
 from ._frame import _stereo_program as stereo_program
 from ._frame import bvh_for as bvh_for
+from ._frame import frame_compiler_options as frame_compiler_options
 from ._frame import frame_stats as frame_stats
 from ._frame import run_compiled as run_compiled
 from ._integrator import SHADOWS_ALL as SHADOWS_ALL
@@ -34,7 +36,9 @@ from ._mips import texture_mips as texture_mips
 from ._mips import with_texture_mips as with_texture_mips
 
 __all__ = [
+    "LOOP_EMITTERS",
     "LOWERING_HOOKS",
+    "frame_compiler_options",
     "bvh_for",
     "frame_stats",
     "run_compiled",
