@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _frames import assert_same_radiance
 
 import fovjax
 from fovjax.scene import lod_levels
@@ -191,9 +192,10 @@ def test_default_lod_is_bit_identical(spheres_rig, levels, plain):
         assert _counts(frame) == _counts(plain)
 
 
-def test_level_zero_through_the_merged_bvh_is_bit_identical(spheres_rig, levels, plain, monkeypatch):
+def test_level_zero_through_the_merged_bvh_is_the_same_frame(spheres_rig, levels, plain, monkeypatch):
     """The merged scene, BVH and per-ray levels themselves change nothing at level 0: every
-    region forced to level 0 of all four merged levels, in a fresh compile."""
+    region forced to level 0 of all four merged levels, in a fresh compile (another program: the
+    same to float32 rounding)."""
     used = []
 
     def zeros(foveation, tables, bvh, cameras):
@@ -207,7 +209,7 @@ def test_level_zero_through_the_merged_bvh_is_bit_identical(spheres_rig, levels,
     finally:
         fovjax.render.clear_compile_cache()
     assert used
-    assert np.array_equal(frame.image, plain.image)
+    assert_same_radiance(frame.image, plain.image)
     assert _counts(frame) == _counts(plain)
 
 
@@ -215,7 +217,7 @@ def test_coarse_outside_leaves_the_fovea_alone(spheres_rig, levels, plain):
     frame = _render(*spheres_rig, levels, fidelity=(FULL, FULL, Fidelity(lod=3)))
     fovea = _fovea(plain)
     assert fovea.any()
-    assert np.array_equal(frame.image[fovea], plain.image[fovea])
+    assert_same_radiance(frame.image[fovea], plain.image[fovea])
     outside = np.concatenate([plain.regions[0], plain.regions[1]], axis=1) == 2
     assert np.abs(frame.image - plain.image)[outside].mean() > 1e-3  # level 3 visibly differs
     assert frame.stats.primary_rays == plain.stats.primary_rays
@@ -224,15 +226,15 @@ def test_coarse_outside_leaves_the_fovea_alone(spheres_rig, levels, plain):
 def test_fovea_tile_packets_straddling_levels(spheres_rig, levels):
     """With the fovea traced as an 8x8-packet image tile, the tile's corners reach the outside
     region (level 3) while its centre is level 0: packets mixing the two are traced ray by ray,
-    and the fovea stays the plain tiled frame's, bit for bit."""
+    and the fovea stays the plain tiled frame's (to float32 rounding: another program)."""
     primary = RenderConfig(max_depth=0)  # the packets' levels are the primary rays' (a shorter compile)
     tiled = _render(*spheres_rig, levels, fovea_tile_deg=5.0, config=primary)
     frame = _render(
         *spheres_rig, levels, fidelity=(FULL, FULL, Fidelity(lod=3)), fovea_tile_deg=5.0, config=primary
     )
     fovea = _fovea(tiled)
-    assert np.array_equal(frame.image[fovea], tiled.image[fovea])
-    assert not np.array_equal(frame.image, tiled.image)
+    assert_same_radiance(frame.image[fovea], tiled.image[fovea])
+    assert np.abs(frame.image - tiled.image).max() > 1e-3
 
 
 def test_gaze_change_does_not_recompile(spheres_rig, levels):
