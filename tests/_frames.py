@@ -2,7 +2,7 @@
 
 Two programs that compute one radiance need not round alike: XLA fuses them differently and
 LLVM chooses instructions per program (a multiply and an add fused into one rounding, or not),
-more so at the optimisation level the suite compiles at (conftest). Each such choice moves a
+more so as the suite compiles (conftest: LLVM's lowest optimisation level). Each such choice moves a
 float32 value by about an ulp (6e-8 at 0.5); a frame's chain of a few dozen of them stays well
 below SAME_RADIANCE, which in turn lies far below one 8-bit display step (1/255 = 3.9e-3) and
 below every change these tests guard against (a wrong level, class, sample or region moves a
@@ -13,15 +13,16 @@ import numpy as np
 
 SAME_RADIANCE = 1e-5
 
-# The flag conftest adds to XLA_FLAGS (LLVM's lowest optimisation level, a shorter compile).
-FAST_COMPILE_FLAG = "--xla_backend_optimization_level=0"
+# What conftest adds to XLA_FLAGS for a shorter compile: LLVM's lowest optimisation level and
+# XLA:CPU's loop emitters.
+FAST_COMPILE_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
 
 
 def users_xla_flags() -> str:
-    """XLA_FLAGS as the user set them, without the suite's FAST_COMPILE_FLAG."""
+    """XLA_FLAGS as the user set them, without the suite's FAST_COMPILE_FLAGS."""
     import os
 
-    return " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if f != FAST_COMPILE_FLAG)
+    return " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if f not in FAST_COMPILE_FLAGS)
 
 
 def assert_same_radiance(actual, expected) -> None:

@@ -16,7 +16,7 @@ import types
 
 import _extras
 import pytest
-from _frames import FAST_COMPILE_FLAG
+from _frames import FAST_COMPILE_FLAGS
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # The command line keeps compiled programs on disk (`fovjax.render.enable_compile_cache`); the
@@ -34,18 +34,19 @@ if os.environ.get("FOVJAX_TEST_SHARED_COMPILES", "1") != "0" and _SHARED not in 
 else:
     _OWN_SHARED = False
 
-# The suite compiles at LLVM's lowest optimisation level: XLA:CPU then compiles a frame program
-# about three times faster (most of the suite's time is compiling) and runs the tests' small
-# frames a few times slower. The arithmetic is the same IEEE float32 (no fast-math at any
-# level); only instruction choices such as fused multiply-adds differ, so two programs that
-# compute one thing agree to float32 rounding (tests/_frames.py), not always bit for bit. The
-# test processes the suite starts inherit it; tests/test_compile_cache.py runs the command line
-# at the level users get and compares its frame with one at the suite's level. FOVJAX_TEST_FAST_COMPILE=0
-# compiles the whole suite as users do.
-if os.environ.get("FOVJAX_TEST_FAST_COMPILE", "1") != "0" and FAST_COMPILE_FLAG not in os.environ.get(
-    "XLA_FLAGS", ""
-):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_COMPILE_FLAG}".strip()
+# The suite compiles for a short compile, not a fast program (tests/_frames.py FAST_COMPILE_FLAGS):
+# LLVM's lowest optimisation level, and XLA:CPU's loop emitters for every program (the frame
+# programs use them anyway, `fovjax.render.internal.LOOP_EMITTERS`). A frame program then
+# compiles about three times faster, the trace tests' programs about a third faster, and the
+# tests' small frames run a few times slower; most of the suite's time is compiling. The
+# arithmetic is the same IEEE float32 (no fast-math either way); instruction choices such as
+# fused multiply-adds differ, so two programs that compute one thing agree to float32 rounding
+# (tests/_frames.py), not always bit for bit. The processes the suite starts inherit the flags;
+# tests/test_compile_cache.py runs the command line as users do and compares its frame with one
+# compiled the suite's way. FOVJAX_TEST_FAST_COMPILE=0 compiles the whole suite as users do.
+if os.environ.get("FOVJAX_TEST_FAST_COMPILE", "1") != "0":
+    _flags = os.environ.get("XLA_FLAGS", "").split()
+    os.environ["XLA_FLAGS"] = " ".join(_flags + [f for f in FAST_COMPILE_FLAGS if f not in _flags])
 
 if os.environ.get("FOVJAX_TYPECHECK", "1") != "0":
     from beartype import BeartypeConf, beartype

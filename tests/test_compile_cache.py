@@ -33,9 +33,9 @@ def _entries(directory: Path) -> set[str]:
 
 
 def test_a_second_run_loads_the_programs_the_first_compiled(tmp_path):
-    """Two runs at the optimisation level users get (the suite compiles at a lower one,
+    """Two runs compiled as users' are (the suite compiles for a short compile,
     conftest): the second loads every program the first wrote. A third run with the cache
-    turned off by the environment, at the suite's level, writes nothing and renders the same
+    turned off by the environment, compiled the suite's way, writes nothing and renders the same
     frame to within one 8-bit step (tests/_frames.py: the same arithmetic, rounded apart)."""
     import imageio.v3 as iio
 
