@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -28,9 +29,13 @@ from fovjax.foveate.internal import (
     SKIPPED,
     compaction_order,
     plan_budget,
-    sample_classes,
     top_left,
 )
+from fovjax.foveate.internal import sample_classes as _sample_classes
+
+# Compiled once per image shape and foveation, as inside a frame program (eagerly, each call
+# compiled its sampling loop again).
+sample_classes = eqx.filter_jit(_sample_classes)
 
 W, H = 320, 256
 HFOV = 90.0

@@ -4,14 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
 
 import fovjax
 from fovjax.foveate import FOVEA, OUTSIDE, PERIPHERY, Foveation, eccentricity_map, thesis_pixel_pitch_mm
-from fovjax.foveate.internal import MANDATORY, OPTIONAL, SKIPPED, plan_budget, sample_classes, top_left
+from fovjax.foveate.internal import MANDATORY, OPTIONAL, SKIPPED, plan_budget, top_left
+from fovjax.foveate.internal import sample_classes as _sample_classes
 from fovjax.render import RenderConfig, StereoRig
+
+# Compiled once per image shape and foveation, as inside a frame program (eagerly, each call
+# compiled its sampling loop again).
+sample_classes = eqx.filter_jit(_sample_classes)
 
 W, H = 160, 128
 

@@ -45,6 +45,11 @@ def _gaze_counts(camera, gaze, foveation):
     return spp * counts.astype(jnp.float32)
 
 
+# One program per camera size and foveation structure, kept across renderers (a new jit per call
+# compiled it again for every renderer).
+_grid_counts = jax.jit(jax.vmap(_gaze_counts, in_axes=(None, 0, None)))
+
+
 def plan_budget(camera, foveation) -> int:
     """Sample slots per eye so that the traced samples fit for any gaze on the screen.
 
@@ -60,7 +65,7 @@ def plan_budget(camera, foveation) -> int:
     full = max_region_spp(foveation) * camera.height * camera.width
     grid = np.linspace(0.0, 1.0, BUDGET_GRID, dtype=np.float32)
     gazes = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
-    stats = np.asarray(jax.jit(jax.vmap(_gaze_counts, in_axes=(None, 0, None)))(camera, gazes, foveation))
+    stats = np.asarray(_grid_counts(camera, gazes, foveation))
     m, mean, var = (stats[:, i] for i in range(3))
     worst = float(np.max(m + mean + BUDGET_SIGMAS * np.sqrt(var)))
     budget = int(np.ceil(worst * 1.02)) + PACKET
