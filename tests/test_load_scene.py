@@ -4,6 +4,7 @@ import json
 import os
 import re
 import warnings
+from pathlib import Path
 
 import equinox as eqx
 import numpy as np
@@ -368,15 +369,22 @@ def test_directory_is_not_a_scene(tmp_path):
         fovjax.load_scene(tmp_path / "dir.obj")
 
 
-@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root can read any file")
 def test_unreadable_file(tmp_path):
-    path = write_obj(tmp_path)
-    path.chmod(0)
+    """A scene file that exists and cannot be read: one without read permission, or, for root
+    (who reads any file), a link to Linux's /proc/self/mem, whose first page no process maps."""
+    if hasattr(os, "geteuid") and os.geteuid() != 0:
+        path = write_obj(tmp_path)
+        path.chmod(0)
+    else:
+        assert Path("/proc/self/mem").exists(), "as root, the test needs Linux's /proc"
+        path = tmp_path / "scene.obj"
+        path.symlink_to("/proc/self/mem")
     try:
         with pytest.raises(OSError, match=r"scene\.obj: cannot read scene file"):
             fovjax.load_scene(path)
     finally:
-        path.chmod(0o644)
+        if not path.is_symlink():
+            path.chmod(0o644)
 
 
 def test_unknown_format(tmp_path):

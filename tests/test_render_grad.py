@@ -6,10 +6,7 @@ vertex positions. Visibility (which triangle a ray hits, whether a shadow ray is
 differentiated; the BVH is built once, so the renderer with perturbed arrays is a smooth function
 of them as long as no shadow edge or silhouette moves across a sample, and the views are chosen
 so: the sphere's front seen from ahead (its reflections see only the sky), and open floor lit
-without shadows. The finite differences evaluate the gradient's own compiled program (its value
-and image): a ray's visibility is then decided by the same code in both, so a program that
-rounds a ray's origin differently (XLA's choices differ between programs and compile options)
-cannot turn one sample's shadow or hit over between the gradient and its check.
+without shadows. The finite differences use the same compiled program as test_render.py.
 
 Tolerances are what float32 supports for each kind of parameter (measured with this file's
 `check` on this scene; relative to the larger of |finite difference| and 1% of the leaf's largest
@@ -38,7 +35,7 @@ import pytest
 from test_render_reference import FLOOR, SIZE, SPHERE, oracle_scene
 
 import fovjax
-from fovjax.render import RenderConfig, render_image, scene_arrays
+from fovjax.render import RenderConfig, render, render_image, scene_arrays
 from fovjax.trace import build_bvh
 
 CONFIG = RenderConfig(max_depth=1)
@@ -47,21 +44,18 @@ WEIGHTS = np.random.default_rng(3).uniform(0.0, 1.0, (SIZE, SIZE, 3)).astype(np.
 
 
 def loss(params, bvh):
-    """The weighted image sum, and the image (for a float64 sum in `forward`)."""
     arrays, camera = params
-    image = render_image(arrays, bvh, camera, config=CONFIG)
-    return jnp.sum(WEIGHTS * image), image
+    return jnp.sum(WEIGHTS * render_image(arrays, bvh, camera, config=CONFIG))
 
 
-# One program gives the gradient and the finite differences' values, compiled with XLA's
-# default (fusion) emitters, as a user's own jit of a gradient is: with the loop emitters the
-# suite compiles with (conftest) at LLVM's lowest optimisation level, the floor's Kd gradient
-# came out 9e-5 (relative) off its finite difference, well past float32 rounding, with either
-# setting alone it is not; that combination is the suite's alone.
-_value_and_grad = eqx.filter_value_and_grad(loss, has_aux=True)
-VALUE_AND_GRAD = jax.jit(
-    lambda params, bvh: _value_and_grad(params, bvh), compiler_options={"xla_cpu_use_fusion_emitters": True}
-)
+# The gradient's program compiles with XLA's default (fusion) emitters, as a user's own jit of
+# a gradient does: with the loop emitters the suite compiles with (conftest) at LLVM's lowest
+# optimisation level, the floor's Kd gradient came out 9e-5 (relative) off its finite
+# difference, well past float32 rounding, while the finite differences agreed with every other
+# setting's; with either setting alone the gradient is right. That combination is the suite's
+# alone.
+_grad = eqx.filter_grad(loss)
+GRAD = jax.jit(lambda params, bvh: _grad(params, bvh), compiler_options={"xla_cpu_use_fusion_emitters": True})
 
 
 @pytest.fixture(scope="module")
@@ -69,12 +63,12 @@ def setup():
     scene = oracle_scene()
     bvh = build_bvh(scene, cache=False)
     arrays = scene_arrays(scene, envmap=BACKGROUND)
-    return scene, bvh, arrays, lambda params, bvh: VALUE_AND_GRAD(params, bvh)[1]
+    return scene, bvh, arrays, GRAD
 
 
 def forward(arrays, camera, bvh):
-    (_, image), _ = VALUE_AND_GRAD((arrays, camera), bvh)
-    return float(np.sum(WEIGHTS.astype(np.float64) * np.asarray(image)))
+    image = render(arrays, camera, config=CONFIG, bvh=bvh).image
+    return float(np.sum(WEIGHTS.astype(np.float64) * image))
 
 
 def replace_entry(params, where, index, value):
