@@ -1,5 +1,6 @@
 """Frames sharded over devices: two forced CPU devices give the frames of one device and of
-frames rendered one by one; the sharded sweep equals the unsharded one.
+frames rendered one by one; the sharded sweep equals the unsharded one; `fovjax compare
+--distributed` over two processes on localhost writes what one process writes.
 
 Runs in a subprocess because the device count (XLA_FLAGS) is fixed when JAX starts. The
 subprocess compiles with XLA's backend optimisation level 0: five programs compile in about
@@ -15,8 +16,6 @@ import socket
 import subprocess
 import sys
 import textwrap
-
-import pytest
 
 OPT_LEVEL_0 = "--xla_backend_optimization_level=0"
 SCRIPT = textwrap.dedent(
@@ -111,11 +110,6 @@ def test_sharded_frames_equal_one_device_and_frames_one_by_one():
     assert result.stdout.strip().endswith("OK")
 
 
-@pytest.mark.skipif(
-    os.environ.get("FOVJAX_TEST_DISTRIBUTED") != "1",
-    reason="two JAX processes on localhost with jax.distributed (about 2 minutes on 2 cores): "
-    "set FOVJAX_TEST_DISTRIBUTED=1",
-)
 def test_compare_over_two_processes_with_jax_distributed(tmp_path):
     """`fovjax compare --distributed` on two processes of one CPU device each (the multi-host
     path, on one machine) writes what one process writes without sharding."""
