@@ -261,3 +261,38 @@ def test_every_frame_program_lowers_for_cuda():
     for entry, module in exported.items():
         assert "fovjax_embree_query" not in module, f"{entry}: the Embree call is on the CUDA path"
         assert "callback" not in module, f"{entry}: a host callback is on the CUDA path"
+
+
+def test_auto_traces_the_jax_traversal_only_where_another_platform_is_seen(monkeypatch):
+    """ "auto" traces one branch per platform it may lower for: CPU's and CUDA's backends, and the
+    JAX traversal only where JAX sees a device of another platform (ROCm, TPU); then the program
+    also lowers for such a platform, on the JAX traversal."""
+    import fovjax.trace._query as query
+
+    traced = []
+    run_backend = query._run_backend
+
+    def spy(name, *args, **kwargs):
+        traced.append(name)
+        return run_backend(name, *args, **kwargs)
+
+    monkeypatch.setattr(query, "_run_backend", spy)
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    bvh = build_bvh(vertices=v, faces=np.array([[0, 1, 2]], np.int32), cache=False)
+
+    def rays(n):
+        o = np.tile(np.array([[0.2, 0.2, 1.0]], np.float32), (n, 1))
+        return o, np.tile(np.array([[0.0, 0.0, -1.0]], np.float32), (n, 1))
+
+    # Ray counts no other test uses: a fresh trace of the query's program each time.
+    jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="auto")).lower(*rays(7))
+    on_cpu, on_cuda = (fovjax.trace.resolve_backend("auto", p) for p in ("cpu", "cuda"))
+    assert not query._other_platforms()  # this machine: CPU (and CUDA) only
+    assert traced == ([on_cpu, on_cuda] if (on_cpu, on_cuda) != ("jax", "jax") else ["jax"])
+
+    traced.clear()
+    monkeypatch.setattr(query, "_other_platforms", lambda: True)
+    jitted = jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="auto"))
+    exported = jax.export.export(jitted, platforms=("rocm",))(*rays(9))
+    assert traced[-1] == "jax" and "jax" in traced
+    assert "fovjax_embree_query" not in exported.mlir_module()

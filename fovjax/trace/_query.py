@@ -5,7 +5,8 @@ anything lies on it). `"embree"` is Embree through an XLA FFI call (CPU), `"warp
 BVH queries (CUDA, and CPU), `"jax"` the `lax.while_loop` traversal of `_traverse.py` (any XLA
 device; the reference every other backend is tested against). `"auto"` (the default) picks per
 platform inside the program (`jax.lax.platform_dependent`): Embree on CPU where its handler
-builds, Warp on CUDA where it is installed, else JAX — so one program lowers for CPU and CUDA.
+builds, Warp on CUDA where it is installed, else JAX — so one program lowers for CPU and CUDA
+(and, where JAX sees a device of another platform, for it too, on the JAX traversal).
 t, u, v are recomputed from the hit face in plain JAX, so gradients do not depend on the backend.
 """
 
@@ -317,10 +318,24 @@ def _query_backend(
         return run
 
     args = (o, d, tmin, tmax) + (() if level is None else (level,))
-    # The JAX traversal outside CPU never splits the rays over host devices.
-    return jax.lax.platform_dependent(
-        *args, cpu=branch(on_cpu, True), cuda=branch(on_cuda, False), default=branch("jax", False)
-    )
+    branches = {"cpu": branch(on_cpu, True), "cuda": branch(on_cuda, False)}
+    if _other_platforms():
+        # The JAX traversal outside CPU never splits the rays over host devices.
+        branches["default"] = branch("jax", False)
+    return jax.lax.platform_dependent(*args, **branches)
+
+
+@functools.cache
+def _other_platforms() -> bool:
+    """Whether JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...): only
+    then does "auto" trace the JAX traversal as a third branch for them. Every branch is traced
+    though only one is compiled, and that one is about a second of every frame program's compile
+    (measured on the atrium's foveated frame)."""
+    for device in jax.devices():
+        version = str(getattr(device.client, "platform_version", "")).lower()
+        if device.platform != "cpu" and not (device.platform in ("gpu", "cuda") and "cuda" in version):
+            return True
+    return False
 
 
 def _run_backend(
