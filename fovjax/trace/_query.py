@@ -13,6 +13,7 @@ t, u, v are recomputed from the hit face in plain JAX, so gradients do not depen
 from __future__ import annotations
 
 import functools
+import os
 from typing import NamedTuple
 
 import jax
@@ -327,10 +328,16 @@ def _query_backend(
 
 @functools.cache
 def _other_platforms() -> bool:
-    """Whether JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...): only
-    then does "auto" trace the JAX traversal as a third branch for them. Every branch is traced
-    though only one is compiled, and that one is about a second of every frame program's compile
-    (measured on the atrium's foveated frame)."""
+    """Whether "auto" traces the JAX traversal as a branch for platforms other than CPU and
+    CUDA: where JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...), or
+    FOVJAX_AUTO_OTHER_PLATFORMS=1 (to export an "auto" program for them from a machine without
+    one). Every branch is traced though only one is compiled, and that one is about a second of
+    a frame program's compile (`python benchmarks/compile_options.py --compare branches`)."""
+    setting = os.environ.get("FOVJAX_AUTO_OTHER_PLATFORMS", "")
+    if setting not in ("", "0", "1"):
+        raise ValueError(f"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got {setting!r}")
+    if setting == "1":
+        return True
     for device in jax.devices():
         version = str(getattr(device.client, "platform_version", "")).lower()
         if device.platform != "cpu" and not (device.platform in ("gpu", "cuda") and "cuda" in version):
