@@ -34,7 +34,7 @@ SECTIONS = [
     ("render", "Full frames"),
     ("foveation", "Foveated frames"),
     ("profile_frame", "Inside the frame program"),
-    ("compile_options", "Compile options (XLA's emitters, the ray queries' branches): compile and frame times"),
+    ("compile_options", "Compile options: XLA's emitters, the ray queries' branches"),
     ("fidelity", "Fidelity per region"),
     ("fidelity_density", "Sampling density"),
     ("plan_fidelity", "Planned fidelity"),
