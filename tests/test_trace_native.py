@@ -296,3 +296,17 @@ def test_auto_traces_the_jax_traversal_only_where_another_platform_is_seen(monke
     exported = jax.export.export(jitted, platforms=("rocm",))(*rays(9))
     assert traced[-1] == "jax" and "jax" in traced
     assert "fovjax_embree_query" not in exported.mlir_module()
+
+
+def test_other_platforms_setting_is_read_and_a_bad_value_named(monkeypatch):
+    import fovjax.trace._query as query
+
+    query._other_platforms.cache_clear()
+    try:
+        monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "yes")
+        with pytest.raises(ValueError, match=r"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got 'yes'"):
+            query._other_platforms()
+        monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "1")
+        assert query._other_platforms()
+    finally:
+        query._other_platforms.cache_clear()  # the next caller reads the suite's own setting

@@ -331,8 +331,8 @@ def _other_platforms() -> bool:
     """Whether "auto" traces the JAX traversal as a branch for platforms other than CPU and
     CUDA: where JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...), or
     FOVJAX_AUTO_OTHER_PLATFORMS=1 (to export an "auto" program for them from a machine without
-    one). Every branch is traced though only one is compiled, and that one is about a second of
-    a frame program's compile (`python benchmarks/compile_options.py --compare branches`)."""
+    one). Every branch is traced though only one is compiled, and that one was 0.4 s of the
+    atrium's frame programs' compile (`python benchmarks/compile_options.py --compare branches`)."""
     setting = os.environ.get("FOVJAX_AUTO_OTHER_PLATFORMS", "")
     if setting not in ("", "0", "1"):
         raise ValueError(f"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got {setting!r}")
