@@ -14,6 +14,8 @@ THESIS_BACKGROUND = (0.34, 0.55, 0.85)
 MAGENTA = (1.0, 0.0, 1.0)
 # Where a hit's t, u, v come from (`RenderConfig.hits`).
 HITS = ("recomputed", "backend")
+# Who runs the integrator's per-ray work (`RenderConfig.integrator`).
+INTEGRATORS = ("auto", "native", "jax")
 
 
 def _rgb(name: str, value) -> tuple[float, float, float]:
@@ -66,6 +68,17 @@ class RenderConfig:
       query's own t, u, v (Embree's, Warp's or the JAX traversal's), not recomputed: for a scene
       whose vertices are the BVH's, faster (benchmarks/mitsuba_frame.py `--hits`) and equal up
       to float rounding. Derivatives are the same closed form at `scene.vertices` either way.
+    - `integrator`: who runs the per-ray work of a frame (tracing, shading, shadow rays,
+      reflections). "auto" (the default): on a CPU where the Embree FFI handler is built and
+      `backend` is "auto" or "embree", the native integrator, a Whitted loop per ray inside
+      the same handler (`fovjax/trace/_embree_ffi.cc`: the same arithmetic as the JAX
+      integrator, written per ray, with no intermediate arrays between the stages); elsewhere
+      (a GPU, another backend, shading classes of a per-region fidelity, image tiles of rays)
+      the JAX integrator, chosen per platform inside the program. "native": the native
+      integrator or an error saying why not; "jax": always JAX. Derivatives are the JAX
+      integrator's whichever ran the primal (a custom JVP), and the two agree to float
+      rounding except where a ray meets an edge or a light's horizon (a few pixels in a
+      million; `tests/test_render_native.py`). Hits follow `hits` either way.
     - `depth_batch_size`: `radiance_in_chunks` takes its slots through every depth level in
       batches of this many (rounded up to whole chunks), so its reflection queue holds one
       batch's rays: the program's memory, which on a CPU is fresh pages touched every frame,
@@ -84,6 +97,7 @@ class RenderConfig:
     first_bounce_chunk_size: int | None = 16384
     depth_batch_size: int | None = 262144
     hits: str = "recomputed"
+    integrator: str = "auto"
 
     def __post_init__(self):
         if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
@@ -133,6 +147,8 @@ class RenderConfig:
             raise ValueError(f"RenderConfig.hits must be one of {HITS}, got {self.hits!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"RenderConfig.integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
 
 
 DEFAULT_CONFIG = RenderConfig()

@@ -553,6 +553,13 @@ def radiance(
     active = jnp.ones(batch, bool) if active is None else jnp.broadcast_to(jnp.asarray(active, bool), batch)
     offset = config.ray_offset * scene_scale(scene)
 
+    total, n_shadow, n_reflection = _integrate(scene, bvh, o, d, active, offset, config)
+    return _finish_radiance(total, active, valid, config, n_shadow, n_reflection)
+
+
+def _jax_integrate(scene, bvh, o, d, active, offset, config):
+    """The integrator in JAX: (radiance (*batch, 3), shadow rays, reflection rays)."""
+    batch = active.shape
     total, queue, n_queued, n_shadow, size = _depth0(scene, bvh, o, d, active, offset=offset, config=config)
     n_reflection = jnp.int32(0)
     if config.max_depth > 0:
@@ -560,9 +567,73 @@ def radiance(
             scene, bvh, total, queue, n_queued, offset=offset, config=config, size=size
         )
         n_shadow = n_shadow + more_shadow
-    total = total[: int(np.prod(batch))].reshape(batch + (3,))
+    return total[: int(np.prod(batch))].reshape(batch + (3,)), n_shadow, n_reflection
 
-    return _finish_radiance(total, active, valid, config, n_shadow, n_reflection)
+
+def native_integrator(config: RenderConfig) -> bool:
+    """Whether `radiance` runs its primal in the native integrator (the Embree FFI handler's
+    Whitted loop) on a CPU: `config.integrator` "native", or "auto" with an Embree-capable ray
+    backend ("auto" or "embree") where the handler is built. "native" without the handler is an
+    error naming why."""
+    if config.integrator == "jax" or config.backend not in ("auto", "embree") or config.max_depth > 255:
+        if config.integrator == "native":
+            raise ValueError(
+                "RenderConfig.integrator 'native' needs backend 'auto' or 'embree' and max_depth <= 255, "
+                f"got backend {config.backend!r}, max_depth {config.max_depth}"
+            )
+        return False
+    from ..trace.internal import embree_status
+
+    status = embree_status()
+    if not status and config.integrator == "native":
+        raise RuntimeError(
+            f"RenderConfig.integrator 'native': the Embree FFI handler is unavailable: {status.reason}"
+        )
+    return bool(status)
+
+
+def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False):
+    """(radiance (*batch, 3), shadow rays, reflection rays) of unit-direction rays. With the
+    native integrator (`native_integrator`) the primal runs in the Embree FFI handler on a CPU
+    and in JAX elsewhere (chosen per platform inside the program, as the ray queries are;
+    `cpu_only`: inside a CPU-only branch already); its derivatives are always the JAX
+    integrator's (a custom JVP), so gradients do not depend on where the primal ran."""
+    if not native_integrator(config):
+        return _jax_integrate(scene, bvh, o, d, active, offset, config)
+    from ..trace.internal import embree_whitted
+
+    batch = active.shape
+
+    def in_jax(scene, o, d, active, offset):
+        return _jax_integrate(scene, bvh, o, d, active, offset, config)
+
+    def native(scene, o, d, active, offset):
+        total, traced = embree_whitted(
+            scene,
+            bvh,
+            o.reshape(-1, 3),
+            d.reshape(-1, 3),
+            active.reshape(-1),
+            offset,
+            max_depth=config.max_depth,
+            recompute=config.hits == "recomputed",
+            packets=config.packet is not None,
+        )
+        n_shadow = jnp.sum(jnp.right_shift(traced, 8), dtype=jnp.int32)
+        n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)
+        return total.reshape(batch + (3,)), n_shadow, n_reflection
+
+    @jax.custom_jvp
+    def integrate(scene, o, d, active, offset):
+        if config.integrator == "native" or cpu_only:
+            return native(scene, o, d, active, offset)
+        return jax.lax.platform_dependent(scene, o, d, active, offset, cpu=native, default=in_jax)
+
+    @integrate.defjvp
+    def _integrate_jvp(primals, tangents):
+        return jax.jvp(in_jax, primals, tangents)
+
+    return integrate(scene, o, d, active, offset)
 
 
 def _finish_radiance(total, active, valid, config, n_shadow, n_reflection):
@@ -901,8 +972,51 @@ def radiance_in_chunks(
     scene = jax.tree.map(jnp.asarray, scene)
     extra = sum(int(np.prod(t.active.shape)) for t in tiles)
     chunks = _chunks(n_slots, config, extra)
-    batch = _batch(chunks, config)
     offset = config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
+
+    def in_jax():
+        return _chunks_in_jax(scene, bvh, rays_at, n_live, chunks, offset, config, tiles, classes, class_at)
+
+    if tiles or classes is not None or not native_integrator(config):
+        return in_jax()
+
+    def in_native():
+        return _chunks_native(scene, bvh, rays_at, n_live, chunks, offset, config)
+
+    if config.integrator == "native":
+        return in_native()
+    return jax.lax.platform_dependent(cpu=in_native, default=in_jax)
+
+
+def _chunks_native(scene, bvh, rays_at, n_live, chunks: _Chunks, offset, config) -> ChunkedRadiance:
+    """`radiance_in_chunks` through the native integrator (`_integrate`): each live chunk of
+    slots made (`rays_at`) and traced through every depth level in one call, its radiance
+    written to its slots."""
+    size = chunks.size
+    lanes = jnp.arange(size, dtype=jnp.int32)
+
+    def body(carry, first):
+        total, n_primary, n_shadow, n_reflection = carry
+        o, d = rays_at(first, size)
+        o = jnp.asarray(o, jnp.float32)
+        d_raw = jnp.asarray(d, jnp.float32)
+        d = normalize(d_raw)
+        valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        active = first + lanes < n_live
+        contribution, shadow, reflection = _integrate(scene, bvh, o, d, active, offset, config, cpu_only=True)
+        total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
+        n_primary = n_primary + jnp.sum(active & valid, dtype=jnp.int32)
+        return total, n_primary, n_shadow + shadow, n_reflection + reflection
+
+    zero = jnp.int32(0)
+    init = (jnp.zeros((chunks.padded, 3), jnp.float32), zero, zero, zero)
+    total, n_primary, n_shadow, n_reflection = chunk_loop(chunks.count, size, n_live, body, init)
+    return ChunkedRadiance(total, n_primary, n_shadow, n_reflection, ())
+
+
+def _chunks_in_jax(scene, bvh, rays_at, n_live, chunks: _Chunks, offset, config, tiles, classes, class_at):
+    """`radiance_in_chunks` in JAX: the queues of every depth level (see its docstring)."""
+    batch = _batch(chunks, config)
     zero = jnp.int32(0)
     if tiles:
         init = _tile_level(scene, bvh, tiles, chunks, offset=offset, config=config, classes=classes)

@@ -140,6 +140,74 @@ def _ffi_call(any_hit: bool, packets: int):
     return call
 
 
+def embree_whitted(scene, bvh: BVH, o, d, active, offset, *, max_depth: int, recompute: bool, packets: bool):
+    """The Whitted integrator's primal through the Embree FFI handler, on flat rays: (radiance
+    (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
+    in bits 0-7). `scene`: `fovjax.render.SceneArrays`; `d` unit directions; `offset` the ray
+    offset in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
+    (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
+    where a run of rays is coherent. Not differentiable (the caller's custom JVP is)."""
+    from ._native import WHITTED_TARGET, embree_status
+
+    status = embree_status()
+    if not status:
+        raise RuntimeError(f"the Embree FFI handler is unavailable: {status.reason}")
+    if not 0 <= max_depth < 256:
+        raise ValueError(f"the native integrator counts at most 255 reflections, got max_depth {max_depth}")
+    f32, i32 = jnp.float32, jnp.int32
+    n = active.shape[0]
+
+    def flat(x, dtype):
+        return jnp.zeros((0,), dtype) if x is None else jnp.asarray(x, dtype).reshape(-1)
+
+    textures = tuple(jnp.asarray(t, f32).reshape(-1) for t in scene.textures)
+    texels = jnp.concatenate(textures) if textures else jnp.zeros((0,), f32)
+    shapes = np.asarray([np.shape(t)[:2] for t in scene.textures], np.int32).reshape(-1)
+    materials = jnp.concatenate(
+        [jnp.asarray(x, f32) for x in (scene.ka, scene.kd, scene.ks, scene.ke, scene.kr)]
+        + [jnp.asarray(scene.ns, f32)[:, None]],
+        axis=1,
+    )
+    lights = jnp.concatenate(
+        [
+            jnp.asarray(scene.light_position, f32).reshape(-1, 3),
+            jnp.asarray(scene.light_color, f32).reshape(-1, 3),
+        ],
+        axis=1,
+    )
+    args = jax.tree.map(
+        jax.lax.stop_gradient,
+        (
+            jnp.asarray(o, f32).reshape(n, 3),
+            jnp.asarray(d, f32).reshape(n, 3),
+            jnp.asarray(active, bool).reshape(n),
+            jnp.asarray(bvh.host_id, i32),
+            jnp.asarray(bvh.vertices, f32),
+            jnp.asarray(bvh.faces, i32),
+            jnp.asarray(bvh.tree_faces(), i32),
+            jnp.asarray(scene.vertices, f32),
+            jnp.asarray(scene.faces, i32),
+            flat(scene.face_material, i32),
+            flat(scene.normals, f32),
+            flat(scene.uvs, f32),
+            materials,
+            flat(scene.texture, i32),
+            texels,
+            jnp.asarray(shapes, i32),
+            lights,
+            flat(scene.light_kind, i32),
+            flat(scene.ambient, f32),
+            jnp.asarray(scene.environment, f32),
+            jnp.asarray(offset, f32).reshape(1),
+        ),
+    )
+    out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), i32))
+    call = jax.ffi.ffi_call(WHITTED_TARGET, out, vmap_method="sequential")
+    return call(
+        *args, max_depth=np.int32(max_depth), recompute=np.int32(recompute), packets=np.int32(packets)
+    )
+
+
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):
     """(t, prim) through embreex's Python API and `jax.pure_callback` (the fallback)."""
 

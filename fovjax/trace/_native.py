@@ -28,7 +28,9 @@ import jax
 
 SOURCE = Path(__file__).with_name("_embree_ffi.cc")
 TARGET = "fovjax_embree_query"
-_FLAGS = ("-O3", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes")
+# The Whitted integrator's primal (`fovjax.render.radiance` with `RenderConfig.integrator`).
+WHITTED_TARGET = "fovjax_embree_whitted"
+_FLAGS = ("-O3", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes")
 
 _lock = threading.Lock()
 _state: dict = {}
@@ -152,6 +154,7 @@ def _load() -> NativeStatus:
     if lib.fovjax_embree_init(library.encode()) != 0:
         return NativeStatus(False, f"Embree ({Path(library).name}): {lib.fovjax_embree_error().decode()}")
     jax.ffi.register_ffi_target(TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeQuery), platform="cpu")
+    jax.ffi.register_ffi_target(WHITTED_TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeWhitted), platform="cpu")
     _state["lib"] = lib
     version = lib.fovjax_embree_version()
     width = lib.fovjax_embree_packet_width()
