@@ -30,7 +30,9 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   and **fovjax foveated** (`FoveatedRenderer.render`: `Foveation(fovea_deg=5, periphery_deg=10,
   spp=SPP)` at `--gaze`, off-centre by default; `diagnostics=()`, the image and counts as a
   frame loop asks), one renderer prepared once for both, both un-jittered (key None),
-  `--backend` as fovjax's ray-query backend and `--hits` as `RenderConfig.hits`: the frame's
+  `--backend` as fovjax's ray-query backend, `--hits` as `RenderConfig.hits` and
+  `--integrator` as `RenderConfig.integrator` (the native Whitted loop or the JAX integrator;
+  "auto", the default, is the native one on this CPU where the handler builds): the frame's
   `stats.render_seconds` (the compiled program's wall time) and the wall time around the call;
   compile times printed apart.
 
@@ -625,6 +627,12 @@ def main(argv=None) -> dict | None:
         help="fovjax's RenderConfig.hits: t, u, v recomputed from the vertices (default) or the backend's",
     )
     ap.add_argument(
+        "--integrator",
+        default="auto",
+        choices=("auto", "native", "jax"),
+        help="fovjax's RenderConfig.integrator: the native Whitted loop on a CPU ('auto', 'native') or JAX",
+    )
+    ap.add_argument(
         "--gaze",
         type=float,
         nargs=4,
@@ -654,7 +662,9 @@ def main(argv=None) -> dict | None:
     from fovjax.render import RenderConfig, StereoRig, scene_arrays
     from fovjax.render.internal import bvh_for, scene_scale
 
-    config = RenderConfig(max_depth=args.max_depth, backend=args.backend, hits=args.hits)
+    config = RenderConfig(
+        max_depth=args.max_depth, backend=args.backend, hits=args.hits, integrator=args.integrator
+    )
     scene = fovjax.scenes.BUILTIN[args.scene]()
     rig = StereoRig.from_pose(
         fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
@@ -715,6 +725,7 @@ def main(argv=None) -> dict | None:
         "repeats": args.repeats,
         "backend": args.backend,
         "hits": args.hits,
+        "integrator": args.integrator,
         "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
         "gaze": gaze,
         "fovea_deg": args.fovea,
@@ -756,6 +767,7 @@ def frame_tables(record: dict) -> list[dict]:
                 "title": f"{record['scene']}, 2 × {r['width']}×{r['height']}, SPP {r['spp']}, depth "
                 f"{record['max_depth']}, backend {record['backend']}, "
                 f"hits {record.get('hits', 'recomputed')}, "
+                f"integrator {record.get('integrator', 'jax (before the native integrator)')}, "
                 f"GLIBC_TUNABLES {record.get('glibc_tunables') or 'unset'}, "
                 f"foveated {record['fovea_deg']}° "
                 f"at gaze {record['gaze']}; PSNR of Mitsuba's frame against fovjax's full frame "

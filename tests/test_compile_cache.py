@@ -55,7 +55,9 @@ def test_a_second_run_loads_the_programs_the_first_compiled(tmp_path):
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
 
     off = tmp_path / "off"
-    suite = _fovjax([*RENDER, "-o", str(tmp_path / "c.png")], off, FOVJAX_COMPILE_CACHE="0", FOVJAX_NATIVE="0")
+    suite = _fovjax(
+        [*RENDER, "-o", str(tmp_path / "c.png")], off, FOVJAX_COMPILE_CACHE="0", FOVJAX_NATIVE="0"
+    )
     assert suite.returncode == 0, suite.stderr
     assert not (off / "xla").exists()
     users_frame = iio.imread(tmp_path / "a.png").astype(int)

@@ -49,8 +49,10 @@ SCRIPT = textwrap.dedent(
         scene, rig, gazes=gazes, keys=keys, foveation=fov, config=config, devices=jax.devices()[:1]
     )
     assert one.devices == 1 and one.padded == 3
-    # Same per-frame arithmetic on each device: bit for bit.
-    assert np.array_equal(two.images, one.images)
+    # Same per-frame arithmetic on each device, in two programs (a batch of 2 per device and
+    # of 3): XLA compiles the rays' arithmetic around the integrator per program, and at the
+    # suite's optimisation level 0 the two can round apart by an ulp (tests/_frames.py).
+    np.testing.assert_allclose(two.images, one.images, rtol=1e-5, atol=1e-6)
     for name in ("primary_rays", "shadow_rays", "reflection_rays", "primary_by_region", "sample_mask"):
         assert np.array_equal(getattr(two, name), getattr(one, name)), name
 

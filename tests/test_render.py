@@ -568,6 +568,8 @@ def test_cli_render_stereo_spheres(tmp_path, capsys):
     assert png.shape == (16, 48, 3)
     captured = capsys.readouterr()
     assert "stereo 48x16 spp 1" in captured.out and "primary" in captured.out
+    assert "ray queries: embree (Embree 4." in captured.out
+    assert "integrator: native (" in captured.out
     assert "[3/4]" in captured.err
     assert main(["render", "--scene", "nowhere.obj", "-o", str(out)]) == 2
     assert "not a built-in scene" in capsys.readouterr().err

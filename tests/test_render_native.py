@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import _extras
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -32,9 +33,13 @@ from fovjax.scene import DIRECTIONAL_LIGHT, POINT_LIGHT
 from fovjax.trace import build_bvh
 from fovjax.trace.internal import embree_status
 
-pytestmark = pytest.mark.skipif(
-    not embree_status(), reason=f"the Embree FFI handler is unavailable: {embree_status().reason}"
-)
+_extras.require("embreex", module_level=True)
+if not embree_status():  # embreex is here but the handler did not build (e.g. no C++ compiler)
+    if _extras.required():
+        pytest.fail(f"the Embree FFI handler is unavailable: {embree_status().reason}", pytrace=False)
+    pytest.skip(
+        f"the Embree FFI handler is unavailable here: {embree_status().reason}", allow_module_level=True
+    )
 
 EYE_W, EYE_H = 40, 32
 DEPTH = 3

@@ -190,7 +190,14 @@ def _run(args, out: Path) -> int:
 
     import fovjax
     from fovjax import render_stereo
-    from fovjax.render import RenderConfig, StereoRig, head_rotation, render, scene_arrays
+    from fovjax.render import (
+        RenderConfig,
+        StereoRig,
+        describe_integrator,
+        head_rotation,
+        render,
+        scene_arrays,
+    )
     from fovjax.trace import build_bvh, describe_backend, last_build_info
 
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
@@ -253,6 +260,7 @@ def _run(args, out: Path) -> int:
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
     platform = jax.devices()[0].platform
     print(f"ray queries: {describe_backend(config.backend, platform)}")
+    print(f"integrator: {describe_integrator(config, platform)}")
     if sys.platform.startswith("linux"):
         print(f"memory: {_pages()}")
     if foveated and isinstance(frame, fovjax.FoveatedFrame):

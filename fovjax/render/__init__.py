@@ -80,6 +80,7 @@ from ._frame import resolve as resolve
 from ._frame import side_by_side as side_by_side
 from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
+from ._integrator import describe_integrator as describe_integrator
 from ._integrator import radiance as radiance
 from ._stereo import HeadPoseLike as HeadPoseLike
 from ._stereo import SampleRays as SampleRays
@@ -151,6 +152,7 @@ __all__ = [
     "Radiance",
     "RayCounts",
     "radiance",
+    "describe_integrator",
     "HeadPoseLike",
     "SampleRays",
     "StereoRig",

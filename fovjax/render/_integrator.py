@@ -592,6 +592,28 @@ def native_integrator(config: RenderConfig) -> bool:
     return bool(status)
 
 
+def describe_integrator(config: RenderConfig, platform: str) -> str:
+    """One line naming the integrator `config` runs on `platform` and, where it is the JAX one
+    on a CPU under "auto", why."""
+    if platform == "cpu":
+        try:
+            native = native_integrator(config)
+        except (ValueError, RuntimeError) as exc:
+            return f"unavailable ({exc})"
+        if native:
+            return "native (the Whitted loop in the Embree FFI handler; derivatives in JAX)"
+        if config.integrator == "jax":
+            return "jax (RenderConfig.integrator 'jax')"
+        if config.backend not in ("auto", "embree"):
+            return f"jax (the ray backend is {config.backend!r})"
+        if config.max_depth > 255:
+            return "jax (max_depth above 255)"
+        from ..trace.internal import embree_status
+
+        return f"jax (the Embree FFI handler is unavailable: {embree_status().reason})"
+    return f"jax (no native integrator for {platform})"
+
+
 def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False):
     """(radiance (*batch, 3), shadow rays, reflection rays) of unit-direction rays. With the
     native integrator (`native_integrator`) the primal runs in the Embree FFI handler on a CPU
