@@ -55,6 +55,7 @@ from fovjax.trace import build_bvh  # noqa: E402
 # Stage of an operation: the first rule whose (file, function) pattern matches a frame of its
 # source stack, innermost first.
 STAGES = (
+    ("native integrator (trace, shade, shadows, reflections)", r"trace/_embree\.py:\d+\(embree_whitted"),
     ("ray queries (native)", r"trace/_embree\.py|trace/_warp\.py"),
     (
         "ray queries (JAX: traversal, batching)",
