@@ -198,3 +198,17 @@ def _radiance_config(arrays, bvh, rig, config):
     return jax.jit(lambda a, o, d: radiance(a, bvh, o, d, config=config))(
         arrays, rays.origins, rays.directions
     )
+
+
+def test_a_hit_face_out_of_range_is_an_error_naming_it(featured):
+    """Scene arrays whose faces name vertices that do not exist (the BVH traced the original
+    faces): the native call fails with a message saying so, rather than reading past the
+    vertices."""
+    _, arrays, bvh, rig = featured
+    faces = np.array(arrays.faces, copy=True)
+    faces[:, 0] = np.asarray(arrays.vertices).shape[0] + 5
+    broken = dataclasses.replace(arrays, faces=faces)
+    with pytest.raises(jax.errors.JaxRuntimeError, match="names a vertex or a material out of range"):
+        jax.block_until_ready(
+            _radiance_config(broken, bvh, rig, RenderConfig(max_depth=1, integrator="native"))
+        )

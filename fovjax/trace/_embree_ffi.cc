@@ -654,6 +654,8 @@ struct ShadeScene {
   const int32_t* faces;
   const int32_t* face_material;
   int64_t num_faces;
+  int64_t num_vertices;
+  std::atomic<int>* out_of_range;  // set where a hit face's vertex or material is out of range
   const float* normals;  // null: none
   const float* uvs;      // null: none
   const float* materials;  // (M, 16): ka, kd, ks, ke, kr, ns
@@ -795,6 +797,13 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       if (b.prim[k] < 0) continue;
       const int64_t f = std::min<int64_t>(b.prim[k], s.num_faces - 1);
       const int32_t* face = s.faces + 3 * f;
+      const int32_t mat = s.face_material[f];
+      if (face[0] < 0 || face[0] >= s.num_vertices || face[1] < 0 || face[1] >= s.num_vertices ||
+          face[2] < 0 || face[2] >= s.num_vertices || mat < 0 || mat >= s.num_materials) {
+        s.out_of_range->store(1);
+        b.prim[k] = -1;  // shaded as a miss; the call returns an error
+        continue;
+      }
       Vec3 c0 = Load3(s.vertices + 3 * face[0]), c1 = Load3(s.vertices + 3 * face[1]),
            c2 = Load3(s.vertices + 3 * face[2]);
       Vec3 d = Load3(&b.d[3 * k]);
@@ -824,7 +833,6 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
                                         Load3(s.normals + 3 * face[1]), Load3(s.normals + 3 * face[2])));
         if (!(ni.x == 0.0f && ni.y == 0.0f && ni.z == 0.0f)) nsh = ni * sign;
       }
-      const int32_t mat = s.face_material[f];
       const float* row = s.materials + kMaterialStride * mat;
       Vec3 kd = Load3(row + 3);
       if (!s.textures.empty()) {
@@ -970,17 +978,12 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
       scene_id.element_count() != 1 || first_face.element_count() < 2) {
     return ffi::Error::InvalidArgument("fovjax Whitted: scene arrays of unexpected shapes");
   }
-  for (int64_t i = 0; i < 3 * nf; ++i) {
-    if (faces.typed_data()[i] < 0 || faces.typed_data()[i] >= nv) {
-      return ffi::Error::InvalidArgument("fovjax Whitted: a face names a vertex out of range");
-    }
-  }
-  for (int64_t i = 0; i < nf; ++i) {
-    if (face_material.typed_data()[i] < 0 || face_material.typed_data()[i] >= nm) {
-      return ffi::Error::InvalidArgument("fovjax Whitted: a face names a material out of range");
-    }
-  }
+  // Faces and their materials are checked where a ray hits them (a pass over every face on
+  // every call measured ~0.7 ms on the atrium, seven calls a foveated frame).
+  std::atomic<int> out_of_range{0};
   ShadeScene s;
+  s.num_vertices = nv;
+  s.out_of_range = &out_of_range;
   s.vertices = vertices.typed_data();
   s.faces = faces.typed_data();
   s.face_material = face_material.typed_data();
@@ -1025,6 +1028,10 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
     WhittedBlock(t, s, o, d, a, blk * per_block, std::min(n, (blk + 1) * per_block), out, counts,
                  packets != 0);
   });
+  if (out_of_range.load() != 0) {
+    return ffi::Error::InvalidArgument(
+        "fovjax Whitted: a hit face names a vertex or a material out of range");
+  }
   return ffi::Error::Success();
 }
 
