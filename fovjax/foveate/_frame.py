@@ -321,13 +321,15 @@ def trace_selection(
     tiles=(),
     classes=None,
     scale=None,
+    consume=None,
 ):
     """Stage 3: trace and shade the selected samples (`radiance_in_chunks`), `tiles` (image
     tiles of rays) first; `classes`: the renderer's `ShadingClasses` per region (a sample's
     class is its region), None for full fidelity. Returns the per-slot radiance (padded to
     whole chunks), the tiles' and the ray counts. `scale`: as `radiance_in_chunks`'s (levels of
-    detail: the finest level's). The samples per pixel and the image size are the selection's
-    (`sel.classes` (2, S, H, W))."""
+    detail: the finest level's). `consume`: as `radiance_in_chunks`'s (each chunk's radiance
+    handed to a function, e.g. `sample_adder`'s, instead of returned). The samples per pixel and
+    the image size are the selection's (`sel.classes` (2, S, H, W))."""
     from ..render.internal import radiance_in_chunks
 
     _, spp, h, w = sel.classes.shape
@@ -354,6 +356,7 @@ def trace_selection(
         classes=classes,
         class_at=None if classes is None else class_at,
         scale=scale,
+        consume=consume,
     )
 
 
@@ -397,12 +400,35 @@ def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color, init=Non
     samples, bad pixels (2, H, W))."""
     from ..render.internal import chunk_loop
 
+    add = sample_adder(sel, spp=spp, h=h, w=w, size=size)
+
+    def body(carry, first):
+        return add(carry, first, jax.lax.dynamic_slice_in_dim(total, first, size))
+
+    n_chunks = total.shape[0] // size
+    if init is None:
+        init = empty_sums(h, w)
+    sums = chunk_loop(n_chunks, size, sel.n_traced, body, init)
+    return pixel_means(sums, n, h=h, w=w, bad_color=bad_color)
+
+
+def empty_sums(h: int, w: int, zero=None):
+    """Stage 4a's starting point: no sample in any pixel (sums (2·H·W, 3), bad pixel (2·H·W),
+    bad samples). `zero`: an int32 zero to build them from (a traced one keeps XLA from
+    hoisting the constant to the program's start)."""
+    zero = jnp.int32(0) if zero is None else zero
+    n_pixels = 2 * h * w
+    return (jnp.full((n_pixels, 3), zero, jnp.float32), jnp.full(n_pixels, zero, jnp.int32) > 0, zero)
+
+
+def sample_adder(sel: Selection, *, spp, h, w, size):
+    """Stage 4a per chunk: `add(carry, first, rgb)` adds the radiance `rgb` (size, 3) of slots
+    first..first+size to their pixels (carry: sums, bad pixel, bad samples; flat)."""
     lanes = jnp.arange(size, dtype=jnp.int32)
     n_pixels = 2 * h * w
 
-    def body(carry, first):
+    def add(carry, first, rgb):
         sums, bad_pixel, n_bad = carry
-        rgb = jax.lax.dynamic_slice_in_dim(total, first, size)
         slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
         active = first + lanes < sel.n_traced
         eye, _, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
@@ -413,10 +439,13 @@ def accumulate(total, sel: Selection, n, *, spp, h, w, size, bad_color, init=Non
         bad_pixel = bad_pixel.at[target].max(bad, mode="drop")
         return sums, bad_pixel, n_bad + jnp.sum(bad, dtype=jnp.int32)
 
-    n_chunks = total.shape[0] // size
-    if init is None:
-        init = (jnp.zeros((n_pixels, 3), jnp.float32), jnp.zeros(n_pixels, bool), jnp.int32(0))
-    sums, bad_pixel, n_bad = chunk_loop(n_chunks, size, sel.n_traced, body, init)
+    return add
+
+
+def pixel_means(sums, n, *, h, w, bad_color):
+    """Stage 4a's end: (per-pixel mean of the traced samples (2, H, W, 3), bad samples, bad
+    pixels (2, H, W)) from the sums."""
+    sums, bad_pixel, n_bad = sums
     mean = sums.reshape(2, h, w, 3) / jnp.maximum(n, 1)[..., None]
     bad_pixel = bad_pixel.reshape(2, h, w)
     mean = jnp.where(bad_pixel[..., None], jnp.asarray(bad_color, jnp.float32), mean)
@@ -541,6 +570,14 @@ def foveated_stereo(
         classes = with_levels(classes, foveation, config, lod, bvh, cameras)
         scale = scene_scale(eqx.tree_at(lambda a: a.vertices, scene, scene.vertices[: lod.num_vertices]))
     # --- end geometry level of detail ---
+    consume = None
+    if not tiles:
+        # Each chunk's samples go to their pixels as the chunk is traced (no array of every
+        # slot's radiance). The sums start from zeros made from the slot count (a non-negative
+        # int, so its minimum with 0 is 0): a constant zero array would be hoisted to the
+        # program's start and held through sampling (30 MiB at 2×1280×1024).
+        zero = jnp.minimum(sel.n_traced, 0)
+        consume = (empty_sums(h, w, zero), sample_adder(sel, spp=spp, h=h, w=w, size=size))
     traced = trace_selection(
         scene,
         bvh,
@@ -552,31 +589,35 @@ def foveated_stereo(
         tiles=tiles,
         classes=classes,
         scale=scale,
+        consume=consume,
     )
     mask = traced_mask(sel, budget)
     n = traced_count(mask, spp)
     # The pixel sums start from zeros made from a count of the trace (a non-negative int, so its
     # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
     # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).
-    zero = jnp.minimum(traced.primary, 0)
-    init = (jnp.full((2, h, w, 3), zero, jnp.float32), jnp.zeros((2, h, w), bool), zero)
-    if grid is not None:
-        init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
-    if tile is not None:  # onto the grid's sums or the zeros; flat
-        init = tile_sums(traced.tiles[-1], tiles[-1].active, origins, spp=spp, h=h, w=w, init=init)
+    if consume is not None:
+        prefill, n_bad, bad_pixel = pixel_means(traced.consumed, n, h=h, w=w, bad_color=config.bad_color)
     else:
-        init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
-    prefill, n_bad, bad_pixel = accumulate(
-        traced.total,
-        sel,
-        n,
-        spp=spp,
-        h=h,
-        w=w,
-        size=min(config.chunk_size, budget),
-        bad_color=config.bad_color,
-        init=init,
-    )
+        zero = jnp.minimum(traced.primary, 0)
+        init = (jnp.full((2, h, w, 3), zero, jnp.float32), jnp.zeros((2, h, w), bool), zero)
+        if grid is not None:
+            init = grid_sums(traced.tiles[0], tiles[0], spp=spp, h=h, w=w, stride=grid)
+        if tile is not None:  # onto the grid's sums or the zeros; flat
+            init = tile_sums(traced.tiles[-1], tiles[-1].active, origins, spp=spp, h=h, w=w, init=init)
+        else:
+            init = (init[0].reshape(-1, 3), init[1].reshape(-1), init[2])
+        prefill, n_bad, bad_pixel = accumulate(
+            traced.total,
+            sel,
+            n,
+            spp=spp,
+            h=h,
+            w=w,
+            size=min(config.chunk_size, budget),
+            bad_color=config.bad_color,
+            init=init,
+        )
     # Under the rule "either" every block's top-left is mandatory, so with no sample dropped
     # (a budget of every sample) no block is left empty: the pull-push fill is not compiled.
     complete = foveation.rule == "either" and budget >= every

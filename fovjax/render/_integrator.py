@@ -683,11 +683,12 @@ class ChunkedRadiance(NamedTuple):
     beyond the live ones are 0), of every ray of each image tile (its own shape; inactive rays
     0), and the rays traced."""
 
-    total: Float[Array, "P 3"]
+    total: Float[Array, "P 3"] | None
     primary: Int[Array, ""]
     shadow: Int[Array, ""]
     reflection: Int[Array, ""]
     tiles: tuple[Array, ...] = ()
+    consumed: tuple = ()  # `radiance_in_chunks(consume=)`'s last carry
 
 
 class ImageTile(NamedTuple):
@@ -960,6 +961,7 @@ def radiance_in_chunks(
     classes: ShadingClasses | None = None,
     class_at=None,
     scale=None,
+    consume=None,
 ) -> ChunkedRadiance:
     """Whitted radiance of up to `n_slots` rays of which the first `n_live` are live, made and
     traced chunk by chunk (`config.chunk_size`): `rays_at(first, size)` returns the
@@ -992,6 +994,12 @@ def radiance_in_chunks(
     `scale`: the length `config.ray_offset` is relative to (None: `scene_scale(scene)`); a scene
     whose arrays hold several levels of detail passes its finest level's, so that the offsets,
     and the finest level's rays, are those of the scene alone.
+
+    `consume`: None, or `(init, fn)`: each live chunk's radiance is handed to
+    `carry = fn(carry, first, radiance (size, 3))`, starting from `init`, in slot order, and the
+    result's `consumed` is the last carry and its `total` None. The native integrator hands each
+    chunk over as it is traced (no array of every slot's radiance); the JAX one after its last
+    depth level.
     """
     if classes is not None and (class_at is None or any(t.shading_class is None for t in tiles)):
         raise ValueError("radiance_in_chunks: classes need class_at and every tile's shading_class")
@@ -1001,23 +1009,35 @@ def radiance_in_chunks(
     offset = config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
 
     def in_jax():
-        return _chunks_in_jax(scene, bvh, rays_at, n_live, chunks, offset, config, tiles, classes, class_at)
+        out = _chunks_in_jax(scene, bvh, rays_at, n_live, chunks, offset, config, tiles, classes, class_at)
+        if consume is None:
+            return out
+        init, fn = consume
+        total = cast(Array, out.total)  # the JAX integrator always returns every slot's
+
+        def body(carry, first):
+            return fn(carry, first, jax.lax.dynamic_slice_in_dim(total, first, chunks.size))
+
+        consumed = chunk_loop(chunks.count, chunks.size, n_live, body, init)
+        return out._replace(total=None, consumed=consumed)
 
     if tiles or classes is not None or not native_integrator(config):
         return in_jax()
 
     def in_native():
-        return _chunks_native(scene, bvh, rays_at, n_live, chunks, offset, config)
+        return _chunks_native(scene, bvh, rays_at, n_live, chunks, offset, config, consume)
 
     if config.integrator == "native":
         return in_native()
     return jax.lax.platform_dependent(cpu=in_native, default=in_jax)
 
 
-def _chunks_native(scene, bvh, rays_at, n_live, chunks: _Chunks, offset, config) -> ChunkedRadiance:
+def _chunks_native(
+    scene, bvh, rays_at, n_live, chunks: _Chunks, offset, config, consume=None
+) -> ChunkedRadiance:
     """`radiance_in_chunks` through the native integrator (`_integrate`): each live chunk of
     slots made (`rays_at`) and traced through every depth level in one call, its radiance
-    written to its slots."""
+    written to its slots (or handed to `consume`'s function)."""
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
 
@@ -1030,14 +1050,21 @@ def _chunks_native(scene, bvh, rays_at, n_live, chunks: _Chunks, offset, config)
         valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
         active = first + lanes < n_live
         contribution, shadow, reflection = _integrate(scene, bvh, o, d, active, offset, config, cpu_only=True)
-        total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
+        if consume is None:
+            total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
+        else:
+            total = consume[1](total, first, contribution)
         n_primary = n_primary + jnp.sum(active & valid, dtype=jnp.int32)
         return total, n_primary, n_shadow + shadow, n_reflection + reflection
 
     zero = jnp.int32(0)
-    init = (jnp.zeros((chunks.padded, 3), jnp.float32), zero, zero, zero)
-    total, n_primary, n_shadow, n_reflection = chunk_loop(chunks.count, size, n_live, body, init)
-    return ChunkedRadiance(total, n_primary, n_shadow, n_reflection, ())
+    start = jnp.zeros((chunks.padded, 3), jnp.float32) if consume is None else consume[0]
+    total, n_primary, n_shadow, n_reflection = chunk_loop(
+        chunks.count, size, n_live, body, (start, zero, zero, zero)
+    )
+    if consume is None:
+        return ChunkedRadiance(total, n_primary, n_shadow, n_reflection, ())
+    return ChunkedRadiance(None, n_primary, n_shadow, n_reflection, (), cast(tuple, total))
 
 
 def _chunks_in_jax(scene, bvh, rays_at, n_live, chunks: _Chunks, offset, config, tiles, classes, class_at):
