@@ -212,3 +212,23 @@ def test_a_hit_face_out_of_range_is_an_error_naming_it(featured):
         jax.block_until_ready(
             _radiance_config(broken, bvh, rig, RenderConfig(max_depth=1, integrator="native"))
         )
+
+
+def test_image_rays_in_4x4_tiles_cover_every_ray(featured):
+    """Camera rays laid out as an image 300 wide (blocks of 256 columns and a last one of 44,
+    4×4 packets) against the same rays as a flat list traced one by one: every ray's radiance,
+    none left out or traced twice."""
+    scene, arrays, bvh, _ = featured
+    camera = fovjax.scenes.default_camera(scene)
+    rig = StereoRig.from_pose(camera, eye_width=300, eye_height=8)
+    rays = stereo_sample_rays(rig, None, 1, None)
+    tiled = RenderConfig(max_depth=DEPTH, integrator="native")  # packets: 8x8 tiles (an image)
+    flat = RenderConfig(max_depth=DEPTH, integrator="native", packet=None)
+    a = jax.jit(lambda a, o, d: radiance(a, bvh, o, d, config=tiled))(arrays, rays.origins, rays.directions)
+    o, d = rays.origins.reshape(-1, 3), rays.directions.reshape(-1, 3)
+    b = jax.jit(lambda a, o, d: radiance(a, bvh, o, d, config=flat))(arrays, o, d)
+    rgb_a, rgb_b = np.asarray(a.rgb).reshape(-1, 3), np.asarray(b.rgb)
+    assert np.isfinite(rgb_a).all() and rgb_a.std() > 0.05
+    diff = np.abs(rgb_a - rgb_b).max(-1)
+    assert np.mean(diff <= 1e-4) >= 0.99
+    assert int(a.counts.primary) == int(b.counts.primary) == 2 * 300 * 8

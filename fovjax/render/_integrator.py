@@ -618,6 +618,16 @@ def describe_integrator(config: RenderConfig, platform: str) -> str:
     return f"jax (no native integrator for {platform})"
 
 
+def _tile_width(batch: tuple[int, ...], config) -> int:
+    """The image width the native integrator tiles its packets over (0: a flat list of rays):
+    rays laid out as images (`config.packet` a tile, two or more batch axes) whose width and
+    rows come in fours."""
+    if not isinstance(config.packet, tuple) or len(batch) < 2:
+        return 0
+    width, rows = batch[-1], int(np.prod(batch[:-1]))
+    return width if width % 4 == 0 and rows % 4 == 0 else 0
+
+
 def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False):
     """(radiance (*batch, 3), shadow rays, reflection rays) of unit-direction rays. With the
     native integrator (`native_integrator`) the primal runs in the Embree FFI handler on a CPU
@@ -644,6 +654,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False):
             max_depth=config.max_depth,
             recompute=config.hits == "recomputed",
             packets=config.packet is not None,
+            tile_width=_tile_width(batch, config),
         )
         n_shadow = jnp.sum(jnp.right_shift(traced, 8), dtype=jnp.int32)
         n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)

@@ -140,13 +140,27 @@ def _ffi_call(any_hit: bool, packets: int):
     return call
 
 
-def embree_whitted(scene, bvh: BVH, o, d, active, offset, *, max_depth: int, recompute: bool, packets: bool):
+def embree_whitted(
+    scene,
+    bvh: BVH,
+    o,
+    d,
+    active,
+    offset,
+    *,
+    max_depth: int,
+    recompute: bool,
+    packets: bool,
+    tile_width: int = 0,
+):
     """The Whitted integrator's primal through the Embree FFI handler, on flat rays: (radiance
     (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
     in bits 0-7). `scene`: `fovjax.render.SceneArrays`; `d` unit directions; `offset` the ray
     offset in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
     (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
-    where a run of rays is coherent. Not differentiable (the caller's custom JVP is)."""
+    where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
+    one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
+    pixels (0: a flat list). Not differentiable (the caller's custom JVP is)."""
     from ._native import WHITTED_TARGET, embree_status
 
     status = embree_status()
@@ -204,7 +218,11 @@ def embree_whitted(scene, bvh: BVH, o, d, active, offset, *, max_depth: int, rec
     out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), i32))
     call = jax.ffi.ffi_call(WHITTED_TARGET, out, vmap_method="sequential")
     return call(
-        *args, max_depth=np.int32(max_depth), recompute=np.int32(recompute), packets=np.int32(packets)
+        *args,
+        max_depth=np.int32(max_depth),
+        recompute=np.int32(recompute),
+        packets=np.int32(packets),
+        tile_width=np.int32(tile_width),
     )
 
 

@@ -762,22 +762,37 @@ struct WhittedBuffers {
 
 // Rays [begin, end): each active ray's radiance into total (3 per ray) and, in `traced`, the
 // shadow rays (bits 8 and up) and reflection rays (bits 0-7) its path traced.
+// Which rays a block holds: a run [begin, begin + n) of the batch, or (width > 0) 4 rows ×
+// `cols` columns of an image `width` rays wide from (row0, col0), taken 4×4 tile by tile, so
+// that each 16-ray packet is a square of neighbouring pixels (a row strip of 16 spans four
+// times the angle, and its traversal visits more nodes).
+struct BlockRays {
+  int64_t begin = 0, n = 0;
+  int64_t width = 0, row0 = 0, col0 = 0;
+  int64_t Index(int64_t i) const {
+    if (width == 0) return begin + i;
+    const int64_t tile = i / 16, within = i % 16;
+    return (row0 + within / 4) * width + col0 + 4 * tile + within % 4;
+  }
+};
+
 void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
-                  const bool* active, int64_t begin, int64_t end, float* total, int32_t* traced,
+                  const bool* active, const BlockRays& block, float* total, int32_t* traced,
                   bool packets) {
   thread_local WhittedBuffers b;
-  const int64_t n = end - begin;
+  const int64_t n = block.n;
   const int nl = s.num_lights;
   b.Reserve(n, nl);
   int64_t m = 0;
   for (int64_t i = 0; i < n; ++i) {
-    total[3 * (begin + i)] = total[3 * (begin + i) + 1] = total[3 * (begin + i) + 2] = 0.0f;
-    traced[begin + i] = 0;
-    if (!active[begin + i]) continue;
-    b.pixel[m] = static_cast<int32_t>(begin + i);
+    const int64_t g = block.Index(i);
+    total[3 * g] = total[3 * g + 1] = total[3 * g + 2] = 0.0f;
+    traced[g] = 0;
+    if (!active[g]) continue;
+    b.pixel[m] = static_cast<int32_t>(g);
     for (int c = 0; c < 3; ++c) {
-      b.o[3 * m + c] = o_in[3 * (begin + i) + c];
-      b.d[3 * m + c] = d_in[3 * (begin + i) + c];
+      b.o[3 * m + c] = o_in[3 * g + c];
+      b.d[3 * m + c] = d_in[3 * g + c];
       b.weight[3 * m + c] = 1.0f;
     }
     ++m;
@@ -954,7 +969,7 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
                    ffi::Buffer<ffi::F32> ambient, ffi::Buffer<ffi::F32> environment,
                    ffi::Buffer<ffi::F32> offset, ffi::ResultBuffer<ffi::F32> total,
                    ffi::ResultBuffer<ffi::S32> traced, int32_t max_depth, int32_t recompute,
-                   int32_t packets) {
+                   int32_t packets, int32_t tile_width) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   const int64_t n = static_cast<int64_t>(active.element_count());
   const int64_t nv = static_cast<int64_t>(vertices.element_count() / 3);
@@ -1024,10 +1039,26 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   float* out = total->typed_data();
   int32_t* counts = traced->typed_data();
   const int64_t per_block = 1024;
-  ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
-    WhittedBlock(t, s, o, d, a, blk * per_block, std::min(n, (blk + 1) * per_block), out, counts,
-                 packets != 0);
-  });
+  const int64_t width = tile_width;
+  if (width > 0 && width % 4 == 0 && n % (4 * width) == 0) {
+    // Blocks of 4 rows × up to 256 columns, traced 4×4 tile by tile (`BlockRays`).
+    const int64_t segments = (width + 255) / 256;
+    ParallelFor(pool, (n / (4 * width)) * segments, [&](int64_t blk) {
+      BlockRays block;
+      block.width = width;
+      block.row0 = 4 * (blk / segments);
+      block.col0 = 256 * (blk % segments);
+      block.n = 4 * std::min<int64_t>(256, width - block.col0);
+      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0);
+    });
+  } else {
+    ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
+      BlockRays block;
+      block.begin = blk * per_block;
+      block.n = std::min(n, (blk + 1) * per_block) - block.begin;
+      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0);
+    });
+  }
   if (out_of_range.load() != 0) {
     return ffi::Error::InvalidArgument(
         "fovjax Whitted: a hit face names a vertex or a material out of range");
@@ -1084,7 +1115,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,
                                   .Ret<ffi::Buffer<ffi::S32>>()   // rays traced (see WhittedBlock)
                                   .Attr<int32_t>("max_depth")
                                   .Attr<int32_t>("recompute")
-                                  .Attr<int32_t>("packets"));
+                                  .Attr<int32_t>("packets")
+                                  .Attr<int32_t>("tile_width"));  // rays an image this wide, 0
 
 extern "C" {
 
