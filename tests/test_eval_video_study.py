@@ -63,6 +63,22 @@ def test_sequence_compiles_once_for_the_full_and_once_for_the_foveated_frames(se
     assert rays == sorted(rays) and rays[-1] < sequence.primary_rays[None]
 
 
+def test_a_temporal_method_carries_its_history_through_the_sequence(scene, sequence):
+    """Weier et al.'s method in the study: each level's renderer keeps its history from frame
+    to frame (pixels shown from it after the first frame, which has none), the rows say which
+    method made them, and the thesis's sequence reused nothing."""
+    animation = fe.StudyAnimation(**{**TINY, "levels": [HEAVY], "method": "weier2016"})
+    weier = fe.study_sequence(scene, animation)
+    assert weier.method == "weier2016" and sequence.method == "thesis"
+    frames = weier.frames
+    # Mean over the frames of pixels shown from the history: none in the first frame, so at most
+    # (frames - 1) / frames of the screen; some in the others (a slow walk, a fixed gaze).
+    screen = 2 * TINY["eye_width"] * TINY["eye_height"]
+    assert 0 < weier.reused_pixels[HEAVY] <= screen * (frames - 1) / frames
+    assert all(v == 0 for v in sequence.reused_pixels.values())
+    assert weier.primary_rays[HEAVY] < weier.primary_rays[None]
+
+
 def test_scanpath_gaze_moves_and_fixed_gaze_stays_at_the_centre(scene, sequence):
     assert np.all(sequence.gaze == 0.5)
     animation = fe.StudyAnimation(**{**TINY, "levels": [HEAVY], "gaze": "scanpath", "frames": 30, "seed": 0})
@@ -148,6 +164,7 @@ BAD = [
     ({"gaze": "wander"}, "gaze must be one of ('scanpath', 'fixed'), got 'wander'"),
     ({"rule": "sometimes"}, "rule must be one of"),
     ({"keys": "random"}, "keys must be one of ('fresh', 'fixed'), got 'random'"),
+    ({"method": "weier"}, "method must be one of ('thesis', 'guenter2012', 'patney2016', 'weier2016'), got"),
     ({"walk_speed": -1.0}, "walk_speed must be a finite number >= 0 (m/s), got -1.0"),
     ({"seed": -2}, "seed must be a whole number >= 0, got -2"),
     ({"levels": [(10.0, 5.0)]}, "0 <= fovea <= periphery"),
@@ -181,6 +198,8 @@ CLI_BAD = [
     ("--video --scene nowhere", "'nowhere'"),
     ("--video --metric flip", "--metric: not with --video"),
     ("--video --seed -1", "--seed -1"),
+    ("--video --method weier", "--method 'weier': expected one of thesis, guenter2012, patney2016"),
+    ("--responses r.csv --method weier2016", "--method: only with --video"),
     ("--responses r.csv --frames 9", "--frames: only with --video"),
 ]
 

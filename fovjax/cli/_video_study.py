@@ -29,6 +29,7 @@ VIDEO_DEFAULTS = {
     "rule": "either",
     "regions": "thesis",
     "keys": "fresh",
+    "method": "thesis",
     "walk_speed": 1.0,
     "peak_luminance": 100.0,
 }
@@ -58,6 +59,11 @@ def add_arguments(p) -> None:
     g.add_argument(
         "--keys", choices=("fresh", "fixed"), help="sampling key: new every frame (default) or the same"
     )
+    g.add_argument(
+        "--method",
+        help="foveation method of the foveated frames (fovjax.foveate.METHODS: thesis (default), "
+        "guenter2012, patney2016, weier2016); a temporal one carries its history frame to frame",
+    )
     g.add_argument("--walk-speed", type=float, help="m/s along the view direction (default 1)")
     g.add_argument("--peak-luminance", type=float, help="the display's peak, cd/m² (default 100)")
 
@@ -84,6 +90,9 @@ def validate(args) -> None:
     cli.number(args.height, "--height", ge=8, integer=True)
     cli.number(args.frames, "--frames", ge=2, integer=True)
     cli.number(args.fps, "--fps", gt=0)
+    from fovjax.foveate import METHODS
+
+    cli.choice(args.method, "--method", tuple(METHODS))
     cli.number(args.walk_speed, "--walk-speed", ge=0)
     cli.number(args.peak_luminance, "--peak-luminance", gt=0)
     if args.seed is not None:
@@ -108,7 +117,7 @@ def run(args) -> int:
     print(
         f"video study: {args.scene}, {args.frames} frames at {args.fps:g} fps ({seconds:.3g} s), "
         f"2 x {args.width}x{args.height}, SPP {spp}, gaze {args.gaze}, rule {args.rule}, "
-        f"regions {args.regions}, keys {args.keys}, "
+        f"regions {args.regions}, keys {args.keys}, method {args.method}, "
         f"walk {args.walk_speed:g} m/s, peak {args.peak_luminance:g} cd/m²"
     )
     start = time.perf_counter()
@@ -122,6 +131,7 @@ def run(args) -> int:
         rule=args.rule,
         regions=args.regions,
         keys=args.keys,
+        method=args.method,
         walk_speed=args.walk_speed,
         seed=seed,
     )

@@ -118,6 +118,10 @@ class StudySequence:
     compile_seconds: float
     traces: dict
     regions: str = "thesis"
+    # The foveation method of the foveated frames (`fovjax.foveate.METHODS`), and per level the
+    # mean pixels per frame a temporal method showed from its history (0 for the thesis's).
+    method: str = "thesis"
+    reused_pixels: dict = dataclasses.field(default_factory=dict)
 
     @property
     def frames(self) -> int:
@@ -229,7 +233,10 @@ class StudyAnimation:
     participants' answers; or "angle", fovjax's exact-angle regions, about half the area on the
     90° rig); the gaze ("scanpath" or "fixed"), the walk's `walk_speed` (m/s), and `seed`: the
     scanpath's seed and the first frame's key (frame f uses seed + f with `keys="fresh"`, seed
-    with "fixed").
+    with "fixed"). `method`: the foveation method of the foveated frames (a name of
+    `fovjax.foveate.METHODS`; default the thesis's); a temporal method (`Weier2016`,
+    `Patney2016`) carries its history from frame to frame at each level, from none at the
+    first frame.
 
     Raises:
         ValueError: any bad field, naming it, its value and what was expected.
@@ -247,9 +254,13 @@ class StudyAnimation:
     walk_speed: float = WALK_SPEED
     seed: int = 0
     keys: str = "fresh"
+    method: str = "thesis"
 
     def __post_init__(self):
-        from ..foveate import REGION_READINGS
+        from ..foveate import METHODS, REGION_READINGS
+
+        if not isinstance(self.method, str) or self.method not in METHODS:
+            raise ValueError(f"StudyAnimation: method must be one of {tuple(METHODS)}, got {self.method!r}")
 
         checked = _check_args(
             self.eye_width,
@@ -315,12 +326,15 @@ def study_sequence(
     gazes = _gazes(gaze, frames, fps, seed, display)
     # The scene prepared once; a renderer per level shares it (only the image is read).
     base = FoveatedRenderer(scene, rig0, Foveation(spp=spp), config, diagnostics=())
+    # One renderer per level, each with its own history where the method keeps one (`with_rig`
+    # moves a renderer and keeps its history).
     renderers = {
         level: base.with_foveation(
-            with_regions(Foveation.thesis(level, rule=rule, spp=spp), regions, eye_height)
+            with_regions(Foveation.thesis(level, rule=rule, spp=spp, method=a.method), regions, eye_height)
         )
         for level in levels
     }
+    reused = {level: [] for level in levels}
     traced_before = dict(TRACE_COUNTS)
     reference = []
     foveated = {level: [] for level in levels}
@@ -338,6 +352,7 @@ def study_sequence(
             fov = renderer.with_rig(rig).render(gazes[f], head_pose=poses[f], key=key)
             foveated[level].append(fov.image)
             rays[level].append(fov.stats.primary_rays)
+            reused[level].append(fov.foveation.reused)
             render_s += fov.stats.render_seconds
             compile_s += fov.stats.compile_seconds
         tick(f"frame {f + 1}/{frames}")
@@ -356,6 +371,8 @@ def study_sequence(
         key_mode=keys,
         scene=str(getattr(scene, "name", "scene")),
         primary_rays={k: float(np.mean(v)) for k, v in rays.items()},
+        method=a.method,
+        reused_pixels={k: float(np.mean(v)) for k, v in reused.items()},
         render_seconds=render_s,
         compile_seconds=compile_s,
         traces=traces,
@@ -416,6 +433,7 @@ class VideoStudy:
                     "fovea_deg": level[0],
                     "periphery_deg": level[1],
                     "spp": s.spp,
+                    "method": s.method,
                     "rule": s.rule,
                     "regions": s.regions,
                     "gaze": s.gaze_mode,
@@ -427,6 +445,7 @@ class VideoStudy:
                     "seen": self.difference(level) > self.threshold,
                     "primary_rays_per_frame": s.primary_rays[level],
                     "full_primary_rays_per_frame": s.primary_rays[None],
+                    "reused_pixels_per_frame": s.reused_pixels.get(level, 0.0),
                     "frames": s.frames,
                     "fps": s.fps,
                     "eye_width": s.eye_width,
