@@ -628,15 +628,16 @@ def _tile_width(batch: tuple[int, ...], config) -> int:
     return width if width % 4 == 0 and rows % 4 == 0 else 0
 
 
-def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False):
+def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, operands=None):
     """(radiance (*batch, 3), shadow rays, reflection rays) of unit-direction rays. With the
     native integrator (`native_integrator`) the primal runs in the Embree FFI handler on a CPU
     and in JAX elsewhere (chosen per platform inside the program, as the ray queries are;
-    `cpu_only`: inside a CPU-only branch already); its derivatives are always the JAX
-    integrator's (a custom JVP), so gradients do not depend on where the primal ran."""
+    `cpu_only`: inside a CPU-only branch already; `operands`: the handler's scene operands made
+    once by the caller, `whitted_operands`); its derivatives are always the JAX integrator's (a
+    custom JVP), so gradients do not depend on where the primal ran."""
     if not native_integrator(config):
         return _jax_integrate(scene, bvh, o, d, active, offset, config)
-    from ..trace.internal import embree_whitted
+    from ..trace.internal import embree_whitted, whitted_operands
 
     batch = active.shape
 
@@ -645,8 +646,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False):
 
     def native(scene, o, d, active, offset):
         total, traced = embree_whitted(
-            scene,
-            bvh,
+            whitted_operands(scene, bvh) if operands is None else operands,
             o.reshape(-1, 3),
             d.reshape(-1, 3),
             active.reshape(-1),
@@ -727,6 +727,16 @@ def chunk_loop(n_chunks: int, size: int, n_live, body, init, start=0):
         return c + 1, body(carry, start + c * size)
 
     return jax.lax.while_loop(lambda state: state[0] < live, step, (jnp.int32(0), init))[1]
+
+
+def _chunk_rays(rays_at, first, size):
+    """A chunk's rays from `rays_at`: (origins, unit directions, which are valid: finite with a
+    nonzero direction, as `radiance` counts primary rays)."""
+    o, d = rays_at(first, size)
+    o = jnp.asarray(o, jnp.float32)
+    d_raw = jnp.asarray(d, jnp.float32)
+    d = normalize(d_raw)
+    return o, d, all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
 
 
 def _append(queue, n, rays, alive):
@@ -820,11 +830,7 @@ def _primary_level(
 
     def body(carry, first):
         total, queue, n_q, n_primary, n_shadow = carry
-        o, d = rays_at(first, size)
-        o = jnp.asarray(o, jnp.float32)
-        d_raw = jnp.asarray(d, jnp.float32)
-        d = normalize(d_raw)
-        valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        o, d, valid = _chunk_rays(rays_at, first, size)
         active = first + lanes < n_live
         weight = jnp.ones((size, 3), jnp.float32)
         fidelity, extra = None, ()
@@ -1048,19 +1054,21 @@ def _chunks_native(
 ) -> ChunkedRadiance:
     """`radiance_in_chunks` through the native integrator (`_integrate`): each live chunk of
     slots made (`rays_at`) and traced through every depth level in one call, its radiance
-    written to its slots (or handed to `consume`'s function)."""
+    written to its slots (or handed to `consume`'s function). The handler's scene operands are
+    made once, outside the loop over the chunks."""
+    from ..trace.internal import whitted_operands
+
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
+    operands = whitted_operands(scene, bvh)
 
     def body(carry, first):
         total, n_primary, n_shadow, n_reflection = carry
-        o, d = rays_at(first, size)
-        o = jnp.asarray(o, jnp.float32)
-        d_raw = jnp.asarray(d, jnp.float32)
-        d = normalize(d_raw)
-        valid = all3(jnp.isfinite(o)) & all3(jnp.isfinite(d_raw)) & any3(d != 0)
+        o, d, valid = _chunk_rays(rays_at, first, size)
         active = first + lanes < n_live
-        contribution, shadow, reflection = _integrate(scene, bvh, o, d, active, offset, config, cpu_only=True)
+        contribution, shadow, reflection = _integrate(
+            scene, bvh, o, d, active, offset, config, cpu_only=True, operands=operands
+        )
         if consume is None:
             total = jax.lax.dynamic_update_slice_in_dim(total, contribution, first, 0)
         else:

@@ -140,36 +140,12 @@ def _ffi_call(any_hit: bool, packets: int):
     return call
 
 
-def embree_whitted(
-    scene,
-    bvh: BVH,
-    o,
-    d,
-    active,
-    offset,
-    *,
-    max_depth: int,
-    recompute: bool,
-    packets: bool,
-    tile_width: int = 0,
-):
-    """The Whitted integrator's primal through the Embree FFI handler, on flat rays: (radiance
-    (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
-    in bits 0-7). `scene`: `fovjax.render.SceneArrays`; `d` unit directions; `offset` the ray
-    offset in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
-    (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
-    where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
-    one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
-    pixels (0: a flat list). Not differentiable (the caller's custom JVP is)."""
-    from ._native import WHITTED_TARGET, embree_status
-
-    status = embree_status()
-    if not status:
-        raise RuntimeError(f"the Embree FFI handler is unavailable: {status.reason}")
-    if not 0 <= max_depth < 256:
-        raise ValueError(f"the native integrator counts at most 255 reflections, got max_depth {max_depth}")
+def whitted_operands(scene, bvh: BVH) -> tuple:
+    """The scene operands of the Whitted handler (`embree_whitted`): the BVH (its host id,
+    geometry and trees, for the Embree scene) and the scene's arrays in the handler's layout
+    (materials as rows of 16, textures concatenated with their shapes, lights as rows of 6).
+    Made once where many calls share a scene (the foveated frame's chunks)."""
     f32, i32 = jnp.float32, jnp.int32
-    n = active.shape[0]
 
     def flat(x, dtype):
         return jnp.zeros((0,), dtype) if x is None else jnp.asarray(x, dtype).reshape(-1)
@@ -189,12 +165,9 @@ def embree_whitted(
         ],
         axis=1,
     )
-    args = jax.tree.map(
+    return jax.tree.map(
         jax.lax.stop_gradient,
         (
-            jnp.asarray(o, f32).reshape(n, 3),
-            jnp.asarray(d, f32).reshape(n, 3),
-            jnp.asarray(active, bool).reshape(n),
             jnp.asarray(bvh.host_id, i32),
             jnp.asarray(bvh.vertices, f32),
             jnp.asarray(bvh.faces, i32),
@@ -212,13 +185,52 @@ def embree_whitted(
             flat(scene.light_kind, i32),
             flat(scene.ambient, f32),
             jnp.asarray(scene.environment, f32),
-            jnp.asarray(offset, f32).reshape(1),
         ),
     )
-    out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), i32))
+
+
+def embree_whitted(
+    operands: tuple,
+    o,
+    d,
+    active,
+    offset,
+    *,
+    max_depth: int,
+    recompute: bool,
+    packets: bool,
+    tile_width: int = 0,
+):
+    """The Whitted integrator's primal through the Embree FFI handler, on flat rays: (radiance
+    (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
+    in bits 0-7). `operands`: the scene's (`whitted_operands`); `d` unit directions; `offset`
+    the ray offset in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
+    (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
+    where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
+    one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
+    pixels (0: a flat list). Not differentiable (the caller's custom JVP is)."""
+    from ._native import WHITTED_TARGET, embree_status
+
+    status = embree_status()
+    if not status:
+        raise RuntimeError(f"the Embree FFI handler is unavailable: {status.reason}")
+    if not 0 <= max_depth < 256:
+        raise ValueError(f"the native integrator counts at most 255 reflections, got max_depth {max_depth}")
+    f32 = jnp.float32
+    n = active.shape[0]
+    rays = (
+        jnp.asarray(o, f32).reshape(n, 3),
+        jnp.asarray(d, f32).reshape(n, 3),
+        jnp.asarray(active, bool).reshape(n),
+    )
+    rays = jax.tree.map(jax.lax.stop_gradient, rays)
+    offset = jax.lax.stop_gradient(jnp.asarray(offset, f32).reshape(1))
+    out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), jnp.int32))
     call = jax.ffi.ffi_call(WHITTED_TARGET, out, vmap_method="sequential")
     return call(
-        *args,
+        *rays,
+        *operands,
+        offset,
         max_depth=np.int32(max_depth),
         recompute=np.int32(recompute),
         packets=np.int32(packets),
