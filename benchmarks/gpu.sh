@@ -1,8 +1,13 @@
 #!/usr/bin/env bash
-# The trace and foveation benchmarks at the thesis's resolution (2 x 1280x1024) on a CUDA machine,
-# in at most 11 minutes (each of the three stops at 220 s): prints Mrays/s of the Warp and JAX
-# backends on the atrium's rays (benchmarks/trace_warp.py), of the JAX backend against its peers
-# (benchmarks/trace_throughput.py), and frames per second (benchmarks/foveation.py --full).
+# The GPU checks at the thesis's resolution (2 x 1280x1024) on a CUDA machine, sized for a 15-minute
+# lease (about 6 minutes, each step stopped at --limit seconds, 150 by default):
+#   1. the Warp backend's tests on the GPU (tests/test_trace_warp.py: Warp on CUDA against brute
+#      force and the JAX traversal),
+#   2. Mrays/s of the Warp and JAX backends on the atrium's rays (benchmarks/trace_warp.py),
+#   3. the foveated against the full stereo frame at an off-centre gaze (benchmarks/foveation.py
+#      --full --speedup),
+#   and with --all, the JAX backend against its CPU peers (benchmarks/trace_throughput.py).
+# Records of the benchmarks land in benchmarks/results/ (and in --out DIR, when given).
 #
 #   bash benchmarks/gpu.sh --fetch-wheels     # on a machine with PyPI: fill benchmarks/wheels/
 #   bash benchmarks/gpu.sh                    # on the GPU machine (no network), from the repo root
@@ -12,12 +17,16 @@
 # Warp (warp-lang, the [gpu] extra) is a ~150 MB binary wheel: --fetch-wheels puts it in
 # benchmarks/wheels/warp/ (apart from the small wheels, so those can be carried alone); it is
 # installed from there when the machine has no warp, and without either the Warp rows say so.
+# Where a transfer limit is below the wheel's size, --warp-parts DIR instead: a folder made by
+# --split-warp DIR here (Warp's Python files and its CUDA library, xz-compressed in parts of at
+# most 45 MiB that can travel one at a time; its CPU compiler, warp-clang, is left out: Warp then
+# has no CPU device), put back together there into a folder on PYTHONPATH.
 #
 # The GPU machines this project may be lent hold jax with its CUDA plugin, equinox, optimistix and
 # lineax, and cannot download anything. The project's other pure-Python dependencies travel as
 # wheels in benchmarks/wheels/ (about 1 MiB; not committed: make it with --fetch-wheels and carry
 # it), installed with --no-deps, then the project itself with --no-deps. The binary ones
-# (matplotlib, pillow) are not carried: neither benchmark imports them.
+# (matplotlib, pillow) are not carried: no step imports them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -26,6 +35,10 @@ WHEELS=benchmarks/wheels
 TINY=0
 INSTALL=1
 WARP_ONLY=0
+ALL=0
+LIMIT=150
+OUTDIR=""
+WARP_PARTS=""
 # Pure-Python runtime dependencies of fovjax (pyproject.toml) beyond jax/equinox/optimistix/lineax.
 PURE_DEPS=(trimesh emcee pyserial jaxtyping wadler_lindig imageio tqdm)
 
@@ -38,11 +51,30 @@ while [[ $# -gt 0 ]]; do
             ls -l "$WHEELS" "$WHEELS/warp"
             exit 0
             ;;
+        --split-warp)
+            # Warp's wheel -> DIR/warp-py.tar.xz (the Python package without warp-clang, tests,
+            # examples) and DIR/warp.so.xz.NN (its CUDA library in 45 MiB parts).
+            out=$2
+            mkdir -p "$out" /tmp/fovjax-warp-split
+            "$PY" -m pip download --no-deps --only-binary=:all: -d /tmp/fovjax-warp-split "warp-lang>=1.19"
+            rm -rf /tmp/fovjax-warp-split/x && mkdir /tmp/fovjax-warp-split/x
+            (cd /tmp/fovjax-warp-split/x && "$PY" -m zipfile -e ../warp_lang-*.whl .)
+            x=/tmp/fovjax-warp-split/x
+            xz -T0 -6 -c "$x/warp/bin/warp.so" | split -b 45M -d - "$out/warp.so.xz."
+            rm -rf "$x/warp/bin" "$x/warp/tests" "$x/warp/examples"
+            tar -C "$x" -cJf "$out/warp-py.tar.xz" .
+            ls -l "$out"
+            exit 0
+            ;;
         --tiny) TINY=1 ;;
+        --all) ALL=1 ;;
+        --limit) LIMIT=$2; shift ;;
+        --out) OUTDIR=$2; shift ;;
+        --warp-parts) WARP_PARTS=$2; shift ;;
         --no-install) INSTALL=0 ;;
         --warp-only) WARP_ONLY=1 ;;
         --wheels) WHEELS=$2; shift ;;
-        *) echo "gpu.sh: unknown option $1 (expected --fetch-wheels, --tiny, --no-install, --warp-only, --wheels DIR)" >&2; exit 2 ;;
+        *) echo "gpu.sh: unknown option $1 (expected --fetch-wheels, --split-warp DIR, --tiny, --no-install, --warp-only, --all, --limit S, --out DIR, --warp-parts DIR, --wheels DIR)" >&2; exit 2 ;;
     esac
     shift
 done
@@ -52,6 +84,16 @@ if command -v nvidia-smi >/dev/null; then
     nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 else
     echo "nvidia-smi not found"
+fi
+
+if [[ -n $WARP_PARTS ]]; then
+    site=/tmp/fovjax-warp-site
+    rm -rf "$site" && mkdir -p "$site"
+    tar -C "$site" -xJf "$WARP_PARTS/warp-py.tar.xz"
+    mkdir -p "$site/warp/bin"
+    cat "$WARP_PARTS"/warp.so.xz.* | xz -d > "$site/warp/bin/warp.so"
+    export PYTHONPATH="$site${PYTHONPATH:+:$PYTHONPATH}"
+    echo "warp from $WARP_PARTS: $(du -sh "$site" | cut -f1)"
 fi
 
 if [[ $INSTALL == 1 ]]; then
@@ -81,34 +123,51 @@ if d.platform != "gpu":
     print("gpu.sh: no GPU visible to JAX; the figures below are this machine's CPU")
 EOF
 
+marker=$(mktemp)
 if [[ $TINY == 1 ]]; then
     warp_args=(--width 64 --height 48 --random 4096 --repeats 1)
     trace_args=(--width 64 --height 48 --random 4096 --repeats 1 --rows primary random --peers)
-    fov_args=(--spp 1 --repeats 1)
-    limit=600
+    fov_args=(--size 64 48 --speedup --spp 1 --repeats 1)
 else
     # One ray per pixel of both eyes (2 x 1280 x 1024 = 2560 x 1024), 2M random rays; no CPU peers.
     warp_args=(--width 2560 --height 1024 --random 2097152 --repeats 3 --warp-bvh sah lbvh)
     trace_args=(--width 2560 --height 1024 --random 2097152 --repeats 3 --peers)
-    fov_args=(--full --spp 1 4 --repeats 3)
-    limit=220
+    fov_args=(--full --speedup --spp 1 --repeats 3)
+fi
+have_warp=0
+"$PY" -c "import warp" 2>/dev/null && have_warp=1
+
+if [[ $have_warp == 1 && $TINY == 0 ]]; then
+    echo
+    echo "== the Warp backend's tests on this machine's default JAX device =="
+    timeout "$LIMIT" "$PY" -m pytest -q -p no:cacheprovider -n 0 tests/test_trace_warp.py ||
+        echo "gpu.sh: Warp tests failed or stopped (exit $?)"
 fi
 
 echo
 echo "== Warp and JAX backends, the atrium's primary, random and shadow rays (Mrays/s) =="
-if "$PY" -c "import warp" 2>/dev/null; then
-    timeout "$limit" "$PY" benchmarks/trace_warp.py "${warp_args[@]}" ||
+if [[ $have_warp == 1 ]]; then
+    timeout "$LIMIT" "$PY" benchmarks/trace_warp.py "${warp_args[@]}" ||
         echo "gpu.sh: Warp benchmark stopped (exit $?)"
 else
-    echo "gpu.sh: warp-lang is not installed (pip install 'fovjax[gpu]', or --fetch-wheels): no Warp rows"
+    echo "gpu.sh: warp-lang is not installed (pip install 'fovjax[gpu]', --fetch-wheels or --warp-parts): no Warp rows"
 fi
-[[ $WARP_ONLY == 1 ]] && exit 0
 
-echo
-echo "== ray queries (Mrays/s) =="
-timeout "$limit" "$PY" benchmarks/trace_throughput.py "${trace_args[@]}" ||
-    echo "gpu.sh: trace benchmark stopped (exit $?)"
-echo
-echo "== foveated vs full stereo frames (frames per second) =="
-timeout "$limit" "$PY" benchmarks/foveation.py "${fov_args[@]}" ||
-    echo "gpu.sh: foveation benchmark stopped (exit $?)"
+if [[ $WARP_ONLY == 0 ]]; then
+    echo
+    echo "== foveated vs full stereo frames, gaze off-centre (ms per frame) =="
+    timeout "$LIMIT" "$PY" benchmarks/foveation.py "${fov_args[@]}" ||
+        echo "gpu.sh: foveation benchmark stopped (exit $?)"
+    if [[ $ALL == 1 ]]; then
+        echo
+        echo "== ray queries against the CPU peers (Mrays/s) =="
+        timeout "$LIMIT" "$PY" benchmarks/trace_throughput.py "${trace_args[@]}" ||
+            echo "gpu.sh: trace benchmark stopped (exit $?)"
+    fi
+fi
+
+if [[ -n $OUTDIR ]]; then
+    mkdir -p "$OUTDIR"
+    find benchmarks/results -name '*.json' -newer "$marker" -exec cp {} "$OUTDIR"/ \;
+    ls "$OUTDIR"
+fi

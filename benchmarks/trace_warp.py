@@ -159,5 +159,25 @@ def main(argv=None):
     return rows
 
 
+def warp_tables(rows, builders) -> list[dict]:
+    """The record's table: Mrays/s of each backend per ray set."""
+    columns = ["rays", "count", "JAX Mrays/s"]
+    for b in builders:
+        columns += [f"Warp ({b}) Mrays/s", f"Warp ({b}) / JAX", f"hit/miss agree ({b})"]
+    out = []
+    for r in rows:
+        row = [r["rays"], r["n"], round(r["jax"], 3)]
+        for b in builders:
+            row += [round(r[f"warp_{b}"], 3), round(r[f"warp_{b}"] / r["jax"], 2), round(r[f"agree_{b}"], 5)]
+        out.append(row)
+    dev = jax.devices()[0]
+    title = f"Ray queries on the atrium, Warp against the JAX traversal, {dev.platform} ({dev.device_kind})"
+    return [{"title": title, "columns": columns, "rows": out}]
+
+
 if __name__ == "__main__":
-    main()
+    from _record import write_record
+
+    rows = main()
+    builders = sorted({k[len("warp_") :] for r in rows for k in r if k.startswith("warp_")})
+    write_record("trace_warp", {"rows": rows, "tables": warp_tables(rows, builders)})
