@@ -125,7 +125,8 @@ def write_record(
     if not re.fullmatch(r"[a-z0-9_]+", name):
         raise ValueError(f"record name {name!r}: use lower-case letters, digits and underscores")
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
-    commit = _git("rev-parse", "HEAD")
+    # A copy of the tree without its git folder (a lent GPU machine): the commit as given.
+    commit = _git("rev-parse", "HEAD") or os.environ.get("FOVJAX_BENCH_COMMIT")
     record = {
         "benchmark": name,
         "command": command or shlex.join(["python", *sys.argv]),
