@@ -39,8 +39,9 @@ ALL=0
 LIMIT=150
 OUTDIR=""
 WARP_PARTS=""
-# Pure-Python runtime dependencies of fovjax (pyproject.toml) beyond jax/equinox/optimistix/lineax.
-PURE_DEPS=(trimesh emcee pyserial jaxtyping wadler_lindig imageio tqdm)
+# Pure-Python dependencies of fovjax (pyproject.toml) beyond jax/equinox/optimistix/lineax, and
+# beartype, which the tests check shapes with.
+PURE_DEPS=(trimesh emcee pyserial jaxtyping wadler_lindig imageio tqdm beartype)
 
 while [[ $# -gt 0 ]]; do
     case "$1" in
@@ -140,7 +141,7 @@ have_warp=0
 if [[ $have_warp == 1 && $TINY == 0 ]]; then
     echo
     echo "== the Warp backend's tests on this machine's default JAX device =="
-    timeout "$LIMIT" "$PY" -m pytest -q -p no:cacheprovider -n 0 tests/test_trace_warp.py ||
+    FOVJAX_TEST_FAST_COMPILE=0 timeout "$LIMIT" "$PY" -m pytest -q -p no:cacheprovider -n 0 tests/test_trace_warp.py ||
         echo "gpu.sh: Warp tests failed or stopped (exit $?)"
 fi
 

@@ -9,6 +9,7 @@ import csv
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -106,6 +107,11 @@ def test_frame_programs_compile_with_loop_emitters_unless_told_otherwise(monkeyp
     assert LOOP_EMITTERS == {"xla_cpu_use_fusion_emitters": False}
     for entry in ("mono", "stereo", "batch:full", "foveated", "batch:foveated"):
         assert frame_compiler_options(entry) == LOOP_EMITTERS, entry
+        # XLA:CPU's option only: XLA's GPU compiler refuses options it does not know.
+        assert frame_compiler_options(entry, "gpu") == {}, entry
+    from fovjax.render._frame import _program_platform
+
+    assert _program_platform((jnp.zeros(3), 1.0)) == jax.devices()[0].platform
     monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fusion")
     assert frame_compiler_options("foveated") == {}
     monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fast")

@@ -119,21 +119,35 @@ LOWERING_HOOKS: list = []
 # in one process, median 1.03; under the per-operation profiler its screen passes run slower,
 # `benchmarks/profile_frame.py` with FOVJAX_XLA_EMITTERS=fusion). So every frame program
 # compiles with loop emitters. The two round some sums differently: images differ in the
-# last bits. The option concerns XLA:CPU only (other backends ignore it).
+# last bits. The option is XLA:CPU's: a program compiled for another platform gets none (XLA's
+# GPU compiler refuses an option it does not know).
 # FOVJAX_XLA_EMITTERS=fusion keeps XLA's default (to measure it), read when a program compiles.
 LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 EMITTER_CHOICES = ("loop", "fusion")
 
 
-def frame_compiler_options(entry: str) -> dict[str, Any]:
+def frame_compiler_options(entry: str, platform: str = "cpu") -> dict[str, Any]:
     """The XLA compiler options the frame program of `entry` ("stereo", "foveated", "batch:full",
-    ...) compiles with: `LOOP_EMITTERS`, or none with FOVJAX_XLA_EMITTERS=fusion."""
+    ...) compiles with for `platform` ("cpu", "gpu", ...): on a CPU `LOOP_EMITTERS`, or none with
+    FOVJAX_XLA_EMITTERS=fusion; none elsewhere."""
     choice = os.environ.get("FOVJAX_XLA_EMITTERS", "loop") or "loop"
     if choice not in EMITTER_CHOICES:
         raise ValueError(
             f"FOVJAX_XLA_EMITTERS must be one of {EMITTER_CHOICES}, got {choice!r} (frame program {entry!r})"
         )
-    return dict(LOOP_EMITTERS) if choice == "loop" else {}
+    return dict(LOOP_EMITTERS) if choice == "loop" and platform == "cpu" else {}
+
+
+def _program_platform(args) -> str:
+    """The platform a program of `args` compiles for: that of the first placed array among them
+    (jit runs where its committed arguments are), else JAX's default backend."""
+    for leaf in jax.tree.leaves(args):
+        if isinstance(leaf, jax.Array):
+            try:
+                return next(iter(leaf.devices())).platform
+            except (RuntimeError, StopIteration):  # deleted or not yet placed: the default
+                break
+    return jax.default_backend()
 
 
 def compile_cache_info() -> dict[str, int]:
@@ -176,7 +190,8 @@ def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *
             TRACE_COUNTS[entry] += 1
             return program(*a, **static)
 
-        options = frame_compiler_options(entry)  # first: a bad setting is said before any work
+        # First: a bad setting is said before any work.
+        options = frame_compiler_options(entry, _program_platform(args))
         jitted = (jit or jax.jit)(counted)
         for hook in LOWERING_HOOKS:  # e.g. the test that exports every frame program for CUDA
             hook(entry, jitted, args)
