@@ -5,8 +5,12 @@ anything lies on it). `"embree"` is Embree through an XLA FFI call (CPU), `"warp
 BVH queries (CUDA, and CPU), `"jax"` the `lax.while_loop` traversal of `_traverse.py` (any XLA
 device; the reference every other backend is tested against). `"auto"` (the default) picks per
 platform inside the program (`jax.lax.platform_dependent`): Embree on CPU where its handler
-builds, Warp on CUDA where it is installed, else JAX — so one program lowers for CPU and CUDA
-(and, where JAX sees a device of another platform, for it too, on the JAX traversal).
+builds, else JAX — so one program lowers for CPU and CUDA (and, where JAX sees a device of another
+platform, for it too, on the JAX traversal). On CUDA "auto" is the JAX traversal, not Warp:
+measured on an H200 (`benchmarks/gpu.sh`, `trace_warp` records), the JAX traversal answered
+the atrium's primary and random rays faster than Warp's queries with either of Warp's BVH
+builders and its shadow rays about as fast, and Warp's CUDA ray-triangle test let slanted rays
+through shared edges (`tests/test_trace_warp.py`); `backend="warp"` asks for Warp.
 t, u, v are recomputed from the hit face in plain JAX, so gradients do not depend on the backend.
 """
 
@@ -243,33 +247,35 @@ def _raw_query(
     return tuple(x[back] for x in hits)
 
 
-def _warp_installed() -> bool:
-    import importlib.util
-
-    return (
-        importlib.util.find_spec("warp") is not None
-        and importlib.util.find_spec(f"{__package__}._warp") is not None
-    )
+def lowering_platform(platform: str) -> str:
+    """The platform name a program lowers for ("cpu", "cuda", "rocm", "tpu") from a device's or
+    `jax.default_backend()`'s ("gpu" for either kind of GPU)."""
+    if platform != "gpu":
+        return platform
+    try:
+        version = jax.devices("gpu")[0].client.platform_version.lower()
+    except RuntimeError:  # no GPU here: the name is all there is
+        return "cuda"
+    return "rocm" if "rocm" in version or "hip" in version else "cuda"
 
 
 def resolve_backend(backend: str, platform: str) -> str:
-    """The backend that `backend` runs on `platform` ("cpu", "cuda", ...): "auto" is Embree on
-    CPU where its FFI handler builds, Warp on CUDA where installed, else the JAX traversal."""
+    """The backend that `backend` runs on `platform` ("cpu", "cuda", ...; "gpu" as
+    `lowering_platform` reads it): "auto" is Embree on CPU where its FFI handler builds, else
+    the JAX traversal (on CUDA too: see the module docstring)."""
     if backend != "auto":
         return backend
-    if platform == "cpu":
+    if lowering_platform(platform) == "cpu":
         from ._native import embree_status
 
         return "embree" if embree_status() else "jax"
-    if platform == "cuda" and _warp_installed():
-        return "warp"
     return "jax"
 
 
 def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
     """One line naming the backend `backend` runs on `platform` (default: JAX's default
     backend) and, where "auto" falls back to the JAX traversal, why."""
-    platform = platform or jax.default_backend()
+    platform = lowering_platform(platform or jax.default_backend())
     chosen = resolve_backend(backend, platform)
     if chosen == "embree":
         from ._native import embree_status
@@ -284,8 +290,10 @@ def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
         from ._native import embree_status
 
         return f"jax (the JAX traversal; Embree FFI unavailable: {embree_status().reason})"
+    if backend == "auto" and platform == "cuda":
+        return 'jax (the JAX traversal; on CUDA faster than Warp as measured, backend="warp" for Warp)'
     if backend == "auto":
-        return f"jax (the JAX traversal; no native backend for {platform}: Warp is not installed)"
+        return f"jax (the JAX traversal; no native backend for {platform})"
     return "jax (the JAX traversal)"
 
 
