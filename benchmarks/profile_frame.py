@@ -242,7 +242,10 @@ def main(argv=None):
     rows += [["sum of operations", *summed], ["frame (wall)", *walls]]
     print(f"  {'sum of operations':42s}" + "".join(f"{c:12.1f}" for c in summed))
     print(f"  {'frame (wall)':42s}" + "".join(f"{c:12.1f}" for c in walls))
-    shutil.rmtree(DUMP, ignore_errors=True)
+    if os.environ.get("FOVJAX_KEEP_HLO") != "1":
+        shutil.rmtree(DUMP, ignore_errors=True)
+    else:
+        print(f"HLO kept in {DUMP}")
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _record import write_record
 

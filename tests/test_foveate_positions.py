@@ -39,6 +39,21 @@ def test_uniform_at_is_jax_random_uniform():
     np.testing.assert_array_equal(np.asarray(uniform_at(key, index)), full[np.asarray(index)])
 
 
+def test_threefry_written_out_is_jax_threefry():
+    """The unrolled hash gives the bits of JAX's threefry2x32 primitive (counter hi 0, lo)."""
+    from jax.extend.random import threefry_2x32
+
+    from fovjax.foveate._positions import threefry_xor
+
+    rng = np.random.default_rng(0)
+    lo = np.concatenate([[0, 1, 2**31, 2**32 - 1], rng.integers(0, 2**32, 2000)]).astype(np.uint32)
+    for data in ([0, 0], [2**32 - 1, 2**32 - 1], rng.integers(0, 2**32, 2)):
+        data = jnp.asarray(np.asarray(data, np.uint64).astype(np.uint32))
+        words = threefry_2x32(data, jnp.concatenate([jnp.zeros_like(lo), jnp.asarray(lo)]))
+        expected = np.asarray(words[: lo.size] ^ words[lo.size :])
+        np.testing.assert_array_equal(np.asarray(jax.jit(threefry_xor)(data, jnp.asarray(lo))), expected)
+
+
 def test_another_prng_falls_back_to_the_screen():
     key = jax.random.key(5, impl="rbg")
     assert not _per_sample_uniform(key)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float, Int, UInt
 
 from ..scene import pixel_sample_positions, stratified_offsets
 
@@ -38,15 +38,38 @@ def _per_sample_uniform(key) -> bool:
     return raw and impl == "threefry2x32"
 
 
+# Threefry-2x32's rotations, alternating by group of four rounds, and its key-schedule constant.
+_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+_PARITY = np.uint32(0x1BD11BDA)
+
+
+def threefry_xor(data: UInt[Array, " 2"], lo: UInt[Array, "*batch"]) -> UInt[Array, "*batch"]:
+    """The two output words of threefry2x32 xor-ed, for the key `data` (2,) uint32 and the
+    64-bit counters (hi 0, `lo`): the same bits as `jax.extend.random.threefry_2x32`'s. Written
+    out round by round, because JAX lowers that primitive on a CPU as a loop over its five
+    groups of rounds (small programs, but each group a pass over memory, with copies of the
+    loop's carry); unrolled, XLA fuses the twenty rounds into one pass."""
+    k0, k1 = data[0], data[1]
+    ks = (k0, k1, k0 ^ k1 ^ _PARITY)
+    x0 = jnp.zeros_like(lo) + ks[0]
+    x1 = lo + ks[1]
+    for group in range(5):
+        for r in _ROTATIONS[group % 2]:
+            x0 = x0 + x1
+            x1 = (x1 << np.uint32(r)) | (x1 >> np.uint32(32 - r))
+            x1 = x0 ^ x1
+        x0 = x0 + ks[(group + 1) % 3]
+        x1 = x1 + ks[(group + 2) % 3] + np.uint32(group + 1)
+    return x0 ^ x1
+
+
 def uniform_at(key, index: Int[Array, "*batch"]) -> Float[Array, "*batch"]:
     """`jax.random.uniform(key, shape).reshape(-1)[index]` (float32 in [0, 1)) for any shape of
     fewer than 2**31 elements, computed at `index` only. Only where `_per_sample_uniform(key)`."""
-    from jax.extend.random import threefry_2x32
-
     data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    data = jnp.asarray(data, jnp.uint32)
     lo = jnp.asarray(index, jnp.uint32).reshape(-1)
-    words = threefry_2x32(data, jnp.concatenate([jnp.zeros_like(lo), lo]))  # counter (hi 0, lo)
-    bits = words[: lo.shape[0]] ^ words[lo.shape[0] :]
+    bits = threefry_xor(data, lo)  # counter (hi 0, lo)
     mantissa = (bits >> np.uint32(9)) | np.uint32(0x3F800000)  # [1, 2)
     floats = jax.lax.bitcast_convert_type(mantissa, jnp.float32) - jnp.float32(1.0)
     return jnp.maximum(jnp.float32(0.0), floats).reshape(jnp.shape(index))
