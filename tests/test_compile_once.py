@@ -105,15 +105,19 @@ def test_frame_programs_compile_with_loop_emitters_unless_told_otherwise(monkeyp
 
     monkeypatch.delenv("FOVJAX_XLA_EMITTERS", raising=False)
     assert LOOP_EMITTERS == {"xla_cpu_use_fusion_emitters": False}
-    for entry in ("mono", "stereo", "batch:full", "foveated", "batch:foveated"):
+    for entry in ("mono", "stereo", "batch:full", "foveated-weier2016"):
         assert frame_compiler_options(entry) == LOOP_EMITTERS, entry
         # XLA:CPU's option only: XLA's GPU compiler refuses options it does not know.
         assert frame_compiler_options(entry, "gpu") == {}, entry
+    for entry in ("foveated", "batch:foveated"):  # the thesis's foveated frame: XLA's default
+        assert frame_compiler_options(entry) == {}, entry
     from fovjax.render._frame import _program_platform
 
     assert _program_platform((jnp.zeros(3), 1.0)) == jax.devices()[0].platform
     monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fusion")
-    assert frame_compiler_options("foveated") == {}
+    assert frame_compiler_options("stereo") == {}
+    monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "loop")
+    assert frame_compiler_options("foveated") == LOOP_EMITTERS
     monkeypatch.setenv("FOVJAX_XLA_EMITTERS", "fast")
     with pytest.raises(ValueError, match="FOVJAX_XLA_EMITTERS must be one of .*got 'fast'"):
         frame_compiler_options("stereo")

@@ -112,29 +112,32 @@ LOWERING_HOOKS: list = []
 
 
 # XLA:CPU emits fused loops two ways: its newer fusion emitters (XLA's default) and its loop
-# emitters. Measured on the atrium (`benchmarks/compile_options.py`, and frames of both programs
-# alternated in one process): with loop emitters the foveated frame program compiles about a
-# quarter faster (XLA's own CPU time about 40% less), the full frame runs 9-20% faster, and the
-# foveated frame within a few percent (loop / fusion 0.97-1.07 over five runs alternating frames
-# in one process, median 1.03; under the per-operation profiler its screen passes run slower,
-# `benchmarks/profile_frame.py` with FOVJAX_XLA_EMITTERS=fusion). So every frame program
-# compiles with loop emitters. The two round some sums differently: images differ in the
-# last bits. The option is XLA:CPU's: a program compiled for another platform gets none (XLA's
-# GPU compiler refuses an option it does not know).
-# FOVJAX_XLA_EMITTERS=fusion keeps XLA's default (to measure it), read when a program compiles.
+# emitters. Full frames compile with loop emitters: measured on the atrium
+# (`benchmarks/compile_options.py`, and frames alternated in one process), they run 3-20% faster
+# and their programs compile faster. The thesis's foveated frame keeps the fusion emitters: its
+# screen passes (the sampling's threefry draws, written out round by round, above all) run
+# faster with them, the frame 8-17% faster in alternating processes (`FOVJAX_XLA_EMITTERS`
+# below). The two round some sums differently: images differ in the last bits. The option is
+# XLA:CPU's: a program compiled for another platform gets none (XLA's GPU compiler refuses an
+# option it does not know). FOVJAX_XLA_EMITTERS=loop or =fusion makes every frame program
+# compile with those (to measure them), read when a program compiles.
 LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
-EMITTER_CHOICES = ("loop", "fusion")
+EMITTER_CHOICES = ("auto", "loop", "fusion")
+FUSION_EMITTER_ENTRIES = ("foveated", "batch:foveated")
 
 
 def frame_compiler_options(entry: str, platform: str = "cpu") -> dict[str, Any]:
     """The XLA compiler options the frame program of `entry` ("stereo", "foveated", "batch:full",
-    ...) compiles with for `platform` ("cpu", "gpu", ...): on a CPU `LOOP_EMITTERS`, or none with
-    FOVJAX_XLA_EMITTERS=fusion; none elsewhere."""
-    choice = os.environ.get("FOVJAX_XLA_EMITTERS", "loop") or "loop"
+    ...) compiles with for `platform` ("cpu", "gpu", ...): on a CPU `LOOP_EMITTERS`, except for
+    the thesis's foveated frame (`FUSION_EMITTER_ENTRIES`: XLA's default); FOVJAX_XLA_EMITTERS=
+    loop or fusion for every program; none on other platforms."""
+    choice = os.environ.get("FOVJAX_XLA_EMITTERS", "auto") or "auto"
     if choice not in EMITTER_CHOICES:
         raise ValueError(
             f"FOVJAX_XLA_EMITTERS must be one of {EMITTER_CHOICES}, got {choice!r} (frame program {entry!r})"
         )
+    if choice == "auto":
+        choice = "fusion" if entry in FUSION_EMITTER_ENTRIES else "loop"
     return dict(LOOP_EMITTERS) if choice == "loop" and platform == "cpu" else {}
 
 
