@@ -18,6 +18,7 @@ mean difference is far below one 8-bit step.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import _extras
 import jax
@@ -240,3 +241,47 @@ def test_image_rays_in_4x4_tiles_cover_every_ray(featured):
     diff = np.abs(rgb_a - rgb_b).max(-1)
     assert np.mean(diff <= 1e-4) >= 0.99
     assert int(a.counts.primary) == int(b.counts.primary) == 2 * 300 * 8
+
+
+SELECTION_CASES = [
+    # (eye width, height, spp, rule, blocks, budget or None for every sample, per-region spp)
+    (40, 24, 1, "either", (2, 4), None, None),
+    (37, 29, 4, "either", (2, 4), 300, None),  # odd sizes; the budget drops samples
+    (37, 29, 4, "strict", (1, 3), None, None),
+    (40, 24, 4, "thesis-measured", (2, 4), 500, None),
+    (40, 24, 4, "either", (2, 4), None, (4, 1, 2)),  # each region's samples per pixel
+]
+
+
+@pytest.mark.parametrize("case", SELECTION_CASES, ids=lambda c: f"{c[3]}-spp{c[2]}-{c[5]}")
+def test_native_sample_selection_is_the_jax_selection(featured, case):
+    """The native handler's classes, counts, compaction (the listed samples, in order), traced
+    mask and per-pixel counts are the JAX selection's, integer for integer."""
+    from fovjax.foveate import Fidelity
+    from fovjax.foveate._frame import eccentricities, selection_with_mask
+
+    w, h, spp, rule, blocks, budget, per_region = case
+    fidelity = None if per_region is None else tuple(Fidelity(spp=s) for s in per_region)
+    fov = Foveation(5.0, 10.0, spp=spp, rule=rule, blocks=blocks, fidelity=fidelity)
+    scene = featured[0]
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    ecc = eccentricities(rig.eye_cameras(jnp.zeros(3)), jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    budget = budget or 2 * spp * w * h
+
+    def both(ecc, key):
+        select = functools.partial(selection_with_mask, ecc, key, foveation=fov, budget=budget)
+        return select(native=False), select(native=True)
+
+    lowered = jax.jit(both).lower(ecc, jax.random.key(11))
+    assert "fovjax_select_samples" in lowered.as_text()  # the native branch is the one compiled
+    in_jax, native = lowered.compile()(ecc, jax.random.key(11))
+    (sel_jax, mask_jax, n_jax), (sel_native, mask_native, n_native) = in_jax, native
+    listed = int(sel_jax.counts[0] + sel_jax.counts[1])
+    assert 0 < int(sel_jax.n_traced) <= budget
+    np.testing.assert_array_equal(sel_native.order[:listed], sel_jax.order[:listed])
+    for name in ("region", "classes", "counts", "n_traced"):
+        np.testing.assert_array_equal(getattr(sel_native, name), getattr(sel_jax, name), err_msg=name)
+    np.testing.assert_array_equal(mask_native, mask_jax)
+    np.testing.assert_array_equal(n_native, n_jax)
+    if budget < listed:  # the drops are the budget's
+        assert int(mask_native.sum()) == budget

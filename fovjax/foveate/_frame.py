@@ -44,12 +44,20 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ..render import RenderConfig
-from ._config import max_region_spp, shading_classes
+from ._config import max_region_spp, region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import blur_and_blend, fill_blanks
 from ._lod import lod_needed, with_levels
-from ._positions import positions_at
-from ._sampling import MANDATORY, OPTIONAL, SKIPPED, compaction_order, sample_classes
+from ._positions import _per_sample_uniform, positions_at
+from ._sampling import (
+    MANDATORY,
+    OPTIONAL,
+    SKIPPED,
+    compaction_order,
+    regions,
+    sample_classes,
+    subsample_rank,
+)
 
 # fold_in constant that separates the sampling draws from the sub-pixel jitter of the same key.
 SAMPLING_STREAM = 0x5A3
@@ -151,7 +159,7 @@ class Selection(NamedTuple):
     classes: Int[Array, "2 S H W"]
     counts: Int[Array, " 3"]
     order: Int[Array, " N"]
-    rank: Int[Array, " N"]
+    rank: Int[Array, " N"] | None  # None: not kept (the traced mask is made with the selection)
     n_traced: Int[Array, ""]
     covered: Bool[Array, "2 H W"] | None = None  # pixels the fovea tile traces (not in the slots)
 
@@ -204,6 +212,73 @@ def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
             + [jnp.zeros((), counts.dtype)]
         )
     return Selection(ecc, region, classes, counts, order, rank, n_slots, covered)
+
+
+RULE_CODES = {"either": 0, "strict": 1, "thesis-measured": 2}
+
+
+def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
+    """Stages 2 and 4's masks together, for a frame without image tiles: (`Selection` with its
+    classes as int8 and no ranks, which samples are traced (2, S, H, W), traced samples per pixel
+    (2, H, W)). `native`: on a CPU through the native handler (`fovjax.trace._embree_ffi.cc`,
+    `SelectSamples`: the same integers as `select_samples`, `traced_mask` and `traced_count`,
+    on both cores), chosen inside the program, so it still lowers for other platforms, where
+    the JAX functions run."""
+
+    def in_jax():
+        sel = select_samples(ecc, key, foveation=foveation, budget=budget)
+        mask = traced_mask(sel, budget)
+        n = traced_count(mask, foveation.spp)
+        return sel.region, sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n
+
+    if not native or not _per_sample_uniform(jax.random.fold_in(key, SAMPLING_STREAM)):
+        region, classes, order, counts, mask, n = in_jax()
+    else:
+
+        def on_cpu():
+            return _native_selection(ecc, key, foveation=foveation, budget=budget)
+
+        region, classes, order, counts, mask, n = jax.lax.platform_dependent(cpu=on_cpu, default=in_jax)
+    n_slots = jnp.minimum(counts[MANDATORY] + counts[OPTIONAL], budget)
+    return Selection(ecc, region, classes, counts, order, None, n_slots), mask, n
+
+
+def _native_selection(ecc, key, *, foveation, budget):
+    """`selection_with_mask`'s outputs through the native handler (CPU only)."""
+    from ..trace._native import SELECT_TARGET, embree_status
+
+    status = embree_status()
+    if not status:
+        raise RuntimeError(f"the native sample selection needs the Embree FFI handler: {status.reason}")
+    _, h, w = ecc.shape
+    spp = foveation.spp
+    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
+    probability = foveation.probability(ecc)
+    keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
+    key_data = jax.random.key_data(keys) if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else keys
+    per_region = region_spp(foveation) or (spp, spp, spp)
+    out = (
+        jax.ShapeDtypeStruct((2, spp, h, w), jnp.int8),
+        jax.ShapeDtypeStruct((2 * spp * h * w,), jnp.int32),
+        jax.ShapeDtypeStruct((3,), jnp.int32),
+        jax.ShapeDtypeStruct((2, spp, h, w), jnp.bool_),
+        jax.ShapeDtypeStruct((2, h, w), jnp.int32),
+    )
+    call = jax.ffi.ffi_call(SELECT_TARGET, out, vmap_method="sequential")
+    classes, order, counts, mask, n = call(
+        region,
+        jax.lax.stop_gradient(jnp.asarray(probability, jnp.float32)),
+        jnp.asarray(key_data, jnp.uint32).reshape(2, 2),
+        jnp.asarray(locality_order(h, w)),
+        jnp.asarray(per_region, jnp.int32),
+        jnp.asarray(subsample_rank(spp)),
+        spp=np.int32(spp),
+        rule=np.int32(RULE_CODES[foveation.rule]),
+        block_periphery=np.int32(foveation.blocks[0]),
+        block_outside=np.int32(foveation.blocks[1]),
+        budget=np.int64(budget),
+    )
+    return region, classes, order, counts, mask, n
 
 
 def _slot_samples(slots, *, spp, h, w):
@@ -455,11 +530,14 @@ def pixel_means(sums, n, *, h, w, bad_color):
 def traced_mask(sel: Selection, budget: int) -> Bool[Array, "2 S H W"]:
     """Which samples were traced: every sample the plan asked for, unless the budget dropped
     some (then from the compaction's ranks, mapped back from locality order)."""
+    if sel.rank is None:
+        raise ValueError("traced_mask needs the selection's ranks (select_samples keeps them)")
+    rank = sel.rank
     wanted = sel.classes != SKIPPED
     _, spp, h, w = sel.classes.shape
 
     def with_drops(_):
-        kept = (sel.rank < budget).reshape(2, h * w, spp).transpose(0, 2, 1)
+        kept = (rank < budget).reshape(2, h * w, spp).transpose(0, 2, 1)
         perm = jnp.asarray(locality_order(h, w))
         grid = jnp.zeros((2, spp, h * w), bool).at[:, :, perm].set(kept).reshape(wanted.shape)
         if sel.covered is not None:  # a tile's samples are never dropped
@@ -539,7 +617,16 @@ def foveated_stereo(
         yy, xx = np.mgrid[:h, :w]
         on_grid = jnp.asarray((yy % grid == 0) & (xx % grid == 0))[None]
         covered = jnp.broadcast_to(on_grid, (2, h, w)) if covered is None else covered | on_grid
-    sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
+    if tile is None and grid is None:
+        from ..render.internal import native_integrator
+
+        sel, mask, n = selection_with_mask(
+            ecc, key, foveation=foveation, budget=budget, native=native_integrator(config)
+        )
+    else:
+        sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
+        mask = traced_mask(sel, budget)
+        n = traced_count(mask, spp)
     # The slots' sub-pixel positions, computed for the traced samples only (`positions_at`);
     # the image tiles slice the full render's screen of them.
     frame_key = key if jitter else None
@@ -591,8 +678,6 @@ def foveated_stereo(
         scale=scale,
         consume=consume,
     )
-    mask = traced_mask(sel, budget)
-    n = traced_count(mask, spp)
     # The pixel sums start from zeros made from a count of the trace (a non-negative int, so its
     # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
     # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).

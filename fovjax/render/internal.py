@@ -26,6 +26,7 @@ from ._integrator import ShadingClasses as ShadingClasses
 from ._integrator import Surface as Surface
 from ._integrator import bilinear_wrap as bilinear_wrap
 from ._integrator import chunk_loop as chunk_loop
+from ._integrator import native_integrator as native_integrator
 from ._integrator import radiance_in_chunks as radiance_in_chunks
 from ._integrator import scene_scale as scene_scale
 from ._integrator import surface_at as surface_at
@@ -51,6 +52,7 @@ __all__ = [
     "Surface",
     "bilinear_wrap",
     "chunk_loop",
+    "native_integrator",
     "radiance_in_chunks",
     "scene_scale",
     "surface_at",

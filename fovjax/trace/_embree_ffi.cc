@@ -1066,6 +1066,225 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   return ffi::Error::Success();
 }
 
+// ---- the foveated frame's sample selection ----------------------------------------------------
+//
+// `fovjax.foveate._frame.select_samples` (no image tiles), its traced mask and per-pixel counts
+// in one pass over the screen on both cores, with the same results to the bit: the classes of
+// every sub-sample (`_sampling.sample_classes`: block top-lefts, the P(ω) draw of JAX's
+// threefry2x32 uniform for the sub-sample's flat index, the rule, each region's samples per
+// pixel), their stable compaction in locality order (`compaction_order`), and which samples the
+// budget keeps. The regions and P(ω) come from the program (JAX computes both).
+
+// JAX's uniform float32 in [0, 1) at flat indices first..first+n-1 of the key (k0, k1):
+// threefry2x32 of each 64-bit counter (hi 0, index), its two words xor-ed, the top 23 bits as a
+// mantissa in [1, 2), minus 1. A plain loop over lanes that the compiler vectorises, built for
+// the widest vector unit the CPU has (chosen when the library loads).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define FOVJAX_VECTOR_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define FOVJAX_VECTOR_CLONES
+#endif
+
+#define FOVJAX_ROUND(r)            \
+  x0 += x1;                        \
+  x1 = (x1 << r) | (x1 >> (32 - r)); \
+  x1 ^= x0;
+
+FOVJAX_VECTOR_CLONES
+void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out) {
+  const uint32_t k2 = k0 ^ k1 ^ 0x1BD11BDAu;
+  for (int64_t i = 0; i < n; ++i) {
+    uint32_t x0 = k0;
+    uint32_t x1 = first + static_cast<uint32_t>(i) + k1;
+    FOVJAX_ROUND(13) FOVJAX_ROUND(15) FOVJAX_ROUND(26) FOVJAX_ROUND(6)
+    x0 += k1;
+    x1 += k2 + 1u;
+    FOVJAX_ROUND(17) FOVJAX_ROUND(29) FOVJAX_ROUND(16) FOVJAX_ROUND(24)
+    x0 += k2;
+    x1 += k0 + 2u;
+    FOVJAX_ROUND(13) FOVJAX_ROUND(15) FOVJAX_ROUND(26) FOVJAX_ROUND(6)
+    x0 += k0;
+    x1 += k1 + 3u;
+    FOVJAX_ROUND(17) FOVJAX_ROUND(29) FOVJAX_ROUND(16) FOVJAX_ROUND(24)
+    x0 += k1;
+    x1 += k2 + 4u;
+    FOVJAX_ROUND(13) FOVJAX_ROUND(15) FOVJAX_ROUND(26) FOVJAX_ROUND(6)
+    x0 += k2;
+    x1 += k0 + 5u;
+    const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
+    float f;
+    std::memcpy(&f, &mantissa, sizeof f);
+    f -= 1.0f;
+    out[i] = f > 0.0f ? f : 0.0f;
+  }
+}
+#undef FOVJAX_ROUND
+
+constexpr int kFovea = 0, kOutside = 2;
+constexpr int8_t kMandatory = 0, kOptional = 1, kSkipped = 2;
+
+// One row of one sub-sample's classes (`_sampling.sample_classes`), branch-free so that the
+// compiler vectorises it: class = 2 - 2·mandatory - optional (the two exclude each other),
+// skipped beyond the region's samples per pixel (`allowed` per region code). Adds the traced
+// samples to `n`.
+template <int kRule>
+void ClassRow(const int32_t* __restrict__ row, const uint8_t* __restrict__ top_left,
+              const float* __restrict__ u, const float* __restrict__ prob, const uint8_t* allowed,
+              uint8_t first, int64_t w, int8_t* __restrict__ cls, uint8_t* __restrict__ traced,
+              int32_t* __restrict__ n) {
+  // int32 lanes throughout: GCC vectorises the loop only when its values share one width.
+  const int32_t a0 = allowed[0], a1 = allowed[1], a2 = allowed[2], f = first;
+  for (int64_t x = 0; x < w; ++x) {
+    const int32_t r = row[x];
+    const int32_t fovea = r == kFovea, tl = top_left[x], kept = u[x] < prob[x];
+    int32_t mandatory, optional;
+    if (kRule == 0) {  // either
+      mandatory = fovea | tl;
+      optional = (mandatory ^ 1) & kept;
+    } else if (kRule == 1) {  // strict
+      mandatory = fovea;
+      optional = (mandatory ^ 1) & tl & kept;
+    } else {  // thesis-measured
+      mandatory = (r != kOutside) | f;
+      optional = 0;
+    }
+    const int32_t ok = (fovea & a0) | ((r == 1) & a1) | ((r == kOutside) & a2);
+    const int32_t live = ok & (mandatory | optional);
+    cls[x] = static_cast<int8_t>(2 - live * (2 * mandatory + optional));
+    traced[x] = static_cast<uint8_t>(live);
+    n[x] += live;
+  }
+}
+
+ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
+                         ffi::Buffer<ffi::F32> probability, ffi::Buffer<ffi::U32> keys,
+                         ffi::Buffer<ffi::S32> locality, ffi::Buffer<ffi::S32> region_spp,
+                         ffi::Buffer<ffi::S32> subsample_rank, ffi::ResultBuffer<ffi::S8> classes_out,
+                         ffi::ResultBuffer<ffi::S32> order_out, ffi::ResultBuffer<ffi::S32> counts_out,
+                         ffi::ResultBuffer<ffi::PRED> traced_out, ffi::ResultBuffer<ffi::S32> per_pixel_out,
+                         int32_t spp, int32_t rule, int32_t block_periphery, int32_t block_outside,
+                         int64_t budget) {
+  const auto dims = region_buf.dimensions();
+  if (dims.size() != 3 || dims[0] != 2) return ffi::Error::InvalidArgument("select: regions must be (2, H, W)");
+  const int64_t h = dims[1], w = dims[2], hw = h * w, per_eye = hw * spp;
+  if (probability.element_count() != static_cast<size_t>(2 * hw) || keys.element_count() != 4 ||
+      locality.element_count() != static_cast<size_t>(hw) || region_spp.element_count() != 3 ||
+      subsample_rank.element_count() != static_cast<size_t>(spp) || block_periphery < 1 || block_outside < 1) {
+    return ffi::Error::InvalidArgument("select: operand shapes do not match the regions");
+  }
+  const int32_t* region = region_buf.typed_data();
+  const float* p = probability.typed_data();
+  const uint32_t* key = keys.typed_data();
+  const int32_t* perm = locality.typed_data();
+  const int32_t* rspp = region_spp.typed_data();
+  const int32_t* srank = subsample_rank.typed_data();
+  int8_t* cls = classes_out->typed_data();           // (2, S, H, W)
+  int32_t* order = order_out->typed_data();          // (2 · H·W · S), locality order
+  int32_t* counts = counts_out->typed_data();        // (3)
+  bool* traced = traced_out->typed_data();           // (2, S, H, W)
+  int32_t* per_pixel = per_pixel_out->typed_data();  // (2, H, W)
+
+  // Pass 1, rows in bands: each sub-sample's class, whether it is wanted, and the wanted
+  // samples per pixel (the budget's drops are taken off in pass 2).
+  const int64_t rows = 16;
+  const int64_t bands = (h + rows - 1) / rows;
+  ParallelFor(pool, 2 * bands, [&](int64_t job) {
+    const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(h, y0 + rows);
+    const int32_t* reg = region + eye * hw;
+    std::vector<float> u(static_cast<size_t>(w * spp));
+    std::vector<uint8_t> top_left(static_cast<size_t>(w));
+    const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
+    for (int64_t y = y0; y < y1; ++y) {
+      const int32_t* row = reg + y * w;
+      // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
+      // one pixel; else the top-left of every aligned block holding a pixel of that region.
+      for (int64_t x = 0; x < w; ++x) top_left[x] = row[x] == kFovea;
+      for (int c = 0; c < 2; ++c) {
+        const int64_t b = sizes[c];
+        if (b == 1) {
+          for (int64_t x = 0; x < w; ++x) top_left[x] |= row[x] == codes[c];
+          continue;
+        }
+        if (y % b != 0) continue;
+        for (int64_t xb = 0; xb < w; xb += b) {
+          bool any = false;
+          for (int64_t yy = y; yy < std::min(h, y + b) && !any; ++yy)
+            for (int64_t xx = xb; xx < std::min(w, xb + b); ++xx) any |= reg[yy * w + xx] == codes[c];
+          top_left[xb] |= any;
+        }
+      }
+      for (int64_t s = 0; s < spp; ++s)
+        UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * h + y) * w), w, &u[s * w]);
+      const float* prow = p + eye * hw + y * w;
+      int32_t* n = per_pixel + eye * hw + y * w;
+      std::fill(n, n + w, 0);
+      for (int64_t s = 0; s < spp; ++s) {
+        const float* us = &u[s * w];
+        int8_t* c_row = cls + (eye * spp + s) * hw + y * w;
+        uint8_t* t_row = reinterpret_cast<uint8_t*>(traced) + (eye * spp + s) * hw + y * w;
+        const uint8_t allowed[3] = {srank[s] < rspp[0], srank[s] < rspp[1], srank[s] < rspp[2]};
+        const uint8_t first = s == 0;
+        if (rule == 0) ClassRow<0>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
+        else if (rule == 1) ClassRow<1>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
+        else ClassRow<2>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
+      }
+    }
+  });
+
+  // Pass 2, the locality-ordered samples in chunks: each chunk lists its mandatory and its
+  // optional samples (the stable partition of `compaction_order`), then the lists go to their
+  // places. Slots past the traced samples (`order` beyond the wanted ones) are never read as
+  // live rays: zeros.
+  const int64_t pixels_per_chunk = 8192;
+  const int64_t chunks_per_eye = (hw + pixels_per_chunk - 1) / pixels_per_chunk;
+  const int64_t chunks = 2 * chunks_per_eye;
+  std::vector<std::vector<int32_t>> listed(2 * chunks);
+  ParallelFor(pool, chunks, [&](int64_t c) {
+    const int64_t eye = c / chunks_per_eye, j0 = (c % chunks_per_eye) * pixels_per_chunk;
+    const int64_t j1 = std::min(hw, j0 + pixels_per_chunk);
+    std::vector<int32_t>& mandatory = listed[2 * c];
+    std::vector<int32_t>& optional = listed[2 * c + 1];
+    for (int64_t j = j0; j < j1; ++j) {
+      const int64_t pix = perm[j];
+      for (int64_t s = 0; s < spp; ++s) {
+        const int8_t k = cls[(eye * spp + s) * hw + pix];
+        if (k == kSkipped) continue;
+        (k == kMandatory ? mandatory : optional).push_back(static_cast<int32_t>(eye * per_eye + j * spp + s));
+      }
+    }
+  });
+  int64_t total[2] = {0, 0};
+  std::vector<int64_t> offset(2 * chunks);
+  for (int k = 0; k < 2; ++k)
+    for (int64_t c = 0; c < chunks; ++c) {
+      offset[2 * c + k] = total[k];
+      total[k] += static_cast<int64_t>(listed[2 * c + k].size());
+    }
+  const int64_t wanted = total[0] + total[1];
+  for (int64_t c = 0; c < chunks; ++c) offset[2 * c + 1] += total[0];
+  ParallelFor(pool, chunks + 1, [&](int64_t c) {
+    if (c == chunks) {  // the rest of the list
+      std::fill(order + wanted, order + 2 * per_eye, 0);
+      return;
+    }
+    for (int k = 0; k < 2; ++k) {
+      const std::vector<int32_t>& list = listed[2 * c + k];
+      if (!list.empty()) std::memcpy(order + offset[2 * c + k], list.data(), list.size() * sizeof(int32_t));
+    }
+  });
+  // Beyond the budget (`traced_mask`'s drops): the listed samples past it are not traced.
+  for (int64_t rank = std::min(budget, wanted); rank < wanted; ++rank) {
+    const int64_t slot = order[rank], eye = slot / per_eye, j = (slot % per_eye) / spp, s = slot % spp;
+    const int64_t pix = perm[j];
+    traced[(eye * spp + s) * hw + pix] = false;
+    --per_pixel[eye * hw + pix];
+  }
+  counts[0] = static_cast<int32_t>(total[0]);
+  counts[1] = static_cast<int32_t>(total[1]);
+  counts[2] = static_cast<int32_t>(2 * per_eye - wanted);
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
@@ -1117,6 +1336,26 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,
                                   .Attr<int32_t>("recompute")
                                   .Attr<int32_t>("packets")
                                   .Attr<int32_t>("tile_width"));  // rays an image this wide, 0
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // regions (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // P(ω) per pixel (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::U32>>()   // each eye's key data (2, 2)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // locality order of the pixels (H·W)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // samples per pixel per region (3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // each sub-sample's rank (S)
+                                  .Ret<ffi::Buffer<ffi::S8>>()    // classes (2, S, H, W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // compaction order (2·H·W·S)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // count per class (3)
+                                  .Ret<ffi::Buffer<ffi::PRED>>()  // traced (2, S, H, W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // traced per pixel (2, H, W)
+                                  .Attr<int32_t>("spp")
+                                  .Attr<int32_t>("rule")  // 0 either, 1 strict, 2 thesis-measured
+                                  .Attr<int32_t>("block_periphery")
+                                  .Attr<int32_t>("block_outside")
+                                  .Attr<int64_t>("budget"));
 
 extern "C" {
 

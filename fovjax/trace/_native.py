@@ -30,6 +30,7 @@ SOURCE = Path(__file__).with_name("_embree_ffi.cc")
 TARGET = "fovjax_embree_query"
 # The Whitted integrator's primal (`fovjax.render.radiance` with `RenderConfig.integrator`).
 WHITTED_TARGET = "fovjax_embree_whitted"
+SELECT_TARGET = "fovjax_select_samples"
 _FLAGS = ("-O3", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes")
 
 _lock = threading.Lock()
@@ -155,6 +156,7 @@ def _load() -> NativeStatus:
         return NativeStatus(False, f"Embree ({Path(library).name}): {lib.fovjax_embree_error().decode()}")
     jax.ffi.register_ffi_target(TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeQuery), platform="cpu")
     jax.ffi.register_ffi_target(WHITTED_TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeWhitted), platform="cpu")
+    jax.ffi.register_ffi_target(SELECT_TARGET, jax.ffi.pycapsule(lib.FovjaxSelectSamples), platform="cpu")
     _state["lib"] = lib
     version = lib.fovjax_embree_version()
     width = lib.fovjax_embree_packet_width()
