@@ -166,8 +166,8 @@ def test_ties_on_shared_edges_and_vertices():
     touches, at the right t. Warp's ray-triangle test is not watertight: on a CPU a slanted ray
     through a vertex shared by six faces can fall through (4 of ~130 here; the JAX traversal and
     float64 brute force hit them all), through edges none did; on CUDA (an H200, `gpu.sh`)
-    slanted rays fell through edges too (13 edge and 22 vertex rays of the slanted half), one
-    reason "auto" runs the JAX traversal there. Rays straight down never fell through."""
+    slanted rays fell through edges too (13 edge and 22 vertex rays of the slanted half). Rays
+    straight down never fell through."""
     n = 16
     xs = np.linspace(-2, 2, n + 1, dtype=np.float32)
     X, Y = np.meshgrid(xs, xs, indexing="ij")

@@ -195,8 +195,8 @@ def add_backend(parser: argparse.ArgumentParser) -> None:
         "--backend",
         default="auto",
         choices=BACKENDS,
-        help="ray queries: auto (default: Embree through XLA's FFI on CPU where it builds, else the JAX "
-        "traversal, on a GPU too), jax, embree or warp",
+        help="ray queries: auto (default: Embree through XLA's FFI on CPU where it builds, Warp on a GPU "
+        "where installed, else the JAX traversal), jax, embree or warp",
     )
 
 

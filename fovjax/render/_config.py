@@ -44,10 +44,10 @@ class RenderConfig:
       batch axes laid out as an image). Reflection rays and later shadow rays are incoherent
       and always traced one by one.
     - `backend`: the ray queries (`fovjax.trace.closest_hit`): "auto" (Embree through XLA's FFI
-      on CPU where its handler builds, else the JAX traversal, on CUDA too, where it measured
-      faster than Warp; chosen per platform inside the program), "jax", "embree" or "warp".
-      Images are the same up to float rounding and ties between faces at equal distance: only
-      the hit face comes from the backend, the rest is recomputed in JAX.
+      on CPU where its handler builds, Warp on CUDA where installed, else the JAX traversal;
+      chosen per platform inside the program), "jax", "embree" or "warp". Images are the same
+      up to float rounding and ties between faces at equal distance: only the hit face comes
+      from the backend, the rest is recomputed in JAX.
     - `chunk_size`: `radiance` traces and shades depth 0 in bands of about this many rays
       (whole image rows, so that packets keep their pixels; a band's intermediates stay in
       cache) and the reflection levels' live rays in chunks of the band's size (dead chunks

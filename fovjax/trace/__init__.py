@@ -3,11 +3,10 @@
 - `build_bvh(scene)` — binned SAH on the host, cached on disk;
 - `closest_hit(bvh, origins, directions, tmin, tmax)` → `Hit(t, prim, u, v)`;
 - `occluded(bvh, origins, directions, tmax)` → bool;
-on a backend: `"auto"` (default: Embree through XLA's FFI on CPU, else JAX — on CUDA too,
-measured faster than Warp there — chosen per platform inside the program), `"embree"`, `"warp"`
-or `"jax"` (the `while_loop` traversal, any XLA device: the reference the others are tested
-against); `describe_backend()` names what "auto" runs and why, `embree_status()` whether the
-Embree FFI handler built;
+on a backend: `"auto"` (default: Embree through XLA's FFI on CPU, Warp on CUDA, else JAX,
+chosen per platform inside the program), `"embree"`, `"warp"` or `"jax"` (the `while_loop`
+traversal, any XLA device: the reference the others are tested against); `describe_backend()`
+names what "auto" runs and why, `embree_status()` whether the Embree FFI handler built;
 - `merge_bvhs(bvhs)` → one BVH of several trees (levels of detail), queried with `level=` per ray;
 - `Traversal(lanes=, packets=, steps_per_refill=)`: the JAX traversal's tuning (`traversal=`).
 """

@@ -5,12 +5,8 @@ anything lies on it). `"embree"` is Embree through an XLA FFI call (CPU), `"warp
 BVH queries (CUDA, and CPU), `"jax"` the `lax.while_loop` traversal of `_traverse.py` (any XLA
 device; the reference every other backend is tested against). `"auto"` (the default) picks per
 platform inside the program (`jax.lax.platform_dependent`): Embree on CPU where its handler
-builds, else JAX — so one program lowers for CPU and CUDA (and, where JAX sees a device of another
-platform, for it too, on the JAX traversal). On CUDA "auto" is the JAX traversal, not Warp:
-measured on an H200 (`benchmarks/gpu.sh`, `trace_warp` records), the JAX traversal answered
-the atrium's primary and random rays faster than Warp's queries with either of Warp's BVH
-builders and its shadow rays about as fast, and Warp's CUDA ray-triangle test let slanted rays
-through shared edges (`tests/test_trace_warp.py`); `backend="warp"` asks for Warp.
+builds, Warp on CUDA where it is installed, else JAX — so one program lowers for CPU and CUDA
+(and, where JAX sees a device of another platform, for it too, on the JAX traversal).
 t, u, v are recomputed from the hit face in plain JAX, so gradients do not depend on the backend.
 """
 
@@ -247,6 +243,15 @@ def _raw_query(
     return tuple(x[back] for x in hits)
 
 
+def _warp_installed() -> bool:
+    import importlib.util
+
+    return (
+        importlib.util.find_spec("warp") is not None
+        and importlib.util.find_spec(f"{__package__}._warp") is not None
+    )
+
+
 def lowering_platform(platform: str) -> str:
     """The platform name a program lowers for ("cpu", "cuda", "rocm", "tpu") from a device's or
     `jax.default_backend()`'s ("gpu" for either kind of GPU)."""
@@ -261,14 +266,17 @@ def lowering_platform(platform: str) -> str:
 
 def resolve_backend(backend: str, platform: str) -> str:
     """The backend that `backend` runs on `platform` ("cpu", "cuda", ...; "gpu" as
-    `lowering_platform` reads it): "auto" is Embree on CPU where its FFI handler builds, else
-    the JAX traversal (on CUDA too: see the module docstring)."""
+    `lowering_platform` reads it): "auto" is Embree on CPU where its FFI handler builds, Warp
+    on CUDA where installed, else the JAX traversal."""
     if backend != "auto":
         return backend
-    if lowering_platform(platform) == "cpu":
+    platform = lowering_platform(platform)
+    if platform == "cpu":
         from ._native import embree_status
 
         return "embree" if embree_status() else "jax"
+    if platform == "cuda" and _warp_installed():
+        return "warp"
     return "jax"
 
 
@@ -290,10 +298,8 @@ def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
         from ._native import embree_status
 
         return f"jax (the JAX traversal; Embree FFI unavailable: {embree_status().reason})"
-    if backend == "auto" and platform == "cuda":
-        return 'jax (the JAX traversal; on CUDA faster than Warp as measured, backend="warp" for Warp)'
     if backend == "auto":
-        return f"jax (the JAX traversal; no native backend for {platform})"
+        return f"jax (the JAX traversal; no native backend for {platform}: Warp is not installed)"
     return "jax (the JAX traversal)"
 
 
