@@ -245,38 +245,24 @@ def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
 
 def _native_selection(ecc, key, *, foveation, budget):
     """`selection_with_mask`'s outputs through the native handler (CPU only)."""
-    from ..trace._native import SELECT_TARGET, embree_status
+    from ..trace.internal import native_select_samples
 
-    status = embree_status()
-    if not status:
-        raise RuntimeError(f"the native sample selection needs the Embree FFI handler: {status.reason}")
     _, h, w = ecc.shape
     spp = foveation.spp
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
-    probability = foveation.probability(ecc)
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
     key_data = jax.random.key_data(keys) if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else keys
-    per_region = region_spp(foveation) or (spp, spp, spp)
-    out = (
-        jax.ShapeDtypeStruct((2, spp, h, w), jnp.int8),
-        jax.ShapeDtypeStruct((2 * spp * h * w,), jnp.int32),
-        jax.ShapeDtypeStruct((3,), jnp.int32),
-        jax.ShapeDtypeStruct((2, spp, h, w), jnp.bool_),
-        jax.ShapeDtypeStruct((2, h, w), jnp.int32),
-    )
-    call = jax.ffi.ffi_call(SELECT_TARGET, out, vmap_method="sequential")
-    classes, order, counts, mask, n = call(
+    classes, order, counts, mask, n = native_select_samples(
         region,
-        jax.lax.stop_gradient(jnp.asarray(probability, jnp.float32)),
-        jnp.asarray(key_data, jnp.uint32).reshape(2, 2),
-        jnp.asarray(locality_order(h, w)),
-        jnp.asarray(per_region, jnp.int32),
-        jnp.asarray(subsample_rank(spp)),
-        spp=np.int32(spp),
-        rule=np.int32(RULE_CODES[foveation.rule]),
-        block_periphery=np.int32(foveation.blocks[0]),
-        block_outside=np.int32(foveation.blocks[1]),
-        budget=np.int64(budget),
+        foveation.probability(ecc),
+        key_data,
+        locality_order(h, w),
+        region_spp(foveation) or (spp, spp, spp),
+        subsample_rank(spp),
+        spp=spp,
+        rule=RULE_CODES[foveation.rule],
+        blocks=(int(foveation.blocks[0]), int(foveation.blocks[1])),
+        budget=budget,
     )
     return region, classes, order, counts, mask, n
 

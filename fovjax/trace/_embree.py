@@ -238,6 +238,53 @@ def embree_whitted(
     )
 
 
+def native_select_samples(
+    region,
+    probability,
+    key_data,
+    locality,
+    per_region_spp,
+    subsample_rank,
+    *,
+    spp: int,
+    rule: int,
+    blocks: tuple[int, int],
+    budget: int,
+):
+    """The foveated frame's sample selection through the handler's `SelectSamples` (CPU only):
+    (classes int8 (2, S, H, W), compaction order (2·H·W·S), count per class (3), traced mask
+    (2, S, H, W), traced samples per pixel (2, H, W)); see `fovjax.foveate._frame.
+    selection_with_mask` for what each operand is. `rule`: 0 either, 1 strict, 2
+    thesis-measured."""
+    from ._native import SELECT_TARGET, embree_status
+
+    status = embree_status()  # builds and registers the handler
+    if not status:
+        raise RuntimeError(f"the native sample selection needs the Embree FFI handler: {status.reason}")
+    _, h, w = region.shape
+    out = (
+        jax.ShapeDtypeStruct((2, spp, h, w), jnp.int8),
+        jax.ShapeDtypeStruct((2 * spp * h * w,), jnp.int32),
+        jax.ShapeDtypeStruct((3,), jnp.int32),
+        jax.ShapeDtypeStruct((2, spp, h, w), jnp.bool_),
+        jax.ShapeDtypeStruct((2, h, w), jnp.int32),
+    )
+    call = jax.ffi.ffi_call(SELECT_TARGET, out, vmap_method="sequential")
+    return call(
+        jnp.asarray(region, jnp.int32),
+        jax.lax.stop_gradient(jnp.asarray(probability, jnp.float32)),
+        jnp.asarray(key_data, jnp.uint32).reshape(2, 2),
+        jnp.asarray(locality, jnp.int32),
+        jnp.asarray(per_region_spp, jnp.int32),
+        jnp.asarray(subsample_rank, jnp.int32),
+        spp=np.int32(spp),
+        rule=np.int32(rule),
+        block_periphery=np.int32(blocks[0]),
+        block_outside=np.int32(blocks[1]),
+        budget=np.int64(budget),
+    )
+
+
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):
     """(t, prim) through embreex's Python API and `jax.pure_callback` (the fallback)."""
 
