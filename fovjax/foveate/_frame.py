@@ -231,7 +231,11 @@ def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
         n = traced_count(mask, foveation.spp)
         return sel.region, sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n
 
-    if not native or not _per_sample_uniform(jax.random.fold_in(key, SAMPLING_STREAM)):
+    _, h, w = ecc.shape
+    # The handler recomputes the JAX path's per-sample draws (`uniform_draws`), which need the
+    # default PRNG and int32 indices; elsewhere the JAX selection runs.
+    per_sample = _per_sample_uniform(jax.random.fold_in(key, SAMPLING_STREAM))
+    if not native or not per_sample or 2 * foveation.spp * h * w >= 2**31:
         region, classes, order, counts, mask, n = in_jax()
     else:
 
