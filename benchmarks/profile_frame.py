@@ -16,7 +16,8 @@ time is that of the operations inside them, which are counted themselves.
 
 Unlike `benchmarks/foveation.py --profile` (each stage compiled and timed on its own, with
 the cost of materialising what the fused program never does), this is the fused program's own
-time. Writes a record (benchmarks/results/profile_frame-*.json).
+time. Writes a record (benchmarks/results/profile_frame-*.json). FOVJAX_KEEP_HLO=1 keeps XLA's
+HLO dump (its folder is printed) to look an operation up.
 """
 
 from __future__ import annotations

@@ -191,11 +191,17 @@ def tile_mask(origins, tile: tuple[int, int], h: int, w: int) -> Bool[Array, "2 
     return (y >= row) & (y < row + th) & (x >= col) & (x < col + tw)
 
 
+def sampling_keys(key):
+    """Each eye's key of the sampling draws: a stream of the frame key apart from the sub-pixel
+    jitter's (the JAX selection's and the native one's, which must draw the same bits)."""
+    return jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
+
+
 def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
     """Stage 2: regions, sample classes from the sampling stream of `key`, and their compaction
     in locality order (see the module docstring). `covered` (2, H, W): pixels traced as an
     image tile, left out of the slots (counted in `counts` all the same)."""
-    keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
+    keys = sampling_keys(key)
     per_eye = [sample_classes(ecc[i], foveation, keys[i]) for i in range(2)]
     classes = jnp.stack([c for c, _ in per_eye])  # (2, S, H, W)
     region = jnp.stack([r for _, r in per_eye])  # (2, H, W)
@@ -234,7 +240,7 @@ def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
     _, h, w = ecc.shape
     # The handler recomputes the JAX path's per-sample draws (`uniform_draws`), which need the
     # default PRNG and int32 indices; elsewhere the JAX selection runs.
-    per_sample = _per_sample_uniform(jax.random.fold_in(key, SAMPLING_STREAM))
+    per_sample = _per_sample_uniform(sampling_keys(key)[0])
     if not native or not per_sample or 2 * foveation.spp * h * w >= 2**31:
         region, classes, order, counts, mask, n = in_jax()
     else:
@@ -254,7 +260,7 @@ def _native_selection(ecc, key, *, foveation, budget):
     _, h, w = ecc.shape
     spp = foveation.spp
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
-    keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
+    keys = sampling_keys(key)
     key_data = jax.random.key_data(keys) if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else keys
     classes, order, counts, mask, n = native_select_samples(
         region,

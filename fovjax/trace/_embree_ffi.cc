@@ -1085,32 +1085,27 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
 #define FOVJAX_VECTOR_CLONES
 #endif
 
-#define FOVJAX_ROUND(r)            \
-  x0 += x1;                        \
-  x1 = (x1 << r) | (x1 >> (32 - r)); \
-  x1 ^= x0;
-
 FOVJAX_VECTOR_CLONES
 void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out) {
-  const uint32_t k2 = k0 ^ k1 ^ 0x1BD11BDAu;
+  static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
+  const uint32_t ks[3] = {k0, k1, k0 ^ k1 ^ 0x1BD11BDAu};
   for (int64_t i = 0; i < n; ++i) {
-    uint32_t x0 = k0;
-    uint32_t x1 = first + static_cast<uint32_t>(i) + k1;
-    FOVJAX_ROUND(13) FOVJAX_ROUND(15) FOVJAX_ROUND(26) FOVJAX_ROUND(6)
-    x0 += k1;
-    x1 += k2 + 1u;
-    FOVJAX_ROUND(17) FOVJAX_ROUND(29) FOVJAX_ROUND(16) FOVJAX_ROUND(24)
-    x0 += k2;
-    x1 += k0 + 2u;
-    FOVJAX_ROUND(13) FOVJAX_ROUND(15) FOVJAX_ROUND(26) FOVJAX_ROUND(6)
-    x0 += k0;
-    x1 += k1 + 3u;
-    FOVJAX_ROUND(17) FOVJAX_ROUND(29) FOVJAX_ROUND(16) FOVJAX_ROUND(24)
-    x0 += k1;
-    x1 += k2 + 4u;
-    FOVJAX_ROUND(13) FOVJAX_ROUND(15) FOVJAX_ROUND(26) FOVJAX_ROUND(6)
-    x0 += k2;
-    x1 += k0 + 5u;
+    uint32_t x0 = ks[0];
+    uint32_t x1 = first + static_cast<uint32_t>(i) + ks[1];
+    // Five groups of four rounds, the key injected after each (unrolled: the rotations are
+    // constants, and the loop over lanes vectorises).
+#pragma GCC unroll 5
+    for (int group = 0; group < 5; ++group) {
+#pragma GCC unroll 4
+      for (int j = 0; j < 4; ++j) {
+        const int r = kRotations[group % 2][j];
+        x0 += x1;
+        x1 = (x1 << r) | (x1 >> (32 - r));
+        x1 ^= x0;
+      }
+      x0 += ks[(group + 1) % 3];
+      x1 += ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+    }
     const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
     float f;
     std::memcpy(&f, &mantissa, sizeof f);
@@ -1118,7 +1113,6 @@ void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out)
     out[i] = f > 0.0f ? f : 0.0f;
   }
 }
-#undef FOVJAX_ROUND
 
 constexpr int kFovea = 0, kOutside = 2;
 constexpr int8_t kMandatory = 0, kOptional = 1, kSkipped = 2;
