@@ -1,18 +1,21 @@
-"""Frames with and without glibc's huge-page advice for large blocks, in alternating processes.
+"""Frames under glibc malloc's settings — the defaults, huge pages, kept memory, both — in
+alternating processes.
 
     python benchmarks/huge_pages.py                      # the atrium, 2 x 1280x1024, SPP 1
     python benchmarks/huge_pages.py --rounds 3 --repeats 7 --size 640 512
-    python benchmarks/huge_pages.py --variants "huge pages" "kept memory"
+    python benchmarks/huge_pages.py --variants "huge pages" "huge + kept"
 
-XLA allocates a frame program's buffers on every call and frees them after, so each call faults
-its pages in afresh (`benchmarks/mitsuba_frame.py` prints them as "fresh MiB"). The `fovjax`
-program starts with `GLIBC_TUNABLES=glibc.malloc.hugetlb=1` (fovjax/_startup.py), which asks
-the kernel for 2 MiB pages for malloc's large blocks. The setting is read when a process starts,
-so the two variants run in separate processes, in turn (`--rounds` pairs, the order alternated),
-each one the same renderer (`FoveatedRenderer`: the full frame and the foveated 5°/10° frame at
-an off-centre gaze) compiled once then timed `--repeats` times. Printed per variant: the
-median wall and CPU ms per frame, the kernel (sys) ms and the minor page faults per frame, and
-the ratio with huge pages over without (< 1: faster with them). Writes a record.
+XLA allocates a frame program's buffers on every call and frees them after; with malloc's
+defaults each call faults its pages in afresh (`benchmarks/mitsuba_frame.py` prints them as
+"fresh MiB"). The `fovjax` program starts with both settings (fovjax/_startup.py): huge pages
+(`glibc.malloc.hugetlb=1`: 2 MiB pages for malloc's large blocks) and kept memory (one arena, no
+mmap'd blocks, no trimming: a freed frame's memory serves the next). The settings are read when
+a process starts, so the variants run in separate processes, in turn (`--rounds` rounds, the order
+alternated), each one the same renderer (`FoveatedRenderer`: the full frame and the foveated
+5°/10° frame at an off-centre gaze) compiled once then timed `--repeats` times. Printed per
+variant: the median wall and CPU ms per frame, the kernel (sys) ms and the minor page faults per
+frame, the process's peak resident memory, and the time ratios over the defaults (< 1: faster).
+Writes a record.
 """
 
 from __future__ import annotations
@@ -35,11 +38,15 @@ from _processes import (  # noqa: E402
     run_measuring_process,
 )
 
-TUNABLE = "glibc.malloc.hugetlb=1"
-# malloc keeping freed memory (one arena, no mmap, no trimming): no fresh pages at all after the
-# first frame, at the cost of never returning memory to the system (measured for comparison).
-KEEP = "glibc.malloc.arena_max=1:glibc.malloc.mmap_max=0:glibc.malloc.trim_threshold=4294967295"
-VARIANTS = {"default pages": None, "huge pages": TUNABLE, "kept memory": KEEP}
+from fovjax._startup import HUGE_PAGES_TUNABLE, KEPT_MEMORY_TUNABLES  # noqa: E402
+
+KEPT = ":".join(KEPT_MEMORY_TUNABLES)
+VARIANTS = {
+    "default pages": None,
+    "huge pages": HUGE_PAGES_TUNABLE,
+    "kept memory": KEPT,
+    "huge + kept": f"{HUGE_PAGES_TUNABLE}:{KEPT}",  # how the fovjax program runs
+}
 
 
 def child(args) -> None:
@@ -58,7 +65,8 @@ def child(args) -> None:
             t1, c1, u1 = time.perf_counter(), time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
             rows.append((t1 - t0, c1 - c0, u1.ru_stime - u0.ru_stime, u1.ru_minflt - u0.ru_minflt))
         out[name] = [statistics.median(r[i] for r in rows) for i in range(4)]
-    print_result({"tunables": os.environ.get("GLIBC_TUNABLES", ""), "frames": out})
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    print_result({"tunables": os.environ.get("GLIBC_TUNABLES", ""), "frames": out, "peak_mib": peak_mib})
 
 
 def run_variant(tunables: str | None, args) -> dict:
@@ -73,7 +81,7 @@ def run_variant(tunables: str | None, args) -> dict:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_arguments(ap, repeats=7)
-    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=("default pages", "huge pages"))
+    ap.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=tuple(VARIANTS)[1:])
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     check_arguments(ap, args)
@@ -84,11 +92,13 @@ def main(argv=None) -> None:
         sys.exit("huge_pages: needs Linux with glibc (its malloc tunables)")
     variants = list(dict.fromkeys(["default pages", *args.variants]))
     runs = {name: [] for name in variants}
+    peaks = {name: [] for name in variants}
     for r in range(args.rounds):
         order = variants if r % 2 == 0 else variants[::-1]
         for name in order:
             result = run_variant(VARIANTS[name], args)
             runs[name].append(result["frames"])
+            peaks[name].append(result["peak_mib"])
             f = result["frames"]
             print(
                 f"round {r + 1} {name:14s} full {1e3 * f['full'][0]:7.1f} ms  "
@@ -104,9 +114,9 @@ def main(argv=None) -> None:
         }
         for name in variants:
             wall, cpu, sys_s, faults = med[name]
-            rows.append(
-                [frame, name, round(1e3 * wall, 1), round(1e3 * cpu, 1), round(1e3 * sys_s, 1), int(faults)]
-            )
+            peak = round(max(peaks[name]))
+            row = [frame, name, round(1e3 * wall, 1), round(1e3 * cpu, 1), round(1e3 * sys_s, 1), int(faults)]
+            rows.append([*row, peak])
         for name in variants[1:]:
             key = name.replace(" ", "_")
             figures[f"{frame}_{key}_wall_ratio"] = round(med[name][0] / med["default pages"][0], 3)
@@ -114,9 +124,12 @@ def main(argv=None) -> None:
     print(
         f"\n2 x {w}x{h}, SPP 1, the atrium; medians over {args.rounds} processes x {args.repeats} frames each"
     )
-    print(f"  {'frame':9s} {'variant':14s} {'wall ms':>8s} {'CPU ms':>8s} {'sys ms':>7s} {'faults':>8s}")
+    print(
+        f"  {'frame':9s} {'variant':14s} {'wall ms':>8s} {'CPU ms':>8s} {'sys ms':>7s} {'faults':>8s} "
+        f"{'peak MiB':>8s}"
+    )
     for row in rows:
-        print(f"  {row[0]:9s} {row[1]:14s} {row[2]:8.1f} {row[3]:8.1f} {row[4]:7.1f} {row[5]:8d}")
+        print(f"  {row[0]:9s} {row[1]:14s} {row[2]:8.1f} {row[3]:8.1f} {row[4]:7.1f} {row[5]:8d} {row[6]:8d}")
     for name in variants[1:]:
         key = name.replace(" ", "_")
         print(
@@ -131,12 +144,13 @@ def main(argv=None) -> None:
     figures["tables"] = [
         {
             "title": (
-                f"malloc's settings: default, large blocks on huge pages (GLIBC_TUNABLES={TUNABLE}, "
-                f"how the fovjax program starts) and kept memory ({KEEP}) as run: the atrium, "
-                f"2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; medians of "
-                f"{args.rounds} processes per variant, {args.repeats} frames each"
+                f"malloc's settings: default, large blocks on huge pages (GLIBC_TUNABLES="
+                f"{HUGE_PAGES_TUNABLE}), kept memory ({KEPT}) and both (how the fovjax program "
+                f"starts), as run: the atrium, 2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; "
+                f"medians of {args.rounds} processes per variant, {args.repeats} frames each; peak: the "
+                "largest resident memory of a variant's processes (both frames compiled and run)"
             ),
-            "columns": ["frame", "malloc", "wall ms", "CPU ms", "sys ms", "minor faults"],
+            "columns": ["frame", "malloc", "wall ms", "CPU ms", "sys ms", "minor faults", "peak MiB"],
             "rows": rows,
         }
     ]

@@ -41,11 +41,13 @@ same momentary load of a shared machine; each row also gives the median wall tim
 call and the process CPU time of the frame (every thread's: the work done, which a loaded
 machine's waits for a core do not inflate), the minor page faults of the frame (memory it touched
 for the first time, which the kernel maps and zeroes: 4 KiB a fault, or up to 2 MiB where malloc
-asks for huge pages, as it does here, the way the `fovjax` program runs; FOVJAX_HUGE_PAGES=0
-keeps the system's default) and the kernel time it spent. Then the ratios (fovjax foveated /
-Mitsuba full, fovjax full / Mitsuba full; > 1 means slower than Mitsuba; also in CPU time), the
-ray counts of Mitsuba against fovjax's full frame (primary, shadow, reflection; they agree up to
-ties and float rounding), and the PSNR of Mitsuba's image against fovjax's full frame
+asks for huge pages) and the kernel time it spent. This process runs malloc the way the `fovjax`
+program does (fovjax/_startup.py): freed memory kept for the next frame rather than handed back,
+so after the first frames there is little fresh memory (FOVJAX_KEEP_MEMORY=0 keeps the system's
+default). Then the ratios (fovjax
+foveated / Mitsuba full, fovjax full / Mitsuba full; > 1 means slower than Mitsuba; also in CPU
+time), the ray counts of Mitsuba against fovjax's full frame (primary, shadow, reflection; they
+agree up to ties and float rounding), and the PSNR of Mitsuba's image against fovjax's full frame
 (`fovjax.eval.psnr`: sRGB-encoded, clipped, peak 1); 40 dB or more is expected, and below it the
 script says where the images differ. `--json PATH` writes every figure with the command, date, git
 commit and machine.
@@ -796,11 +798,11 @@ def _json_default(x):
 
 
 if __name__ == "__main__":
-    # As the `fovjax` program runs (fovjax/_startup.py): malloc's large blocks on huge pages, for
-    # both renderers in this process (FOVJAX_HUGE_PAGES=0: the system's default).
-    from fovjax._startup import relaunch_with_huge_pages
+    # As the `fovjax` program runs (fovjax/_startup.py): malloc keeps freed memory for the next
+    # frame, for both renderers in this process (FOVJAX_KEEP_MEMORY=0: the system's default).
+    from fovjax._startup import relaunch_with_malloc_settings
 
-    relaunch_with_huge_pages()
+    relaunch_with_malloc_settings()
     from _record import write_record
 
     figures = main()

@@ -35,6 +35,7 @@ SECTIONS = [
     ("foveation", "Foveated frames"),
     ("profile_frame", "Inside the frame program"),
     ("compile_options", "Compile options: XLA's emitters, the ray queries' branches"),
+    ("huge_pages", "Malloc settings: kept memory, huge pages"),
     ("fidelity", "Fidelity per region"),
     ("fidelity_density", "Sampling density"),
     ("plan_fidelity", "Planned fidelity"),

@@ -1,5 +1,5 @@
 """What the `fovjax` program does as it starts, imported first by the package's `__init__`,
-before JAX (whose start-up takes a second or two): large buffers on huge pages, and Ctrl-C."""
+before JAX (whose start-up takes a second or two): malloc's settings, and Ctrl-C."""
 
 from __future__ import annotations
 
@@ -22,20 +22,36 @@ def _running_as_the_program() -> bool:
     return False
 
 
-# glibc's malloc advises the kernel to back its large blocks with transparent huge pages. A frame
-# program's buffers are allocated and freed by XLA on every call, so every call faults its pages
-# in afresh (hundreds of MiB a full frame, `benchmarks/mitsuba_frame.py`'s "fresh MiB"); with
-# 2 MiB pages instead of 4 KiB that costs a fraction of the kernel time
-# (`benchmarks/huge_pages.py` compares both, alternating processes). The setting is read
-# when a process starts, so the program starts itself again with it; a script that imports
-# fovjax sets it itself (docs/how-to-choose.md, "Speed switches").
+# glibc's malloc, as the `fovjax` program runs it. XLA allocates a frame program's buffers on
+# every call and frees them after; with malloc's defaults each call gets its large blocks as fresh
+# pages from the kernel, zeroed and faulted in afresh (hundreds of MiB a full frame,
+# `benchmarks/mitsuba_frame.py`'s "fresh MiB"). The program keeps freed memory instead: one
+# arena, no mmap'd blocks, no trimming, so a frame's freed buffers serve the next frame (a
+# caching allocator, as Dr.Jit's and PyTorch's are). The peak stays the frames' peak.
+# `benchmarks/huge_pages.py` measures it against the defaults and against huge pages (2 MiB pages
+# for large blocks: fewer faults, but each still zeroed), alone and together, in alternating
+# processes: kept memory is the setting that pays; huge pages on top of it did not, and raised
+# the peak, so they are opt-in (FOVJAX_HUGE_PAGES=1). The settings are read when a process
+# starts, so the program starts itself again with them; a script that imports fovjax sets them
+# itself (docs/how-to-choose.md, "Speed switches").
 HUGE_PAGES_TUNABLE = "glibc.malloc.hugetlb=1"
+KEPT_MEMORY_TUNABLES = (
+    "glibc.malloc.arena_max=1",
+    "glibc.malloc.mmap_max=0",
+    "glibc.malloc.trim_threshold=4294967295",
+)
 
 
-def huge_pages_environment(environ, platform: str = sys.platform, libc: str | None = None) -> str | None:
-    """The `GLIBC_TUNABLES` value that adds `HUGE_PAGES_TUNABLE` to `environ`'s, or None where
-    nothing is to change: not Linux with glibc, `FOVJAX_HUGE_PAGES=0`, or the tunable (any
-    value of it) already set."""
+def _names(tunables: str) -> set[str]:
+    return {t.split("=", 1)[0] for t in tunables.split(":") if t}
+
+
+def malloc_environment(environ, platform: str = sys.platform, libc: str | None = None) -> str | None:
+    """The `GLIBC_TUNABLES` value that adds the program's malloc settings to `environ`'s, or None
+    where nothing is to change. Not on Linux with glibc: None. Kept memory
+    (`KEPT_MEMORY_TUNABLES`) unless `FOVJAX_KEEP_MEMORY=0` or the user set any of those
+    tunables; huge pages (`HUGE_PAGES_TUNABLE`) where `FOVJAX_HUGE_PAGES=1` and the user did not
+    set `glibc.malloc.hugetlb` (a user's own malloc settings win, whatever their values)."""
     if libc is None:
         try:
             libc = os.confstr("CS_GNU_LIBC_VERSION") or ""
@@ -43,24 +59,32 @@ def huge_pages_environment(environ, platform: str = sys.platform, libc: str | No
             libc = ""
     if not platform.startswith("linux") or not libc.startswith("glibc"):
         return None
-    if environ.get("FOVJAX_HUGE_PAGES", "1") == "0":
-        return None
     current = environ.get("GLIBC_TUNABLES", "")
-    if "glibc.malloc.hugetlb" in current:
+    have = _names(current)
+    add = []
+    if environ.get("FOVJAX_HUGE_PAGES", "0") == "1" and not have & _names(HUGE_PAGES_TUNABLE):
+        add.append(HUGE_PAGES_TUNABLE)
+    if environ.get("FOVJAX_KEEP_MEMORY", "1") != "0" and not have & _names(":".join(KEPT_MEMORY_TUNABLES)):
+        add.extend(KEPT_MEMORY_TUNABLES)
+    if not add:
         return None
-    return f"{current}:{HUGE_PAGES_TUNABLE}" if current else HUGE_PAGES_TUNABLE
+    return ":".join([current, *add] if current else add)
 
 
-def huge_pages_in_use() -> bool:
-    """Whether this process started with `HUGE_PAGES_TUNABLE`."""
-    return HUGE_PAGES_TUNABLE in os.environ.get("GLIBC_TUNABLES", "").split(":")
+def malloc_settings_in_use(environ=None) -> dict[str, bool]:
+    """Which of the program's malloc settings this process started with."""
+    tunables = set((os.environ if environ is None else environ).get("GLIBC_TUNABLES", "").split(":"))
+    return {
+        "huge pages": HUGE_PAGES_TUNABLE in tunables,
+        "kept memory": all(t in tunables for t in KEPT_MEMORY_TUNABLES),
+    }
 
 
-def relaunch_with_huge_pages() -> None:
+def relaunch_with_malloc_settings() -> None:
     """Start this process again (the same interpreter, options and arguments, `os.execv`: the
-    same process id and open files) with `HUGE_PAGES_TUNABLE`, where `huge_pages_environment`
-    says so; where it cannot, go on as it is. Call it before JAX starts."""
-    tunables = huge_pages_environment(os.environ)
+    same process id and open files) with the program's malloc settings, where
+    `malloc_environment` says so; where it cannot, go on as it is. Call it before JAX starts."""
+    tunables = malloc_environment(os.environ)
     if tunables is None:
         return
     argv = list(getattr(sys, "orig_argv", ()))
@@ -72,7 +96,7 @@ def relaunch_with_huge_pages() -> None:
         sys.stdout.flush()
         sys.stderr.flush()
         os.execv(sys.executable, [sys.executable, *argv[1:]])
-    except OSError:  # this process goes on with the pages it has
+    except OSError:  # this process goes on with the malloc it has
         if before is None:
             del os.environ["GLIBC_TUNABLES"]
         else:
@@ -86,7 +110,7 @@ def _interrupted_while_starting(signum, frame):
 
 
 if _running_as_the_program():
-    relaunch_with_huge_pages()
+    relaunch_with_malloc_settings()
 
 # Ctrl-C during the package's imports (JAX starting, a second or two) must end the program as it
 # does later (`fovjax.cli.main` installs the handler for the rest of the run): raised there, a

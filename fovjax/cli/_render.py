@@ -107,12 +107,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _pages() -> str:
-    """How this process's large buffers are paged: the `fovjax` program starts with malloc's
-    huge-page advice (fovjax/_startup.py) unless FOVJAX_HUGE_PAGES=0."""
+    """How this process's malloc runs: the `fovjax` program starts with huge pages and kept memory
+    (fovjax/_startup.py) unless FOVJAX_HUGE_PAGES=0 / FOVJAX_KEEP_MEMORY=0."""
+    from fovjax._startup import malloc_settings_in_use
+
     tunables = os.environ.get("GLIBC_TUNABLES", "")
-    if "glibc.malloc.hugetlb=1" in tunables.split(":"):
-        return "large buffers on transparent huge pages (GLIBC_TUNABLES=glibc.malloc.hugetlb=1)"
-    return f"malloc's own paging (GLIBC_TUNABLES={tunables or 'unset'}; FOVJAX_HUGE_PAGES=0 or not glibc)"
+    used = malloc_settings_in_use()
+    said = [
+        "large buffers on transparent huge pages" if used["huge pages"] else "no huge pages",
+        "freed memory kept for the next frame" if used["kept memory"] else "freed memory returned",
+    ]
+    return f"{'; '.join(said)} (GLIBC_TUNABLES={tunables or 'unset'})"
 
 
 def _progress(step: int, total: int, text: str) -> None:
