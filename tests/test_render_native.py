@@ -277,7 +277,7 @@ def test_native_sample_selection_is_the_jax_selection(featured, case):
     lowered = jax.jit(both).lower(ecc, jax.random.key(11))
     assert "fovjax_select_samples" in lowered.as_text()  # the native branch is the one compiled
     in_jax, native = lowered.compile()(ecc, jax.random.key(11))
-    (sel_jax, mask_jax, n_jax), (sel_native, mask_native, n_native) = in_jax, native
+    (sel_jax, mask_jax, n_jax, by_jax), (sel_native, mask_native, n_native, by_native) = in_jax, native
     listed = int(sel_jax.counts[0] + sel_jax.counts[1])
     assert 0 < int(sel_jax.n_traced) <= budget
     np.testing.assert_array_equal(sel_native.order[:listed], sel_jax.order[:listed])
@@ -285,5 +285,7 @@ def test_native_sample_selection_is_the_jax_selection(featured, case):
         np.testing.assert_array_equal(getattr(sel_native, name), getattr(sel_jax, name), err_msg=name)
     np.testing.assert_array_equal(mask_native, mask_jax)
     np.testing.assert_array_equal(n_native, n_jax)
+    np.testing.assert_array_equal(by_native, by_jax)
+    assert int(by_native.sum()) == int(mask_native.sum())
     if budget < listed:  # the drops are the budget's
         assert int(mask_native.sum()) == budget

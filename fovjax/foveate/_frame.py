@@ -226,31 +226,40 @@ RULE_CODES = {"either": 0, "strict": 1, "thesis-measured": 2}
 def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
     """Stages 2 and 4's masks together, for a frame without image tiles: (`Selection` with its
     classes as int8 and no ranks, which samples are traced (2, S, H, W), traced samples per pixel
-    (2, H, W)). `native`: on a CPU through the native handler (`fovjax.trace._embree_ffi.cc`,
-    `SelectSamples`: the same integers as `select_samples`, `traced_mask` and `traced_count`,
-    on both cores), chosen inside the program, so it still lowers for other platforms, where
-    the JAX functions run."""
+    (2, H, W), traced samples per region (3): fovea, periphery, outside). `native`: on a CPU
+    through the native handler (`fovjax.trace._embree_ffi.cc`, `SelectSamples`: the same
+    integers as `select_samples`, `traced_mask`, `traced_count` and `samples_by_region`, on both
+    cores), chosen inside the program, so it still lowers for other platforms, where the JAX
+    functions run."""
 
     def in_jax():
         sel = select_samples(ecc, key, foveation=foveation, budget=budget)
         mask = traced_mask(sel, budget)
         n = traced_count(mask, foveation.spp)
-        return sel.region, sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n
+        by_region = samples_by_region(sel.region, n)
+        return sel.region, sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n, by_region
 
     _, h, w = ecc.shape
     # The handler recomputes the JAX path's per-sample draws (`uniform_draws`), which need the
     # default PRNG and int32 indices; elsewhere the JAX selection runs.
     per_sample = _per_sample_uniform(sampling_keys(key)[0])
     if not native or not per_sample or 2 * foveation.spp * h * w >= 2**31:
-        region, classes, order, counts, mask, n = in_jax()
+        region, classes, order, counts, mask, n, by_region = in_jax()
     else:
 
         def on_cpu():
             return _native_selection(ecc, key, foveation=foveation, budget=budget)
 
-        region, classes, order, counts, mask, n = jax.lax.platform_dependent(cpu=on_cpu, default=in_jax)
+        outs = jax.lax.platform_dependent(cpu=on_cpu, default=in_jax)
+        region, classes, order, counts, mask, n, by_region = outs
     n_slots = jnp.minimum(counts[MANDATORY] + counts[OPTIONAL], budget)
-    return Selection(ecc, region, classes, counts, order, None, n_slots), mask, n
+    return Selection(ecc, region, classes, counts, order, None, n_slots), mask, n, by_region
+
+
+def samples_by_region(region, n) -> Int[Array, " 3"]:
+    """Traced samples per region (fovea, periphery, outside) from each pixel's region and count:
+    one scatter-add instead of three masked reductions (slow on XLA:CPU)."""
+    return jnp.zeros(3, jnp.int32).at[region.reshape(-1)].add(n.reshape(-1))
 
 
 def _native_selection(ecc, key, *, foveation, budget):
@@ -262,7 +271,7 @@ def _native_selection(ecc, key, *, foveation, budget):
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
     keys = sampling_keys(key)
     key_data = jax.random.key_data(keys) if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else keys
-    classes, order, counts, mask, n = native_select_samples(
+    classes, order, counts, mask, n, by_region = native_select_samples(
         region,
         foveation.probability(ecc),
         key_data,
@@ -274,7 +283,7 @@ def _native_selection(ecc, key, *, foveation, budget):
         blocks=(int(foveation.blocks[0]), int(foveation.blocks[1])),
         budget=budget,
     )
-    return region, classes, order, counts, mask, n
+    return region, classes, order, counts, mask, n, by_region
 
 
 def _slot_samples(slots, *, spp, h, w):
@@ -616,13 +625,14 @@ def foveated_stereo(
     if tile is None and grid is None:
         from ..render.internal import native_integrator
 
-        sel, mask, n = selection_with_mask(
+        sel, mask, n, by_region = selection_with_mask(
             ecc, key, foveation=foveation, budget=budget, native=native_integrator(config)
         )
     else:
         sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
         mask = traced_mask(sel, budget)
         n = traced_count(mask, spp)
+        by_region = samples_by_region(sel.region, n)
     # The slots' sub-pixel positions, computed for the traced samples only (`positions_at`);
     # the image tiles slice the full render's screen of them.
     frame_key = key if jitter else None
@@ -705,8 +715,6 @@ def foveated_stereo(
     image = fill_and_blur_eyes(prefill, n, sel, foveation, top_lefts_traced=complete)
     counts = sel.counts
     wanted = counts[MANDATORY] + counts[OPTIONAL]
-    # One scatter-add instead of three masked reductions (slow on XLA:CPU).
-    by_region = jnp.zeros(3, jnp.int32).at[sel.region.reshape(-1)].add(n.reshape(-1))
     return FoveatedOutputs(
         image=image,
         counts=RayCounts(traced.primary, traced.shadow, traced.reflection, n_bad),

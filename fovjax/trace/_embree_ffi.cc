@@ -1156,7 +1156,7 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
                          ffi::Buffer<ffi::S32> subsample_rank, ffi::ResultBuffer<ffi::S8> classes_out,
                          ffi::ResultBuffer<ffi::S32> order_out, ffi::ResultBuffer<ffi::S32> counts_out,
                          ffi::ResultBuffer<ffi::PRED> traced_out, ffi::ResultBuffer<ffi::S32> per_pixel_out,
-                         int32_t spp, int32_t rule, int32_t block_periphery, int32_t block_outside,
+                         ffi::ResultBuffer<ffi::S32> by_region_out, int32_t spp, int32_t rule, int32_t block_periphery, int32_t block_outside,
                          int64_t budget) {
   const auto dims = region_buf.dimensions();
   if (dims.size() != 3 || dims[0] != 2) return ffi::Error::InvalidArgument("select: regions must be (2, H, W)");
@@ -1177,11 +1177,13 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
   int32_t* counts = counts_out->typed_data();        // (3)
   bool* traced = traced_out->typed_data();           // (2, S, H, W)
   int32_t* per_pixel = per_pixel_out->typed_data();  // (2, H, W)
+  int32_t* by_region = by_region_out->typed_data();  // (3): traced samples per region
 
   // Pass 1, rows in bands: each sub-sample's class, whether it is wanted, and the wanted
   // samples per pixel (the budget's drops are taken off in pass 2).
   const int64_t rows = 16;
   const int64_t bands = (h + rows - 1) / rows;
+  std::vector<int64_t> band_sums(3 * 2 * bands, 0);  // wanted samples per region, per band
   ParallelFor(pool, 2 * bands, [&](int64_t job) {
     const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(h, y0 + rows);
     const int32_t* reg = region + eye * hw;
@@ -1221,6 +1223,11 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
         if (rule == 0) ClassRow<0>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
         else if (rule == 1) ClassRow<1>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
         else ClassRow<2>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
+      }
+      int64_t* sums = &band_sums[3 * job];
+      for (int64_t x = 0; x < w; ++x) {
+        const int32_t r = row[x];
+        if (r >= 0 && r < 3) sums[r] += n[x];
       }
     }
   });
@@ -1272,6 +1279,13 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
     const int64_t pix = perm[j];
     traced[(eye * spp + s) * hw + pix] = false;
     --per_pixel[eye * hw + pix];
+    const int32_t r = region[eye * hw + pix];
+    if (r >= 0 && r < 3) --band_sums[r];  // any band's sum: only the total is read
+  }
+  for (int r = 0; r < 3; ++r) {
+    int64_t sum = 0;
+    for (int64_t b = 0; b < 2 * bands; ++b) sum += band_sums[3 * b + r];
+    by_region[r] = static_cast<int32_t>(sum);
   }
   counts[0] = static_cast<int32_t>(total[0]);
   counts[1] = static_cast<int32_t>(total[1]);
@@ -1345,6 +1359,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
                                   .Ret<ffi::Buffer<ffi::S32>>()   // count per class (3)
                                   .Ret<ffi::Buffer<ffi::PRED>>()  // traced (2, S, H, W)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // traced per pixel (2, H, W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // traced per region (3)
                                   .Attr<int32_t>("spp")
                                   .Attr<int32_t>("rule")  // 0 either, 1 strict, 2 thesis-measured
                                   .Attr<int32_t>("block_periphery")
