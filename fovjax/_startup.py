@@ -71,15 +71,6 @@ def malloc_environment(environ, platform: str = sys.platform, libc: str | None =
     return ":".join([current, *add] if current else add)
 
 
-def malloc_settings_in_use(environ=None) -> dict[str, bool]:
-    """Which of the program's malloc settings this process started with."""
-    tunables = set((os.environ if environ is None else environ).get("GLIBC_TUNABLES", "").split(":"))
-    return {
-        "huge pages": HUGE_PAGES_TUNABLE in tunables,
-        "kept memory": all(t in tunables for t in KEPT_MEMORY_TUNABLES),
-    }
-
-
 def relaunch_with_malloc_settings() -> None:
     """Start this process again (the same interpreter, options and arguments, `os.execv`: the
     same process id and open files) with the program's malloc settings, where

@@ -16,7 +16,6 @@ from fovjax._startup import (
     HUGE_PAGES_TUNABLE,
     KEPT_MEMORY_TUNABLES,
     malloc_environment,
-    malloc_settings_in_use,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,15 +62,6 @@ BOTH = f"{HUGE_PAGES_TUNABLE}:{KEPT}"
 )
 def test_the_environment_it_adds(environ, platform, libc, expected):
     assert malloc_environment(environ, platform=platform, libc=libc) == expected
-
-
-def test_which_settings_are_in_use():
-    assert malloc_settings_in_use({"GLIBC_TUNABLES": BOTH}) == {"huge pages": True, "kept memory": True}
-    assert malloc_settings_in_use({"GLIBC_TUNABLES": f"{HUGE_PAGES_TUNABLE}:{KEPT_MEMORY_TUNABLES[0]}"}) == {
-        "huge pages": True,
-        "kept memory": False,  # all three or it is not the setting
-    }
-    assert malloc_settings_in_use({}) == {"huge pages": False, "kept memory": False}
 
 
 def _environ(raw: bytes) -> dict[str, str]:
@@ -122,3 +112,14 @@ def test_the_program_runs_with_the_settings_unless_told_not_to(tmp_path):
     assert HUGE_PAGES_TUNABLE not in tunables
     switched = _program_environment(tmp_path, FOVJAX_HUGE_PAGES="1", FOVJAX_KEEP_MEMORY="0")
     assert switched.get("GLIBC_TUNABLES") == HUGE_PAGES_TUNABLE
+
+
+def test_render_says_how_malloc_runs(monkeypatch):
+    from fovjax.cli._render import _pages
+
+    monkeypatch.setenv("GLIBC_TUNABLES", KEPT)
+    assert _pages().startswith("freed memory kept for the next frame; no huge pages")
+    monkeypatch.setenv("GLIBC_TUNABLES", BOTH)
+    assert "transparent huge pages" in _pages()
+    monkeypatch.delenv("GLIBC_TUNABLES")
+    assert _pages() == "freed memory returned; no huge pages (GLIBC_TUNABLES=unset)"

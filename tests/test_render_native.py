@@ -289,3 +289,65 @@ def test_native_sample_selection_is_the_jax_selection(featured, case):
     assert int(by_native.sum()) == int(mask_native.sum())
     if budget < listed:  # the drops are the budget's
         assert int(mask_native.sum()) == budget
+
+
+FILL_CASES = [
+    # (width, height, spp, rule, blocks, budget, blur_fovea)
+    (40, 24, 1, "either", (2, 4), None, False),  # every blank pixel's top-left traced: native
+    (37, 29, 4, "either", (2, 4), 300, False),  # drops leave top-lefts blank: the JAX fallback
+    (37, 29, 4, "strict", (1, 3), None, False),
+    (40, 24, 1, "either", (2, 4), None, True),  # the blur over every pixel
+]
+
+
+@pytest.mark.parametrize("case", FILL_CASES, ids=lambda c: f"{c[3]}-spp{c[2]}-{c[5]}-blur{int(c[6])}")
+def test_native_fill_and_blur_is_the_jax_path(featured, case):
+    """The native reconstruction (pixel means, bad pixels, the fill from block top-lefts, the
+    blur and its blend by eccentricity, side by side) against the JAX functions, on a real
+    selection and random sums, bad pixels among them. It reports a blank top-left where the JAX
+    path's pull-push would fill, and the frame then takes the JAX path. The two agree to float
+    rounding (the blur's ten-term sums, summed in the same order; XLA may round a product or a
+    sum its own way: a few ulps, far below any display step)."""
+    from fovjax.foveate._fill import FOVEA_BLEND_DEG, gaussian_taps
+    from fovjax.foveate._frame import eccentricities, fill_and_blur_sums, selection_with_mask
+    from fovjax.trace.internal import native_fill_and_blur
+
+    w, h, spp, rule, blocks, budget, blur_fovea = case
+    fov = Foveation(5.0, 10.0, spp=spp, rule=rule, blocks=blocks, blur_fovea=blur_fovea)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(featured[0]), eye_width=w, eye_height=h)
+    ecc = eccentricities(rig.eye_cameras(jnp.zeros(3)), jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    budget = budget or 2 * spp * w * h
+    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=budget, native=False)
+    rng = np.random.default_rng(5)
+    n_np = np.asarray(n)
+    sums = (rng.random((2, h, w, 3)) * n_np[..., None]).astype(np.float32).reshape(-1, 3)
+    bad = np.zeros(2 * h * w, bool)
+    bad[np.flatnonzero(n_np > 0)[::30]] = True  # some traced pixels had a NaN sample
+    carry = (jnp.asarray(sums), jnp.asarray(bad), jnp.int32(int(bad.sum())))
+    assert bad.any()
+    complete_expected = rule == "either" and budget >= 2 * spp * w * h
+
+    def both(carry, n, sel):
+        fill = functools.partial(fill_and_blur_sums, carry, n, sel, fov, bad_color=(1.0, 0.0, 1.0))
+        native = fill(top_lefts_traced=complete_expected, native=True)
+        _, complete = native_fill_and_blur(
+            carry[0],
+            n,
+            carry[1],
+            sel.region,
+            sel.eccentricity,
+            (1.0, 0.0, 1.0),
+            gaussian_taps(fov.blur_sigma),
+            fov.fovea_deg,
+            blocks=blocks,
+            blend_deg=FOVEA_BLEND_DEG,
+            blur_fovea=blur_fovea,
+        )
+        return fill(top_lefts_traced=complete_expected, native=False), native, complete
+
+    lowered = jax.jit(both).lower(carry, n, sel)
+    assert "fovjax_fill_and_blur" in lowered.as_text()
+    in_jax, native, complete = lowered.compile()(carry, n, sel)
+    assert in_jax.shape == (h, 2 * w, 3)
+    assert bool(complete) == complete_expected
+    np.testing.assert_allclose(np.asarray(native), np.asarray(in_jax), rtol=1e-6, atol=1e-7)

@@ -107,17 +107,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _pages() -> str:
-    """How this process's malloc runs: the `fovjax` program starts with huge pages and kept memory
-    (fovjax/_startup.py) unless FOVJAX_HUGE_PAGES=0 / FOVJAX_KEEP_MEMORY=0."""
-    from fovjax._startup import malloc_settings_in_use
-
-    tunables = os.environ.get("GLIBC_TUNABLES", "")
-    used = malloc_settings_in_use()
+    """How this process's malloc runs: the `fovjax` program starts with freed memory kept
+    (fovjax/_startup.py) unless FOVJAX_KEEP_MEMORY=0, and huge pages where FOVJAX_HUGE_PAGES=1."""
+    raw = os.environ.get("GLIBC_TUNABLES", "")
+    tunables = set(raw.split(":"))
+    kept = {"glibc.malloc.arena_max=1", "glibc.malloc.mmap_max=0"} <= tunables
     said = [
-        "large buffers on transparent huge pages" if used["huge pages"] else "no huge pages",
-        "freed memory kept for the next frame" if used["kept memory"] else "freed memory returned",
+        "freed memory kept for the next frame" if kept else "freed memory returned",
+        "large buffers on transparent huge pages"
+        if "glibc.malloc.hugetlb=1" in tunables
+        else "no huge pages",
     ]
-    return f"{'; '.join(said)} (GLIBC_TUNABLES={tunables or 'unset'})"
+    return f"{'; '.join(said)} (GLIBC_TUNABLES={raw or 'unset'})"
 
 
 def _progress(step: int, total: int, text: str) -> None:

@@ -46,7 +46,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ..render import RenderConfig
 from ._config import max_region_spp, region_spp, shading_classes
 from ._eccentricity import eccentricity_map
-from ._fill import blur_and_blend, fill_blanks
+from ._fill import FOVEA_BLEND_DEG, blur_and_blend, fill_blanks, gaussian_taps
 from ._lod import lod_needed, with_levels
 from ._positions import _per_sample_uniform, positions_at
 from ._sampling import (
@@ -568,6 +568,48 @@ def fill_and_blur_eyes(prefill, n, sel: Selection, foveation, *, top_lefts_trace
     return blur_and_blend(filled, sel.eccentricity, foveation, side_by_side=True)
 
 
+def fill_and_blur_sums(
+    sums, n, sel: Selection, foveation, *, bad_color, top_lefts_traced: bool, native: bool
+):
+    """Stages 4a's end and 4b from the pixel sums (`empty_sums`' carry, flat): the pixel means,
+    filled and blurred side by side, as `pixel_means` then `fill_and_blur_eyes` make them.
+    `native`: on a CPU in one call of the native handler (`FillAndBlur`: the same bits, one
+    pass per band of rows on both cores instead of XLA's screen-sized passes), chosen inside the
+    program; where a blank pixel's block top-left was not traced either (the strict rule, or
+    samples dropped beyond the budget) the JAX path runs instead, for its pull-push fill."""
+    _, h, w = n.shape
+    taps = gaussian_taps(foveation.blur_sigma)
+
+    def in_jax():
+        prefill, _, _ = pixel_means(sums, n, h=h, w=w, bad_color=bad_color)
+        return fill_and_blur_eyes(prefill, n, sel, foveation, top_lefts_traced=top_lefts_traced)
+
+    if not native or min(h, w) <= len(taps) // 2:
+        return in_jax()
+
+    def on_cpu():
+        from ..trace.internal import native_fill_and_blur
+
+        image, complete = native_fill_and_blur(
+            sums[0],
+            n,
+            sums[1],
+            sel.region,
+            sel.eccentricity,
+            bad_color,
+            taps,
+            foveation.fovea_deg,
+            blocks=(int(foveation.blocks[0]), int(foveation.blocks[1])),
+            blend_deg=FOVEA_BLEND_DEG,
+            blur_fovea=bool(foveation.blur_fovea),
+        )
+        if top_lefts_traced:
+            return image
+        return jax.lax.cond(complete, lambda: image, in_jax)
+
+    return jax.lax.platform_dependent(cpu=on_cpu, default=in_jax)
+
+
 def foveated_stereo(
     scene,
     bvh,
@@ -622,11 +664,13 @@ def foveated_stereo(
         yy, xx = np.mgrid[:h, :w]
         on_grid = jnp.asarray((yy % grid == 0) & (xx % grid == 0))[None]
         covered = jnp.broadcast_to(on_grid, (2, h, w)) if covered is None else covered | on_grid
+    native = False
     if tile is None and grid is None:
         from ..render.internal import native_integrator
 
+        native = native_integrator(config)
         sel, mask, n, by_region = selection_with_mask(
-            ecc, key, foveation=foveation, budget=budget, native=native_integrator(config)
+            ecc, key, foveation=foveation, budget=budget, native=native
         )
     else:
         sel = select_samples(ecc, key, foveation=foveation, budget=budget, covered=covered)
@@ -712,7 +756,18 @@ def foveated_stereo(
     # Under the rule "either" every block's top-left is mandatory, so with no sample dropped
     # (a budget of every sample) no block is left empty: the pull-push fill is not compiled.
     complete = foveation.rule == "either" and budget >= every
-    image = fill_and_blur_eyes(prefill, n, sel, foveation, top_lefts_traced=complete)
+    if consume is not None:
+        image = fill_and_blur_sums(
+            traced.consumed,
+            n,
+            sel,
+            foveation,
+            bad_color=config.bad_color,
+            top_lefts_traced=complete,
+            native=native,
+        )
+    else:
+        image = fill_and_blur_eyes(prefill, n, sel, foveation, top_lefts_traced=complete)
     counts = sel.counts
     wanted = counts[MANDATORY] + counts[OPTIONAL]
     return FoveatedOutputs(

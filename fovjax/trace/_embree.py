@@ -287,6 +287,43 @@ def native_select_samples(
     )
 
 
+def native_fill_and_blur(
+    sums, n, bad_pixel, region, ecc, bad_color, taps, fovea_deg, *, blocks, blend_deg, blur_fovea
+):
+    """The foveated frame's reconstruction through the handler's `FillAndBlur` (CPU only): each
+    pixel's mean of its traced samples (`sums` (2·H·W, 3) over `n` (2, H, W); `bad_pixel`
+    (2·H·W) in `bad_color`), every blank pixel filled from its block's top-left, the 5×5
+    Gaussian (`taps`) blended in beyond `fovea_deg` over `blend_deg` (or everywhere with
+    `blur_fovea`), both eyes side by side: (image (H, 2W, 3), whether every blank pixel's block
+    top-left was traced; where not, the image is not the JAX path's and the caller runs that).
+    The same bits as `fovjax.foveate._frame.pixel_means`, `fovjax.foveate._fill.fill_blanks` and
+    `blur_and_blend`."""
+    from ._native import FILL_TARGET, embree_status
+
+    status = embree_status()
+    if not status:
+        raise RuntimeError(f"the native fill and blur needs the Embree FFI handler: {status.reason}")
+    _, h, w = region.shape
+    out = (jax.ShapeDtypeStruct((h, 2 * w, 3), jnp.float32), jax.ShapeDtypeStruct((1,), jnp.bool_))
+    call = jax.ffi.ffi_call(FILL_TARGET, out, vmap_method="sequential")
+    f32 = jnp.float32
+    image, complete = call(
+        jax.lax.stop_gradient(jnp.asarray(sums, f32).reshape(2 * h * w, 3)),
+        jnp.asarray(n, jnp.int32),
+        jnp.asarray(bad_pixel, bool).reshape(2 * h * w),
+        jnp.asarray(region, jnp.int32),
+        jax.lax.stop_gradient(jnp.asarray(ecc, f32)),
+        jnp.broadcast_to(jnp.asarray(bad_color, f32), (3,)),
+        jnp.asarray(taps, f32),
+        jax.lax.stop_gradient(jnp.asarray(fovea_deg, f32).reshape(1)),
+        block_periphery=np.int32(blocks[0]),
+        block_outside=np.int32(blocks[1]),
+        blend_deg=np.float32(blend_deg),
+        blur_fovea=np.int32(blur_fovea),
+    )
+    return image, complete[0]
+
+
 def embree_query(bvh: BVH, o, d, tmin, tmax, *, any_hit: bool):
     """(t, prim) through embreex's Python API and `jax.pure_callback` (the fallback)."""
 

@@ -31,7 +31,8 @@ TARGET = "fovjax_embree_query"
 # The Whitted integrator's primal (`fovjax.render.radiance` with `RenderConfig.integrator`).
 WHITTED_TARGET = "fovjax_embree_whitted"
 SELECT_TARGET = "fovjax_select_samples"
-_FLAGS = ("-O3", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes")
+FILL_TARGET = "fovjax_fill_and_blur"
+_FLAGS = ("-O3", "-fno-math-errno", "-ffp-contract=off", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes")
 
 _lock = threading.Lock()
 _state: dict = {}
@@ -157,6 +158,7 @@ def _load() -> NativeStatus:
     jax.ffi.register_ffi_target(TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeQuery), platform="cpu")
     jax.ffi.register_ffi_target(WHITTED_TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeWhitted), platform="cpu")
     jax.ffi.register_ffi_target(SELECT_TARGET, jax.ffi.pycapsule(lib.FovjaxSelectSamples), platform="cpu")
+    jax.ffi.register_ffi_target(FILL_TARGET, jax.ffi.pycapsule(lib.FovjaxFillAndBlur), platform="cpu")
     _state["lib"] = lib
     version = lib.fovjax_embree_version()
     width = lib.fovjax_embree_packet_width()
