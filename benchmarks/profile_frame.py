@@ -57,6 +57,8 @@ from fovjax.trace import build_bvh  # noqa: E402
 # source stack, innermost first.
 STAGES = (
     ("native integrator (trace, shade, shadows, reflections)", r"trace/_embree\.py:\d+\(embree_whitted"),
+    ("sampling + compaction", r"trace/_embree\.py:\d+\(native_select_samples"),
+    ("fill / blur", r"trace/_embree\.py:\d+\(native_fill_and_blur"),
     ("ray queries (native)", r"trace/_embree\.py|trace/_warp\.py"),
     (
         "ray queries (JAX: traversal, batching)",
@@ -227,7 +229,7 @@ def main(argv=None):
         results[kind] = {"stages": stages, "top": top, "wall": wall, "compile": frame.stats.compile_seconds}
         for name, ms, n, shape, src in top[: args.top]:
             print(f"  {ms:8.1f} ms  x{n:<5d} {name:40s} {shape[:34]:34s} {src}")
-    names = [s for s, _ in STAGES] + ["other"]
+    names = [*dict.fromkeys(s for s, _ in STAGES), "other"]  # a stage may have several rules
     kinds = list(results)
     print("\nms per frame by stage (both worker threads; the wall time is the frame's)")
     print(f"  {'stage':42s}" + "".join(f"{k:>12s}" for k in kinds))
