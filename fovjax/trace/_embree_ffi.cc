@@ -1185,50 +1185,64 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
   const int64_t bands = (h + rows - 1) / rows;
   std::vector<int64_t> band_sums(3 * 2 * bands, 0);  // wanted samples per region, per band
   ParallelFor(pool, 2 * bands, [&](int64_t job) {
-    const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(h, y0 + rows);
+    // The sizes as locals: the byte-wide stores below may alias anything the lambda captures by
+    // reference, which would be reloaded after each of them.
+    const int64_t W = w, H = h;
+    const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(H, y0 + rows);
     const int32_t* reg = region + eye * hw;
-    std::vector<float> u(static_cast<size_t>(w * spp));
-    std::vector<uint8_t> top_left(static_cast<size_t>(w));
+    std::vector<float> u(static_cast<size_t>(W * spp));
+    std::vector<uint8_t> top_left(static_cast<size_t>(W)), in_block(static_cast<size_t>(W));
     const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
     for (int64_t y = y0; y < y1; ++y) {
-      const int32_t* row = reg + y * w;
+      const int32_t* row = reg + y * W;
       // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
       // one pixel; else the top-left of every aligned block holding a pixel of that region.
-      for (int64_t x = 0; x < w; ++x) top_left[x] = row[x] == kFovea;
+      uint8_t* tl = top_left.data();
+      for (int64_t x = 0; x < W; ++x) tl[x] = row[x] == kFovea;
       for (int c = 0; c < 2; ++c) {
         const int64_t b = sizes[c];
+        const int32_t code = codes[c];
         if (b == 1) {
-          for (int64_t x = 0; x < w; ++x) top_left[x] |= row[x] == codes[c];
+          for (int64_t x = 0; x < W; ++x) tl[x] |= row[x] == code;
           continue;
         }
         if (y % b != 0) continue;
-        for (int64_t xb = 0; xb < w; xb += b) {
-          bool any = false;
-          for (int64_t yy = y; yy < std::min(h, y + b) && !any; ++yy)
-            for (int64_t xx = xb; xx < std::min(w, xb + b); ++xx) any |= reg[yy * w + xx] == codes[c];
-          top_left[xb] |= any;
+        uint8_t* any = in_block.data();  // per column: a pixel of the region in the block's rows
+        for (int64_t x = 0; x < W; ++x) any[x] = row[x] == code;
+        for (int64_t yy = y + 1; yy < std::min(H, y + b); ++yy) {
+          const int32_t* below = reg + yy * W;
+          for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
+        }
+        for (int64_t xb = 0; xb < W; xb += b) {
+          uint8_t found = 0;
+          for (int64_t xx = xb; xx < std::min(W, xb + b); ++xx) found |= any[xx];
+          tl[xb] |= found;
         }
       }
       for (int64_t s = 0; s < spp; ++s)
-        UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * h + y) * w), w, &u[s * w]);
-      const float* prow = p + eye * hw + y * w;
-      int32_t* n = per_pixel + eye * hw + y * w;
-      std::fill(n, n + w, 0);
+        UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
+      const float* prow = p + eye * hw + y * W;
+      int32_t* n = per_pixel + eye * hw + y * W;
+      std::fill(n, n + W, 0);
       for (int64_t s = 0; s < spp; ++s) {
-        const float* us = &u[s * w];
-        int8_t* c_row = cls + (eye * spp + s) * hw + y * w;
-        uint8_t* t_row = reinterpret_cast<uint8_t*>(traced) + (eye * spp + s) * hw + y * w;
+        const float* us = &u[s * W];
+        int8_t* c_row = cls + (eye * spp + s) * hw + y * W;
+        uint8_t* t_row = reinterpret_cast<uint8_t*>(traced) + (eye * spp + s) * hw + y * W;
         const uint8_t allowed[3] = {srank[s] < rspp[0], srank[s] < rspp[1], srank[s] < rspp[2]};
         const uint8_t first = s == 0;
-        if (rule == 0) ClassRow<0>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
-        else if (rule == 1) ClassRow<1>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
-        else ClassRow<2>(row, top_left.data(), us, prow, allowed, first, w, c_row, t_row, n);
+        if (rule == 0) ClassRow<0>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+        else if (rule == 1) ClassRow<1>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+        else ClassRow<2>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
       }
-      int64_t* sums = &band_sums[3 * job];
-      for (int64_t x = 0; x < w; ++x) {
-        const int32_t r = row[x];
-        if (r >= 0 && r < 3) sums[r] += n[x];
+      // Per region, in registers (a sum through memory would wait on each previous add).
+      int32_t fovea = 0, periphery = 0, outside = 0;
+      for (int64_t x = 0; x < W; ++x) {
+        const int32_t r = row[x], v = n[x];
+        fovea += r == 0 ? v : 0;
+        periphery += r == 1 ? v : 0;
+        outside += r == 2 ? v : 0;
       }
+      band_sums[3 * job] += fovea, band_sums[3 * job + 1] += periphery, band_sums[3 * job + 2] += outside;
     }
   });
 
@@ -1239,27 +1253,36 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
   const int64_t pixels_per_chunk = 8192;
   const int64_t chunks_per_eye = (hw + pixels_per_chunk - 1) / pixels_per_chunk;
   const int64_t chunks = 2 * chunks_per_eye;
-  std::vector<std::vector<int32_t>> listed(2 * chunks);
+  // Each chunk's two lists, allocated uninitialised (zeroing them cost more than filling them).
+  std::vector<std::unique_ptr<int32_t[]>> listed(2 * chunks);
+  std::vector<int64_t> listed_size(2 * chunks, 0);
   ParallelFor(pool, chunks, [&](int64_t c) {
     const int64_t eye = c / chunks_per_eye, j0 = (c % chunks_per_eye) * pixels_per_chunk;
     const int64_t j1 = std::min(hw, j0 + pixels_per_chunk);
-    std::vector<int32_t>& mandatory = listed[2 * c];
-    std::vector<int32_t>& optional = listed[2 * c + 1];
+    const int64_t S = spp, HW = hw, first = eye * per_eye;  // locals: see pass 1
+    listed[2 * c].reset(new int32_t[static_cast<size_t>((j1 - j0) * S)]);
+    listed[2 * c + 1].reset(new int32_t[static_cast<size_t>((j1 - j0) * S)]);
+    int32_t* m = listed[2 * c].get();
+    int32_t* o = listed[2 * c + 1].get();
+    int64_t nm = 0, no = 0;  // written unconditionally, kept by the counts (no branch)
+    const int8_t* classes = cls + eye * S * HW;
     for (int64_t j = j0; j < j1; ++j) {
       const int64_t pix = perm[j];
-      for (int64_t s = 0; s < spp; ++s) {
-        const int8_t k = cls[(eye * spp + s) * hw + pix];
-        if (k == kSkipped) continue;
-        (k == kMandatory ? mandatory : optional).push_back(static_cast<int32_t>(eye * per_eye + j * spp + s));
+      for (int64_t s = 0; s < S; ++s) {
+        const int8_t k = classes[s * HW + pix];
+        const int32_t slot = static_cast<int32_t>(first + j * S + s);
+        m[nm] = slot, o[no] = slot;
+        nm += k == kMandatory, no += k == kOptional;
       }
     }
+    listed_size[2 * c] = nm, listed_size[2 * c + 1] = no;
   });
   int64_t total[2] = {0, 0};
   std::vector<int64_t> offset(2 * chunks);
   for (int k = 0; k < 2; ++k)
     for (int64_t c = 0; c < chunks; ++c) {
       offset[2 * c + k] = total[k];
-      total[k] += static_cast<int64_t>(listed[2 * c + k].size());
+      total[k] += listed_size[2 * c + k];
     }
   const int64_t wanted = total[0] + total[1];
   for (int64_t c = 0; c < chunks; ++c) offset[2 * c + 1] += total[0];
@@ -1269,8 +1292,8 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
       return;
     }
     for (int k = 0; k < 2; ++k) {
-      const std::vector<int32_t>& list = listed[2 * c + k];
-      if (!list.empty()) std::memcpy(order + offset[2 * c + k], list.data(), list.size() * sizeof(int32_t));
+      const int64_t size = listed_size[2 * c + k];
+      if (size > 0) std::memcpy(order + offset[2 * c + k], listed[2 * c + k].get(), size * sizeof(int32_t));
     }
   });
   // Beyond the budget (`traced_mask`'s drops): the listed samples past it are not traced.
