@@ -1352,9 +1352,11 @@ void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) 
   const float* __restrict__ sums = f.sums + 3 * p0;
   const int32_t* __restrict__ n = f.n + p0;
   const bool* __restrict__ bad = f.bad + p0;
-  for (int64_t x = 0; x < f.w; ++x) {
+  const float colour[3] = {f.bad_color[0], f.bad_color[1], f.bad_color[2]};  // locals: see SelectSamples
+  const int64_t w = f.w;
+  for (int64_t x = 0; x < w; ++x) {
     const float d = static_cast<float>(n[x] > 1 ? n[x] : 1);
-    for (int c = 0; c < 3; ++c) out[3 * x + c] = bad[x] ? f.bad_color[c] : sums[3 * x + c] / d;
+    for (int c = 0; c < 3; ++c) out[3 * x + c] = bad[x] ? colour[c] : sums[3 * x + c] / d;
   }
 }
 
