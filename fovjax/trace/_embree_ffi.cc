@@ -1360,29 +1360,29 @@ void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) 
   }
 }
 
-// The vertical taps over rows[0 .. k) into out (n floats), summed in order.
+// sum_t taps[t] * src[t][j] for j < n, summed in order (t = 0 first, as the JAX blur adds its
+// terms), into out. One pass for the five taps of the 5×5 Gaussian, the sums in registers; a
+// pass per tap otherwise.
 FOVJAX_VECTOR_CLONES
-void TapRows(const float* taps, int k, const float* const* rows, int64_t n, float* __restrict__ out) {
-  for (int64_t j = 0; j < n; ++j) out[j] = taps[0] * rows[0][j];
+void Taps(const float* taps, int k, const float* const* src, int64_t n, float* __restrict__ out) {
+  if (k == 5) {
+    const float t0 = taps[0], t1 = taps[1], t2 = taps[2], t3 = taps[3], t4 = taps[4];
+    const float *__restrict__ a = src[0], *__restrict__ b = src[1], *__restrict__ c = src[2],
+                *__restrict__ d = src[3], *__restrict__ e = src[4];
+    for (int64_t j = 0; j < n; ++j) out[j] = t0 * a[j] + t1 * b[j] + t2 * c[j] + t3 * d[j] + t4 * e[j];
+    return;
+  }
+  for (int64_t j = 0; j < n; ++j) out[j] = taps[0] * src[0][j];
   for (int t = 1; t < k; ++t) {
     const float tap = taps[t];
-    const float* __restrict__ src = rows[t];
-    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tap * src[j];
+    const float* __restrict__ s = src[t];
+    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tap * s[j];
   }
 }
 
-// The horizontal taps (neighbours `stride` floats apart) over the padded row, then the blend
-// with the sharp row by weight (none: the blur alone).
+// The blend with the sharp row by weight, in place.
 FOVJAX_VECTOR_CLONES
-void TapColumns(const float* taps, int k, const float* __restrict__ padded, int64_t stride, int64_t n,
-                const float* __restrict__ sharp, const float* __restrict__ weight, float* __restrict__ out) {
-  for (int64_t j = 0; j < n; ++j) out[j] = taps[0] * padded[j];
-  for (int t = 1; t < k; ++t) {
-    const float tap = taps[t];
-    const float* __restrict__ src = padded + t * stride;
-    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tap * src[j];
-  }
-  if (weight == nullptr) return;
+void Blend(const float* __restrict__ sharp, const float* __restrict__ weight, int64_t n, float* __restrict__ out) {
   for (int64_t j = 0; j < n; ++j) out[j] = sharp[j] * (1.0f - weight[j]) + out[j] * weight[j];
 }
 
@@ -1442,18 +1442,19 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
     const int64_t y = y0 + i;
     for (int t = 0; t < k; ++t) window[t] = &filled[(i + t) * n3];
     float* mid = &padded[3 * r];
-    TapRows(f.taps, k, window, n3, mid);
+    Taps(f.taps, k, window, n3, mid);
     for (int64_t x = 1; x <= r; ++x)
       for (int c = 0; c < 3; ++c) {
         padded[3 * (r - x) + c] = mid[3 * Reflect(-x, w) + c];
         padded[3 * (r + w - 1 + x) + c] = mid[3 * Reflect(w - 1 + x, w) + c];
       }
-    const float* wt = nullptr;
+    for (int t = 0; t < k; ++t) window[t] = &padded[3 * t];  // horizontal neighbours: 3 floats apart
+    float* out = image + (y * 2 * w + e * w) * 3;
+    Taps(f.taps, k, window, n3, out);
     if (!f.blur_fovea) {
       BlendWeights(f.ecc + (e * f.h + y) * w, w, f.fovea_deg, f.blend_deg, weight.data());
-      wt = weight.data();
+      Blend(&filled[(i + r) * n3], weight.data(), n3, out);
     }
-    TapColumns(f.taps, k, padded.data(), 3, n3, &filled[(i + r) * n3], wt, image + (y * 2 * w + e * w) * 3);
   }
   return ok;
 }
@@ -1485,7 +1486,9 @@ ffi::Error FillAndBlur(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> sums, ffi::Bu
   f.column_top_left.resize(static_cast<size_t>(3 * f.w));
   for (int c = 0; c < 3; ++c)
     for (int64_t x = 0; x < f.w; ++x) f.column_top_left[c * f.w + x] = static_cast<int32_t>(x - x % f.block[c]);
-  const int64_t rows = 16, bands = (f.h + rows - 1) / rows;
+  // Bands of 64 rows: each reads r rows beyond its ends (and the blocks' top-left rows above),
+  // a few percent more with 64 rows than its own.
+  const int64_t rows = 64, bands = (f.h + rows - 1) / rows;
   std::atomic<bool> ok{true};
   float* out = image->typed_data();
   ParallelFor(pool, 2 * bands, [&](int64_t job) {
