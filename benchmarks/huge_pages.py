@@ -7,9 +7,10 @@ alternating processes.
 
 XLA allocates a frame program's buffers on every call and frees them after; with malloc's
 defaults each call faults its pages in afresh (`benchmarks/mitsuba_frame.py` prints them as
-"fresh MiB"). The `fovjax` program starts with both settings (fovjax/_startup.py): huge pages
-(`glibc.malloc.hugetlb=1`: 2 MiB pages for malloc's large blocks) and kept memory (one arena, no
-mmap'd blocks, no trimming: a freed frame's memory serves the next). The settings are read when
+"fresh MiB"). Two settings: huge pages (`glibc.malloc.hugetlb=1`: 2 MiB pages for malloc's
+large blocks) and kept memory (one arena, no mmap'd blocks, no trimming: a freed frame's memory
+serves the next); the `fovjax` program starts with kept memory, huge pages where asked
+(fovjax/_startup.py, which says why from this benchmark's records). The settings are read when
 a process starts, so the variants run in separate processes, in turn (`--rounds` rounds, the order
 alternated), each one the same renderer (`FoveatedRenderer`: the full frame and the foveated
 5°/10° frame at an off-centre gaze) compiled once then timed `--repeats` times. Printed per
@@ -44,8 +45,8 @@ KEPT = ":".join(KEPT_MEMORY_TUNABLES)
 VARIANTS = {
     "default pages": None,
     "huge pages": HUGE_PAGES_TUNABLE,
-    "kept memory": KEPT,
-    "huge + kept": f"{HUGE_PAGES_TUNABLE}:{KEPT}",  # how the fovjax program runs
+    "kept memory": KEPT,  # how the fovjax program runs
+    "huge + kept": f"{HUGE_PAGES_TUNABLE}:{KEPT}",
 }
 
 
@@ -145,8 +146,8 @@ def main(argv=None) -> None:
         {
             "title": (
                 f"malloc's settings: default, large blocks on huge pages (GLIBC_TUNABLES="
-                f"{HUGE_PAGES_TUNABLE}), kept memory ({KEPT}) and both (how the fovjax program "
-                f"starts), as run: the atrium, 2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; "
+                f"{HUGE_PAGES_TUNABLE}), kept memory ({KEPT}; how the fovjax program starts) "
+                f"and both, as run: the atrium, 2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; "
                 f"medians of {args.rounds} processes per variant, {args.repeats} frames each; peak: the "
                 "largest resident memory of a variant's processes (both frames compiled and run)"
             ),
