@@ -304,8 +304,9 @@ FILL_CASES = [
 def test_native_fill_and_blur_is_the_jax_path(featured, case):
     """The native reconstruction (pixel means, bad pixels, the fill from block top-lefts, the
     blur and its blend by eccentricity, side by side) against the JAX functions, on a real
-    selection and random sums, bad pixels among them. It reports a blank top-left where the JAX
-    path's pull-push would fill, and the frame then takes the JAX path. The two agree to float
+    selection and random sums, bad pixels among them, and its derivative (the JAX path's). It
+    reports a blank top-left where the JAX path's pull-push would fill, and the frame then takes
+    the JAX path. The two agree to float
     rounding (the blur's ten-term sums, summed in the same order; XLA may round a product or a
     sum its own way: a few ulps, far below any display step)."""
     from fovjax.foveate._fill import FOVEA_BLEND_DEG, gaussian_taps
@@ -343,11 +344,35 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
             blend_deg=FOVEA_BLEND_DEG,
             blur_fovea=blur_fovea,
         )
-        return fill(top_lefts_traced=complete_expected, native=False), native, complete
 
+        def derivative(native):  # d image / d sums along `tangent`: the JAX path's everywhere
+            def image(rgb):
+                return fill_and_blur_sums(
+                    (rgb, *carry[1:]),
+                    n,
+                    sel,
+                    fov,
+                    bad_color=(1.0, 0.0, 1.0),
+                    top_lefts_traced=complete_expected,
+                    native=native,
+                )
+
+            return jax.jvp(image, (carry[0],), (tangent,))[1]
+
+        return (
+            fill(top_lefts_traced=complete_expected, native=False),
+            native,
+            complete,
+            derivative(False),
+            derivative(True),
+        )
+
+    tangent = jnp.asarray(rng.standard_normal(sums.shape), jnp.float32)
     lowered = jax.jit(both).lower(carry, n, sel)
     assert "fovjax_fill_and_blur" in lowered.as_text()
-    in_jax, native, complete = lowered.compile()(carry, n, sel)
+    in_jax, native, complete, d_jax, d_native = lowered.compile()(carry, n, sel)
     assert in_jax.shape == (h, 2 * w, 3)
     assert bool(complete) == complete_expected
     np.testing.assert_allclose(np.asarray(native), np.asarray(in_jax), rtol=1e-6, atol=1e-7)
+    assert np.abs(np.asarray(d_native)).max() > 0  # the image does depend on the sums
+    np.testing.assert_array_equal(np.asarray(d_native), np.asarray(d_jax))

@@ -573,41 +573,55 @@ def fill_and_blur_sums(
 ):
     """Stages 4a's end and 4b from the pixel sums (`empty_sums`' carry, flat): the pixel means,
     filled and blurred side by side, as `pixel_means` then `fill_and_blur_eyes` make them.
-    `native`: on a CPU in one call of the native handler (`FillAndBlur`: the same bits, one
-    pass per band of rows on both cores instead of XLA's screen-sized passes), chosen inside the
-    program; where a blank pixel's block top-left was not traced either (the strict rule, or
-    samples dropped beyond the budget) the JAX path runs instead, for its pull-push fill."""
+    `native`: on a CPU in one call of the native handler (`FillAndBlur`: equal to float
+    rounding, one pass per band of rows on both cores instead of XLA's screen-sized passes),
+    chosen inside the program; where a blank pixel's block top-left was not traced either (the
+    strict rule, or samples dropped beyond the budget) the JAX path runs instead, for its
+    pull-push fill. Derivatives are always the JAX path's (a custom JVP)."""
     _, h, w = n.shape
     taps = gaussian_taps(foveation.blur_sigma)
+    rest = sums[1:]  # bad pixels, bad samples: not differentiable
 
-    def in_jax():
-        prefill, _, _ = pixel_means(sums, n, h=h, w=w, bad_color=bad_color)
-        return fill_and_blur_eyes(prefill, n, sel, foveation, top_lefts_traced=top_lefts_traced)
+    def in_jax(rgb, ecc, fovea_deg):
+        fov = eqx.tree_at(lambda f: f.fovea_deg, foveation, fovea_deg)
+        prefill, _, _ = pixel_means((rgb, *rest), n, h=h, w=w, bad_color=bad_color)
+        return fill_and_blur_eyes(
+            prefill, n, sel._replace(eccentricity=ecc), fov, top_lefts_traced=top_lefts_traced
+        )
 
+    args = (sums[0], sel.eccentricity, jnp.asarray(foveation.fovea_deg, jnp.float32))
     if not native or min(h, w) <= len(taps) // 2:
-        return in_jax()
+        return in_jax(*args)
 
-    def on_cpu():
+    def on_cpu(rgb, ecc, fovea_deg):
         from ..trace.internal import native_fill_and_blur
 
         image, complete = native_fill_and_blur(
-            sums[0],
+            rgb,
             n,
-            sums[1],
+            rest[0],
             sel.region,
-            sel.eccentricity,
+            ecc,
             bad_color,
             taps,
-            foveation.fovea_deg,
+            fovea_deg,
             blocks=(int(foveation.blocks[0]), int(foveation.blocks[1])),
             blend_deg=FOVEA_BLEND_DEG,
             blur_fovea=bool(foveation.blur_fovea),
         )
         if top_lefts_traced:
             return image
-        return jax.lax.cond(complete, lambda: image, in_jax)
+        return jax.lax.cond(complete, lambda: image, lambda: in_jax(rgb, ecc, fovea_deg))
 
-    return jax.lax.platform_dependent(cpu=on_cpu, default=in_jax)
+    @jax.custom_jvp
+    def reconstruct(rgb, ecc, fovea_deg):
+        return jax.lax.platform_dependent(rgb, ecc, fovea_deg, cpu=on_cpu, default=in_jax)
+
+    @reconstruct.defjvp
+    def _reconstruct_jvp(primals, tangents):
+        return jax.jvp(in_jax, primals, tangents)
+
+    return reconstruct(*args)
 
 
 def foveated_stereo(

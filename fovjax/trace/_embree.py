@@ -296,8 +296,9 @@ def native_fill_and_blur(
     Gaussian (`taps`) blended in beyond `fovea_deg` over `blend_deg` (or everywhere with
     `blur_fovea`), both eyes side by side: (image (H, 2W, 3), whether every blank pixel's block
     top-left was traced; where not, the image is not the JAX path's and the caller runs that).
-    The same bits as `fovjax.foveate._frame.pixel_means`, `fovjax.foveate._fill.fill_blanks` and
-    `blur_and_blend`."""
+    The arithmetic of `fovjax.foveate._frame.pixel_means`, `fovjax.foveate._fill.fill_blanks` and
+    `blur_and_blend` in their order: equal to float rounding. Not differentiable (the caller's
+    custom JVP is)."""
     from ._native import FILL_TARGET, embree_status
 
     status = embree_status()
