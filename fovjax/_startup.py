@@ -46,6 +46,18 @@ def _names(tunables: str) -> set[str]:
     return {t.split("=", 1)[0] for t in tunables.split(":") if t}
 
 
+def _switch(environ, name: str, default: bool) -> bool:
+    """The on/off switch `name` ("1" or "0"; unset: `default`). Any other value says so on
+    stderr, naming it, and keeps the default (the program has not started yet: no traceback)."""
+    value = environ.get(name)
+    if value in (None, ""):
+        return default
+    if value not in ("0", "1"):
+        sys.stderr.write(f"fovjax: {name}={value!r} is not 0 or 1; using {int(default)}\n")
+        return default
+    return value == "1"
+
+
 def malloc_environment(environ, platform: str = sys.platform, libc: str | None = None) -> str | None:
     """The `GLIBC_TUNABLES` value that adds the program's malloc settings to `environ`'s, or None
     where nothing is to change. Not on Linux with glibc: None. Kept memory
@@ -62,9 +74,9 @@ def malloc_environment(environ, platform: str = sys.platform, libc: str | None =
     current = environ.get("GLIBC_TUNABLES", "")
     have = _names(current)
     add = []
-    if environ.get("FOVJAX_HUGE_PAGES", "0") == "1" and not have & _names(HUGE_PAGES_TUNABLE):
+    if _switch(environ, "FOVJAX_HUGE_PAGES", False) and not have & _names(HUGE_PAGES_TUNABLE):
         add.append(HUGE_PAGES_TUNABLE)
-    if environ.get("FOVJAX_KEEP_MEMORY", "1") != "0" and not have & _names(":".join(KEPT_MEMORY_TUNABLES)):
+    if _switch(environ, "FOVJAX_KEEP_MEMORY", True) and not have & _names(":".join(KEPT_MEMORY_TUNABLES)):
         add.extend(KEPT_MEMORY_TUNABLES)
     if not add:
         return None

@@ -64,6 +64,14 @@ def test_the_environment_it_adds(environ, platform, libc, expected):
     assert malloc_environment(environ, platform=platform, libc=libc) == expected
 
 
+def test_a_switch_that_is_not_0_or_1_is_named_and_the_default_kept(capsys):
+    environ = {"FOVJAX_KEEP_MEMORY": "no", "FOVJAX_HUGE_PAGES": "yes"}
+    assert malloc_environment(environ, platform="linux", libc=GLIBC) == KEPT
+    err = capsys.readouterr().err
+    assert "FOVJAX_KEEP_MEMORY='no' is not 0 or 1; using 1" in err
+    assert "FOVJAX_HUGE_PAGES='yes' is not 0 or 1; using 0" in err
+
+
 def _environ(raw: bytes) -> dict[str, str]:
     """A process's environment from /proc/PID/environ. glibc (2.36) parses GLIBC_TUNABLES in
     place, writing a NUL over each ':' between tunables, so the tunables after the first read

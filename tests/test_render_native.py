@@ -375,4 +375,6 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
     assert bool(complete) == complete_expected
     np.testing.assert_allclose(np.asarray(native), np.asarray(in_jax), rtol=1e-6, atol=1e-7)
     assert np.abs(np.asarray(d_native)).max() > 0  # the image does depend on the sums
-    np.testing.assert_array_equal(np.asarray(d_native), np.asarray(d_jax))
+    # Both are the JAX path's derivative, compiled in two places of one program: XLA may round
+    # them apart, so float rounding, as the images.
+    np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_jax), rtol=1e-6, atol=1e-7)

@@ -116,8 +116,9 @@ LOWERING_HOOKS: list = []
 # (`benchmarks/compile_options.py`, and frames alternated in one process), they run 3-20% faster
 # and their programs compile faster. The thesis's foveated frame keeps the fusion emitters: its
 # screen passes (the sampling's threefry draws, written out round by round, above all) run
-# faster with them: the frame 10-13% faster, both programs compiled in one process and their
-# frames alternated (`FOVJAX_XLA_EMITTERS` below measures it across processes). The two round
+# faster with them where the JAX selection runs: the frame 10-13% faster, both programs
+# compiled in one process and their frames alternated (`FOVJAX_XLA_EMITTERS` below measures it
+# across processes); where the native selection and fill run the two measured the same. The two round
 # some sums differently: images differ in the last bits. The option is
 # XLA:CPU's: a program compiled for another platform gets none (XLA's GPU compiler refuses an
 # option it does not know). FOVJAX_XLA_EMITTERS=loop or =fusion makes every frame program

@@ -254,9 +254,8 @@ def native_select_samples(
     """The foveated frame's sample selection through the handler's `SelectSamples` (CPU only):
     (classes int8 (2, S, H, W), compaction order (2·H·W·S), count per class (3), traced mask
     (2, S, H, W), traced samples per pixel (2, H, W), traced samples per region (3)); see
-    `fovjax.foveate._frame.
-    selection_with_mask` for what each operand is. `rule`: 0 either, 1 strict, 2
-    thesis-measured."""
+    `fovjax.foveate._frame.selection_with_mask` for what each operand is. `rule`: 0 either,
+    1 strict, 2 thesis-measured."""
     from ._native import SELECT_TARGET, embree_status
 
     status = embree_status()  # builds and registers the handler

@@ -246,10 +246,7 @@ def _raw_query(
 def _warp_installed() -> bool:
     import importlib.util
 
-    return (
-        importlib.util.find_spec("warp") is not None
-        and importlib.util.find_spec(f"{__package__}._warp") is not None
-    )
+    return importlib.util.find_spec("warp") is not None
 
 
 def lowering_platform(platform: str) -> str:
@@ -298,8 +295,10 @@ def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
         from ._native import embree_status
 
         return f"jax (the JAX traversal; Embree FFI unavailable: {embree_status().reason})"
+    if backend == "auto" and platform == "cuda":
+        return "jax (the JAX traversal; Warp is not installed: pip install 'fovjax[gpu]')"
     if backend == "auto":
-        return f"jax (the JAX traversal; no native backend for {platform}: Warp is not installed)"
+        return f"jax (the JAX traversal; no native backend for {platform})"
     return "jax (the JAX traversal)"
 
 
