@@ -431,12 +431,15 @@ def test_bad_input_is_a_clear_value_error(scene, rig, kwargs, message):
 def test_temporal_method_carries_its_history_and_resets_on_tracking_loss(scene, rig):
     """Weier et al. 2016 in a session: the history runs from frame to frame (pixels reused
     while tracking is good, fewer new rays than the full frame), is reset exactly where
-    tracking becomes lost (seen through a spy on the renderer), and one program serves it."""
-    calls = []
+    tracking becomes lost (seen through a spy on the renderer), and one program serves it.
+    Its default `widened_fovea="reproject"`: the fallback's widening leaves its thresholds as
+    configured, so after the reset at the loss the lost frames reuse the history too."""
+    calls, thresholds = [], []
     real = foveate.FoveatedRenderer.render
 
     def spy(self, *args, **kwargs):
         calls.append(bool(kwargs.get("reset", False)))
+        thresholds.append(kwargs.get("thresholds"))
         return real(self, *args, **kwargs)
 
     fov = Foveation(fovea_deg=10.0, periphery_deg=20.0, method="weier2016")
@@ -446,16 +449,30 @@ def test_temporal_method_carries_its_history_and_resets_on_tracking_loss(scene, 
             scene, rig, gaze=f"replay:{DROPOUT}", frames=34, fps=10, policy=POLICY, foveation=fov
         )
     states = result.states()
-    assert "ok" in states and states.count("lost") >= 2
+    assert "ok" in states and states.count("lost") >= 2 and "degraded" in states
     entered_lost = [s == "lost" and (i == 0 or states[i - 1] != "lost") for i, s in enumerate(states)]
     assert calls == entered_lost
+    assert set(thresholds) == {(10.0, 20.0)}  # never widened
     every = 2 * EYE_W * EYE_H
     for i, f in enumerate(result.frames):
-        if f.tracking_state == "lost":  # the whole display is foveal: every pixel traced
+        if entered_lost[i]:  # the reset: no history, every pixel traced
             assert f.reused_pixels == 0 and f.primary_rays == every
-        elif i > 0 and states[i - 1] == "ok":
-            assert f.reused_pixels > 0 and f.primary_rays < every
+        elif i > 0 and states[i - 1] in ("ok", "lost"):
+            assert f.reused_pixels > 0 and f.primary_rays < every, (i, states[i])
     assert sum(f.compile_s > 0 for f in result.frames) == 1
+
+
+@pytest.mark.parametrize(
+    ("method", "widens"),
+    [("thesis", True), ("guenter2012", True), ("patney2016", True), ("weier2016", False)],
+)
+def test_which_methods_take_the_fallbacks_widened_fovea(method, widens):
+    """Only Weier's default covers a degraded tracker's widening with its history; with
+    `widened_fovea="trace"` it traces the widened fovea as the other methods do."""
+    assert Foveation(method=method).method.widens_fovea is widens
+    assert foveate.Weier2016(widened_fovea="trace").widens_fovea is True
+    with pytest.raises(ValueError, match="widened_fovea.*'reproject', 'trace'.*'blur'"):
+        foveate.Weier2016(widened_fovea="blur")
 
 
 def test_the_old_keywords_still_work_with_a_deprecation(scene, rig, tmp_path):

@@ -480,7 +480,8 @@ def compare_methods_on_recording(
 
         images, ms, new_rays, rays, reused, compile_s = [], [], [], [], [], 0.0
         for k, row in enumerate(tracking):
-            thresholds = widen_thresholds(fovea, periphery, row["widening"], omega_full)
+            widening = row["widening"] if fov.method.widens_fovea else 0.0  # see `Weier2016`
+            thresholds = widen_thresholds(fovea, periphery, widening, omega_full)
             frame = config_renderer.render(
                 row["gaze"], key=keys[k], thresholds=thresholds, reset=row["reset"]
             )

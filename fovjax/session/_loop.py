@@ -475,6 +475,8 @@ def run_session(
 
     def thresholds_at(widening: float) -> tuple[float, float]:
         fovea, periphery = float(foveation.fovea_deg), float(foveation.periphery_deg)
+        if not foveation.method.widens_fovea:  # its history covers the widening (`Weier2016`)
+            return fovea, periphery
         return widen_thresholds(fovea, periphery, widening, omega_full)
 
     warmup = clock == "wall" if session.warmup is None else session.warmup

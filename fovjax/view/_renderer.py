@@ -255,7 +255,7 @@ class LiveRenderer:
             raise RuntimeError("the viewer has no gaze source to track")
         tf = tracker.step(now, source.drain(), display_time=now + self._last_frame_s)
         fovea, periphery = self.fovea_deg, self.periphery_deg
-        if tf.widening > 0:
+        if tf.widening > 0 and self.base_foveation.method.widens_fovea:  # see `Weier2016`
             if self._omega_full is None:
                 self._omega_full = full_eccentricity(self.rig, self.base_foveation)
             omega_full = max(self._omega_full, periphery)

@@ -37,6 +37,7 @@ class Thesis:
     P(ω), fill from the block's top-left and a Gaussian blur outside the fovea."""
 
     name = "thesis"
+    widens_fovea = True  # the tracking fallback's widened fovea is traced as the fovea
     temporal = False
     citation = Citation(
         authors="Andreas Polychronakis",
@@ -45,6 +46,9 @@ class Thesis:
         venue="Diploma thesis, Electrical and Computer Engineering, Technical University of Crete",
         doi=None,
     )
+
+
+WIDENED_FOVEA = ("reproject", "trace")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +77,17 @@ class Weier2016:
             (fovjax's choice, 0.1: the paper schedules "possible errors introduced by this
             reprojection" for resampling from a coarse geometry it rebuilds from a G-buffer; the
             value it uses could not be read here).
+        widened_fovea: what the gaze tracker's fallback does to this method when tracking
+            degrades or is lost (`fovjax.devices.widen_thresholds`: the fovea widens towards the
+            whole display, at full quality). The paper has no fallback, so this is fovjax's
+            choice. "reproject" (default): the widening adds no traced pixels; the thresholds
+            stay the configured ones around the held gaze, and the full quality the widening
+            asks for comes from the history: every pixel shows a full-resolution sample,
+            reprojected where the history covers it and traced where not (after the reset at a
+            loss the first frame traces every pixel). The widening exists for the thesis's
+            sparse, filled and blurred periphery, which this method does not have. "trace": the
+            widened fovea is traced whole as the fovea (a lost tracker then traces the whole
+            display every frame, as the thesis's method does).
 
     A pixel's samples are traced together (every sub-sample at the frame's spp); its world
     point is the hit of its first sub-sample's ray (a second closest-hit query over the traced
@@ -81,6 +96,7 @@ class Weier2016:
     """
 
     retrace_tolerance: float = 0.1
+    widened_fovea: str = "reproject"
 
     name = "weier2016"
     temporal = True
@@ -97,6 +113,16 @@ class Weier2016:
         tol = self.retrace_tolerance
         if isinstance(tol, bool) or not isinstance(tol, int | float) or not (math.isfinite(tol) and tol > 0):
             raise ValueError(f"Weier2016.retrace_tolerance must be a finite number > 0, got {tol!r}")
+        if self.widened_fovea not in WIDENED_FOVEA:
+            raise ValueError(
+                f"Weier2016.widened_fovea must be one of {', '.join(map(repr, WIDENED_FOVEA))}, "
+                f"got {self.widened_fovea!r}"
+            )
+
+    @property
+    def widens_fovea(self) -> bool:
+        """Whether the tracking fallback's widened thresholds are this method's frame thresholds."""
+        return self.widened_fovea == "trace"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,6 +166,7 @@ class Guenter2012:
     slope_arcmin_per_deg: float = 1.32
 
     name = "guenter2012"
+    widens_fovea = True  # the tracking fallback's widened fovea is traced as the fovea
     temporal = False
     citation = Citation(
         authors="Brian Guenter, Mark Finch, Steven Drucker, Desney Tan, John Snyder",
@@ -229,6 +256,7 @@ class Patney2016:
     clip_gamma: float = 1.0
 
     name = "patney2016"
+    widens_fovea = True  # the tracking fallback's widened fovea is traced as the fovea
     temporal = True
     citation = Citation(
         authors="Anjul Patney, Marco Salvi, Joohwan Kim, Anton Kaplanyan, Chris Wyman, Nir Benty, "
