@@ -28,8 +28,8 @@ def atrium_small():
 
 def _same_frame(tiled, listed):
     """Same samples traced, same primary rays and statistics; the same image up to float32
-    rounding (the programs are compiled separately; see the full-fovea test in
-    test_foveate_frame.py for why highlights may differ by ~Ns ulps)."""
+    rounding (the programs are compiled separately, and make their rays apart; see the
+    full-fovea test in test_foveate_frame.py for why highlights may differ by ~Ns ulps)."""
     assert (tiled.sample_mask == listed.sample_mask).all()
     assert (tiled.regions == listed.regions).all()
     assert tiled.stats.primary_rays == listed.stats.primary_rays == int(listed.sample_mask.sum())
@@ -39,7 +39,12 @@ def _same_frame(tiled, listed):
     for name in ("shadow_rays", "reflection_rays"):
         a, b = getattr(tiled.stats, name), getattr(listed.stats, name)
         assert abs(a - b) <= max(2, b // 1000), (name, a, b)
-    np.testing.assert_allclose(tiled.image, listed.image, rtol=1e-3, atol=1e-5)
+    # On a CPU the listed samples' rays are made by the native slots handler, whose directions
+    # round apart from XLA's (XLA:CPU's rsqrt is an estimate refined once, not correctly
+    # rounded): a specular highlight may then differ by more than a few ulps. The agreement of
+    # two programs that round apart (tests/test_render_native.py).
+    diff = np.abs(tiled.image - listed.image).max(-1)
+    assert np.mean(diff <= 1e-4) >= 0.99 and diff.mean() < 1e-3, np.sort(diff.ravel())[-10:]
     close = np.isclose(tiled.image, listed.image, rtol=1e-5, atol=1e-6)
     assert close.mean() > 0.99, close.mean()
 

@@ -378,3 +378,69 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
     # Both are the JAX path's derivative, compiled in two places of one program: XLA may round
     # them apart, so float rounding, as the images.
     np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_jax), rtol=1e-6, atol=1e-7)
+
+
+SLOTS_CASES = [
+    # (eye width, height, spp, jittered, the derivative too)
+    (37, 29, 4, True, True),  # odd sizes, strata with jitter
+    (40, 24, 1, False, False),  # pixel centres
+]
+
+
+@pytest.mark.parametrize("case", SLOTS_CASES, ids=lambda c: f"{c[0]}x{c[1]}-spp{c[2]}-jitter{int(c[3])}")
+def test_slots_in_one_native_call_are_the_chunked_path(featured, case):
+    """`traced_sums`: the native handler that makes every live slot's ray, traces it and adds it
+    to its pixel in one call, against the chunk loop it replaces (`trace_selection` with the
+    sample adder, the JAX integrator): the same pixel sums to float rounding (ray directions
+    are rounded by the two compilers apart), the same bad pixels and ray counts (within the
+    file's agreement), and its derivative is the chunked path's (a custom JVP)."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+
+    w, h, spp, jittered, derivative = case
+    scene, arrays, bvh, _ = featured
+    fov = Foveation(5.0, 10.0, spp=spp)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    cameras = rig.eye_cameras(jnp.asarray([2.0, -1.0, 0.5]))
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    budget = 2 * spp * w * h
+    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=budget, native=False)
+    key = jax.random.key(8) if jittered else None
+    tangent = jax.random.normal(jax.random.key(1), np.shape(arrays.kd), jnp.float32)
+
+    def both(kd):
+        def sums(kd, integrator):
+            # One reflection level: the paths are the same at every level (compile time).
+            config = RenderConfig(max_depth=1, integrator=integrator)
+            a = dataclasses.replace(arrays, kd=kd)
+            out = traced_sums(a, bvh, cameras, key, sel, config=config, budget=budget)
+            return out.consumed, jnp.stack([out.primary, out.shadow, out.reflection])
+
+        native, counts_native = sums(kd, "native")
+        chunked, counts_jax = sums(kd, "jax")
+        if not derivative:  # one case: each derivative is a program of its own to compile
+            return native, counts_native, None, chunked, counts_jax, None
+        # Under differentiation the custom JVP runs the chunked path for value and derivative.
+        _, (d_native, _) = jax.jvp(lambda k: sums(k, "native"), (kd,), (tangent,))
+        _, (d_jax, _) = jax.jvp(lambda k: sums(k, "jax"), (kd,), (tangent,))
+        return native, counts_native, d_native, chunked, counts_jax, d_jax
+
+    lowered = jax.jit(both).lower(jnp.asarray(arrays.kd))
+    assert "fovjax_whitted_slots" in lowered.as_text()  # the one-call path is the one compiled
+    native, counts_native, d_native, chunked, counts_jax, d_jax = lowered.compile()(jnp.asarray(arrays.kd))
+    (sums_n, bad_n, n_bad_n), (sums_j, bad_j, n_bad_j) = native, chunked
+    traced = np.asarray(n).reshape(-1) > 0
+    assert traced.sum() > 0 and np.asarray(sums_j)[traced].std() > 0.05
+    diff = np.abs(np.asarray(sums_n) - np.asarray(sums_j)).max(-1) / np.maximum(np.asarray(n).reshape(-1), 1)
+    assert np.mean(diff <= 1e-4) >= 0.99 and diff.mean() < 1e-3, np.sort(diff)[-10:]
+    assert (diff[~traced] == 0).all()  # untraced pixels hold no sum
+    np.testing.assert_array_equal(bad_n, bad_j)
+    assert int(n_bad_n) == int(n_bad_j)
+    assert int(counts_native[0]) == int(counts_jax[0]) == int(sel.n_traced)
+    for x, y in zip(np.asarray(counts_native)[1:], np.asarray(counts_jax)[1:], strict=True):
+        assert abs(int(x) - int(y)) <= max(2, 0.005 * int(y)), (counts_native, counts_jax)
+    if not derivative:
+        return
+    # Both derivatives are the chunked JAX path's, compiled in two places of one program.
+    g_native, g_jax = np.asarray(d_native[0]), np.asarray(d_jax[0])
+    assert np.abs(g_jax).max() > 0  # the sums depend on Kd
+    np.testing.assert_allclose(g_native, g_jax, rtol=1e-5, atol=1e-6)

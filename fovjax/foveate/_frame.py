@@ -440,6 +440,115 @@ def trace_selection(
     )
 
 
+def slots_in_one_call(config, jitter_key, classes, scale, h: int, w: int, spp: int) -> bool:
+    """Whether `traced_sums` can run its slots through the native integrator in one call: the
+    native integrator on (`native_integrator`), full fidelity (no shading classes, no levels of
+    detail) and sub-pixel draws the handler reproduces (threefry2x32, `positions_at`'s per
+    sample uniform; or no jitter)."""
+    from ..render.internal import native_integrator
+
+    if not native_integrator(config) or classes is not None or scale is not None:
+        return False
+    if 2 * spp * h * w >= 2**31:
+        return False
+    return jitter_key is None or _per_sample_uniform(jitter_key)
+
+
+def _camera_rows(cameras) -> Float[Array, "2 16"]:
+    """The eyes' cameras as the slots handler reads them: position, rotation (row-major),
+    tan(vfov / 2), aspect, offset (what `Camera.ray_direction_components` uses)."""
+    rows = []
+    for cam in cameras:
+        tan_half = jnp.tan(jnp.deg2rad(cam.vfov_deg) / 2)
+        rows.append(
+            jnp.concatenate(
+                [
+                    jnp.asarray(cam.position, jnp.float32).reshape(3),
+                    jnp.asarray(cam.rotation, jnp.float32).reshape(9),
+                    jnp.asarray(tan_half, jnp.float32).reshape(1),
+                    jnp.asarray(cam.width / cam.height, jnp.float32).reshape(1),
+                    jnp.asarray(cam.offset, jnp.float32).reshape(2),
+                ]
+            )
+        )
+    return jnp.stack(rows)
+
+
+def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int):
+    """Stages 3 and 4a without image tiles: the selected samples traced and summed into their
+    pixels; a `ChunkedRadiance` whose `consumed` is (sums (2·H·W, 3), bad pixel (2·H·W), bad
+    samples), as `trace_selection` with `sample_adder`'s `consume` gives it. Where
+    `slots_in_one_call` holds and the program runs on a CPU, one call of the native handler
+    (`native_whitted_slots`) makes every live slot's ray, traces it and adds it to its pixel:
+    the chunk loop's per-chunk operations are not run. Its derivatives are the chunked JAX
+    path's (a custom JVP)."""
+    from ..render.internal import ChunkedRadiance, scene_scale
+
+    _, spp, h, w = sel.classes.shape
+    size = min(config.chunk_size, budget)
+
+    def chunked(scene, cameras, order, n_traced):
+        s = sel._replace(order=order, n_traced=n_traced)
+        consume = (empty_sums(h, w, jnp.minimum(n_traced, 0)), sample_adder(s, spp=spp, h=h, w=w, size=size))
+        positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
+        out = trace_selection(
+            scene, bvh, cameras, positions, s, config=config, budget=budget, consume=consume
+        )
+        return out.consumed, (out.primary, out.shadow, out.reflection)
+
+    def in_one_call(scene, cameras, order, n_traced):
+        from ..trace.internal import native_whitted_slots, whitted_operands
+
+        offset = config.ray_offset * scene_scale(scene)
+        from ..scene import stratified_offsets
+
+        with jax.ensure_compile_time_eval():
+            grid = np.asarray(stratified_offsets(spp), np.float32)
+        if jitter_key is None:
+            key_data = jnp.zeros(2, jnp.uint32)
+        elif jnp.issubdtype(jitter_key.dtype, jax.dtypes.prng_key):
+            key_data = jax.random.key_data(jitter_key)
+        else:
+            key_data = jnp.asarray(jitter_key, jnp.uint32)
+        offset = jax.lax.stop_gradient(jnp.asarray(offset, jnp.float32).reshape(1))
+        sums, bad_pixel, counts = native_whitted_slots(
+            (*whitted_operands(scene, bvh), offset),
+            order,
+            n_traced,
+            key_data,
+            jnp.asarray(locality_order(h, w)),
+            grid,
+            _camera_rows(cameras),
+            spp=spp,
+            height=h,
+            width=w,
+            jitter=jitter_key is not None,
+            max_depth=config.max_depth,
+            recompute=config.hits == "recomputed",
+            packets=config.packet is not None,
+        )
+        return (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
+
+    if not slots_in_one_call(config, jitter_key, None, None, h, w, spp):
+        (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
+    else:
+
+        @jax.custom_jvp
+        def run(scene, cameras, order, n_traced):
+            if config.integrator == "native":
+                return in_one_call(scene, cameras, order, n_traced)
+            return jax.lax.platform_dependent(
+                scene, cameras, order, n_traced, cpu=in_one_call, default=chunked
+            )
+
+        @run.defjvp
+        def _run_jvp(primals, tangents):
+            return jax.jvp(chunked, primals, tangents)
+
+        consumed, (primary, shadow, reflection) = run(scene, cameras, sel.order, sel.n_traced)
+    return ChunkedRadiance(None, primary, shadow, reflection, (), consumed)
+
+
 def _tile_slice(mask, origins, tile, spp):
     """(2·S, rows, cols): a (1, H, W) pixel mask over each eye's fovea tile, per sub-sample."""
     th, tw = tile
@@ -729,19 +838,22 @@ def foveated_stereo(
         # program's start and held through sampling (30 MiB at 2×1280×1024).
         zero = jnp.minimum(sel.n_traced, 0)
         consume = (empty_sums(h, w, zero), sample_adder(sel, spp=spp, h=h, w=w, size=size))
-    traced = trace_selection(
-        scene,
-        bvh,
-        cameras,
-        positions,
-        sel,
-        config=config,
-        budget=budget,
-        tiles=tiles,
-        classes=classes,
-        scale=scale,
-        consume=consume,
-    )
+    if consume is not None and slots_in_one_call(config, frame_key, classes, scale, h, w, spp):
+        traced = traced_sums(scene, bvh, cameras, frame_key, sel, config=config, budget=budget)
+    else:
+        traced = trace_selection(
+            scene,
+            bvh,
+            cameras,
+            positions,
+            sel,
+            config=config,
+            budget=budget,
+            tiles=tiles,
+            classes=classes,
+            scale=scale,
+            consume=consume,
+        )
     # The pixel sums start from zeros made from a count of the trace (a non-negative int, so its
     # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
     # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).

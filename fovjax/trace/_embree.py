@@ -238,6 +238,66 @@ def embree_whitted(
     )
 
 
+def native_whitted_slots(
+    operands: tuple,
+    order,
+    n_live,
+    key_data,
+    locality,
+    grid,
+    cameras,
+    *,
+    spp: int,
+    height: int,
+    width: int,
+    jitter: bool,
+    max_depth: int,
+    recompute: bool,
+    packets: bool,
+):
+    """A foveated frame's live slots made into rays, traced through the Whitted integrator and
+    summed into their pixels, in one call of the handler's `WhittedSlots` (CPU only): (sums
+    (2·H·W, 3), bad pixel (2·H·W), [primary, shadow, reflection rays, bad samples]). `order`
+    the slots in compaction order, the first `n_live` live; `key_data` the frame key's (2,)
+    uint32 (threefry2x32; unused without `jitter`); `locality` each locality rank's pixel;
+    `grid` the sub-samples' cell centres (S, 2); `cameras` (2, 16) per eye: position, rotation
+    (row-major), tan(vfov / 2), aspect, offset. `operands`: the scene's (`whitted_operands`) with
+    the ray offset last. What `fovjax.foveate._frame.trace_selection` with the native integrator
+    and `sample_adder` compute, in their order. Not differentiable (the caller's custom JVP
+    is)."""
+    from ._native import SLOTS_TARGET, embree_status
+
+    status = embree_status()
+    if not status:
+        raise RuntimeError(f"the native slots integrator needs the Embree FFI handler: {status.reason}")
+    if not 0 <= max_depth < 256:
+        raise ValueError(f"the native integrator counts at most 255 reflections, got max_depth {max_depth}")
+    f32, i32 = jnp.float32, jnp.int32
+    n_pixels = 2 * height * width
+    out = (
+        jax.ShapeDtypeStruct((n_pixels, 3), f32),
+        jax.ShapeDtypeStruct((n_pixels,), jnp.bool_),
+        jax.ShapeDtypeStruct((4,), i32),
+    )
+    call = jax.ffi.ffi_call(SLOTS_TARGET, out, vmap_method="sequential")
+    return call(
+        jnp.asarray(order, i32).reshape(-1),
+        jnp.asarray(n_live, i32).reshape(1),
+        jnp.asarray(key_data, jnp.uint32).reshape(2),
+        jnp.asarray(locality, i32).reshape(-1),
+        jnp.asarray(grid, f32).reshape(spp, 2),
+        jax.lax.stop_gradient(jnp.asarray(cameras, f32).reshape(2, 16)),
+        *operands,
+        spp=np.int32(spp),
+        height=np.int32(height),
+        width=np.int32(width),
+        jitter=np.int32(jitter),
+        max_depth=np.int32(max_depth),
+        recompute=np.int32(recompute),
+        packets=np.int32(packets),
+    )
+
+
 def native_select_samples(
     region,
     probability,

@@ -957,32 +957,29 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
   }
 }
 
-ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
-                   ffi::Buffer<ffi::PRED> active, ffi::Buffer<ffi::S32> scene_id,
-                   ffi::Buffer<ffi::F32> bvh_vertices, ffi::Buffer<ffi::S32> bvh_faces,
-                   ffi::Buffer<ffi::S32> first_face, ffi::Buffer<ffi::F32> vertices,
-                   ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::S32> face_material,
-                   ffi::Buffer<ffi::F32> normals, ffi::Buffer<ffi::F32> uvs,
-                   ffi::Buffer<ffi::F32> materials, ffi::Buffer<ffi::S32> texture,
-                   ffi::Buffer<ffi::F32> texels, ffi::Buffer<ffi::S32> texture_shape,
-                   ffi::Buffer<ffi::F32> lights, ffi::Buffer<ffi::S32> light_kind,
-                   ffi::Buffer<ffi::F32> ambient, ffi::Buffer<ffi::F32> environment,
-                   ffi::Buffer<ffi::F32> offset, ffi::ResultBuffer<ffi::F32> total,
-                   ffi::ResultBuffer<ffi::S32> traced, int32_t max_depth, int32_t recompute,
-                   int32_t packets, int32_t tile_width) {
-  if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
-  const int64_t n = static_cast<int64_t>(active.element_count());
+// The Whitted handlers' scene operands (`whitted_operands`), checked, as a ShadeScene and its
+// Embree trees.
+#define FOVJAX_SCENE_PARAMS                                                                          \
+  ffi::Buffer<ffi::S32> scene_id, ffi::Buffer<ffi::F32> bvh_vertices, ffi::Buffer<ffi::S32> bvh_faces, \
+      ffi::Buffer<ffi::S32> first_face, ffi::Buffer<ffi::F32> vertices, ffi::Buffer<ffi::S32> faces,   \
+      ffi::Buffer<ffi::S32> face_material, ffi::Buffer<ffi::F32> normals, ffi::Buffer<ffi::F32> uvs,   \
+      ffi::Buffer<ffi::F32> materials, ffi::Buffer<ffi::S32> texture, ffi::Buffer<ffi::F32> texels,    \
+      ffi::Buffer<ffi::S32> texture_shape, ffi::Buffer<ffi::F32> lights,                              \
+      ffi::Buffer<ffi::S32> light_kind, ffi::Buffer<ffi::F32> ambient,                                \
+      ffi::Buffer<ffi::F32> environment, ffi::Buffer<ffi::F32> offset
+#define FOVJAX_SCENE_ARGS                                                                            \
+  scene_id, bvh_vertices, bvh_faces, first_face, vertices, faces, face_material, normals, uvs,        \
+      materials, texture, texels, texture_shape, lights, light_kind, ambient, environment, offset
+
+ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute,
+                     std::atomic<int>* out_of_range, ShadeScene* scene,
+                     std::shared_ptr<NativeScene>* tree_out) {
+  ShadeScene& s = *scene;
   const int64_t nv = static_cast<int64_t>(vertices.element_count() / 3);
   const int64_t nf = static_cast<int64_t>(faces.element_count() / 3);
   const int64_t nm = static_cast<int64_t>(texture.element_count());
   const int64_t nl = static_cast<int64_t>(light_kind.element_count());
   auto env_dims = environment.dimensions();
-  if (origins.element_count() != 3 * static_cast<size_t>(n) ||
-      directions.element_count() != 3 * static_cast<size_t>(n) ||
-      total->element_count() != 3 * static_cast<size_t>(n) ||
-      traced->element_count() != static_cast<size_t>(n)) {
-    return ffi::Error::InvalidArgument("fovjax Whitted: ray arrays of different lengths");
-  }
   if (nf < 1 || face_material.element_count() != static_cast<size_t>(nf) ||
       (normals.element_count() != 0 && normals.element_count() != 3 * static_cast<size_t>(nv)) ||
       (uvs.element_count() != 0 && uvs.element_count() != 2 * static_cast<size_t>(nv)) ||
@@ -995,10 +992,8 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   }
   // Faces and their materials are checked where a ray hits them (a pass over every face on
   // every call measured ~0.7 ms on the atrium, seven calls a foveated frame).
-  std::atomic<int> out_of_range{0};
-  ShadeScene s;
   s.num_vertices = nv;
-  s.out_of_range = &out_of_range;
+  s.out_of_range = out_of_range;
   s.vertices = vertices.typed_data();
   s.faces = faces.typed_data();
   s.face_material = face_material.typed_data();
@@ -1027,11 +1022,31 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   s.max_depth = max_depth;
   s.recompute = recompute != 0;
   std::string error;
-  auto tree = GetScene(scene_id.typed_data()[0], bvh_vertices.typed_data(),
+  *tree_out = GetScene(scene_id.typed_data()[0], bvh_vertices.typed_data(),
                        static_cast<int64_t>(bvh_vertices.element_count() / 3), bvh_faces.typed_data(),
                        static_cast<int64_t>(bvh_faces.element_count() / 3), first_face.typed_data(),
                        static_cast<int64_t>(first_face.element_count()), &error);
-  if (!tree) return ffi::Error::InvalidArgument("fovjax Embree scene: " + error);
+  if (!*tree_out) return ffi::Error::InvalidArgument("fovjax Embree scene: " + error);
+  return ffi::Error::Success();
+}
+
+ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
+                   ffi::Buffer<ffi::PRED> active, FOVJAX_SCENE_PARAMS, ffi::ResultBuffer<ffi::F32> total,
+                   ffi::ResultBuffer<ffi::S32> traced, int32_t max_depth, int32_t recompute,
+                   int32_t packets, int32_t tile_width) {
+  if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
+  const int64_t n = static_cast<int64_t>(active.element_count());
+  if (origins.element_count() != 3 * static_cast<size_t>(n) ||
+      directions.element_count() != 3 * static_cast<size_t>(n) ||
+      total->element_count() != 3 * static_cast<size_t>(n) ||
+      traced->element_count() != static_cast<size_t>(n)) {
+    return ffi::Error::InvalidArgument("fovjax Whitted: ray arrays of different lengths");
+  }
+  std::atomic<int> out_of_range{0};
+  ShadeScene s;
+  std::shared_ptr<NativeScene> tree;
+  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, &out_of_range, &s, &tree);
+  if (status.failure()) return status;
   const NativeScene& t = *tree;
   const float* o = origins.typed_data();
   const float* d = directions.typed_data();
@@ -1316,6 +1331,219 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
   return ffi::Error::Success();
 }
 
+// ---- the foveated frame's slots: rays made, traced and summed into their pixels --------------
+//
+// `fovjax.foveate._frame.trace_selection` through the native integrator with `sample_adder`
+// consuming its chunks, in one call: each live slot's primary ray from its index
+// (`_slot_samples`, `positions_at`, `Camera.ray_directions`, `normalize`: the same operations
+// in the same order), its Whitted radiance (`WhittedBlock`), then every slot's radiance added to
+// its pixel in slot order, as the chunks add them. Its work is the live slots' (the chunk loop's
+// per-chunk operations around the integrator are gone).
+
+// JAX's threefry2x32 uniform (see UniformRun) at each of n counters.
+FOVJAX_VECTOR_CLONES
+void UniformAt(uint32_t k0, uint32_t k1, const uint32_t* __restrict__ index, int64_t n,
+               float* __restrict__ out) {
+  static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
+  const uint32_t ks[3] = {k0, k1, k0 ^ k1 ^ 0x1BD11BDAu};
+  for (int64_t i = 0; i < n; ++i) {
+    uint32_t x0 = ks[0];
+    uint32_t x1 = index[i] + ks[1];
+#pragma GCC unroll 5
+    for (int group = 0; group < 5; ++group) {
+#pragma GCC unroll 4
+      for (int j = 0; j < 4; ++j) {
+        const int r = kRotations[group % 2][j];
+        x0 += x1;
+        x1 = (x1 << r) | (x1 >> (32 - r));
+        x1 ^= x0;
+      }
+      x0 += ks[(group + 1) % 3];
+      x1 += ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+    }
+    const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
+    float f;
+    std::memcpy(&f, &mantissa, sizeof f);
+    f -= 1.0f;
+    out[i] = f > 0.0f ? f : 0.0f;
+  }
+}
+
+constexpr int kCameraStride = 16;  // position (3), rotation (3×3, row-major), tan(vfov/2), aspect, offset (2)
+
+struct SlotLayout {
+  const int32_t* order;
+  const int32_t* locality;  // (H·W): pixel of each locality rank
+  const float* grid;        // (S, 2): the sub-samples' cell centres
+  const float* cameras;     // (2, kCameraStride)
+  uint32_t key[2];
+  bool jitter;
+  int64_t spp, h, w, per_eye, cells;  // cells: the strata per row, sqrt(spp)
+};
+
+// Per-block scratch of `SlotRays`.
+struct SlotScratch {
+  std::vector<float> x, y, jitter;
+  std::vector<uint32_t> counter;
+  std::vector<int32_t> eye, sample;
+  void Reserve(int64_t n) {
+    for (auto* v : {&x, &y}) v->resize(n);
+    jitter.resize(2 * n), counter.resize(2 * n);
+    for (auto* v : {&eye, &sample}) v->resize(n);
+  }
+};
+
+// Slots [begin, begin + n) as rays (o, d, active) and whether each is valid (a primary ray
+// `radiance` counts); the pixel each goes to in `target`. The index arithmetic in 32 bits (the
+// caller checks the sizes), then the positions and directions in loops over lanes.
+void SlotRays(const SlotLayout& L, int64_t begin, int64_t n, float* o, float* d, bool* active,
+              bool* valid, int32_t* target, SlotScratch& t) {
+  const uint32_t S = static_cast<uint32_t>(L.spp), W = static_cast<uint32_t>(L.w);
+  const uint32_t H = static_cast<uint32_t>(L.h), per_eye = static_cast<uint32_t>(L.per_eye);
+  const uint32_t hw = H * W;
+  for (int64_t i = 0; i < n; ++i) {
+    const uint32_t slot = static_cast<uint32_t>(L.order[begin + i]);
+    const uint32_t eye = slot >= per_eye, within = slot - eye * per_eye;  // two eyes
+    const uint32_t rank = S == 1 ? within : within / S, sample = within - rank * S;
+    const uint32_t pixel = static_cast<uint32_t>(L.locality[rank]);
+    const uint32_t y = pixel / W, x = pixel - y * W;
+    target[i] = static_cast<int32_t>(eye * hw + pixel);
+    t.counter[2 * i] = ((sample * H + y) * W + x) * 2;
+    t.counter[2 * i + 1] = t.counter[2 * i] + 1;
+    t.eye[i] = static_cast<int32_t>(eye), t.sample[i] = static_cast<int32_t>(sample);
+    t.x[i] = static_cast<float>(x), t.y[i] = static_cast<float>(y);
+  }
+  if (L.jitter) UniformAt(L.key[0], L.key[1], t.counter.data(), 2 * n, t.jitter.data());
+  const float cells = static_cast<float>(L.cells), width = static_cast<float>(W),
+              height = static_cast<float>(H);
+  const float* c0 = L.cameras;
+  const float* c1 = L.cameras + kCameraStride;
+  for (int64_t i = 0; i < n; ++i) {
+    const float* cell = L.grid + 2 * t.sample[i];
+    float x = t.x[i], y = t.y[i];
+    if (L.jitter) {
+      x = x + (cell[0] + (t.jitter[2 * i] - 0.5f) / cells);
+      y = y + (cell[1] + (t.jitter[2 * i + 1] - 0.5f) / cells);
+    } else {
+      x = x + cell[0];
+      y = y + cell[1];
+    }
+    const float* c = t.eye[i] ? c1 : c0;
+    const float* r = c + 3;
+    const float tan_half = c[12], aspect = c[13];
+    const float sx = ((2.0f * x / width - 1.0f + c[14]) * tan_half) * aspect;
+    const float sy = (1.0f - 2.0f * y / height + c[15]) * tan_half;
+    float raw[3];
+    for (int k = 0; k < 3; ++k) raw[k] = sx * r[3 * k] + sy * r[3 * k + 1] - r[3 * k + 2];
+    const float scale = 1.0f / std::sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2]);
+    for (int k = 0; k < 3; ++k) raw[k] = raw[k] * scale;  // `ray_direction_components`
+    const float n2 = raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2];  // `normalize`
+    const float inv = n2 > 0.0f ? 1.0f / std::sqrt(n2) : 0.0f;
+    bool finite = true, nonzero = false;
+    for (int k = 0; k < 3; ++k) {
+      o[3 * i + k] = c[k];
+      d[3 * i + k] = raw[k] * inv;
+      finite = finite && std::isfinite(c[k]) && std::isfinite(raw[k]);
+      nonzero = nonzero || d[3 * i + k] != 0.0f;
+    }
+    active[i] = true;
+    valid[i] = finite && nonzero;
+  }
+}
+
+ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::Buffer<ffi::S32> n_live,
+                        ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::S32> locality,
+                        ffi::Buffer<ffi::F32> grid, ffi::Buffer<ffi::F32> cameras, FOVJAX_SCENE_PARAMS,
+                        ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
+                        ffi::ResultBuffer<ffi::S32> counts_out, int32_t spp, int32_t height,
+                        int32_t width, int32_t jitter, int32_t max_depth, int32_t recompute,
+                        int32_t packets) {
+  if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
+  const int64_t hw = static_cast<int64_t>(height) * width, per_eye = hw * spp;
+  int64_t cells = 1;
+  while (cells * cells < spp) ++cells;
+  if (spp < 1 || cells * cells != spp || height < 1 || width < 1 || 2 * per_eye >= (int64_t{1} << 31) ||
+      n_live.element_count() != 1 || key.element_count() != 2 ||
+      locality.element_count() != static_cast<size_t>(hw) ||
+      grid.element_count() != 2 * static_cast<size_t>(spp) ||
+      cameras.element_count() != 2 * static_cast<size_t>(kCameraStride) ||
+      sums_out->element_count() != 6 * static_cast<size_t>(hw) ||
+      bad_out->element_count() != 2 * static_cast<size_t>(hw) || counts_out->element_count() != 4) {
+    return ffi::Error::InvalidArgument("fovjax slots: operand shapes do not match the image");
+  }
+  std::atomic<int> out_of_range{0};
+  ShadeScene s;
+  std::shared_ptr<NativeScene> tree;
+  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, &out_of_range, &s, &tree);
+  if (status.failure()) return status;
+  const int64_t n = std::max<int64_t>(
+      0, std::min<int64_t>(n_live.typed_data()[0], static_cast<int64_t>(order.element_count())));
+  SlotLayout L{order.typed_data(), locality.typed_data(), grid.typed_data(), cameras.typed_data(),
+               {key.typed_data()[0], key.typed_data()[1]}, jitter != 0, spp, height, width, per_eye, cells};
+  for (int64_t i = 0; i < n; ++i) {
+    if (L.order[i] < 0 || L.order[i] >= 2 * per_eye) {
+      return ffi::Error::InvalidArgument("fovjax slots: a live slot is outside the image's samples");
+    }
+  }
+  // Each live slot's radiance, rays traced, valid flag and pixel (scratch for the sums below).
+  std::unique_ptr<float[]> radiance(new float[3 * std::max<int64_t>(n, 1)]);
+  std::unique_ptr<int32_t[]> traced(new int32_t[std::max<int64_t>(n, 1)]);
+  std::unique_ptr<int32_t[]> target(new int32_t[std::max<int64_t>(n, 1)]);
+  std::unique_ptr<bool[]> valid(new bool[std::max<int64_t>(n, 1)]);
+  const NativeScene& t = *tree;
+  const int64_t per_block = 1024;
+  ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
+    thread_local std::vector<float> o, d;
+    thread_local SlotScratch scratch;
+    thread_local std::unique_ptr<bool[]> active;
+    o.resize(3 * per_block), d.resize(3 * per_block);
+    scratch.Reserve(per_block);
+    if (!active) active.reset(new bool[per_block]);
+    const int64_t begin = blk * per_block, m = std::min(n, begin + per_block) - begin;
+    SlotRays(L, begin, m, o.data(), d.data(), active.get(), valid.get() + begin, target.get() + begin, scratch);
+    BlockRays block;
+    block.n = m;
+    WhittedBlock(t, s, o.data(), d.data(), active.get(), block, radiance.get() + 3 * begin,
+                 traced.get() + begin, packets != 0);
+  });
+  if (out_of_range.load() != 0) {
+    return ffi::Error::InvalidArgument(
+        "fovjax Whitted: a hit face names a vertex or a material out of range");
+  }
+  // The sums, per eye on its own task: every slot's radiance added to its pixel in slot order
+  // (`sample_adder`: a sample whose radiance is not finite adds nothing and marks its pixel).
+  float* sums = sums_out->typed_data();
+  bool* bad = bad_out->typed_data();
+  int64_t eye_counts[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};
+  ParallelFor(pool, 2, [&](int64_t eye) {
+    float* eye_sums = sums + 3 * eye * hw;
+    bool* eye_bad = bad + eye * hw;
+    std::fill(eye_sums, eye_sums + 3 * hw, 0.0f);
+    std::fill(eye_bad, eye_bad + hw, false);
+    const int32_t first = static_cast<int32_t>(eye * hw), last = static_cast<int32_t>(first + hw);
+    int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
+    for (int64_t i = 0; i < n; ++i) {
+      const int32_t px = target[i];
+      if (px < first || px >= last) continue;
+      const float* rgb = radiance.get() + 3 * i;
+      primary += valid[i];
+      shadow += traced[i] >> 8;
+      reflection += traced[i] & 255;
+      if (!(std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]))) {
+        eye_bad[px - first] = true;
+        ++n_bad;
+        continue;
+      }
+      float* out = sums + 3 * static_cast<int64_t>(px);
+      out[0] += rgb[0], out[1] += rgb[1], out[2] += rgb[2];
+    }
+    eye_counts[eye][0] = primary, eye_counts[eye][1] = shadow;
+    eye_counts[eye][2] = reflection, eye_counts[eye][3] = n_bad;
+  });
+  for (int k = 0; k < 4; ++k) counts_out->typed_data()[k] = static_cast<int32_t>(eye_counts[0][k] + eye_counts[1][k]);
+  return ffi::Error::Success();
+}
+
 // ---- the foveated frame's reconstruction: pixel means, fill and blur --------------------------
 //
 // `fovjax.foveate._frame.pixel_means`, `_fill.fill_blanks` (every block's top-left traced) and
@@ -1571,6 +1799,44 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
                                   .Attr<int32_t>("block_periphery")
                                   .Attr<int32_t>("block_outside")
                                   .Attr<int64_t>("budget"));
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // slots in compaction order (P)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // live slots (1)
+                                  .Arg<ffi::Buffer<ffi::U32>>()   // the frame key's data (2)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // locality order of the pixels (H·W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // sub-sample cell centres (S, 2)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the eyes' cameras (2, 16)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // scene id (1)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the BVH's vertices (V, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // the BVH's faces (F, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // first face of each tree, and F
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the scene's vertices (V, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // faces (F, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // face material (F)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // vertex normals (V, 3) or empty
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // vertex uvs (V, 2) or empty
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // materials (M, 16)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // texture per material (M)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // every texture's texels, flat
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // (T, 2) texture heights, widths
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // lights (L, 6)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // light kind (L)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // ambient (3)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // environment (He, We, 3)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // ray offset (scene units)
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
+                                  .Ret<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples
+                                  .Attr<int32_t>("spp")
+                                  .Attr<int32_t>("height")
+                                  .Attr<int32_t>("width")
+                                  .Attr<int32_t>("jitter")
+                                  .Attr<int32_t>("max_depth")
+                                  .Attr<int32_t>("recompute")
+                                  .Attr<int32_t>("packets"));
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxFillAndBlur, FillAndBlur,
                               ffi::Ffi::Bind()

@@ -32,6 +32,7 @@ TARGET = "fovjax_embree_query"
 WHITTED_TARGET = "fovjax_embree_whitted"
 SELECT_TARGET = "fovjax_select_samples"
 FILL_TARGET = "fovjax_fill_and_blur"
+SLOTS_TARGET = "fovjax_whitted_slots"
 _FLAGS = ("-O3", "-fno-math-errno", "-ffp-contract=off", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes")
 
 _lock = threading.Lock()
@@ -159,6 +160,7 @@ def _load() -> NativeStatus:
     jax.ffi.register_ffi_target(WHITTED_TARGET, jax.ffi.pycapsule(lib.FovjaxEmbreeWhitted), platform="cpu")
     jax.ffi.register_ffi_target(SELECT_TARGET, jax.ffi.pycapsule(lib.FovjaxSelectSamples), platform="cpu")
     jax.ffi.register_ffi_target(FILL_TARGET, jax.ffi.pycapsule(lib.FovjaxFillAndBlur), platform="cpu")
+    jax.ffi.register_ffi_target(SLOTS_TARGET, jax.ffi.pycapsule(lib.FovjaxWhittedSlots), platform="cpu")
     _state["lib"] = lib
     version = lib.fovjax_embree_version()
     width = lib.fovjax_embree_packet_width()
