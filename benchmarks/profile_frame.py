@@ -56,7 +56,10 @@ from fovjax.trace import build_bvh  # noqa: E402
 # Stage of an operation: the first rule whose (file, function) pattern matches a frame of its
 # source stack, innermost first.
 STAGES = (
-    ("native integrator (trace, shade, shadows, reflections)", r"trace/_embree\.py:\d+\(embree_whitted"),
+    (
+        "native integrator (trace, shade, shadows, reflections)",
+        r"trace/_embree\.py:\d+\((embree_whitted|native_whitted_slots)",
+    ),
     ("sampling + compaction", r"trace/_embree\.py:\d+\(native_select_samples"),
     ("fill / blur", r"trace/_embree\.py:\d+\(native_fill_and_blur"),
     ("ray queries (native)", r"trace/_embree\.py|trace/_warp\.py"),
