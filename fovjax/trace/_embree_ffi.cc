@@ -1100,33 +1100,75 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
 #define FOVJAX_VECTOR_CLONES
 #endif
 
-FOVJAX_VECTOR_CLONES
-void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out) {
+// One lane's threefry2x32 (see UniformRun): the uniform float of counter `c`.
+inline float UniformOne(const uint32_t ks[3], uint32_t c) {
   static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
+  uint32_t x0 = ks[0], x1 = c + ks[1];
+  for (int group = 0; group < 5; ++group) {
+    for (int j = 0; j < 4; ++j) {
+      const int r = kRotations[group % 2][j];
+      x0 += x1;
+      x1 = (x1 << r) | (x1 >> (32 - r));
+      x1 ^= x0;
+    }
+    x0 += ks[(group + 1) % 3];
+    x1 += ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+  }
+  const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
+  float f;
+  std::memcpy(&f, &mantissa, sizeof f);
+  f -= 1.0f;
+  return f > 0.0f ? f : 0.0f;
+}
+
+// The uniforms of n counters, `first + i` or `index[i]`: 64 lanes at a time, each round a
+// loop over the lanes that the compiler vectorises. Each vector of lanes is one long chain of
+// dependent rounds; 64 lanes keep several chains in flight on the vector unit.
+template <bool kIndexed>
+inline __attribute__((always_inline)) void UniformLanes(uint32_t k0, uint32_t k1, uint32_t first,
+                                                        const uint32_t* __restrict__ index, int64_t n,
+                                                        float* __restrict__ out) {
+  static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
+  constexpr int kLanes = 64;
   const uint32_t ks[3] = {k0, k1, k0 ^ k1 ^ 0x1BD11BDAu};
-  for (int64_t i = 0; i < n; ++i) {
-    uint32_t x0 = ks[0];
-    uint32_t x1 = first + static_cast<uint32_t>(i) + ks[1];
-    // Five groups of four rounds, the key injected after each (unrolled: the rotations are
-    // constants, and the loop over lanes vectorises).
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    uint32_t x0[kLanes], x1[kLanes];
+    for (int j = 0; j < kLanes; ++j) {
+      x0[j] = ks[0];
+      x1[j] = (kIndexed ? index[i + j] : first + static_cast<uint32_t>(i + j)) + ks[1];
+    }
 #pragma GCC unroll 5
     for (int group = 0; group < 5; ++group) {
 #pragma GCC unroll 4
-      for (int j = 0; j < 4; ++j) {
-        const int r = kRotations[group % 2][j];
-        x0 += x1;
-        x1 = (x1 << r) | (x1 >> (32 - r));
-        x1 ^= x0;
+      for (int r4 = 0; r4 < 4; ++r4) {
+        const int r = kRotations[group % 2][r4];
+        for (int j = 0; j < kLanes; ++j) {
+          x0[j] += x1[j];
+          x1[j] = (x1[j] << r) | (x1[j] >> (32 - r));
+          x1[j] ^= x0[j];
+        }
       }
-      x0 += ks[(group + 1) % 3];
-      x1 += ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+      const uint32_t a = ks[(group + 1) % 3], b = ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+      for (int j = 0; j < kLanes; ++j) {
+        x0[j] += a;
+        x1[j] += b;
+      }
     }
-    const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
-    float f;
-    std::memcpy(&f, &mantissa, sizeof f);
-    f -= 1.0f;
-    out[i] = f > 0.0f ? f : 0.0f;
+    for (int j = 0; j < kLanes; ++j) {
+      const uint32_t mantissa = ((x0[j] ^ x1[j]) >> 9) | 0x3F800000u;
+      float f;
+      std::memcpy(&f, &mantissa, sizeof f);
+      f -= 1.0f;
+      out[i + j] = f > 0.0f ? f : 0.0f;
+    }
   }
+  for (; i < n; ++i) out[i] = UniformOne(ks, kIndexed ? index[i] : first + static_cast<uint32_t>(i));
+}
+
+FOVJAX_VECTOR_CLONES
+void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out) {
+  UniformLanes<false>(k0, k1, first, nullptr, n, out);
 }
 
 constexpr int kFovea = 0, kOutside = 2;
@@ -1165,6 +1207,97 @@ void ClassRow(const int32_t* __restrict__ row, const uint8_t* __restrict__ top_l
   }
 }
 
+// Pass 1 of `SelectSamples` for one band of rows of one eye (`job`): its operands.
+struct SelectBand {
+  const int32_t* region;
+  const float* p;
+  const uint32_t* key;
+  const int32_t* rspp;
+  const int32_t* srank;
+  int8_t* cls;
+  bool* traced;
+  int32_t* per_pixel;
+  int64_t* band_sums;
+  int64_t h, w, hw, spp, rows, bands;
+  int32_t rule, block_periphery, block_outside;
+};
+
+// Built for the widest vector unit the CPU has, as UniformRun (the row loops are byte- and
+// int-wide lanes; ClassRow is inlined into each build).
+FOVJAX_VECTOR_CLONES
+void SelectBandRows(const SelectBand& a, int64_t job) {
+  const int32_t* region = a.region;
+  const float* p = a.p;
+  const uint32_t* key = a.key;
+  const int32_t* rspp = a.rspp;
+  const int32_t* srank = a.srank;
+  int8_t* cls = a.cls;
+  bool* traced = a.traced;
+  int32_t* per_pixel = a.per_pixel;
+  int64_t* band_sums = a.band_sums;
+  const int64_t h = a.h, w = a.w, hw = a.hw, spp = a.spp, rows = a.rows, bands = a.bands;
+  const int32_t rule = a.rule, block_periphery = a.block_periphery, block_outside = a.block_outside;
+  // The sizes as locals: the byte-wide stores below may alias anything the lambda captures by
+  // reference, which would be reloaded after each of them.
+  const int64_t W = w, H = h;
+  const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(H, y0 + rows);
+  const int32_t* reg = region + eye * hw;
+  std::vector<float> u(static_cast<size_t>(W * spp));
+  std::vector<uint8_t> top_left(static_cast<size_t>(W)), in_block(static_cast<size_t>(W));
+  const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
+  for (int64_t y = y0; y < y1; ++y) {
+    const int32_t* row = reg + y * W;
+    // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
+    // one pixel; else the top-left of every aligned block holding a pixel of that region.
+    uint8_t* tl = top_left.data();
+    for (int64_t x = 0; x < W; ++x) tl[x] = row[x] == kFovea;
+    for (int c = 0; c < 2; ++c) {
+      const int64_t b = sizes[c];
+      const int32_t code = codes[c];
+      if (b == 1) {
+        for (int64_t x = 0; x < W; ++x) tl[x] |= row[x] == code;
+        continue;
+      }
+      if (y % b != 0) continue;
+      uint8_t* any = in_block.data();  // per column: a pixel of the region in the block's rows
+      for (int64_t x = 0; x < W; ++x) any[x] = row[x] == code;
+      for (int64_t yy = y + 1; yy < std::min(H, y + b); ++yy) {
+        const int32_t* below = reg + yy * W;
+        for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
+      }
+      for (int64_t xb = 0; xb < W; xb += b) {
+        uint8_t found = 0;
+        for (int64_t xx = xb; xx < std::min(W, xb + b); ++xx) found |= any[xx];
+        tl[xb] |= found;
+      }
+    }
+    for (int64_t s = 0; s < spp; ++s)
+      UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
+    const float* prow = p + eye * hw + y * W;
+    int32_t* n = per_pixel + eye * hw + y * W;
+    std::fill(n, n + W, 0);
+    for (int64_t s = 0; s < spp; ++s) {
+      const float* us = &u[s * W];
+      int8_t* c_row = cls + (eye * spp + s) * hw + y * W;
+      uint8_t* t_row = reinterpret_cast<uint8_t*>(traced) + (eye * spp + s) * hw + y * W;
+      const uint8_t allowed[3] = {srank[s] < rspp[0], srank[s] < rspp[1], srank[s] < rspp[2]};
+      const uint8_t first = s == 0;
+      if (rule == 0) ClassRow<0>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+      else if (rule == 1) ClassRow<1>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+      else ClassRow<2>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+    }
+    // Per region, in registers (a sum through memory would wait on each previous add).
+    int32_t fovea = 0, periphery = 0, outside = 0;
+    for (int64_t x = 0; x < W; ++x) {
+      const int32_t r = row[x], v = n[x];
+      fovea += r == 0 ? v : 0;
+      periphery += r == 1 ? v : 0;
+      outside += r == 2 ? v : 0;
+    }
+    band_sums[3 * job] += fovea, band_sums[3 * job + 1] += periphery, band_sums[3 * job + 2] += outside;
+  }
+}
+
 ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
                          ffi::Buffer<ffi::F32> probability, ffi::Buffer<ffi::U32> keys,
                          ffi::Buffer<ffi::S32> locality, ffi::Buffer<ffi::S32> region_spp,
@@ -1199,67 +1332,9 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
   const int64_t rows = 16;
   const int64_t bands = (h + rows - 1) / rows;
   std::vector<int64_t> band_sums(3 * 2 * bands, 0);  // wanted samples per region, per band
-  ParallelFor(pool, 2 * bands, [&](int64_t job) {
-    // The sizes as locals: the byte-wide stores below may alias anything the lambda captures by
-    // reference, which would be reloaded after each of them.
-    const int64_t W = w, H = h;
-    const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(H, y0 + rows);
-    const int32_t* reg = region + eye * hw;
-    std::vector<float> u(static_cast<size_t>(W * spp));
-    std::vector<uint8_t> top_left(static_cast<size_t>(W)), in_block(static_cast<size_t>(W));
-    const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
-    for (int64_t y = y0; y < y1; ++y) {
-      const int32_t* row = reg + y * W;
-      // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
-      // one pixel; else the top-left of every aligned block holding a pixel of that region.
-      uint8_t* tl = top_left.data();
-      for (int64_t x = 0; x < W; ++x) tl[x] = row[x] == kFovea;
-      for (int c = 0; c < 2; ++c) {
-        const int64_t b = sizes[c];
-        const int32_t code = codes[c];
-        if (b == 1) {
-          for (int64_t x = 0; x < W; ++x) tl[x] |= row[x] == code;
-          continue;
-        }
-        if (y % b != 0) continue;
-        uint8_t* any = in_block.data();  // per column: a pixel of the region in the block's rows
-        for (int64_t x = 0; x < W; ++x) any[x] = row[x] == code;
-        for (int64_t yy = y + 1; yy < std::min(H, y + b); ++yy) {
-          const int32_t* below = reg + yy * W;
-          for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
-        }
-        for (int64_t xb = 0; xb < W; xb += b) {
-          uint8_t found = 0;
-          for (int64_t xx = xb; xx < std::min(W, xb + b); ++xx) found |= any[xx];
-          tl[xb] |= found;
-        }
-      }
-      for (int64_t s = 0; s < spp; ++s)
-        UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
-      const float* prow = p + eye * hw + y * W;
-      int32_t* n = per_pixel + eye * hw + y * W;
-      std::fill(n, n + W, 0);
-      for (int64_t s = 0; s < spp; ++s) {
-        const float* us = &u[s * W];
-        int8_t* c_row = cls + (eye * spp + s) * hw + y * W;
-        uint8_t* t_row = reinterpret_cast<uint8_t*>(traced) + (eye * spp + s) * hw + y * W;
-        const uint8_t allowed[3] = {srank[s] < rspp[0], srank[s] < rspp[1], srank[s] < rspp[2]};
-        const uint8_t first = s == 0;
-        if (rule == 0) ClassRow<0>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
-        else if (rule == 1) ClassRow<1>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
-        else ClassRow<2>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
-      }
-      // Per region, in registers (a sum through memory would wait on each previous add).
-      int32_t fovea = 0, periphery = 0, outside = 0;
-      for (int64_t x = 0; x < W; ++x) {
-        const int32_t r = row[x], v = n[x];
-        fovea += r == 0 ? v : 0;
-        periphery += r == 1 ? v : 0;
-        outside += r == 2 ? v : 0;
-      }
-      band_sums[3 * job] += fovea, band_sums[3 * job + 1] += periphery, band_sums[3 * job + 2] += outside;
-    }
-  });
+  const SelectBand band{region, p, key, rspp, srank, cls, traced, per_pixel, band_sums.data(), h, w, hw, spp,
+                        rows, bands, rule, block_periphery, block_outside};
+  ParallelFor(pool, 2 * bands, [&](int64_t job) { SelectBandRows(band, job); });
 
   // Pass 2, the locality-ordered samples in chunks: each chunk lists its mandatory and its
   // optional samples (the stable partition of `compaction_order`), then the lists go to their
@@ -1344,29 +1419,7 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
 FOVJAX_VECTOR_CLONES
 void UniformAt(uint32_t k0, uint32_t k1, const uint32_t* __restrict__ index, int64_t n,
                float* __restrict__ out) {
-  static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
-  const uint32_t ks[3] = {k0, k1, k0 ^ k1 ^ 0x1BD11BDAu};
-  for (int64_t i = 0; i < n; ++i) {
-    uint32_t x0 = ks[0];
-    uint32_t x1 = index[i] + ks[1];
-#pragma GCC unroll 5
-    for (int group = 0; group < 5; ++group) {
-#pragma GCC unroll 4
-      for (int j = 0; j < 4; ++j) {
-        const int r = kRotations[group % 2][j];
-        x0 += x1;
-        x1 = (x1 << r) | (x1 >> (32 - r));
-        x1 ^= x0;
-      }
-      x0 += ks[(group + 1) % 3];
-      x1 += ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
-    }
-    const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
-    float f;
-    std::memcpy(&f, &mantissa, sizeof f);
-    f -= 1.0f;
-    out[i] = f > 0.0f ? f : 0.0f;
-  }
+  UniformLanes<true>(k0, k1, 0, index, n, out);
 }
 
 constexpr int kCameraStride = 16;  // position (3), rotation (3×3, row-major), tan(vfov/2), aspect, offset (2)
