@@ -497,10 +497,8 @@ def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budg
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
     def in_one_call(scene, cameras, order, n_traced):
-        from ..trace.internal import native_whitted_slots, whitted_operands
-
-        offset = config.ray_offset * scene_scale(scene)
         from ..scene import stratified_offsets
+        from ..trace.internal import native_whitted_slots, whitted_operands
 
         with jax.ensure_compile_time_eval():
             grid = np.asarray(stratified_offsets(spp), np.float32)
@@ -510,6 +508,7 @@ def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budg
             key_data = jax.random.key_data(jitter_key)
         else:
             key_data = jnp.asarray(jitter_key, jnp.uint32)
+        offset = config.ray_offset * scene_scale(scene)
         offset = jax.lax.stop_gradient(jnp.asarray(offset, jnp.float32).reshape(1))
         sums, bad_pixel, counts = native_whitted_slots(
             (*whitted_operands(scene, bvh), offset),
