@@ -1801,30 +1801,36 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
                                   .Attr<int32_t>("any_hit")
                                   .Attr<int32_t>("packet"));  // 0, 1 or -1 (where coherent)
 
+// The Whitted handlers' scene operands (`FOVJAX_SCENE_PARAMS`), appended to a binding.
+template <typename Binding>
+auto WithSceneArgs(Binding binding) {
+  return std::move(binding)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // the BVH's host id (1)
+      .template Arg<ffi::Buffer<ffi::F32>>()   // the BVH's vertices (V, 3)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // the BVH's faces (F, 3)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // first face of each tree, and F
+      .template Arg<ffi::Buffer<ffi::F32>>()   // the scene's vertices (V, 3)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // faces (F, 3)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // face material (F)
+      .template Arg<ffi::Buffer<ffi::F32>>()   // vertex normals (V, 3) or empty
+      .template Arg<ffi::Buffer<ffi::F32>>()   // vertex uvs (V, 2) or empty
+      .template Arg<ffi::Buffer<ffi::F32>>()   // materials (M, 16)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // texture per material (M)
+      .template Arg<ffi::Buffer<ffi::F32>>()   // every texture's texels, flat
+      .template Arg<ffi::Buffer<ffi::S32>>()   // (T, 2) texture heights, widths
+      .template Arg<ffi::Buffer<ffi::F32>>()   // lights (L, 6)
+      .template Arg<ffi::Buffer<ffi::S32>>()   // light kind (L)
+      .template Arg<ffi::Buffer<ffi::F32>>()   // ambient (3)
+      .template Arg<ffi::Buffer<ffi::F32>>()   // environment (He, We, 3)
+      .template Arg<ffi::Buffer<ffi::F32>>();  // ray offset (scene units)
+}
+
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,
-                              ffi::Ffi::Bind()
-                                  .Ctx<ffi::ThreadPool>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // origins (N, 3)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // unit directions (N, 3)
-                                  .Arg<ffi::Buffer<ffi::PRED>>()  // active (N)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // the BVH's host id
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the BVH's vertices (V, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // the BVH's faces (F, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // first face of each tree, and F
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the scene's vertices (V, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // faces (F, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // face material (F)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // vertex normals (V, 3) or empty
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // vertex uvs (V, 2) or empty
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // materials (M, 16)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // texture per material (M)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // every texture's texels, flat
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // (T, 2) texture heights, widths
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // lights (L, 6)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // light kind (L)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // ambient (3)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // environment (He, We, 3)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // ray offset (scene units)
+                              WithSceneArgs(ffi::Ffi::Bind()
+                                                .Ctx<ffi::ThreadPool>()
+                                                .Arg<ffi::Buffer<ffi::F32>>()    // origins (N, 3)
+                                                .Arg<ffi::Buffer<ffi::F32>>()    // unit directions (N, 3)
+                                                .Arg<ffi::Buffer<ffi::PRED>>())  // active (N)
                                   .Ret<ffi::Buffer<ffi::F32>>()   // radiance (N, 3)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // rays traced (see WhittedBlock)
                                   .Attr<int32_t>("max_depth")
@@ -1854,32 +1860,14 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
                                   .Attr<int64_t>("budget"));
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
-                              ffi::Ffi::Bind()
-                                  .Ctx<ffi::ThreadPool>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // slots in compaction order (P)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // live slots (1)
-                                  .Arg<ffi::Buffer<ffi::U32>>()   // the frame key's data (2)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // locality order of the pixels (H·W)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // sub-sample cell centres (S, 2)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the eyes' cameras (2, 16)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // scene id (1)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the BVH's vertices (V, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // the BVH's faces (F, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // first face of each tree, and F
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the scene's vertices (V, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // faces (F, 3)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // face material (F)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // vertex normals (V, 3) or empty
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // vertex uvs (V, 2) or empty
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // materials (M, 16)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // texture per material (M)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // every texture's texels, flat
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // (T, 2) texture heights, widths
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // lights (L, 6)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // light kind (L)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // ambient (3)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // environment (He, We, 3)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // ray offset (scene units)
+                              WithSceneArgs(ffi::Ffi::Bind()
+                                                .Ctx<ffi::ThreadPool>()
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // slots in compaction order (P)
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // live slots (1)
+                                                .Arg<ffi::Buffer<ffi::U32>>()   // the frame key's data (2)
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // locality order (H·W)
+                                                .Arg<ffi::Buffer<ffi::F32>>()   // sub-sample cell centres (S, 2)
+                                                .Arg<ffi::Buffer<ffi::F32>>())  // the eyes' cameras (2, 16)
                                   .Ret<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
                                   .Ret<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples
