@@ -365,3 +365,15 @@ def test_patney_history_converges_after_a_move_and_reset_forgets_it(patney, card
     again = moved.render(CENTRE)
     assert again.foveation.reused == 0
     np.testing.assert_allclose(again.image, first.image, rtol=1e-6, atol=1e-7)
+
+
+def test_a_methods_label_names_the_parameters_it_sets():
+    """Comparisons label a method by name and the parameters set apart from its defaults, so two
+    settings of one method in a sweep are two rows, not one name twice."""
+    from fovjax.foveate import method_label
+
+    assert method_label(Foveation(method="weier2016").method) == "weier2016"
+    assert method_label(Weier2016(widened_fovea="trace")) == "weier2016(widened_fovea='trace')"
+    both = method_label(Weier2016(retrace_tolerance=0.05, widened_fovea="trace"))
+    assert both == "weier2016(retrace_tolerance=0.05, widened_fovea='trace')"
+    assert [method_label(Foveation(method=m).method) for m in METHODS] == list(METHODS)

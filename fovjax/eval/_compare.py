@@ -312,7 +312,7 @@ def compare_thresholds(
         print(cmp.choice)
         ```
     """
-    from ..foveate import FoveatedRenderer, Foveation, with_regions
+    from ..foveate import FoveatedRenderer, Foveation, method_label, with_regions
     from ..render import StereoRig
     from ..scene import Scene, default_camera
     from ._plan import PlanSearch, _check_criterion, plan_fidelity
@@ -493,10 +493,11 @@ def compare_thresholds(
         fov = with_regions(fov, regions, rig.eye_height)
         model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
         label = f"{fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
-        if len(methods) > 1 or method.name != "thesis":
-            label = f"{method.name} {label}"
+        name = method_label(method)  # its parameters where they are not the defaults
+        if len(methods) > 1 or name != "thesis":
+            label = f"{name} {label}"
         fields = {
-            "method": method.name,
+            "method": name,
             "fovea_deg": float(fovea),
             "periphery_deg": float(periphery),
             "spp": s,

@@ -180,7 +180,7 @@ def _configurations(base, sweep):
     """(label, fields, foveation) for every method × threshold pair × SPP × acuity model."""
     import itertools
 
-    from ..foveate import Foveation, with_regions
+    from ..foveate import Foveation, method_label, with_regions
 
     models = [None] if sweep.models is None else list(sweep.models)
     methods = [Foveation(method=m).method for m in sweep.methods]  # names checked by Foveation
@@ -205,9 +205,10 @@ def _configurations(base, sweep):
         )
         fov = with_regions(fov, sweep.regions, base.rig.eye_height)
         model_name = "thesis" if model is None else getattr(model, "name", type(model).__name__)
-        label = f"{method.name} {fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
+        name = method_label(method)  # its parameters where they are not the defaults
+        label = f"{name} {fovea:g}/{periphery:g} spp{s}" + ("" if model is None else f" {model_name}")
         fields = {
-            "method": method.name,
+            "method": name,
             "fovea_deg": float(fovea),
             "periphery_deg": float(periphery),
             "spp": int(s),

@@ -39,6 +39,7 @@ from ._methods import Guenter2012 as Guenter2012
 from ._methods import Patney2016 as Patney2016
 from ._methods import Thesis as Thesis
 from ._methods import Weier2016 as Weier2016
+from ._methods import method_label as method_label
 from ._renderer import FoveatedRenderer as FoveatedRenderer
 from ._sampling import FOVEA as FOVEA
 from ._sampling import OUTSIDE as OUTSIDE
@@ -93,6 +94,7 @@ __all__ = [
     "Patney2016",
     "Thesis",
     "Weier2016",
+    "method_label",
     "FoveatedRenderer",
     "FOVEA",
     "OUTSIDE",

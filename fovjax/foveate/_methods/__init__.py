@@ -8,5 +8,15 @@ from ._catalog import Patney2016 as Patney2016
 from ._catalog import Thesis as Thesis
 from ._catalog import Weier2016 as Weier2016
 from ._catalog import as_method as as_method
+from ._catalog import method_label as method_label
 
-__all__ = ["METHODS", "Citation", "Guenter2012", "Patney2016", "Thesis", "Weier2016", "as_method"]
+__all__ = [
+    "METHODS",
+    "Citation",
+    "Guenter2012",
+    "Patney2016",
+    "Thesis",
+    "Weier2016",
+    "as_method",
+    "method_label",
+]

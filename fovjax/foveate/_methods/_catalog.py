@@ -308,3 +308,15 @@ def as_method(method: object) -> FoveationMethod:
         f"Foveation.method must be a name of {tuple(METHODS)} or an instance of "
         f"{', '.join(c.__name__ for c in METHODS.values())}, got {method!r}"
     )
+
+
+def method_label(method: FoveationMethod) -> str:
+    """The method's name and the parameters it sets apart from its class's defaults, as a
+    comparison labels its rows: "weier2016", "weier2016(widened_fovea='trace')"."""
+    default = type(method)()
+    changed = [
+        f"{f.name}={getattr(method, f.name)!r}"
+        for f in dataclasses.fields(method)
+        if getattr(method, f.name) != getattr(default, f.name)
+    ]
+    return method.name + (f"({', '.join(changed)})" if changed else "")
