@@ -79,8 +79,8 @@ class Weier2016:
             value it uses could not be read here).
         widened_fovea: what the gaze tracker's fallback does to this method when tracking
             degrades or is lost (`fovjax.devices.widen_thresholds`: the fovea widens towards the
-            whole display, at full quality). The paper has no fallback, so this is fovjax's
-            choice. "reproject" (default): the widening adds no traced pixels; the thresholds
+            whole display, at full quality). The fallback is the thesis's; how Weier's method
+            meets it is fovjax's choice. "reproject" (default): the widening adds no traced pixels; the thresholds
             stay the configured ones around the held gaze, and the full quality the widening
             asks for comes from the history: every pixel shows a full-resolution sample,
             reprojected where the history covers it and traced where not (after the reset at a
