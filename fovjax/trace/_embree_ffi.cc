@@ -1449,13 +1449,13 @@ struct SlotScratch {
 // Slots [begin, begin + n) as rays (o, d, active) and whether each is valid (a primary ray
 // `radiance` counts); the pixel each goes to in `target`. The index arithmetic in 32 bits (the
 // caller checks the sizes), then the positions and directions in loops over lanes.
-void SlotRays(const SlotLayout& L, int64_t begin, int64_t n, float* o, float* d, bool* active,
-              bool* valid, int32_t* target, SlotScratch& t) {
+void SlotRays(const SlotLayout& L, const int32_t* position, int64_t begin, int64_t n, float* o, float* d,
+              bool* active, bool* valid, int32_t* target, SlotScratch& t) {
   const uint32_t S = static_cast<uint32_t>(L.spp), W = static_cast<uint32_t>(L.w);
   const uint32_t H = static_cast<uint32_t>(L.h), per_eye = static_cast<uint32_t>(L.per_eye);
   const uint32_t hw = H * W;
   for (int64_t i = 0; i < n; ++i) {
-    const uint32_t slot = static_cast<uint32_t>(L.order[begin + i]);
+    const uint32_t slot = static_cast<uint32_t>(L.order[position[begin + i]]);
     const uint32_t eye = slot >= per_eye, within = slot - eye * per_eye;  // two eyes
     const uint32_t rank = S == 1 ? within : within / S, sample = within - rank * S;
     const uint32_t pixel = static_cast<uint32_t>(L.locality[rank]);
@@ -1543,6 +1543,29 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   std::unique_ptr<int32_t[]> traced(new int32_t[std::max<int64_t>(n, 1)]);
   std::unique_ptr<int32_t[]> target(new int32_t[std::max<int64_t>(n, 1)]);
   std::unique_ptr<bool[]> valid(new bool[std::max<int64_t>(n, 1)]);
+  // The order the slots are traced in: the live slots are two ascending runs (the mandatory
+  // samples, then the optional ones, each in locality order), merged so that neighbouring
+  // samples of both classes share packets; `traced_at[i]`: where slot i was traced. The sums
+  // below still go in slot order.
+  std::unique_ptr<int32_t[]> position(new int32_t[std::max<int64_t>(n, 1)]);
+  std::unique_ptr<int32_t[]> traced_at(new int32_t[std::max<int64_t>(n, 1)]);
+  {
+    const int32_t* o = L.order;
+    int64_t split = 1;
+    while (split < n && o[split] > o[split - 1]) ++split;
+    int64_t end = split + 1;
+    while (end < n && o[end] > o[end - 1]) ++end;
+    int64_t k = 0;
+    if (split < n && end >= n) {
+      int64_t a = 0, b = split;
+      while (a < split && b < n) position[k++] = static_cast<int32_t>(o[a] < o[b] ? a++ : b++);
+      while (a < split) position[k++] = static_cast<int32_t>(a++);
+      while (b < n) position[k++] = static_cast<int32_t>(b++);
+    } else {
+      for (; k < n; ++k) position[k] = static_cast<int32_t>(k);
+    }
+    for (int64_t i = 0; i < n; ++i) traced_at[position[i]] = static_cast<int32_t>(i);
+  }
   const NativeScene& t = *tree;
   const int64_t per_block = 1024;
   ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
@@ -1553,7 +1576,8 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     scratch.Reserve(per_block);
     if (!active) active.reset(new bool[per_block]);
     const int64_t begin = blk * per_block, m = std::min(n, begin + per_block) - begin;
-    SlotRays(L, begin, m, o.data(), d.data(), active.get(), valid.get() + begin, target.get() + begin, scratch);
+    SlotRays(L, position.get(), begin, m, o.data(), d.data(), active.get(), valid.get() + begin,
+             target.get() + begin, scratch);
     BlockRays block;
     block.n = m;
     WhittedBlock(t, s, o.data(), d.data(), active.get(), block, radiance.get() + 3 * begin,
@@ -1576,12 +1600,13 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     const int32_t first = static_cast<int32_t>(eye * hw), last = static_cast<int32_t>(first + hw);
     int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
     for (int64_t i = 0; i < n; ++i) {
-      const int32_t px = target[i];
+      const int64_t k = traced_at[i];
+      const int32_t px = target[k];
       if (px < first || px >= last) continue;
-      const float* rgb = radiance.get() + 3 * i;
-      primary += valid[i];
-      shadow += traced[i] >> 8;
-      reflection += traced[i] & 255;
+      const float* rgb = radiance.get() + 3 * k;
+      primary += valid[k];
+      shadow += traced[k] >> 8;
+      reflection += traced[k] & 255;
       if (!(std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]))) {
         eye_bad[px - first] = true;
         ++n_bad;
