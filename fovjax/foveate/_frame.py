@@ -48,7 +48,7 @@ from ._config import max_region_spp, region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import FOVEA_BLEND_DEG, blur_and_blend, fill_blanks, gaussian_taps
 from ._lod import lod_needed, with_levels
-from ._positions import _per_sample_uniform, positions_at
+from ._positions import _per_sample_uniform, key_words, positions_at
 from ._sampling import (
     MANDATORY,
     OPTIONAL,
@@ -270,7 +270,7 @@ def _native_selection(ecc, key, *, foveation, budget):
     spp = foveation.spp
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
     keys = sampling_keys(key)
-    key_data = jax.random.key_data(keys) if jnp.issubdtype(keys.dtype, jax.dtypes.prng_key) else keys
+    key_data = key_words(keys)
     classes, order, counts, mask, n, by_region = native_select_samples(
         region,
         foveation.probability(ecc),
@@ -474,10 +474,13 @@ def _camera_rows(cameras) -> Float[Array, "2 16"]:
     return jnp.stack(rows)
 
 
-def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int):
+def traced_sums(
+    scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int, classes=None, scale=None
+):
     """Stages 3 and 4a without image tiles: the selected samples traced and summed into their
     pixels; a `ChunkedRadiance` whose `consumed` is (sums (2·H·W, 3), bad pixel (2·H·W), bad
-    samples), as `trace_selection` with `sample_adder`'s `consume` gives it. Where
+    samples). `classes`, `scale`: as `trace_selection`'s. Chunk by chunk, each chunk's samples go
+    to their pixels as it is traced (`sample_adder`: no array of every slot's radiance). Where
     `slots_in_one_call` holds and the program runs on a CPU, one call of the native handler
     (`native_whitted_slots`) makes every live slot's ray, traces it and adds it to its pixel:
     the chunk loop's per-chunk operations are not run. Its derivatives are the chunked JAX
@@ -489,10 +492,22 @@ def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budg
 
     def chunked(scene, cameras, order, n_traced):
         s = sel._replace(order=order, n_traced=n_traced)
+        # The sums start from zeros made from the slot count (a non-negative int, so its minimum
+        # with 0 is 0): a constant zero array would be hoisted to the program's start and held
+        # through sampling (30 MiB at 2×1280×1024).
         consume = (empty_sums(h, w, jnp.minimum(n_traced, 0)), sample_adder(s, spp=spp, h=h, w=w, size=size))
         positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
         out = trace_selection(
-            scene, bvh, cameras, positions, s, config=config, budget=budget, consume=consume
+            scene,
+            bvh,
+            cameras,
+            positions,
+            s,
+            config=config,
+            budget=budget,
+            classes=classes,
+            scale=scale,
+            consume=consume,
         )
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
@@ -502,12 +517,7 @@ def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budg
 
         with jax.ensure_compile_time_eval():
             grid = np.asarray(stratified_offsets(spp), np.float32)
-        if jitter_key is None:
-            key_data = jnp.zeros(2, jnp.uint32)
-        elif jnp.issubdtype(jitter_key.dtype, jax.dtypes.prng_key):
-            key_data = jax.random.key_data(jitter_key)
-        else:
-            key_data = jnp.asarray(jitter_key, jnp.uint32)
+        key_data = jnp.zeros(2, jnp.uint32) if jitter_key is None else key_words(jitter_key)
         offset = config.ray_offset * scene_scale(scene)
         offset = jax.lax.stop_gradient(jnp.asarray(offset, jnp.float32).reshape(1))
         sums, bad_pixel, counts = native_whitted_slots(
@@ -528,7 +538,7 @@ def traced_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budg
         )
         return (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
 
-    if not slots_in_one_call(config, jitter_key, None, None, h, w, spp):
+    if not slots_in_one_call(config, jitter_key, classes, scale, h, w, spp):
         (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
     else:
 
@@ -829,16 +839,11 @@ def foveated_stereo(
         classes = with_levels(classes, foveation, config, lod, bvh, cameras)
         scale = scene_scale(eqx.tree_at(lambda a: a.vertices, scene, scene.vertices[: lod.num_vertices]))
     # --- end geometry level of detail ---
-    consume = None
-    if not tiles:
-        # Each chunk's samples go to their pixels as the chunk is traced (no array of every
-        # slot's radiance). The sums start from zeros made from the slot count (a non-negative
-        # int, so its minimum with 0 is 0): a constant zero array would be hoisted to the
-        # program's start and held through sampling (30 MiB at 2×1280×1024).
-        zero = jnp.minimum(sel.n_traced, 0)
-        consume = (empty_sums(h, w, zero), sample_adder(sel, spp=spp, h=h, w=w, size=size))
-    if consume is not None and slots_in_one_call(config, frame_key, classes, scale, h, w, spp):
-        traced = traced_sums(scene, bvh, cameras, frame_key, sel, config=config, budget=budget)
+    summed = not tiles  # the samples go to their pixels as they are traced (`traced_sums`)
+    if summed:
+        traced = traced_sums(
+            scene, bvh, cameras, frame_key, sel, config=config, budget=budget, classes=classes, scale=scale
+        )
     else:
         traced = trace_selection(
             scene,
@@ -851,12 +856,11 @@ def foveated_stereo(
             tiles=tiles,
             classes=classes,
             scale=scale,
-            consume=consume,
         )
     # The pixel sums start from zeros made from a count of the trace (a non-negative int, so its
     # minimum with 0 is 0): a constant zero array would be hoisted to the program's start and
     # held through sampling and tracing (30 MiB of the temp block's peak at 2×1280×1024).
-    if consume is not None:
+    if summed:
         prefill, n_bad, bad_pixel = pixel_means(traced.consumed, n, h=h, w=w, bad_color=config.bad_color)
     else:
         zero = jnp.minimum(traced.primary, 0)
@@ -881,7 +885,7 @@ def foveated_stereo(
     # Under the rule "either" every block's top-left is mandatory, so with no sample dropped
     # (a budget of every sample) no block is left empty: the pull-push fill is not compiled.
     complete = foveation.rule == "either" and budget >= every
-    if consume is not None:
+    if summed:
         image = fill_and_blur_sums(
             traced.consumed,
             n,

@@ -63,11 +63,16 @@ def threefry_xor(data: UInt[Array, " 2"], lo: UInt[Array, "*batch"]) -> UInt[Arr
     return x0 ^ x1
 
 
+def key_words(key) -> Array:
+    """A PRNG key's uint32 words: `jax.random.key_data` of a typed key, a raw key as it is."""
+    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    return jnp.asarray(data, jnp.uint32)
+
+
 def uniform_at(key, index: Int[Array, "*batch"]) -> Float[Array, "*batch"]:
     """`jax.random.uniform(key, shape).reshape(-1)[index]` (float32 in [0, 1)) for any shape of
     fewer than 2**31 elements, computed at `index` only. Only where `_per_sample_uniform(key)`."""
-    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
-    data = jnp.asarray(data, jnp.uint32)
+    data = key_words(key)
     lo = jnp.asarray(index, jnp.uint32).reshape(-1)
     bits = threefry_xor(data, lo)  # counter (hi 0, lo)
     mantissa = (bits >> np.uint32(9)) | np.uint32(0x3F800000)  # [1, 2)
