@@ -15,7 +15,11 @@ peers, timed on their own call alone, on arrays prepared beforehand:
   one call and "2 threads" is the rays split in two halves, one call per Python thread;
 - Mitsuba 3 (`llvm_ad_rgb`: `scene.ray_intersect_preliminary` / `scene.ray_test`, evaluated with
   `dr.eval`), which uses every core; optional (`pip install 'fovjax[bench]'`; it also needs the
-  system's LLVM shared library >= 16, from Debian's package libllvm19).
+  system's LLVM shared library >= 16, from Debian's package libllvm19). Its default scene, as a
+  user gets it, builds Embree's BVH without Embree's robust (watertight) mode; fovjax's Embree
+  scenes use it (a ray through a shared edge or vertex never leaks: `tests/test_trace_native.py`),
+  so "Mitsuba 3 robust" (`--peers mitsuba_robust`, on by default) is the same call on a scene
+  loaded with `embree_use_robust_intersections`, the like-for-like peer.
 Then the ratios of the first backend (default "auto") to each peer, compile time, the hit/miss
 agreement of every backend with the JAX traversal (the reference), and with Embree and Mitsuba.
 "paired" is first backend / Embree-1 again, as the median over --repeats pairs of calls made back to back
@@ -147,7 +151,7 @@ class EmbreePeer:
 class MitsubaPeer:
     name = "Mitsuba"
 
-    def __init__(self, vertices, faces):
+    def __init__(self, vertices, faces, robust=False):
         import drjit as dr
         import mitsuba as mi
 
@@ -164,7 +168,7 @@ class MitsubaPeer:
         params["vertex_positions"] = mi.Float(np.ascontiguousarray(vertices, np.float32).ravel())
         params["faces"] = mi.UInt32(np.ascontiguousarray(faces, np.uint32).ravel())
         params.update()
-        self.scene = mi.load_dict({"type": "scene", "mesh": mesh})
+        self.scene = mi.load_dict({"type": "scene", "embree_use_robust_intersections": robust, "mesh": mesh})
         self.threads = dr.thread_count()
 
     def _rays(self, start, dirs, far):
@@ -205,14 +209,16 @@ def load_peers(vertices, faces, want):
             peers["embree"] = EmbreePeer(vertices, faces)
         except ImportError:
             print("Embree: skipped (embreex is not installed: pip install 'fovjax[embree]')")
-    if "mitsuba" in want:
+    if "mitsuba" in want or "mitsuba_robust" in want:
         try:
             import mitsuba  # noqa: F401
         except ImportError:
             print("Mitsuba: skipped (mitsuba is not installed: pip install 'fovjax[bench]')")
         else:
             try:
-                peers["mitsuba"] = MitsubaPeer(vertices, faces)
+                for name, robust in (("mitsuba", False), ("mitsuba_robust", True)):
+                    if name in want:
+                        peers[name] = MitsubaPeer(vertices, faces, robust=robust)
             except Exception as exc:  # drjit found no LLVM: raised as ImportError by set_variant
                 print(
                     f"Mitsuba: skipped, its {MITSUBA_VARIANT} variant needs the system's LLVM shared "
@@ -275,6 +281,7 @@ def throughput_tables(rows: list[dict]) -> list[dict]:
             ("embree1", "Embree 1 thread"),
             ("embree2", "Embree 2 threads"),
             ("mitsuba", "Mitsuba 3"),
+            ("mitsuba_robust", "Mitsuba 3 robust"),
         )
         if k in rows[0]
     ]
@@ -309,7 +316,12 @@ def main(argv=None):
     ap.add_argument("--height", type=int, default=1024)
     ap.add_argument("--random", type=int, default=1 << 18, help="number of incoherent rays")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--peers", nargs="*", default=["embree", "mitsuba"], choices=["embree", "mitsuba"])
+    ap.add_argument(
+        "--peers",
+        nargs="*",
+        default=["embree", "mitsuba", "mitsuba_robust"],
+        choices=["embree", "mitsuba", "mitsuba_robust"],
+    )
     ap.add_argument(
         "--rows", nargs="+", default=None, help="subset of: primary random shadow shadow8x8 shadow_sorted"
     )
@@ -356,8 +368,9 @@ def main(argv=None):
             f"(peers' scenes {peer_build:.2f} s), {build['num_nodes']:,} 4-wide nodes, depth "
             f"{build['depth']}, table {bvh.nbytes / 2**20:.1f} MiB"
         )
-        if "mitsuba" in peers:
-            print(f"  Mitsuba {MITSUBA_VARIANT} on {peers['mitsuba'].threads} thread(s)")
+        if "mitsuba" in peers or "mitsuba_robust" in peers:
+            any_mitsuba = peers.get("mitsuba") or peers["mitsuba_robust"]
+            print(f"  Mitsuba {MITSUBA_VARIANT} on {any_mitsuba.threads} thread(s)")
         (po, pd), (ro, rd) = scene_rays(scene, args.width, args.height, args.random, args.seed)
         h, w = args.height, args.width
         so, sd, s_tmin, s_tmax, seen = shadow_rays(scene, po, pd, bvh)
@@ -434,11 +447,13 @@ def main(argv=None):
             rows.append(r)
             line = f"  {query:11s} {kind:7s} {r['traversal']:11s} {n:>9,} rays "
             line += " ".join(f"{b} {r[b]:6.2f}" for b in args.backends)
-            for label, title in (("embree1", "Embree-1"), ("embree2", "Embree-2"), ("mitsuba", "Mitsuba")):
+            titles = (("embree1", "Embree-1"), ("embree2", "Embree-2"), ("mitsuba", "Mitsuba"))
+            for label, title in (*titles, ("mitsuba_robust", "Mitsuba-robust")):
                 if label in r:
                     line += f"  {title} {r[label]:6.2f}"
             line += " Mrays/s; "
-            for label, title in (("embree1", "E1"), ("embree2", "E2"), ("mitsuba", "Mi")):
+            short = (("embree1", "E1"), ("embree2", "E2"), ("mitsuba", "Mi"), ("mitsuba_robust", "MiR"))
+            for label, title in short:
                 if label in r:
                     line += f" {first}/{title} {r[first] / r[label]:5.2f}"
             if "paired_e1" in r:
