@@ -34,7 +34,9 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   `--integrator` as `RenderConfig.integrator` (the native Whitted loop or the JAX integrator;
   "auto", the default, is the native one on this CPU where the handler builds): the frame's
   `stats.render_seconds` (the compiled program's wall time) and the wall time around the call;
-  compile times printed apart.
+  compile times printed apart. fovjax's Embree scenes are watertight (Embree's robust mode), the
+  Mitsuba scene here is not (Mitsuba's default); `--not-watertight` renders fovjax's frames
+  without it too (`BVH.with_watertight(False)`).
 
 After the warm-ups the three frames are timed in turn, --repeats rounds, so that all three see the
 same momentary load of a shared machine; each row also gives the median wall time of the whole
@@ -644,6 +646,12 @@ def main(argv=None) -> dict | None:
     )
     ap.add_argument("--fovea", type=float, nargs=2, default=[5.0, 10.0], metavar=("FOVEA", "PERIPHERY"))
     ap.add_argument("--no-foveated", action="store_true", help="skip the foveated frame")
+    ap.add_argument(
+        "--not-watertight",
+        action="store_true",
+        help="fovjax's Embree scenes without Embree's robust mode (BVH.with_watertight(False)), as "
+        "Mitsuba builds its scene here",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write every figure to this JSON file")
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.max_depth < 0 or args.width < 1 or args.height < 1:
@@ -674,6 +682,8 @@ def main(argv=None) -> dict | None:
     # What fovjax.render_stereo renders: the scene's arrays with the config's background.
     arrays = scene_arrays(scene, background=config.background)
     bvh = bvh_for(scene, None)
+    if args.not_watertight:
+        bvh = bvh.with_watertight(False)
     t0 = time.perf_counter()
     offset = config.ray_offset * float(scene_scale(arrays))
     integrator = MitsubaWhitted(mi, dr, arrays, config, offset)
@@ -728,6 +738,7 @@ def main(argv=None) -> dict | None:
         "backend": args.backend,
         "hits": args.hits,
         "integrator": args.integrator,
+        "watertight": not args.not_watertight,
         "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
         "gaze": gaze,
         "fovea_deg": args.fovea,
@@ -770,6 +781,7 @@ def frame_tables(record: dict) -> list[dict]:
                 f"{record['max_depth']}, backend {record['backend']}, "
                 f"hits {record.get('hits', 'recomputed')}, "
                 f"integrator {record.get('integrator', 'jax (before the native integrator)')}, "
+                f"{'' if record.get('watertight', True) else 'fovjax not watertight, '}"
                 f"GLIBC_TUNABLES {record.get('glibc_tunables') or 'unset'}, "
                 f"foveated {record['fovea_deg']}° "
                 f"at gaze {record['gaze']}; PSNR of Mitsuba's frame against fovjax's full frame "

@@ -226,6 +226,47 @@ def test_vmap_gradients_and_the_scene_cache():
     np.testing.assert_array_equal(np.asarray(again.prim), each[0])
 
 
+def test_not_watertight_scenes():
+    """`BVH.with_watertight(False)`: Embree's default intersector, answering as the JAX traversal
+    does up to ties (another face at the same distance) and to rays that graze an edge or a
+    vertex; its own cached scene beside the watertight one (both freed with the BVH's host id);
+    a frame through the native integrator the same image up to such rays; the flag checked,
+    kept by `merge_bvhs`, and read by no other backend."""
+    need_native()
+    V, F = _soup(5, 300)
+    bvh = build_bvh(vertices=V, faces=F, cache=False)
+    fast = bvh.with_watertight(False)
+    assert bvh.watertight and not fast.watertight and fast.host_id == bvh.host_id
+    with pytest.raises(TypeError, match="(?s)watertight.*'no'"):  # the parameter and the value
+        bvh.with_watertight("no")
+    assert not merge_bvhs([fast, build_bvh(vertices=V[:30], faces=F[:10], cache=False)]).watertight
+    rng = np.random.default_rng(6)
+    o = rng.uniform(-3, 3, (4000, 3)).astype(np.float32)
+    d = rng.normal(size=(4000, 3)).astype(np.float32)
+    ref = closest_hit(bvh, o, d, backend="jax")
+    for packet in (None, 16):
+        hit = closest_hit(fast, o, d, backend="embree", packet=packet)
+        assert (np.asarray(hit.prim) >= 0).mean() > 0.2  # the rays do meet the soup
+        same = (np.asarray(hit.prim) >= 0) == (np.asarray(ref.prim) >= 0)
+        assert same.mean() >= 0.9999
+        both = same & (np.asarray(ref.prim) >= 0)
+        np.testing.assert_allclose(np.asarray(hit.t)[both], np.asarray(ref.t)[both], rtol=1e-5, atol=1e-6)
+        blocked = np.asarray(occluded(fast, o, d, 1.5, backend="embree", packet=packet))
+        assert (blocked == np.asarray(occluded(bvh, o, d, 1.5, backend="jax"))).mean() >= 0.9999
+    np.testing.assert_array_equal(  # the JAX traversal does not read the flag
+        np.asarray(closest_hit(fast, o, d, backend="jax").prim), np.asarray(ref.prim)
+    )
+    closest_hit(bvh, o, d, backend="embree")
+    assert release_embree_scenes(int(bvh.host_id)) == 2  # the watertight scene and the other
+
+    scene = fovjax.scenes.cornell_box()
+    rig = fovjax.render.StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=24, eye_height=16)
+    scene_bvh = build_bvh(scene)
+    tight = fovjax.render_stereo(scene, rig, bvh=scene_bvh).image
+    loose = fovjax.render_stereo(scene, rig, bvh=scene_bvh.with_watertight(False)).image
+    assert np.mean(np.all(np.abs(np.asarray(tight) - np.asarray(loose)) < 1e-4, axis=-1)) >= 0.99
+
+
 def test_every_frame_program_lowers_for_cuda():
     """Each frame program (full, foveated, an eval batch) exported for CUDA, on this CPU: the
     backend is chosen per platform inside the program, so the CUDA lowering carries no CPU-only

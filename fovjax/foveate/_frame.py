@@ -535,6 +535,7 @@ def traced_sums(
             max_depth=config.max_depth,
             recompute=config.hits == "recomputed",
             packets=config.packet is not None,
+            robust=bvh.watertight,
         )
         return (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
 

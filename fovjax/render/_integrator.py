@@ -655,6 +655,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             recompute=config.hits == "recomputed",
             packets=config.packet is not None,
             tile_width=_tile_width(batch, config),
+            robust=bvh.watertight,
         )
         n_shadow = jnp.sum(jnp.right_shift(traced, 8), dtype=jnp.int32)
         n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)

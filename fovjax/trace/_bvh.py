@@ -10,6 +10,7 @@ one row, whether the ray is at a node or at a triangle (perf-notes: gathers domi
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -62,6 +63,22 @@ class BVH(eqx.Module):
     # A merged BVH: the first face of each level's tree, then the face count (native backends
     # build one scene per tree from it); None: one tree.
     first_face: Int[np.ndarray | Array, " L1"] | None = None
+    # The Embree backend's intersector (`with_watertight`): robust, so that a ray through a shared
+    # edge or vertex never passes between the faces, or Embree's default, faster one.
+    watertight: bool = eqx.field(static=True, default=True)
+
+    def with_watertight(self, watertight: bool) -> BVH:
+        """This BVH with the Embree backend's intersector chosen (a static setting: one program
+        each). `True` (the default, what `build_bvh` makes): Embree's robust mode, a watertight
+        triangle test and conservative box tests, so a ray through an edge or vertex two faces
+        share hits one of them (`tests/test_trace_native.py`). `False`: Embree's default
+        intersector, as Mitsuba 3 builds its scenes unless asked
+        (`embree_use_robust_intersections`): faster (`benchmarks/trace_throughput.py
+        --not-watertight`), and a ray that grazes such an edge or vertex may miss both faces, a
+        pinhole of light in a closed mesh. The JAX traversal and Warp do not read it."""
+        if not isinstance(watertight, bool):
+            raise TypeError(f"watertight must be True or False, got {watertight!r}")
+        return dataclasses.replace(self, watertight=watertight)
 
     def tree_faces(self) -> Int[np.ndarray | Array, " L1"]:
         """The first face of each tree and the face count: [0, F] for a single tree."""
@@ -255,6 +272,7 @@ def merge_bvhs(bvhs: Iterable[BVH]) -> BVH:
         stack_size=max(b.stack_size for b in bvhs),
         roots=node_off.astype(np.int32),
         first_face=np.append(tri_off, sum(tris)).astype(np.int32),
+        watertight=all(b.watertight for b in bvhs),
     )
 
 

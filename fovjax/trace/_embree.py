@@ -87,11 +87,11 @@ def embree_ffi_query(bvh: BVH, o, d, tmin, tmax, level, *, any_hit: bool, packet
         jnp.asarray(bvh.faces, jnp.int32),
         jnp.asarray(bvh.tree_faces(), jnp.int32),
     )
-    return _ffi_call(bool(any_hit), int(packets))(o, d, tmin, tmax, level, *scene)
+    return _ffi_call(bool(any_hit), int(packets), bool(bvh.watertight))(o, d, tmin, tmax, level, *scene)
 
 
 @functools.cache
-def _ffi_call(any_hit: bool, packets: int):
+def _ffi_call(any_hit: bool, packets: int, robust: bool):
     """The FFI call for one query kind, with a batching rule: under vmap the frames' rays are
     broadcast to the batch and traced in one call against the one (unbatched) scene."""
     from ._native import TARGET
@@ -114,6 +114,7 @@ def _ffi_call(any_hit: bool, packets: int):
             first_face,
             any_hit=np.int32(any_hit),
             packet=np.int32(packets),
+            robust=np.int32(robust),
         )
 
     @call.def_vmap
@@ -200,6 +201,7 @@ def embree_whitted(
     recompute: bool,
     packets: bool,
     tile_width: int = 0,
+    robust: bool = True,
 ):
     """The Whitted integrator's primal through the Embree FFI handler, on flat rays: (radiance
     (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
@@ -208,7 +210,8 @@ def embree_whitted(
     (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
     where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
     one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
-    pixels (0: a flat list). Not differentiable (the caller's custom JVP is)."""
+    pixels (0: a flat list); `robust`: the BVH's `watertight`. Not differentiable (the caller's
+    custom JVP is)."""
     from ._native import WHITTED_TARGET, embree_status
 
     status = embree_status()
@@ -235,6 +238,7 @@ def embree_whitted(
         recompute=np.int32(recompute),
         packets=np.int32(packets),
         tile_width=np.int32(tile_width),
+        robust=np.int32(robust),
     )
 
 
@@ -254,6 +258,7 @@ def native_whitted_slots(
     max_depth: int,
     recompute: bool,
     packets: bool,
+    robust: bool = True,
 ):
     """A foveated frame's live slots made into rays, traced through the Whitted integrator and
     summed into their pixels, in one call of the handler's `WhittedSlots` (CPU only): (sums
@@ -262,9 +267,9 @@ def native_whitted_slots(
     uint32 (threefry2x32; unused without `jitter`); `locality` each locality rank's pixel;
     `grid` the sub-samples' cell centres (S, 2); `cameras` (2, 16) per eye: position, rotation
     (row-major), tan(vfov / 2), aspect, offset. `operands`: the scene's (`whitted_operands`) with
-    the ray offset last. What `fovjax.foveate._frame.trace_selection` with the native integrator
-    and `sample_adder` compute, in their order. Not differentiable (the caller's custom JVP
-    is)."""
+    the ray offset last; `robust`: the BVH's `watertight`. What
+    `fovjax.foveate._frame.trace_selection` with the native integrator and `sample_adder`
+    compute, in their order. Not differentiable (the caller's custom JVP is)."""
     from ._native import SLOTS_TARGET, embree_status
 
     status = embree_status()
@@ -295,6 +300,7 @@ def native_whitted_slots(
         max_depth=np.int32(max_depth),
         recompute=np.int32(recompute),
         packets=np.int32(packets),
+        robust=np.int32(robust),
     )
 
 

@@ -162,7 +162,10 @@ struct NativeScene {
 };
 
 std::mutex g_scenes_mutex;
-std::unordered_map<int32_t, std::shared_ptr<NativeScene>> g_scenes;
+// Keyed by the BVH's host id and whether its trees are robust (`SceneKey`).
+std::unordered_map<int64_t, std::shared_ptr<NativeScene>> g_scenes;
+
+int64_t SceneKey(int32_t id, bool robust) { return static_cast<int64_t>(id) * 2 + (robust ? 1 : 0); }
 
 uint64_t Mix(uint64_t h, uint64_t x) {
   h ^= x + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
@@ -185,8 +188,10 @@ uint64_t Fingerprint(const float* v, int64_t nv, const int32_t* f, int64_t nf, c
   return h;
 }
 
+// `robust`: Embree's robust mode (a watertight triangle test and conservative box tests; a ray
+// through a shared edge or vertex hits one of the faces), else its default, faster intersector.
 std::shared_ptr<NativeScene> Build(const float* v, int64_t nv, const int32_t* f, int64_t nf,
-                                   const int32_t* off, int64_t noff, uint64_t fingerprint,
+                                   const int32_t* off, int64_t noff, uint64_t fingerprint, bool robust,
                                    std::string* error) {
   auto scene = std::make_shared<NativeScene>();
   scene->fingerprint = fingerprint;
@@ -209,7 +214,7 @@ std::shared_ptr<NativeScene> Build(const float* v, int64_t nv, const int32_t* f,
       return nullptr;
     }
     RTCScene s = g_api.rtcNewScene(g_device);
-    g_api.rtcSetSceneFlags(s, kSceneRobust);
+    g_api.rtcSetSceneFlags(s, robust ? kSceneRobust : 0);
     g_api.rtcSetSceneBuildQuality(s, kBuildQualityHigh);
     if (count > 0) {
       RTCGeometry g = g_api.rtcNewGeometry(g_device, kGeometryTriangle);
@@ -231,15 +236,16 @@ std::shared_ptr<NativeScene> Build(const float* v, int64_t nv, const int32_t* f,
   return scene;
 }
 
-std::shared_ptr<NativeScene> GetScene(int32_t id, const float* v, int64_t nv, const int32_t* f,
+std::shared_ptr<NativeScene> GetScene(int32_t id, bool robust, const float* v, int64_t nv, const int32_t* f,
                                       int64_t nf, const int32_t* off, int64_t noff,
                                       std::string* error) {
   uint64_t fp = Fingerprint(v, nv, f, nf, off, noff);
+  const int64_t key = SceneKey(id, robust);
   std::lock_guard<std::mutex> lock(g_scenes_mutex);
-  auto it = g_scenes.find(id);
+  auto it = g_scenes.find(key);
   if (it != g_scenes.end() && it->second->fingerprint == fp) return it->second;
-  auto scene = Build(v, nv, f, nf, off, noff, fp, error);
-  if (scene) g_scenes[id] = scene;
+  auto scene = Build(v, nv, f, nf, off, noff, fp, robust, error);
+  if (scene) g_scenes[key] = scene;
   return scene;
 }
 
@@ -470,7 +476,7 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
                  ffi::Buffer<ffi::S32> faces, ffi::Buffer<ffi::S32> first_face,
                  ffi::ResultBuffer<ffi::F32> t, ffi::ResultBuffer<ffi::S32> prim,
                  ffi::ResultBuffer<ffi::F32> u, ffi::ResultBuffer<ffi::F32> v, int32_t any_hit,
-                 int32_t packet) {
+                 int32_t packet, int32_t robust) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   // Every array is read flat, so a batch under vmap ("expand_dims") is one call for all frames.
   const int64_t n = static_cast<int64_t>(tmin.element_count());
@@ -488,7 +494,7 @@ ffi::Error Query(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffe
         "fovjax Embree query: one scene per call (a BVH batched under vmap is not supported)");
   }
   std::string error;
-  auto scene = GetScene(scene_id.typed_data()[0], vertices.typed_data(),
+  auto scene = GetScene(scene_id.typed_data()[0], robust != 0, vertices.typed_data(),
                         static_cast<int64_t>(vertices.element_count() / 3), faces.typed_data(),
                         static_cast<int64_t>(faces.element_count() / 3), first_face.typed_data(),
                         static_cast<int64_t>(first_face.element_count()), &error);
@@ -580,7 +586,7 @@ bool CheckLayout(std::string* error) {
   int32_t f[3] = {0, 1, 2};
   int32_t off[2] = {0, 1};
   std::string build_error;
-  auto s = Build(v, 3, f, 1, off, 2, 0, &build_error);
+  auto s = Build(v, 3, f, 1, off, 2, 0, true, &build_error);
   if (!s) {
     *error = build_error;
     return false;
@@ -971,7 +977,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
   scene_id, bvh_vertices, bvh_faces, first_face, vertices, faces, face_material, normals, uvs,        \
       materials, texture, texels, texture_shape, lights, light_kind, ambient, environment, offset
 
-ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute,
+ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, int32_t robust,
                      std::atomic<int>* out_of_range, ShadeScene* scene,
                      std::shared_ptr<NativeScene>* tree_out) {
   ShadeScene& s = *scene;
@@ -1022,7 +1028,7 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute,
   s.max_depth = max_depth;
   s.recompute = recompute != 0;
   std::string error;
-  *tree_out = GetScene(scene_id.typed_data()[0], bvh_vertices.typed_data(),
+  *tree_out = GetScene(scene_id.typed_data()[0], robust != 0, bvh_vertices.typed_data(),
                        static_cast<int64_t>(bvh_vertices.element_count() / 3), bvh_faces.typed_data(),
                        static_cast<int64_t>(bvh_faces.element_count() / 3), first_face.typed_data(),
                        static_cast<int64_t>(first_face.element_count()), &error);
@@ -1033,7 +1039,7 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute,
 ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
                    ffi::Buffer<ffi::PRED> active, FOVJAX_SCENE_PARAMS, ffi::ResultBuffer<ffi::F32> total,
                    ffi::ResultBuffer<ffi::S32> traced, int32_t max_depth, int32_t recompute,
-                   int32_t packets, int32_t tile_width) {
+                   int32_t packets, int32_t tile_width, int32_t robust) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   const int64_t n = static_cast<int64_t>(active.element_count());
   if (origins.element_count() != 3 * static_cast<size_t>(n) ||
@@ -1045,7 +1051,7 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   std::atomic<int> out_of_range{0};
   ShadeScene s;
   std::shared_ptr<NativeScene> tree;
-  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, &out_of_range, &s, &tree);
+  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, &out_of_range, &s, &tree);
   if (status.failure()) return status;
   const NativeScene& t = *tree;
   const float* o = origins.typed_data();
@@ -1510,7 +1516,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
                         ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
                         ffi::ResultBuffer<ffi::S32> counts_out, int32_t spp, int32_t height,
                         int32_t width, int32_t jitter, int32_t max_depth, int32_t recompute,
-                        int32_t packets) {
+                        int32_t packets, int32_t robust) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   const int64_t hw = static_cast<int64_t>(height) * width, per_eye = hw * spp;
   int64_t cells = 1;
@@ -1527,7 +1533,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   std::atomic<int> out_of_range{0};
   ShadeScene s;
   std::shared_ptr<NativeScene> tree;
-  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, &out_of_range, &s, &tree);
+  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, &out_of_range, &s, &tree);
   if (status.failure()) return status;
   const int64_t n = std::max<int64_t>(
       0, std::min<int64_t>(n_live.typed_data()[0], static_cast<int64_t>(order.element_count())));
@@ -1824,7 +1830,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeQuery, Query,
                                   .Ret<ffi::Buffer<ffi::F32>>()  // u
                                   .Ret<ffi::Buffer<ffi::F32>>()  // v
                                   .Attr<int32_t>("any_hit")
-                                  .Attr<int32_t>("packet"));  // 0, 1 or -1 (where coherent)
+                                  .Attr<int32_t>("packet")  // 0, 1 or -1 (where coherent)
+                                  .Attr<int32_t>("robust"));
 
 // The Whitted handlers' scene operands (`FOVJAX_SCENE_PARAMS`), appended to a binding.
 template <typename Binding>
@@ -1861,7 +1868,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,
                                   .Attr<int32_t>("max_depth")
                                   .Attr<int32_t>("recompute")
                                   .Attr<int32_t>("packets")
-                                  .Attr<int32_t>("tile_width"));  // rays an image this wide, 0
+                                  .Attr<int32_t>("tile_width")  // rays an image this wide, 0
+                                  .Attr<int32_t>("robust"));
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
                               ffi::Ffi::Bind()
@@ -1902,7 +1910,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
                                   .Attr<int32_t>("jitter")
                                   .Attr<int32_t>("max_depth")
                                   .Attr<int32_t>("recompute")
-                                  .Attr<int32_t>("packets"));
+                                  .Attr<int32_t>("packets")
+                                  .Attr<int32_t>("robust"));
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxFillAndBlur, FillAndBlur,
                               ffi::Ffi::Bind()
@@ -1996,7 +2005,7 @@ int fovjax_embree_release(int32_t id) {
     g_scenes.clear();
     return n;
   }
-  return static_cast<int>(g_scenes.erase(id));
+  return static_cast<int>(g_scenes.erase(SceneKey(id, true)) + g_scenes.erase(SceneKey(id, false)));
 }
 
 int fovjax_embree_cached_scenes() {
