@@ -34,6 +34,14 @@
 
 namespace ffi = xla::ffi;
 
+// A plain loop over lanes or pixels built for the widest vector unit the CPU has (chosen when
+// the library loads), which the compiler vectorises.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define FOVJAX_VECTOR_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define FOVJAX_VECTOR_CLONES
+#endif
+
 namespace {
 
 // ---- Embree 4 declarations (from the documented C API) ------------------------------------------
@@ -358,45 +366,113 @@ void Single(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, boo
   }
 }
 
-// Rays [begin, begin + W) as one packet (lanes past `end` or invalid are masked off). A packet
-// whose rays use several trees is traced once per tree, each time with that tree's lanes.
+// Rays [begin, begin + count) loaded into a packet's lanes (`f`: the RayW fields, each `w` lanes,
+// in their order), as `Valid` and `SetRay1` read them: each lane's validity in `valid` (-1 / 0),
+// an invalid or missing lane made empty (tfar -inf, a unit direction). Returns the valid lanes.
+// One pass over the lanes with no branch, which the compiler vectorises (a lane at a time, this
+// and the coherence test cost a third of a shadow-ray call).
+FOVJAX_VECTOR_CLONES
+int LoadLanes(const float* __restrict__ o, const float* __restrict__ d, const float* __restrict__ tmin,
+              const float* __restrict__ tmax, int count, int w, float* __restrict__ f,
+              int* __restrict__ valid) {
+  float* __restrict__ ox = f;
+  float* __restrict__ oy = f + w;
+  float* __restrict__ oz = f + 2 * w;
+  float* __restrict__ tn = f + 3 * w;
+  float* __restrict__ dx = f + 4 * w;
+  float* __restrict__ dy = f + 5 * w;
+  float* __restrict__ dz = f + 6 * w;
+  float* __restrict__ time = f + 7 * w;
+  float* __restrict__ tf = f + 8 * w;
+  unsigned* __restrict__ mask = reinterpret_cast<unsigned*>(f + 9 * w);
+  unsigned* __restrict__ id = mask + w;
+  unsigned* __restrict__ flags = mask + 2 * w;
+  int live = 0;
+  for (int k = 0; k < count; ++k) {
+    const float x = o[3 * k], y = o[3 * k + 1], z = o[3 * k + 2];
+    const float a = d[3 * k], b = d[3 * k + 1], c = d[3 * k + 2];
+    const float lo = tmin[k], hi = tmax[k];
+    const bool finite = std::isfinite(x) & std::isfinite(y) & std::isfinite(z) & std::isfinite(a) &
+                        std::isfinite(b) & std::isfinite(c);
+    const bool ok = finite & ((a != 0.0f) | (b != 0.0f) | (c != 0.0f)) & (hi > lo) & !std::isnan(lo);
+    ox[k] = ok ? x : 0.0f;
+    oy[k] = ok ? y : 0.0f;
+    oz[k] = ok ? z : 0.0f;
+    tn[k] = ok ? lo : 0.0f;
+    dx[k] = ok ? a : 0.0f;
+    dy[k] = ok ? b : 0.0f;
+    dz[k] = ok ? c : 1.0f;
+    tf[k] = ok ? hi : -INFINITY;
+    valid[k] = ok ? -1 : 0;
+    live += ok;
+  }
+  for (int k = count; k < w; ++k) {
+    ox[k] = oy[k] = oz[k] = tn[k] = dx[k] = dy[k] = 0.0f;
+    dz[k] = 1.0f;
+    tf[k] = -INFINITY;
+    valid[k] = 0;
+  }
+  for (int k = 0; k < w; ++k) {
+    time[k] = 0.0f;
+    mask[k] = 0xffffffffu;
+    id[k] = static_cast<unsigned>(k);
+    flags[k] = 0;
+  }
+  return live;
+}
+
+// Whether a packet's lanes are worth tracing as one: at least w / 4 valid lanes whose directions
+// lie within about 25 degrees of the first valid lane's (camera, shadow and flat-mirror rays of
+// neighbouring pixels): d·first >= 0.9 |d| |first|, compared squared. Packets of scattered rays
+// trace slower than the rays one by one.
+FOVJAX_VECTOR_CLONES
+bool CoherentLanes(const float* __restrict__ dx, const float* __restrict__ dy, const float* __restrict__ dz,
+                   const int* __restrict__ valid, int w, int live) {
+  if (live < w / 4) return false;
+  int first = 0;
+  while (first < w && !valid[first]) ++first;
+  const float fx = dx[first], fy = dy[first], fz = dz[first];
+  const float first_len2 = fx * fx + fy * fy + fz * fz;
+  int apart = 0;
+  for (int k = 0; k < w; ++k) {
+    const float dot = dx[k] * fx + dy[k] * fy + dz[k] * fz;
+    const float len2 = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
+    apart |= (valid[k] != 0) & ((dot < 0.0f) | (dot * dot < 0.81f * len2 * first_len2));
+  }
+  return apart == 0;
+}
+
+// Rays [begin, min(begin + W, end)) as one packet (lanes past `end` or invalid are masked off),
+// or, unless `always`, one by one where they are not coherent (`CoherentLanes`). A packet whose
+// rays use several trees is traced once per tree, each time with that tree's lanes.
 template <int W>
-void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit) {
-  const int64_t trees = static_cast<int64_t>(s.trees.size());
+void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bool any_hit, bool always) {
+  const int count = static_cast<int>(std::min<int64_t>(W, end - begin));
   RayHitW<W> rh;
   // Embree reads the valid mask with aligned vector loads (the packet's width in bytes): an
   // unaligned mask crashes its 16-wide path on AVX-512 machines.
   alignas(4 * W) int valid[W];
-  int32_t tree[W];
-  bool any = false;
-  for (int k = 0; k < W; ++k) {
-    int64_t i = begin + k;
-    bool ok = i < end && Valid(r, i);
-    valid[k] = ok ? -1 : 0;
-    tree[k] = ok ? TreeOf(r, i, trees) : -1;
-    any |= ok;
-    if (i < end) {
-      r.t[i] = INFINITY;
-      r.prim[i] = -1;
-      r.u[i] = r.v[i] = 0.0f;
+  const int live = LoadLanes(r.o + 3 * begin, r.d + 3 * begin, r.tmin + begin, r.tmax + begin, count, W,
+                             rh.ray.org_x, valid);
+  if (!always && !CoherentLanes(rh.ray.dir_x, rh.ray.dir_y, rh.ray.dir_z, valid, W, live)) {
+    Single(s, r, begin, begin + count, any_hit);
+    return;
+  }
+  for (int k = 0; k < count; ++k) r.prim[begin + k] = -1;
+  if (!any_hit) {  // an occluded ray's t, u, v mean nothing: not written
+    for (int k = 0; k < count; ++k) {
+      r.t[begin + k] = INFINITY;
+      r.u[begin + k] = r.v[begin + k] = 0.0f;
     }
-    RayW<W>& ray = rh.ray;
-    ray.org_x[k] = ok ? r.o[3 * i] : 0.0f;
-    ray.org_y[k] = ok ? r.o[3 * i + 1] : 0.0f;
-    ray.org_z[k] = ok ? r.o[3 * i + 2] : 0.0f;
-    ray.tnear[k] = ok ? r.tmin[i] : 0.0f;
-    ray.dir_x[k] = ok ? r.d[3 * i] : 0.0f;
-    ray.dir_y[k] = ok ? r.d[3 * i + 1] : 0.0f;
-    ray.dir_z[k] = ok ? r.d[3 * i + 2] : 1.0f;
-    ray.time[k] = 0.0f;
-    ray.tfar[k] = ok ? r.tmax[i] : -INFINITY;
-    ray.mask[k] = 0xffffffffu;
-    ray.id[k] = k;
-    ray.flags[k] = 0;
+  }
+  if (live == 0) return;
+  for (int k = 0; k < W; ++k) {
     rh.hit.geom_id[k] = kInvalidId;
     rh.hit.inst_id[0][k] = kInvalidId;
   }
-  if (!any) return;
+  const int64_t trees = static_cast<int64_t>(s.trees.size());
+  int32_t tree[W];
+  for (int k = 0; k < W; ++k) tree[k] = valid[k] ? TreeOf(r, begin + k, trees) : -1;
   QueryArgs args{};
   args.flags = kQueryCoherent;
   args.feature_mask = 0xffffffffu;
@@ -404,7 +480,7 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
   for (int k = 0; k < W; ++k) {
     if (tree[k] < 0 || tree[k] == done_tree) continue;
     int32_t l = tree[k];
-    int lanes[W];
+    alignas(4 * W) int lanes[W];
     for (int j = 0; j < W; ++j) lanes[j] = tree[j] == l ? -1 : 0;
     if (any_hit) {
       OccludedW<W>(lanes, s.trees[l], &rh.ray, &args);
@@ -416,7 +492,7 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
     }
     done_tree = l;
   }
-  for (int k = 0; k < W; ++k) {
+  for (int k = 0; k < count; ++k) {
     int64_t i = begin + k;
     if (!valid[k]) continue;
     int32_t l = -2 - tree[k];
@@ -431,28 +507,6 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
   }
 }
 
-// Whether rays [begin, min(begin + w, end)) are worth one packet: at least w / 4 live rays whose
-// directions lie within about 25 degrees of the first's (camera, shadow and flat-mirror rays of
-// neighbouring pixels). Packets of scattered rays trace slower than the rays one by one.
-bool Coherent(const Rays& r, int64_t begin, int64_t end, int w) {
-  const float* first = nullptr;
-  float first_len = 0.0f;
-  int live = 0;
-  for (int64_t i = begin; i < std::min(end, begin + w); ++i) {
-    if (!Valid(r, i)) continue;
-    const float* d = r.d + 3 * i;
-    float len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    if (first == nullptr) {
-      first = d;
-      first_len = len;
-    } else if (d[0] * first[0] + d[1] * first[1] + d[2] * first[2] < 0.9f * len * first_len) {
-      return false;
-    }
-    ++live;
-  }
-  return live >= w / 4;
-}
-
 template <int W>
 void Packets(ffi::ThreadPool& pool, const NativeScene& s, const Rays& r, int64_t n, bool occlusion,
              bool always) {
@@ -461,11 +515,7 @@ void Packets(ffi::ThreadPool& pool, const NativeScene& s, const Rays& r, int64_t
   ParallelFor(pool, (packets + per_block - 1) / per_block, [&](int64_t b) {
     int64_t last = std::min(packets, (b + 1) * per_block);
     for (int64_t p = b * per_block; p < last; ++p) {
-      if (always || Coherent(r, W * p, n, W)) {
-        PacketW<W>(s, r, W * p, n, occlusion);
-      } else {
-        Single(s, r, W * p, std::min(n, W * p + W), occlusion);
-      }
+      PacketW<W>(s, r, W * p, n, occlusion, always);
     }
   });
 }
@@ -733,14 +783,12 @@ void TraceList(const NativeScene& s, const Rays& r, int64_t n, bool any_hit, boo
   }
   const int w = g_width;
   for (int64_t p = 0; p < n; p += w) {
-    if (!Coherent(r, p, n, w)) {
-      Single(s, r, p, std::min(n, p + w), any_hit);
-    } else if (w == 16) {
-      PacketW<16>(s, r, p, n, any_hit);
+    if (w == 16) {
+      PacketW<16>(s, r, p, n, any_hit, false);
     } else if (w == 8) {
-      PacketW<8>(s, r, p, n, any_hit);
+      PacketW<8>(s, r, p, n, any_hit, false);
     } else {
-      PacketW<4>(s, r, p, n, any_hit);
+      PacketW<4>(s, r, p, n, any_hit, false);
     }
   }
 }
@@ -1100,11 +1148,6 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
 // threefry2x32 of each 64-bit counter (hi 0, index), its two words xor-ed, the top 23 bits as a
 // mantissa in [1, 2), minus 1. A plain loop over lanes that the compiler vectorises, built for
 // the widest vector unit the CPU has (chosen when the library loads).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define FOVJAX_VECTOR_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
-#else
-#define FOVJAX_VECTOR_CLONES
-#endif
 
 // One lane's threefry2x32 (see UniformRun): the uniform float of counter `c`.
 inline float UniformOne(const uint32_t ks[3], uint32_t c) {
