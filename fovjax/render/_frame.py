@@ -64,6 +64,35 @@ def _as_arrays(scene) -> SceneArrays:
     return scene if isinstance(scene, SceneArrays) else scene_arrays(scene)
 
 
+def sample_radiance(scene: SceneArrays, bvh: BVH, origins, directions, *, config: RenderConfig):
+    """`radiance` of per-sample primary rays (..., S, H, W, 3), S = n² samples per pixel, traced
+    as one image of the sub-samples n times the size: sample (sx, sy) of pixel (x, y) at
+    (n·y + sy, n·x + sx). A packet's tile then holds neighbouring pixels' samples, as a
+    frame of one sample per pixel at that size does, rather than pixels n apart in one sample's
+    image (2 x 640x512 at SPP 4 on the atrium: a tenth to a sixth faster). The results come back
+    in the sample layout: the same samples, summed per pixel in the same order."""
+    *lead, spp, h, w, _ = jnp.broadcast_shapes(jnp.shape(origins), jnp.shape(directions))
+    n = int(round(spp**0.5))
+    if n == 1 or not isinstance(config.packet, tuple):
+        return radiance(scene, bvh, origins, directions, config=config)
+    lead = tuple(lead)
+    k = len(lead)
+
+    def as_image(x):  # (*lead, n·n, H, W, C) -> (*lead, H·n, W·n, C)
+        c = x.shape[-1]
+        x = jnp.broadcast_to(x, (*lead, spp, h, w, c)).reshape(*lead, n, n, h, w, c)
+        x = x.transpose(*range(k), k + 2, k, k + 3, k + 1, k + 4)
+        return x.reshape(*lead, h * n, w * n, c)
+
+    def as_samples(x):  # the inverse
+        c = x.shape[-1]
+        x = x.reshape(*lead, h, n, w, n, c).transpose(*range(k), k + 1, k + 3, k, k + 2, k + 4)
+        return x.reshape(*lead, spp, h, w, c)
+
+    result = radiance(scene, bvh, as_image(origins), as_image(directions), config=config)
+    return result._replace(rgb=as_samples(result.rgb), bad=as_samples(result.bad[..., None])[..., 0])
+
+
 def render_image(
     scene: SceneArrays | Scene,
     bvh: BVH,
@@ -76,7 +105,7 @@ def render_image(
     """One camera's linear-RGB image: `camera.sample_rays(spp, key)` → `radiance` → `resolve`.
     Pure; jit it, or take `jax.grad` of a loss of it."""
     o, d, _ = camera.sample_rays(spp, key)
-    result = radiance(_as_arrays(scene), bvh, o, d, config=config)
+    result = sample_radiance(_as_arrays(scene), bvh, o, d, config=config)
     return resolve(result.rgb, result.bad, bad_color=config.bad_color)[0]
 
 
@@ -95,7 +124,7 @@ def render_stereo_image(
     The width W2 is twice the rig's eye width (no argument carries the eye width as an array
     axis, so the annotation cannot say `2*W`: jaxtyping rejects an axis it has not bound)."""
     rays = stereo_sample_rays(rig, head_pose, spp, key)
-    result = radiance(_as_arrays(scene), bvh, rays.origins, rays.directions, config=config)
+    result = sample_radiance(_as_arrays(scene), bvh, rays.origins, rays.directions, config=config)
     return side_by_side(resolve(result.rgb, result.bad, bad_color=config.bad_color)[0])
 
 
@@ -211,14 +240,14 @@ def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *
 
 def _mono_program(scene, bvh, camera, key, *, spp, jitter, config):
     o, d, _ = camera.sample_rays(spp, key if jitter else None)
-    result = radiance(scene, bvh, o, d, config=config)
+    result = sample_radiance(scene, bvh, o, d, config=config)
     image, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
     return image, result.counts, jnp.sum(bad_pixels, dtype=jnp.int32)
 
 
 def _stereo_program(scene, bvh, rig, head_pose, key, *, spp, jitter, config):
     rays = stereo_sample_rays(rig, head_pose, spp, key if jitter else None)
-    result = radiance(scene, bvh, rays.origins, rays.directions, config=config)
+    result = sample_radiance(scene, bvh, rays.origins, rays.directions, config=config)
     eyes, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
     return side_by_side(eyes), result.counts, jnp.sum(bad_pixels, dtype=jnp.int32)
 
