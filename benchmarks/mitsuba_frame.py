@@ -19,8 +19,9 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   normal would send them into the surface), misses seeing the environment (constant colour or
   lat-long map, bilinear), NaN/inf samples painted the bad colour, and the box filter over each
   pixel's samples, side by side. The camera rays are fovjax's own
-  (`fovjax.render.stereo_sample_rays`: cell centres, as fovjax's un-jittered SPP), the ray offset
-  is fovjax's (`RenderConfig.ray_offset` × `scene_scale`). Each depth level is one pass over
+  (`fovjax.render.stereo_sample_rays`: cell centres, as fovjax's un-jittered SPP), in the order
+  Mitsuba's own sensor makes a frame's rays (pixel by pixel, each pixel's samples together); the
+  ray offset is fovjax's (`RenderConfig.ray_offset` × `scene_scale`). Each depth level is one pass over
   its live rays: trace, shade, trace the shadow rays, add the contributions into the samples,
   and compact the reflection rays (`dr.compress`) for the next level. Timed: rays in (Dr.Jit
   arrays made beforehand) → the side-by-side image evaluated (`dr.eval`, `dr.sync_thread`),
@@ -311,15 +312,20 @@ class MitsubaWhitted:
         (made once, before any frame is timed)."""
         dr, mi = self.dr, self.mi
         eyes, spp, h, w, _ = origins.shape
-        o = np.ascontiguousarray(np.asarray(origins, np.float32).reshape(-1, 3).T)
-        d = np.ascontiguousarray(np.asarray(directions, np.float32).reshape(-1, 3).T)
+
+        # Pixel by pixel, a pixel's samples next to each other: the order Mitsuba's own sensor
+        # and sampler make a frame's rays in (coherent packets of neighbouring samples).
+        def flat(x):
+            return np.ascontiguousarray(np.asarray(x, np.float32).transpose(0, 2, 3, 1, 4).reshape(-1, 3).T)
+
+        o, d = flat(origins), flat(directions)
         rays = (mi.Point3f(*(mi.Float(c) for c in o)), mi.Vector3f(*(mi.Float(c) for c in d)))
         # Output pixel (y, x) of the side-by-side image reads eye x // w, pixel (y, x % w), of
-        # every sample s: flat sample index ((eye * spp + s) * h + y) * w + x % w.
+        # every sample s: flat sample index (((eye * h + y) * w + x % w) * spp + s.
         j = np.arange(h * eyes * w)
         y, x = j // (eyes * w), j % (eyes * w)
-        base = ((x // w) * spp * h + y) * w + x % w
-        layout = [mi.UInt32(np.asarray(base + s * h * w, np.uint32)) for s in range(spp)]
+        base = (((x // w) * h + y) * w + x % w) * spp
+        layout = [mi.UInt32(np.asarray(base + s, np.uint32)) for s in range(spp)]
         dr.eval(rays, layout)
         return rays, layout, (eyes, spp, h, w)
 
