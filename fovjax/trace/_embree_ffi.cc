@@ -830,9 +830,13 @@ struct BlockRays {
   }
 };
 
+// `sparse`: the rays are samples scattered over the screen (a foveated frame's), whose hits'
+// faces and vertices are seldom in the cache from a neighbour's: they are prefetched a few rays
+// ahead of the shading (a foveated frame 4-6% faster, measured in one process; a full frame's
+// neighbouring rays share their faces, and it measured 1-2% slower with it).
 void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
                   const bool* active, const BlockRays& block, float* total, int32_t* traced,
-                  bool packets) {
+                  bool packets, bool sparse) {
   thread_local WhittedBuffers b;
   const int64_t n = block.n;
   const int nl = s.num_lights;
@@ -863,6 +867,21 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
     // Surfaces and their shadow rays.
     int64_t ns = 0;
     for (int64_t k = 0; k < m; ++k) {
+      if (sparse) {  // the faces and vertices of hits a few rays ahead: see WhittedBlock
+        constexpr int64_t kAhead = 8;
+        if (k + 2 * kAhead < m && b.prim[k + 2 * kAhead] >= 0) {
+          const int64_t f2 = std::min<int64_t>(b.prim[k + 2 * kAhead], s.num_faces - 1);
+          __builtin_prefetch(s.faces + 3 * f2);
+          __builtin_prefetch(s.face_material + f2);
+        }
+        if (k + kAhead < m && b.prim[k + kAhead] >= 0) {
+          const int32_t* fa = s.faces + 3 * std::min<int64_t>(b.prim[k + kAhead], s.num_faces - 1);
+          for (int j = 0; j < 3; ++j) {
+            __builtin_prefetch(s.vertices + 3 * static_cast<int64_t>(fa[j]));
+            if (s.normals != nullptr) __builtin_prefetch(s.normals + 3 * static_cast<int64_t>(fa[j]));
+          }
+        }
+      }
       if (b.prim[k] < 0) continue;
       const int64_t f = std::min<int64_t>(b.prim[k], s.num_faces - 1);
       const int32_t* face = s.faces + 3 * f;
@@ -1118,14 +1137,14 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
       block.row0 = 4 * (blk / segments);
       block.col0 = 256 * (blk % segments);
       block.n = 4 * std::min<int64_t>(256, width - block.col0);
-      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0);
+      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false);
     });
   } else {
     ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
       BlockRays block;
       block.begin = blk * per_block;
       block.n = std::min(n, (blk + 1) * per_block) - block.begin;
-      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0);
+      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false);
     });
   }
   if (out_of_range.load() != 0) {
@@ -1630,7 +1649,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     BlockRays block;
     block.n = m;
     WhittedBlock(t, s, o.data(), d.data(), active.get(), block, radiance.get() + 3 * begin,
-                 traced.get() + begin, packets != 0);
+                 traced.get() + begin, packets != 0, true);
   });
   if (out_of_range.load() != 0) {
     return ffi::Error::InvalidArgument(
