@@ -369,9 +369,9 @@ void Single(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, boo
 // Rays [begin, begin + count) loaded into a packet's lanes (`f`: the RayW fields, each `w` lanes,
 // in their order), as `Valid` and `SetRay1` read them: each lane's validity in `valid` (-1 / 0),
 // an invalid or missing lane made empty (tfar -inf, a unit direction). Returns the valid lanes.
-// One pass over the lanes with no branch, which the compiler vectorises (a lane at a time, this
-// and the coherence test cost a third of a shadow-ray call).
-FOVJAX_VECTOR_CLONES
+// One pass with no branch per lane, each ray read once (before, the validity test and the
+// coherence test each read every ray and, with the lane set-up, took a third of a shadow-ray
+// call). GCC leaves it scalar: the rays' interleaved x, y, z would need a transpose.
 int LoadLanes(const float* __restrict__ o, const float* __restrict__ d, const float* __restrict__ tmin,
               const float* __restrict__ tmax, int count, int w, float* __restrict__ f,
               int* __restrict__ valid) {
