@@ -105,9 +105,12 @@ def test_occluded_agrees_with_closest_hit(soup, opts):
     assert np.mean(occ == np.isfinite(t_ref)) >= 0.9999
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_batch_shapes_and_invalid_rays(soup, backend):
+@pytest.mark.parametrize("opts", TRAVERSALS)
+def test_batch_shapes_and_invalid_rays(soup, opts):
+    """Invalid rays (a zero or NaN direction, an infinite origin, an empty interval) miss, one
+    by one and inside packets (30 rays: a full packet of 16 and a partial one)."""
     V, F, bvh = soup
+    backend = opts["backend"]
     rng = np.random.default_rng(4)
     o = rng.uniform(-3, 3, (2, 3, 5, 3)).astype(np.float32)
     d = rng.normal(size=(2, 3, 5, 3)).astype(np.float32)
@@ -121,16 +124,14 @@ def test_batch_shapes_and_invalid_rays(soup, backend):
     tmin = np.zeros((2, 3, 5), np.float32)
     tmax = np.full((2, 3, 5), np.inf, np.float32)
     tmin[0, 0, 3] = tmax[0, 0, 3] = 0.5 * t_ref[k]
-    hit = closest_hit(bvh, o, d, tmin, tmax, backend=backend)
+    hit = closest_hit(bvh, o, d, tmin, tmax, **opts)
     assert hit.t.shape == hit.prim.shape == hit.u.shape == (2, 3, 5)
     assert (np.asarray(hit.prim)[0, 0, :4] == -1).all() and np.isinf(np.asarray(hit.t)[0, 0, :4]).all()
     assert not np.isnan(np.asarray(hit.t)).any()
     assert np.isfinite(np.asarray(closest_hit(bvh, o[0, 0, 3], d[0, 0, 3], backend=backend).t))
-    flat = closest_hit(
-        bvh, o.reshape(-1, 3), d.reshape(-1, 3), tmin.reshape(-1), tmax.reshape(-1), backend=backend
-    )
+    flat = closest_hit(bvh, o.reshape(-1, 3), d.reshape(-1, 3), tmin.reshape(-1), tmax.reshape(-1), **opts)
     np.testing.assert_array_equal(np.asarray(flat.prim), np.asarray(hit.prim).reshape(-1))
-    occ = occluded(bvh, o, d, tmax, tmin=tmin, backend=backend)
+    occ = occluded(bvh, o, d, tmax, tmin=tmin, **opts)
     assert occ.shape == (2, 3, 5) and not np.asarray(occ)[0, 0, :4].any()
 
 

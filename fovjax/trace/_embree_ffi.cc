@@ -32,6 +32,11 @@
 
 #include "xla/ffi/api/ffi.h"
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define FOVJAX_AVX512_LANES 1
+#endif
+
 namespace ffi = xla::ffi;
 
 // A plain loop over lanes or pixels built for the widest vector unit the CPU has (chosen when
@@ -421,6 +426,63 @@ int LoadLanes(const float* __restrict__ o, const float* __restrict__ d, const fl
   return live;
 }
 
+#ifdef FOVJAX_AVX512_LANES
+// Lane k of x, y, z: float 3k, 3k + 1, 3k + 2 of the 48 (16 rays' x, y, z); those below 32 come
+// from the first two vectors, the rest from the third (after the first permute, lanes 16..31).
+__attribute__((target("avx512f"))) inline void Deinterleave(const float* src, __m512 out[3]) {
+  alignas(64) static const int kFirst[3][16] = {
+      {0, 3, 6, 9, 12, 15, 18, 21, 24, 27, 30, 0, 0, 0, 0, 0},
+      {1, 4, 7, 10, 13, 16, 19, 22, 25, 28, 31, 0, 0, 0, 0, 0},
+      {2, 5, 8, 11, 14, 17, 20, 23, 26, 29, 0, 0, 0, 0, 0, 0}};
+  alignas(64) static const int kSecond[3][16] = {
+      {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 17, 20, 23, 26, 29},
+      {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 18, 21, 24, 27, 30},
+      {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 16, 19, 22, 25, 28, 31}};
+  const __m512 a0 = _mm512_loadu_ps(src), a1 = _mm512_loadu_ps(src + 16), a2 = _mm512_loadu_ps(src + 32);
+  for (int c = 0; c < 3; ++c) {
+    const __m512 t = _mm512_permutex2var_ps(a0, _mm512_load_si512(kFirst[c]), a1);
+    out[c] = _mm512_permutex2var_ps(t, _mm512_load_si512(kSecond[c]), a2);
+  }
+}
+
+// `LoadLanes` of 16 rays (a full packet) with AVX-512, which Embree's 16-wide packets imply: the
+// rays' interleaved x, y, z deinterleaved by permutes, the tests as vector compares (x - x == 0:
+// finite; ordered compares are false on NaN, as the scalar tests are). A partial packet (the
+// last of a list) takes the scalar `LoadLanes`, so both stay in use.
+__attribute__((target("avx512f"))) int LoadLanes16(const float* o, const float* d, const float* tmin,
+                                                   const float* tmax, float* f, int* valid) {
+  __m512 org[3], dir[3];
+  Deinterleave(o, org);
+  Deinterleave(d, dir);
+  const __m512 lo = _mm512_loadu_ps(tmin), hi = _mm512_loadu_ps(tmax);
+  const __m512 zero = _mm512_setzero_ps();
+  __mmask16 ok = 0xffff;
+  for (int c = 0; c < 3; ++c) {
+    ok &= _mm512_cmp_ps_mask(_mm512_sub_ps(org[c], org[c]), zero, _CMP_EQ_OQ);
+    ok &= _mm512_cmp_ps_mask(_mm512_sub_ps(dir[c], dir[c]), zero, _CMP_EQ_OQ);
+  }
+  ok &= _mm512_cmp_ps_mask(dir[0], zero, _CMP_NEQ_UQ) | _mm512_cmp_ps_mask(dir[1], zero, _CMP_NEQ_UQ) |
+        _mm512_cmp_ps_mask(dir[2], zero, _CMP_NEQ_UQ);
+  ok &= _mm512_cmp_ps_mask(hi, lo, _CMP_GT_OQ) & _mm512_cmp_ps_mask(lo, lo, _CMP_EQ_OQ);
+  // RayW<16>'s fields in order: org x, y, z, tnear, dir x, y, z, time, tfar, mask, id, flags.
+  _mm512_store_ps(f, _mm512_maskz_mov_ps(ok, org[0]));
+  _mm512_store_ps(f + 16, _mm512_maskz_mov_ps(ok, org[1]));
+  _mm512_store_ps(f + 32, _mm512_maskz_mov_ps(ok, org[2]));
+  _mm512_store_ps(f + 48, _mm512_maskz_mov_ps(ok, lo));
+  _mm512_store_ps(f + 64, _mm512_maskz_mov_ps(ok, dir[0]));
+  _mm512_store_ps(f + 80, _mm512_maskz_mov_ps(ok, dir[1]));
+  _mm512_store_ps(f + 96, _mm512_mask_blend_ps(ok, _mm512_set1_ps(1.0f), dir[2]));
+  _mm512_store_ps(f + 112, zero);
+  _mm512_store_ps(f + 128, _mm512_mask_blend_ps(ok, _mm512_set1_ps(-INFINITY), hi));
+  _mm512_store_si512(f + 144, _mm512_set1_epi32(-1));
+  _mm512_store_si512(f + 160, _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15));
+  _mm512_store_si512(f + 176, _mm512_setzero_si512());
+  _mm512_storeu_si512(valid, _mm512_mask_set1_epi32(_mm512_setzero_si512(), ok, -1));
+  return __builtin_popcount(static_cast<unsigned>(ok));
+}
+bool g_avx512 = __builtin_cpu_supports("avx512f");
+#endif
+
 // Whether a packet's lanes are worth tracing as one: at least w / 4 valid lanes whose directions
 // lie within about 25 degrees of the first valid lane's (camera, shadow and flat-mirror rays of
 // neighbouring pixels): d·first >= 0.9 |d| |first|, compared squared. Packets of scattered rays
@@ -452,8 +514,17 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
   // Embree reads the valid mask with aligned vector loads (the packet's width in bytes): an
   // unaligned mask crashes its 16-wide path on AVX-512 machines.
   alignas(4 * W) int valid[W];
-  const int live = LoadLanes(r.o + 3 * begin, r.d + 3 * begin, r.tmin + begin, r.tmax + begin, count, W,
-                             rh.ray.org_x, valid);
+  int live;
+#ifdef FOVJAX_AVX512_LANES
+  if (W == 16 && count == 16 && g_avx512) {
+    live = LoadLanes16(r.o + 3 * begin, r.d + 3 * begin, r.tmin + begin, r.tmax + begin, rh.ray.org_x,
+                       valid);
+  } else
+#endif
+  {
+    live = LoadLanes(r.o + 3 * begin, r.d + 3 * begin, r.tmin + begin, r.tmax + begin, count, W,
+                     rh.ray.org_x, valid);
+  }
   if (!always && !CoherentLanes(rh.ray.dir_x, rh.ray.dir_y, rh.ray.dir_z, valid, W, live)) {
     Single(s, r, begin, begin + count, any_hit);
     return;
