@@ -662,6 +662,9 @@ def main(argv=None) -> dict | None:
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.max_depth < 0 or args.width < 1 or args.height < 1:
         ap.error("--repeats, --width and --height must be positive and --max-depth >= 0")
+    bad_spp = [s for s in args.spp if s < 1 or round(s**0.5) ** 2 != s]
+    if bad_spp:
+        ap.error(f"--spp {bad_spp[0]}: expected a positive square (1, 4, 9, ...), a grid per pixel")
     if args.quick:
         args.width, args.height = 320, 256
 

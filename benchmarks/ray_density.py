@@ -54,8 +54,10 @@ def main(argv=None) -> dict | None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--fovea", type=float, nargs=2, default=[5.0, 10.0], metavar=("FOVEA", "PERIPHERY"))
     args = ap.parse_args(argv)
-    if args.repeats < 1 or args.spp < 1 or args.max_depth < 0:
-        ap.error("--repeats and --spp must be positive and --max-depth >= 0")
+    if args.repeats < 1 or args.max_depth < 0:
+        ap.error("--repeats must be positive and --max-depth >= 0")
+    if args.spp < 1 or round(args.spp**0.5) ** 2 != args.spp:
+        ap.error(f"--spp {args.spp}: expected a positive square (1, 4, 9, ...), the samples' grid per pixel")
 
     try:
         mi, dr = mf.load_mitsuba()

@@ -50,6 +50,12 @@ def test_mitsuba_frame_matches_fovjax(tmp_path, capsys):
     assert {"date", "git_commit", "machine"} <= set(saved)
 
 
+def test_a_samples_count_that_is_not_a_square_is_named(capsys):
+    with pytest.raises(SystemExit) as exc:
+        _script().main(["--spp", "1", "2"])
+    assert exc.value.code == 2 and "--spp 2" in capsys.readouterr().err
+
+
 def test_mitsuba_integrator_textures_environment_lights():
     """The paths the atrium leaves out: a diffuse texture (bilinear, wrapping UVs), a lat-long
     environment map, a directional light beside a point light, flat normals, SPP 4."""

@@ -32,6 +32,9 @@ def test_a_bad_size_is_named_before_any_work(capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "640by512" in err and "WIDTHxHEIGHT" in err
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--spp", "3"])
+    assert exc.value.code == 2 and "--spp 3" in capsys.readouterr().err
 
 
 def test_tiny_run_figures():

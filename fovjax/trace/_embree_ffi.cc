@@ -1234,11 +1234,6 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
 // pixel), their stable compaction in locality order (`compaction_order`), and which samples the
 // budget keeps. The regions and P(ω) come from the program (JAX computes both).
 
-// JAX's uniform float32 in [0, 1) at flat indices first..first+n-1 of the key (k0, k1):
-// threefry2x32 of each 64-bit counter (hi 0, index), its two words xor-ed, the top 23 bits as a
-// mantissa in [1, 2), minus 1. A plain loop over lanes that the compiler vectorises, built for
-// the widest vector unit the CPU has (chosen when the library loads).
-
 // One lane's threefry2x32 (see UniformRun): the uniform float of counter `c`.
 inline float UniformOne(const uint32_t ks[3], uint32_t c) {
   static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
@@ -1305,6 +1300,10 @@ inline __attribute__((always_inline)) void UniformLanes(uint32_t k0, uint32_t k1
   for (; i < n; ++i) out[i] = UniformOne(ks, kIndexed ? index[i] : first + static_cast<uint32_t>(i));
 }
 
+// JAX's uniform float32 in [0, 1) at flat indices first..first+n-1 of the key (k0, k1):
+// threefry2x32 of each 64-bit counter (hi 0, index), its two words xor-ed, the top 23 bits as a
+// mantissa in [1, 2), minus 1. A plain loop over lanes that the compiler vectorises, built for
+// the widest vector unit the CPU has (chosen when the library loads).
 FOVJAX_VECTOR_CLONES
 void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out) {
   UniformLanes<false>(k0, k1, first, nullptr, n, out);
