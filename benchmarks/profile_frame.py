@@ -58,10 +58,10 @@ from fovjax.trace import build_bvh  # noqa: E402
 STAGES = (
     (
         "native integrator (trace, shade, shadows, reflections)",
-        r"trace/_embree\.py:\d+\((embree_whitted|native_whitted_slots)",
+        r"(render|foveate)/_native\.py:\d+\((native_whitted|native_whitted_slots)\b",
     ),
-    ("sampling + compaction", r"trace/_embree\.py:\d+\(native_select_samples"),
-    ("fill / blur", r"trace/_embree\.py:\d+\(native_fill_and_blur"),
+    ("sampling + compaction", r"foveate/_native\.py:\d+\(native_select_samples"),
+    ("fill / blur", r"foveate/_native\.py:\d+\(native_fill_and_blur"),
     ("ray queries (native)", r"trace/_embree\.py|trace/_warp\.py"),
     (
         "ray queries (JAX: traversal, batching)",

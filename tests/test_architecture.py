@@ -31,18 +31,21 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "fovjax"
 ROOT = "fovjax"  # the top level: fovjax/__init__.py and fovjax/_*.py
 
-CORE = ("files", "scene", "trace", "render", "foveate", "acuity", "devices")
+CORE = ("native", "files", "scene", "trace", "render", "foveate", "acuity", "devices")
 APPLICATION = ("eval", "session", "view", "cli", ROOT)
 
 # Which package may import which (besides itself). Core first, bottom-up.
 MAY_IMPORT = {
+    # The native handlers' build, load and the native/JAX choice: below every package that
+    # owns a native stage.
+    "native": set(),
     "files": set(),
     "scene": set(),
-    "trace": {"scene"},
+    "trace": {"native", "scene"},
     "acuity": set(),
     "devices": set(),
-    "render": {"files", "scene", "trace"},
-    "foveate": {"files", "scene", "trace", "render", "acuity"},
+    "render": {"native", "files", "scene", "trace"},
+    "foveate": {"native", "files", "scene", "trace", "render", "acuity"},
     "eval": {"files", "scene", "trace", "render", "foveate", "acuity", "devices"},
     "session": {"files", "scene", "trace", "render", "foveate", "acuity", "devices"},
     "view": {"files", "scene", "trace", "render", "foveate", "acuity", "devices", "session"},
@@ -278,3 +281,91 @@ def test_a_private_module_of_the_same_package_is_fine():
     path = PACKAGE / "render" / "_x.py"
     got = list(imports(path, ast.parse("from ._frame import render_image\nfrom . import _vec\n")))
     assert [package_of(t) for _, t, _ in got] == ["render", "render"]
+
+
+# ---- the native sources -------------------------------------------------------------------------
+#
+# Each native stage lives with the package that owns its JAX oracle: a `.cc`/`.h` file under
+# fovjax/<package>/ belongs to that package. The handlers each package may define, and the
+# packages whose sources a package's source may include, follow the Python layers.
+
+NATIVE_HANDLERS = {
+    "native": set(),
+    "trace": {"FovjaxEmbreeQuery"},
+    "render": {"FovjaxEmbreeWhitted"},
+    "foveate": {"FovjaxSelectSamples", "FovjaxWhittedSlots", "FovjaxFillAndBlur"},
+}
+NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"
+
+
+def _native_sources():
+    return sorted(p for p in PACKAGE.rglob("*") if p.suffix in (".cc", ".h"))
+
+
+def native_check(path: Path, text: str | None = None) -> list[str]:
+    """Every rule the native source `path` breaks, as `file:line: what`."""
+    import re
+
+    text = path.read_text(encoding="utf-8") if text is None else text
+    mine = path.relative_to(PACKAGE).parts[0]
+    where = path.relative_to(PACKAGE.parent)
+    found = []
+    if mine not in NATIVE_HANDLERS:
+        found.append(f"{where}: native source in {mine!r}, which owns no native stage")
+        return found
+    for line, row in enumerate(text.splitlines(), start=1):
+        handler = re.match(r"\s*XLA_FFI_DEFINE_HANDLER_SYMBOL\((\w+)", row)
+        if handler and handler.group(1) not in NATIVE_HANDLERS[mine]:
+            owner = [p for p, names in NATIVE_HANDLERS.items() if handler.group(1) in names]
+            found.append(f"{where}:{line}: defines {handler.group(1)} (owned by {owner or 'nobody'})")
+        include = re.match(r'\s*#include "(\w+)/', row)
+        if include and path != NATIVE_ENTRY and (PACKAGE / include.group(1)).is_dir():
+            theirs = include.group(1)
+            if theirs != mine and theirs not in MAY_IMPORT.get(mine, set()):
+                found.append(f"{where}:{line}: includes {theirs!r}'s source, not in MAY_IMPORT[{mine!r}]")
+    return found
+
+
+def test_native_sources_follow_their_owners():
+    broken = [hit for path in _native_sources() for hit in native_check(path)]
+    assert not broken, "\n".join(broken)
+
+
+def test_every_native_source_is_built_and_every_handler_is_owned():
+    """The build's one translation unit includes every native source, and each handler the
+    library registers is defined in its owner's source."""
+    import re
+
+    from fovjax.native._library import HANDLERS
+
+    included, todo = set(), [NATIVE_ENTRY]
+    while todo:
+        path = todo.pop()
+        for name in re.findall(r'#include "([\w/.]+)"', path.read_text(encoding="utf-8")):
+            target = PACKAGE / name
+            if target.is_file() and target not in included:
+                included.add(target)
+                todo.append(target)
+    assert set(_native_sources()) - {NATIVE_ENTRY} == included
+    defined = {}
+    for path in _native_sources():
+        for name in re.findall(r"XLA_FFI_DEFINE_HANDLER_SYMBOL\((\w+)", path.read_text(encoding="utf-8")):
+            defined[name] = path.relative_to(PACKAGE).parts[0]
+    assert set(defined) == set(HANDLERS.values())
+    assert all(name in NATIVE_HANDLERS[owner] for name, owner in defined.items())
+
+
+NATIVE_BAD = {
+    # a source written into a package -> what the checker must say
+    "trace/_bad.cc": ("XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,\n", "owned by ['render']"),
+    "render/_bad.cc": ('#include "foveate/_slots.cc"\n', "includes 'foveate'"),
+    "trace/_bad2.cc": ('#include "render/_whitted.cc"\n', "includes 'render'"),
+    "acuity/_bad.cc": ("int x;\n", "owns no native stage"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(NATIVE_BAD))
+def test_the_checker_catches_a_misplaced_native_stage(name):
+    source, says = NATIVE_BAD[name]
+    found = native_check(PACKAGE / name, source)
+    assert len(found) == 1 and says in found[0], found

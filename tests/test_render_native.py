@@ -1,7 +1,7 @@
 """The native integrator (`RenderConfig.integrator`) against the JAX integrator, its oracle.
 
-The native integrator is the Embree FFI handler's Whitted loop per ray (fovjax/trace/
-_embree_ffi.cc): the same arithmetic as fovjax/render/_integrator.py, rounded its own way. The
+The native integrator is the native handlers' Whitted loop per ray (fovjax/render/
+_whitted.cc): the same arithmetic as fovjax/render/_integrator.py, rounded its own way. The
 scene here uses every shading feature the loop implements: vertex normals, a texture read
 through per-vertex UVs (bilinear, wrapping), a lat-long environment map, a point light and a
 directional light, a mirror (reflections to depth 3). The renderer's hand-computed oracles
@@ -32,7 +32,7 @@ from fovjax.foveate import Foveation
 from fovjax.render import RenderConfig, StereoRig, radiance, render_stereo, scene_arrays, stereo_sample_rays
 from fovjax.scene import DIRECTIONAL_LIGHT, POINT_LIGHT
 from fovjax.trace import build_bvh
-from fovjax.trace.internal import embree_status
+from fovjax.native import status as embree_status
 
 _extras.require("embreex", module_level=True)
 if not embree_status():  # embreex is here but the handler did not build (e.g. no C++ compiler)
@@ -110,7 +110,7 @@ def test_auto_runs_the_native_integrator_on_this_cpu(featured):
     """'auto' picks the native loop here (the handler is built): its program for the CPU calls
     the handler's Whitted loop (and integrator='jax' does not), and its images are the native
     ones bit for bit."""
-    from fovjax.trace._native import WHITTED_TARGET
+    from fovjax.render._native import WHITTED_TARGET
 
     _, arrays, bvh, rig = featured
     rays = stereo_sample_rays(rig, None, 1, None)
@@ -191,7 +191,7 @@ def test_integrator_setting_is_checked():
 
 def test_native_with_another_ray_backend_is_an_error_naming_it(featured):
     _, arrays, bvh, rig = featured
-    with pytest.raises(ValueError, match="integrator 'native' needs backend 'auto' or 'embree'.*'jax'"):
+    with pytest.raises(ValueError, match="integrator 'native' needs the native handlers, but the ray backend is 'jax'"):
         _radiance_config(arrays, bvh, rig, RenderConfig(integrator="native", backend="jax"))
 
 
@@ -311,7 +311,7 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
     sum its own way: a few ulps, far below any display step)."""
     from fovjax.foveate._fill import FOVEA_BLEND_DEG, gaussian_taps
     from fovjax.foveate._frame import eccentricities, fill_and_blur_sums, selection_with_mask
-    from fovjax.trace.internal import native_fill_and_blur
+    from fovjax.foveate._native import native_fill_and_blur
 
     w, h, spp, rule, blocks, budget, blur_fovea = case
     fov = Foveation(5.0, 10.0, spp=spp, rule=rule, blocks=blocks, blur_fovea=blur_fovea)

@@ -21,7 +21,9 @@ import pytest
 
 import fovjax
 from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, merge_bvhs, occluded
-from fovjax.trace._native import cached_embree_scenes, embree_status, release_embree_scenes
+from fovjax.native import cached_scenes as cached_embree_scenes
+from fovjax.native import release_scenes as release_embree_scenes
+from fovjax.native import status as embree_status
 
 
 def need_native():
@@ -55,7 +57,7 @@ def test_embree_handler_builds_where_embreex_is_installed():
 def test_a_gpu_platform_reads_as_cuda():
     """JAX names a GPU platform "gpu"; "auto" chooses for the platform a program lowers for
     ("cuda"): Warp where it is installed, the same answer for both names."""
-    from fovjax.trace._query import lowering_platform
+    from fovjax.trace._backends import lowering_platform
 
     assert lowering_platform("cpu") == "cpu"
     assert lowering_platform("gpu") in ("cuda", "rocm")
@@ -101,21 +103,21 @@ def test_a_handler_that_cannot_build_falls_back_to_the_jax_traversal_and_says_wh
     """A compiler that fails: the package still imports and traces (the JAX traversal, correct
     hits), and 'auto' says in one line why it is not Embree."""
     out = _fallback({"CXX": "/bin/false"}, "trace", tmp_path)
-    assert out["STATUS"].startswith("could not build the Embree FFI handler: false failed to compile")
+    assert out["STATUS"].startswith("could not build the native handlers: false failed to compile")
     assert out["AUTO"].startswith("jax (the JAX traversal; Embree FFI unavailable: could not build")
     assert float(out["AGREE"]) == 1.0
     assert not list((tmp_path / "native").glob("*.so")), "a failed build left a library behind"
 
 
 def test_the_handler_compiles_from_source_in_a_fresh_directory(tmp_path):
-    """What a fresh machine does on first use: compile `_embree_ffi.cc` with the system's
+    """What a fresh machine does on first use: compile the native handlers with the system's
     compiler into the cache directory, load it, check the library's struct layout, register it."""
     _extras.require("embreex")
     out = _fallback({}, "trace", tmp_path)
     assert out["STATUS"].startswith("Embree 4."), out["STATUS"]
     assert out["AUTO"].startswith("embree (Embree 4.")
     assert float(out["AGREE"]) == 1.0
-    assert len(list((tmp_path / "native").glob("fovjax_embree_ffi-*.so"))) == 1
+    assert len(list((tmp_path / "native").glob("fovjax_native-*.so"))) == 1
 
 
 def test_the_native_backend_can_be_turned_off(tmp_path):
@@ -319,6 +321,7 @@ def test_auto_traces_the_jax_traversal_only_where_another_platform_is_seen(monke
     """ "auto" traces one branch per platform it may lower for: CPU's and CUDA's backends, and the
     JAX traversal only where JAX sees a device of another platform (ROCm, TPU); then the program
     also lowers for such a platform, on the JAX traversal."""
+    import fovjax.native._dispatch as dispatch
     import fovjax.trace._query as query
 
     traced = []
@@ -339,11 +342,11 @@ def test_auto_traces_the_jax_traversal_only_where_another_platform_is_seen(monke
     # Ray counts no other test uses: a fresh trace of the query's program each time.
     jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="auto")).lower(*rays(7))
     on_cpu, on_cuda = (fovjax.trace.resolve_backend("auto", p) for p in ("cpu", "cuda"))
-    assert not query._other_platforms()  # this machine: CPU (and CUDA) only
+    assert not dispatch.other_platforms()  # this machine: CPU (and CUDA) only
     assert traced == ([on_cpu, on_cuda] if (on_cpu, on_cuda) != ("jax", "jax") else ["jax"])
 
     traced.clear()
-    monkeypatch.setattr(query, "_other_platforms", lambda: True)
+    monkeypatch.setattr(dispatch, "other_platforms", lambda: True)
     jitted = jax.jit(lambda o, d: closest_hit(bvh, o, d, backend="auto"))
     exported = jax.export.export(jitted, platforms=("rocm",))(*rays(9))
     assert traced[-1] == "jax" and "jax" in traced
@@ -351,14 +354,14 @@ def test_auto_traces_the_jax_traversal_only_where_another_platform_is_seen(monke
 
 
 def test_other_platforms_setting_is_read_and_a_bad_value_named(monkeypatch):
-    import fovjax.trace._query as query
+    import fovjax.native._dispatch as dispatch
 
-    query._other_platforms.cache_clear()
+    dispatch.other_platforms.cache_clear()
     try:
         monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "yes")
         with pytest.raises(ValueError, match=r"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got 'yes'"):
-            query._other_platforms()
+            dispatch.other_platforms()
         monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "1")
-        assert query._other_platforms()
+        assert dispatch.other_platforms()
     finally:
-        query._other_platforms.cache_clear()  # the next caller reads the suite's own setting
+        dispatch.other_platforms.cache_clear()  # the next caller reads the suite's own setting

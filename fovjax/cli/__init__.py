@@ -185,7 +185,8 @@ def _show(value) -> str:
     return repr(value) if isinstance(value, str) else f"{value}"
 
 
-# fovjax.trace.BACKENDS, spelled out so that parsing arguments imports no JAX (tested equal).
+# fovjax.trace.BACKENDS (the built-in backends), spelled out so that parsing arguments imports no
+# JAX (tested equal).
 BACKENDS = ("auto", "jax", "embree", "warp")
 
 

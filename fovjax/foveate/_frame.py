@@ -43,11 +43,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ..native.internal import on_platforms
 from ..render import RenderConfig
 from ._config import max_region_spp, region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import FOVEA_BLEND_DEG, blur_and_blend, fill_blanks, gaussian_taps
 from ._lod import lod_needed, with_levels
+from ._native import camera_rows, native_fill_and_blur, native_select_samples, native_whitted_slots
 from ._positions import _per_sample_uniform, key_words, positions_at
 from ._sampling import (
     MANDATORY,
@@ -220,14 +222,11 @@ def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
     return Selection(ecc, region, classes, counts, order, rank, n_slots, covered)
 
 
-RULE_CODES = {"either": 0, "strict": 1, "thesis-measured": 2}
-
-
 def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
     """Stages 2 and 4's masks together, for a frame without image tiles: (`Selection` with its
     classes as int8 and no ranks, which samples are traced (2, S, H, W), traced samples per pixel
     (2, H, W), traced samples per region (3): fovea, periphery, outside). `native`: on a CPU
-    through the native handler (`fovjax.trace._embree_ffi.cc`, `SelectSamples`: the same
+    through the native handler (`foveate/_select.cc`, `SelectSamples`: the same
     integers as `select_samples`, `traced_mask`, `traced_count` and `samples_by_region`, on both
     cores), chosen inside the program, so it still lowers for other platforms, where the JAX
     functions run."""
@@ -250,7 +249,7 @@ def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
         def on_cpu():
             return _native_selection(ecc, key, foveation=foveation, budget=budget)
 
-        outs = jax.lax.platform_dependent(cpu=on_cpu, default=in_jax)
+        outs = on_platforms(in_jax, cpu=on_cpu, derivatives=False)()
         region, classes, order, counts, mask, n, by_region = outs
     n_slots = jnp.minimum(counts[MANDATORY] + counts[OPTIONAL], budget)
     return Selection(ecc, region, classes, counts, order, None, n_slots), mask, n, by_region
@@ -264,8 +263,6 @@ def samples_by_region(region, n) -> Int[Array, " 3"]:
 
 def _native_selection(ecc, key, *, foveation, budget):
     """`selection_with_mask`'s outputs through the native handler (CPU only)."""
-    from ..trace.internal import native_select_samples
-
     _, h, w = ecc.shape
     spp = foveation.spp
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
@@ -279,7 +276,7 @@ def _native_selection(ecc, key, *, foveation, budget):
         region_spp(foveation) or (spp, spp, spp),
         subsample_rank(spp),
         spp=spp,
-        rule=RULE_CODES[foveation.rule],
+        rule=foveation.rule,
         blocks=(int(foveation.blocks[0]), int(foveation.blocks[1])),
         budget=budget,
     )
@@ -442,36 +439,16 @@ def trace_selection(
 
 def slots_in_one_call(config, jitter_key, classes, scale, h: int, w: int, spp: int) -> bool:
     """Whether `traced_sums` can run its slots through the native integrator in one call: the
-    native integrator on (`native_integrator`), full fidelity (no shading classes, no levels of
+    native integrator on (`integrator_plan`), full fidelity (no shading classes, no levels of
     detail) and sub-pixel draws the handler reproduces (threefry2x32, `positions_at`'s per
     sample uniform; or no jitter)."""
-    from ..render.internal import native_integrator
+    from ..render.internal import integrator_plan
 
-    if not native_integrator(config) or classes is not None or scale is not None:
+    if not integrator_plan(config).cpu or classes is not None or scale is not None:
         return False
     if 2 * spp * h * w >= 2**31:
         return False
     return jitter_key is None or _per_sample_uniform(jitter_key)
-
-
-def _camera_rows(cameras) -> Float[Array, "2 16"]:
-    """The eyes' cameras as the slots handler reads them: position, rotation (row-major),
-    tan(vfov / 2), aspect, offset (what `Camera.ray_direction_components` uses)."""
-    rows = []
-    for cam in cameras:
-        tan_half = jnp.tan(jnp.deg2rad(cam.vfov_deg) / 2)
-        rows.append(
-            jnp.concatenate(
-                [
-                    jnp.asarray(cam.position, jnp.float32).reshape(3),
-                    jnp.asarray(cam.rotation, jnp.float32).reshape(9),
-                    jnp.asarray(tan_half, jnp.float32).reshape(1),
-                    jnp.asarray(cam.width / cam.height, jnp.float32).reshape(1),
-                    jnp.asarray(cam.offset, jnp.float32).reshape(2),
-                ]
-            )
-        )
-    return jnp.stack(rows)
 
 
 def traced_sums(
@@ -512,8 +489,8 @@ def traced_sums(
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
     def in_one_call(scene, cameras, order, n_traced):
+        from ..render.internal import whitted_operands
         from ..scene import stratified_offsets
-        from ..trace.internal import native_whitted_slots, whitted_operands
 
         with jax.ensure_compile_time_eval():
             grid = np.asarray(stratified_offsets(spp), np.float32)
@@ -527,7 +504,7 @@ def traced_sums(
             key_data,
             jnp.asarray(locality_order(h, w)),
             grid,
-            _camera_rows(cameras),
+            camera_rows(cameras),
             spp=spp,
             height=h,
             width=w,
@@ -542,19 +519,10 @@ def traced_sums(
     if not slots_in_one_call(config, jitter_key, classes, scale, h, w, spp):
         (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
     else:
+        from ..render.internal import integrator_plan
 
-        @jax.custom_jvp
-        def run(scene, cameras, order, n_traced):
-            if config.integrator == "native":
-                return in_one_call(scene, cameras, order, n_traced)
-            return jax.lax.platform_dependent(
-                scene, cameras, order, n_traced, cpu=in_one_call, default=chunked
-            )
-
-        @run.defjvp
-        def _run_jvp(primals, tangents):
-            return jax.jvp(chunked, primals, tangents)
-
+        cpu_only = integrator_plan(config).cpu_only
+        run = on_platforms(chunked, cpu=in_one_call, cpu_only=cpu_only)
         consumed, (primary, shadow, reflection) = run(scene, cameras, sel.order, sel.n_traced)
     return ChunkedRadiance(None, primary, shadow, reflection, (), consumed)
 
@@ -713,8 +681,6 @@ def fill_and_blur_sums(
         return in_jax(*args)
 
     def on_cpu(rgb, ecc, fovea_deg):
-        from ..trace.internal import native_fill_and_blur
-
         image, complete = native_fill_and_blur(
             rgb,
             n,
@@ -732,15 +698,7 @@ def fill_and_blur_sums(
             return image
         return jax.lax.cond(complete, lambda: image, lambda: in_jax(rgb, ecc, fovea_deg))
 
-    @jax.custom_jvp
-    def reconstruct(rgb, ecc, fovea_deg):
-        return jax.lax.platform_dependent(rgb, ecc, fovea_deg, cpu=on_cpu, default=in_jax)
-
-    @reconstruct.defjvp
-    def _reconstruct_jvp(primals, tangents):
-        return jax.jvp(in_jax, primals, tangents)
-
-    return reconstruct(*args)
+    return on_platforms(in_jax, cpu=on_cpu)(*args)
 
 
 def foveated_stereo(
@@ -799,9 +757,9 @@ def foveated_stereo(
         covered = jnp.broadcast_to(on_grid, (2, h, w)) if covered is None else covered | on_grid
     native = False
     if tile is None and grid is None:
-        from ..render.internal import native_integrator
+        from ..render.internal import integrator_plan
 
-        native = native_integrator(config)
+        native = integrator_plan(config).cpu
         sel, mask, n, by_region = selection_with_mask(
             ecc, key, foveation=foveation, budget=budget, native=native
         )

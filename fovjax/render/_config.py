@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from ..trace import BACKENDS
+from ..trace import backend_names
 
 # The thesis's defaults: OptiX max trace depth 5, background ("bg color") (0.34, 0.55, 0.85),
 # exception colour ("bad color") (1, 0, 1).
@@ -145,8 +145,8 @@ class RenderConfig:
             object.__setattr__(self, "depth_batch_size", int(batch))
         if self.hits not in HITS:
             raise ValueError(f"RenderConfig.hits must be one of {HITS}, got {self.hits!r}")
-        if self.backend not in BACKENDS:
-            raise ValueError(f"RenderConfig.backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.backend not in backend_names():
+            raise ValueError(f"RenderConfig.backend must be one of {backend_names()}, got {self.backend!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"RenderConfig.integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
 

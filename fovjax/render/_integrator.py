@@ -44,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ..native.internal import on_platforms
 from ..scene import POINT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
 from ..trace.internal import backend_geometry
@@ -51,6 +52,7 @@ from ._arrays import SceneArrays
 from ._config import DEFAULT_CONFIG, RenderConfig
 from ._envmap import envmap_lookup
 from ._mips import lod_uv, mip_level, mip_lookup
+from ._native import integrator_plan, native_whitted, whitted_operands
 from ._vec import all3, any3, cross, dot, interpolate, norm, normalize
 
 
@@ -575,47 +577,27 @@ def _jax_integrate(scene, bvh, o, d, active, offset, config):
 
 
 def native_integrator(config: RenderConfig) -> bool:
-    """Whether `radiance` runs its primal in the native integrator (the Embree FFI handler's
-    Whitted loop) on a CPU: `config.integrator` "native", or "auto" with an Embree-capable ray
-    backend ("auto" or "embree") where the handler is built. "native" without the handler is an
-    error naming why."""
-    if config.integrator == "jax" or config.backend not in ("auto", "embree") or config.max_depth > 255:
-        if config.integrator == "native":
-            raise ValueError(
-                "RenderConfig.integrator 'native' needs backend 'auto' or 'embree' and max_depth <= 255, "
-                f"got backend {config.backend!r}, max_depth {config.max_depth}"
-            )
-        return False
-    from ..trace.internal import embree_status
-
-    status = embree_status()
-    if not status and config.integrator == "native":
-        raise RuntimeError(
-            f"RenderConfig.integrator 'native': the Embree FFI handler is unavailable: {status.reason}"
-        )
-    return bool(status)
+    """Whether `radiance` runs its primal in the native integrator on a CPU (`integrator_plan`):
+    `config.integrator` "native", or "auto" with an Embree-capable ray backend ("auto" or
+    "embree") where the native handlers are built. "native" where it cannot is an error naming
+    why."""
+    return integrator_plan(config).cpu
 
 
 def describe_integrator(config: RenderConfig, platform: str) -> str:
     """One line naming the integrator `config` runs on `platform` and, where it is the JAX one
-    on a CPU under "auto", why."""
-    if platform == "cpu":
-        try:
-            native = native_integrator(config)
-        except (ValueError, RuntimeError) as exc:
-            return f"unavailable ({exc})"
-        if native:
-            return "native (the Whitted loop in the Embree FFI handler; derivatives in JAX)"
-        if config.integrator == "jax":
-            return "jax (RenderConfig.integrator 'jax')"
-        if config.backend not in ("auto", "embree"):
-            return f"jax (the ray backend is {config.backend!r})"
-        if config.max_depth > 255:
-            return "jax (max_depth above 255)"
-        from ..trace.internal import embree_status
-
-        return f"jax (the Embree FFI handler is unavailable: {embree_status().reason})"
-    return f"jax (no native integrator for {platform})"
+    on a CPU, why."""
+    if platform != "cpu":
+        return f"jax (no native integrator for {platform})"
+    try:
+        plan = integrator_plan(config)
+    except (ValueError, RuntimeError) as exc:
+        return f"unavailable ({exc})"
+    if plan.cpu:
+        return "native (the Whitted loop in the native handlers; derivatives in JAX)"
+    if config.integrator == "jax":
+        return "jax (RenderConfig.integrator 'jax')"
+    return f"jax ({plan.reason})"
 
 
 def _tile_width(batch: tuple[int, ...], config) -> int:
@@ -630,22 +612,21 @@ def _tile_width(batch: tuple[int, ...], config) -> int:
 
 def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, operands=None):
     """(radiance (*batch, 3), shadow rays, reflection rays) of unit-direction rays. With the
-    native integrator (`native_integrator`) the primal runs in the Embree FFI handler on a CPU
-    and in JAX elsewhere (chosen per platform inside the program, as the ray queries are;
-    `cpu_only`: inside a CPU-only branch already; `operands`: the handler's scene operands made
-    once by the caller, `whitted_operands`); its derivatives are always the JAX integrator's (a
-    custom JVP), so gradients do not depend on where the primal ran."""
-    if not native_integrator(config):
-        return _jax_integrate(scene, bvh, o, d, active, offset, config)
-    from ..trace.internal import embree_whitted, whitted_operands
-
-    batch = active.shape
+    native integrator (`integrator_plan`) the primal runs in the native handler on a CPU and in
+    JAX elsewhere (`on_platforms`; `cpu_only`: inside a CPU-only branch already; `operands`: the
+    handler's scene operands made once by the caller, `whitted_operands`); its derivatives are
+    always the JAX integrator's, so gradients do not depend on where the primal ran."""
+    plan = integrator_plan(config)
 
     def in_jax(scene, o, d, active, offset):
         return _jax_integrate(scene, bvh, o, d, active, offset, config)
 
+    if not plan.cpu:
+        return in_jax(scene, o, d, active, offset)
+    batch = active.shape
+
     def native(scene, o, d, active, offset):
-        total, traced = embree_whitted(
+        total, traced = native_whitted(
             whitted_operands(scene, bvh) if operands is None else operands,
             o.reshape(-1, 3),
             d.reshape(-1, 3),
@@ -661,17 +642,8 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
         n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)
         return total.reshape(batch + (3,)), n_shadow, n_reflection
 
-    @jax.custom_jvp
-    def integrate(scene, o, d, active, offset):
-        if config.integrator == "native" or cpu_only:
-            return native(scene, o, d, active, offset)
-        return jax.lax.platform_dependent(scene, o, d, active, offset, cpu=native, default=in_jax)
-
-    @integrate.defjvp
-    def _integrate_jvp(primals, tangents):
-        return jax.jvp(in_jax, primals, tangents)
-
-    return integrate(scene, o, d, active, offset)
+    stage = on_platforms(in_jax, cpu=native, cpu_only=plan.cpu_only or cpu_only)
+    return stage(scene, o, d, active, offset)
 
 
 def _finish_radiance(total, active, valid, config, n_shadow, n_reflection):
@@ -1039,15 +1011,15 @@ def radiance_in_chunks(
         consumed = chunk_loop(chunks.count, chunks.size, n_live, body, init)
         return out._replace(total=None, consumed=consumed)
 
-    if tiles or classes is not None or not native_integrator(config):
+    plan = integrator_plan(config)
+    if tiles or classes is not None or not plan.cpu:
         return in_jax()
 
     def in_native():
         return _chunks_native(scene, bvh, rays_at, n_live, chunks, offset, config, consume)
 
-    if config.integrator == "native":
-        return in_native()
-    return jax.lax.platform_dependent(cpu=in_native, default=in_jax)
+    # No derivatives here: the integrator inside the native chunks has its own (`_integrate`).
+    return on_platforms(in_jax, cpu=in_native, cpu_only=plan.cpu_only, derivatives=False)()
 
 
 def _chunks_native(
@@ -1057,8 +1029,6 @@ def _chunks_native(
     slots made (`rays_at`) and traced through every depth level in one call, its radiance
     written to its slots (or handed to `consume`'s function). The handler's scene operands are
     made once, outside the loop over the chunks."""
-    from ..trace.internal import whitted_operands
-
     size = chunks.size
     lanes = jnp.arange(size, dtype=jnp.int32)
     operands = whitted_operands(scene, bvh)

@@ -35,6 +35,9 @@ from ._mips import mip_shapes as mip_shapes
 from ._mips import pixel_spread_angle as pixel_spread_angle
 from ._mips import texture_mips as texture_mips
 from ._mips import with_texture_mips as with_texture_mips
+from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
+from ._native import integrator_plan as integrator_plan
+from ._native import whitted_operands as whitted_operands
 
 __all__ = [
     "LOOP_EMITTERS",
@@ -53,6 +56,9 @@ __all__ = [
     "bilinear_wrap",
     "chunk_loop",
     "native_integrator",
+    "integrator_plan",
+    "MAX_NATIVE_DEPTH",
+    "whitted_operands",
     "radiance_in_chunks",
     "scene_scale",
     "surface_at",

@@ -3,17 +3,17 @@
 Backends answer one question for a batch of rays: which face each ray hits first (or whether
 anything lies on it). `"embree"` is Embree through an XLA FFI call (CPU), `"warp"` NVIDIA Warp's
 BVH queries (CUDA, and CPU), `"jax"` the `lax.while_loop` traversal of `_traverse.py` (any XLA
-device; the reference every other backend is tested against). `"auto"` (the default) picks per
-platform inside the program (`jax.lax.platform_dependent`): Embree on CPU where its handler
-builds, Warp on CUDA where it is installed, else JAX — so one program lowers for CPU and CUDA
-(and, where JAX sees a device of another platform, for it too, on the JAX traversal).
+device; the reference every other backend is tested against); others can be registered
+(`_backends.py`). `"auto"` (the default) picks per platform inside the program
+(`fovjax.native.internal.on_platforms`): Embree on CPU where its handler builds, Warp on CUDA
+where it is installed, else JAX — so one program lowers for CPU and CUDA (and, where JAX sees a
+device of another platform, for it too, on the JAX traversal).
 t, u, v are recomputed from the hit face in plain JAX, so gradients do not depend on the backend.
 """
 
 from __future__ import annotations
 
 import functools
-import os
 from typing import NamedTuple
 
 import jax
@@ -21,12 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ..native.internal import on_platforms
+from ._backends import get_backend, resolve_backend
 from ._bvh import BVH, FacesLike, VerticesLike
 from ._order import inverse_order, spatial_order
 from ._packet import traverse_packets
 from ._traverse import Nodes, Traversal, traverse
-
-BACKENDS = ("auto", "jax", "embree", "warp")
 
 DEFAULT_TRAVERSAL = Traversal()
 # Packet size of `packet="sorted"` (rays regrouped by their origins): 16, 32 and 64 measured
@@ -47,8 +47,8 @@ class Hit(NamedTuple):
 
 
 def _check(backend: str, packet: Packet) -> None:
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend != "auto":
+        get_backend(backend)  # a ValueError naming the registered backends
     if packet is None or packet == "sorted":
         return
     if isinstance(packet, str):
@@ -243,65 +243,6 @@ def _raw_query(
     return tuple(x[back] for x in hits)
 
 
-def _warp_installed() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("warp") is not None
-
-
-def lowering_platform(platform: str) -> str:
-    """The platform name a program lowers for ("cpu", "cuda", "rocm", "tpu") from a device's or
-    `jax.default_backend()`'s ("gpu" for either kind of GPU)."""
-    if platform != "gpu":
-        return platform
-    try:
-        version = jax.devices("gpu")[0].client.platform_version.lower()
-    except RuntimeError:  # no GPU here: the name is all there is
-        return "cuda"
-    return "rocm" if "rocm" in version or "hip" in version else "cuda"
-
-
-def resolve_backend(backend: str, platform: str) -> str:
-    """The backend that `backend` runs on `platform` ("cpu", "cuda", ...; "gpu" as
-    `lowering_platform` reads it): "auto" is Embree on CPU where its FFI handler builds, Warp
-    on CUDA where installed, else the JAX traversal."""
-    if backend != "auto":
-        return backend
-    platform = lowering_platform(platform)
-    if platform == "cpu":
-        from ._native import embree_status
-
-        return "embree" if embree_status() else "jax"
-    if platform == "cuda" and _warp_installed():
-        return "warp"
-    return "jax"
-
-
-def describe_backend(backend: str = "auto", platform: str | None = None) -> str:
-    """One line naming the backend `backend` runs on `platform` (default: JAX's default
-    backend) and, where "auto" falls back to the JAX traversal, why."""
-    platform = lowering_platform(platform or jax.default_backend())
-    chosen = resolve_backend(backend, platform)
-    if chosen == "embree":
-        from ._native import embree_status
-
-        status = embree_status()
-        if status:
-            return f"embree ({status.reason})"
-        return f"embree (embreex through jax.pure_callback; the FFI handler is unavailable: {status.reason})"
-    if chosen == "warp":
-        return "warp (NVIDIA Warp mesh queries through XLA's FFI)"
-    if backend == "auto" and platform == "cpu":
-        from ._native import embree_status
-
-        return f"jax (the JAX traversal; Embree FFI unavailable: {embree_status().reason})"
-    if backend == "auto" and platform == "cuda":
-        return "jax (the JAX traversal; Warp is not installed: pip install 'fovjax[gpu]')"
-    if backend == "auto":
-        return f"jax (the JAX traversal; no native backend for {platform})"
-    return "jax (the JAX traversal)"
-
-
 def _query_backend(
     bvh,
     o,
@@ -317,13 +258,12 @@ def _query_backend(
     tile=None,
     batch=None,
 ):
-    """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s jit)."""
+    """The rays (in the order given) on the chosen backend and traversal (inside `_raw_query`'s
+    jit); "auto" chooses per platform inside the program (`fovjax.native.internal.on_platforms`)."""
     kw = dict(any_hit=any_hit, packet_size=packet_size, traversal=traversal, tile=tile, batch=batch)
     if backend != "auto":
         return _run_backend(backend, bvh, o, d, tmin, tmax, level, split=True, **kw)
     on_cpu, on_cuda = resolve_backend("auto", "cpu"), resolve_backend("auto", "cuda")
-    if on_cpu == on_cuda == "jax":
-        return _run_backend("jax", bvh, o, d, tmin, tmax, level, split=True, **kw)
 
     def branch(name, split):
         def run(o, d, tmin, tmax, *lv):
@@ -332,30 +272,13 @@ def _query_backend(
         return run
 
     args = (o, d, tmin, tmax) + (() if level is None else (level,))
-    branches = {"cpu": branch(on_cpu, True), "cuda": branch(on_cuda, False)}
-    if _other_platforms():
-        # The JAX traversal outside CPU never splits the rays over host devices.
-        branches["default"] = branch("jax", False)
-    return jax.lax.platform_dependent(*args, **branches)
-
-
-@functools.cache
-def _other_platforms() -> bool:
-    """Whether "auto" traces the JAX traversal as a branch for platforms other than CPU and
-    CUDA: where JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...), or
-    FOVJAX_AUTO_OTHER_PLATFORMS=1 (to export an "auto" program for them from a machine without
-    one). Every branch is traced though only one is compiled, and that one was 0.4 s of the
-    atrium's frame programs' compile (`python benchmarks/compile_options.py --compare branches`)."""
-    setting = os.environ.get("FOVJAX_AUTO_OTHER_PLATFORMS", "")
-    if setting not in ("", "0", "1"):
-        raise ValueError(f"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got {setting!r}")
-    if setting == "1":
-        return True
-    for device in jax.devices():
-        version = str(getattr(device.client, "platform_version", "")).lower()
-        if device.platform != "cpu" and not (device.platform in ("gpu", "cuda") and "cuda" in version):
-            return True
-    return False
+    if on_cpu == on_cuda == "jax":
+        return branch("jax", True)(*args)
+    # The JAX traversal outside CPU never splits the rays over host devices.
+    stage = on_platforms(
+        branch("jax", False), cpu=branch(on_cpu, True), cuda=branch(on_cuda, False), derivatives=False
+    )
+    return stage(*args)
 
 
 def _run_backend(
@@ -374,41 +297,34 @@ def _run_backend(
     tile=None,
     batch=None,
 ):
+    """(t, prim, u, v) of the rays on a registered backend; t, u, v recomputed in closed form
+    where the backend returns the face only."""
+    chosen = get_backend(backend)
     n = o.shape[0]
-    if backend != "jax":
+    if not chosen.scalar_bounds:
         tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
-    if backend == "embree":
-        from ._native import embree_status
-
-        if embree_status():
-            from ._embree import embree_ffi_query
-
-            # A packet request: packets of the CPU's native width throughout; one by one:
-            # packets only where consecutive rays are coherent (the same hits either way).
-            mode = 1 if packet_size is not None else -1
-            return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=mode)
-    t, prim = _face_query(
-        backend,
+    hits = chosen.query(
         bvh,
         o,
         d,
         tmin,
         tmax,
         level,
-        split=split,
         any_hit=any_hit,
         packet_size=packet_size,
         traversal=traversal,
+        split=split,
         tile=tile,
         batch=batch,
     )
-    # Backends that return only the face: its distance and barycentrics in closed form.
+    if len(hits) == 4:
+        return tuple(hits)
+    t, prim = hits
     t, u, v = hit_geometry(bvh.vertices, bvh.faces, prim, o, d)
     return t, prim, u, v
 
 
-def _face_query(
-    backend,
+def jax_traversal(
     bvh,
     o,
     d,
@@ -423,22 +339,8 @@ def _face_query(
     tile=None,
     batch=None,
 ):
-    """(t, prim) of the rays on a backend that returns the face only."""
+    """(t, prim) of the rays on the JAX traversal (`JaxBackend.query`)."""
     n = o.shape[0]
-    if backend == "embree":
-        from ._embree import embree_query
-        from ._native import embree_status
-
-        if level is not None:
-            raise ValueError(
-                "level= with backend 'embree' needs its FFI handler, which is unavailable: "
-                f"{embree_status().reason}"
-            )
-        return embree_query(bvh, o, d, tmin, tmax, any_hit=any_hit)
-    if backend == "warp":
-        from ._warp import warp_query
-
-        return warp_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit)
     if tile is not None:
         return _tiled_jax(
             bvh,
@@ -509,7 +411,7 @@ def _tiled_jax(bvh, o, d, tmin, tmax, level, *, split, tile, batch, **kw):
     tmin_t = regroup(tmin)
     tmax_t = jnp.where(pad, tmin_t, regroup(tmax))  # padding is never live (nor mixes levels)
     level_t = None if level is None else level[src]
-    t, prim = _face_query("jax", bvh, o_t, d_t, tmin_t, tmax_t, level_t, split=split, **kw)
+    t, prim = jax_traversal(bvh, o_t, d_t, tmin_t, tmax_t, level_t, split=split, **kw)
     return t[inverse], prim[inverse]
 
 

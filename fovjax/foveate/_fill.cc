@@ -1,0 +1,209 @@
+// The foveated frame's reconstruction (its oracle: fovjax/foveate/_frame.py `pixel_means`,
+// fovjax/foveate/_fill.py `fill_blanks` and `blur_and_blend`).
+#pragma once
+
+#include "native/csrc/thread_pool.h"
+
+namespace {
+
+//
+// `fovjax.foveate._frame.pixel_means`, `_fill.fill_blanks` (every block's top-left traced) and
+// `_fill.blur_and_blend` (side by side) in one pass per band of rows, on both cores: the same
+// operations in the same order. Returns 0 in `complete` where some blank pixel's block top-left
+// has no sample either (the caller then runs the JAX path, whose pull-push fills such blocks).
+
+struct FillBlur {
+  const float* sums;       // (2·H·W, 3)
+  const int32_t* n;        // (2, H, W)
+  const bool* bad;         // (2·H·W)
+  const int32_t* region;   // (2, H, W)
+  const float* ecc;        // (2, H, W)
+  float bad_color[3];
+  const float* taps;       // (2r + 1)
+  int r;
+  int64_t h, w;
+  int64_t block[3];        // block side per region (fovea 1)
+  float fovea_deg, blend_deg;
+  bool blur_fovea;
+  std::vector<int32_t> column_top_left;  // (3, W): x - x % block, per region
+};
+
+inline int64_t Reflect(int64_t i, int64_t n) {  // `_fill._reflect`: the edge not repeated
+  i = i < 0 ? -i : i;
+  return i > n - 1 ? 2 * (n - 1) - i : i;
+}
+
+// Row y of eye e's pixel means (`pixel_means`): each pixel's sum over its traced samples (at
+// least one), or the bad colour. Divisions, as XLA does them (no reciprocal).
+FOVJAX_VECTOR_CLONES
+void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) {
+  const int64_t p0 = (e * f.h + y) * f.w;
+  const float* __restrict__ sums = f.sums + 3 * p0;
+  const int32_t* __restrict__ n = f.n + p0;
+  const bool* __restrict__ bad = f.bad + p0;
+  const float colour[3] = {f.bad_color[0], f.bad_color[1], f.bad_color[2]};  // locals: see SelectSamples
+  const int64_t w = f.w;
+  for (int64_t x = 0; x < w; ++x) {
+    const float d = static_cast<float>(n[x] > 1 ? n[x] : 1);
+    for (int c = 0; c < 3; ++c) out[3 * x + c] = bad[x] ? colour[c] : sums[3 * x + c] / d;
+  }
+}
+
+// sum_t taps[t] * src[t][j] for j < n, summed in order (t = 0 first, as the JAX blur adds its
+// terms), into out. One pass for the five taps of the 5×5 Gaussian, the sums in registers; a
+// pass per tap otherwise.
+FOVJAX_VECTOR_CLONES
+void Taps(const float* taps, int k, const float* const* src, int64_t n, float* __restrict__ out) {
+  if (k == 5) {
+    const float t0 = taps[0], t1 = taps[1], t2 = taps[2], t3 = taps[3], t4 = taps[4];
+    const float *__restrict__ a = src[0], *__restrict__ b = src[1], *__restrict__ c = src[2],
+                *__restrict__ d = src[3], *__restrict__ e = src[4];
+    for (int64_t j = 0; j < n; ++j) out[j] = t0 * a[j] + t1 * b[j] + t2 * c[j] + t3 * d[j] + t4 * e[j];
+    return;
+  }
+  for (int64_t j = 0; j < n; ++j) out[j] = taps[0] * src[0][j];
+  for (int t = 1; t < k; ++t) {
+    const float tap = taps[t];
+    const float* __restrict__ s = src[t];
+    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tap * s[j];
+  }
+}
+
+// The blend with the sharp row by weight, in place.
+FOVJAX_VECTOR_CLONES
+void Blend(const float* __restrict__ sharp, const float* __restrict__ weight, int64_t n, float* __restrict__ out) {
+  for (int64_t j = 0; j < n; ++j) out[j] = sharp[j] * (1.0f - weight[j]) + out[j] * weight[j];
+}
+
+// The blend's smoothstep weight per pixel, repeated for its three channels: XLA's clamp (NaN
+// stays NaN).
+FOVJAX_VECTOR_CLONES
+void BlendWeights(const float* __restrict__ ecc, int64_t w, float fovea_deg, float blend_deg,
+                  float* __restrict__ out) {
+  for (int64_t x = 0; x < w; ++x) {
+    float t = (ecc[x] - fovea_deg) / blend_deg;
+    t = t < 0.0f ? 0.0f : t;
+    t = t > 1.0f ? 1.0f : t;
+    const float v = t * t * (3.0f - 2.0f * t);
+    out[3 * x] = v, out[3 * x + 1] = v, out[3 * x + 2] = v;
+  }
+}
+
+// Rows [y0, y1) of eye e into the side-by-side image (H, 2W, 3). Rows are 3W floats (pixels'
+// channels interleaved): a tap's horizontal neighbour is 3 floats away. False where a blank
+// pixel's block top-left is blank too (`fill_blanks` would fill it by pull-push).
+bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* image) {
+  const int r = f.r, k = 2 * r + 1;
+  const int64_t w = f.w, rows = y1 - y0, n3 = 3 * w;
+  // The means of every row the band reads: its rows, r beyond (reflected) and their blocks'
+  // top-left rows.
+  int64_t lo = f.h, hi = 0;
+  for (int64_t i = 0; i < rows + 2 * r; ++i) {
+    const int64_t y = Reflect(y0 - r + i, f.h);
+    lo = std::min(lo, y - y % std::max(f.block[1], f.block[2])), hi = std::max(hi, y);
+  }
+  thread_local std::vector<float> means, filled, padded, weight;
+  means.resize(static_cast<size_t>((hi - lo + 1) * n3));
+  filled.resize(static_cast<size_t>((rows + 2 * r) * n3));
+  padded.resize(static_cast<size_t>(n3 + 6 * r));
+  weight.resize(static_cast<size_t>(n3));
+  for (int64_t y = lo; y <= hi; ++y) MeansRow(f, e, y, &means[(y - lo) * n3]);
+  bool ok = true;
+  const int64_t base = e * f.h * w;
+  for (int64_t i = 0; i < rows + 2 * r; ++i) {  // filled (`fill_blanks`)
+    const int64_t y = Reflect(y0 - r + i, f.h);
+    float* row = &filled[i * n3];
+    std::memcpy(row, &means[(y - lo) * n3], static_cast<size_t>(n3) * sizeof(float));
+    const int32_t* n = f.n + base + y * w;
+    const int32_t* reg = f.region + base + y * w;
+    const int64_t top_row[3] = {y, y - y % f.block[1], y - y % f.block[2]};
+    for (int64_t x = 0; x < w; ++x) {
+      if (n[x] != 0) continue;
+      const int c = reg[x] < 0 ? 0 : (reg[x] > 2 ? 2 : reg[x]);
+      const int64_t ty = top_row[c], tx = f.column_top_left[c * w + x];
+      ok &= f.n[base + ty * w + tx] != 0;
+      const float* top_left = &means[(ty - lo) * n3 + 3 * tx];
+      row[3 * x] = top_left[0], row[3 * x + 1] = top_left[1], row[3 * x + 2] = top_left[2];
+    }
+  }
+  const float* window[16];
+  for (int64_t i = 0; i < rows; ++i) {
+    const int64_t y = y0 + i;
+    for (int t = 0; t < k; ++t) window[t] = &filled[(i + t) * n3];
+    float* mid = &padded[3 * r];
+    Taps(f.taps, k, window, n3, mid);
+    for (int64_t x = 1; x <= r; ++x)
+      for (int c = 0; c < 3; ++c) {
+        padded[3 * (r - x) + c] = mid[3 * Reflect(-x, w) + c];
+        padded[3 * (r + w - 1 + x) + c] = mid[3 * Reflect(w - 1 + x, w) + c];
+      }
+    for (int t = 0; t < k; ++t) window[t] = &padded[3 * t];  // horizontal neighbours: 3 floats apart
+    float* out = image + (y * 2 * w + e * w) * 3;
+    Taps(f.taps, k, window, n3, out);
+    if (!f.blur_fovea) {
+      BlendWeights(f.ecc + (e * f.h + y) * w, w, f.fovea_deg, f.blend_deg, weight.data());
+      Blend(&filled[(i + r) * n3], weight.data(), n3, out);
+    }
+  }
+  return ok;
+}
+
+ffi::Error FillAndBlur(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> sums, ffi::Buffer<ffi::S32> n,
+                       ffi::Buffer<ffi::PRED> bad, ffi::Buffer<ffi::S32> region, ffi::Buffer<ffi::F32> ecc,
+                       ffi::Buffer<ffi::F32> bad_color, ffi::Buffer<ffi::F32> taps,
+                       ffi::Buffer<ffi::F32> fovea_deg, ffi::ResultBuffer<ffi::F32> image,
+                       ffi::ResultBuffer<ffi::PRED> complete, int32_t block_periphery, int32_t block_outside,
+                       float blend_deg, int32_t blur_fovea) {
+  const auto dims = region.dimensions();
+  if (dims.size() != 3 || dims[0] != 2) return ffi::Error::InvalidArgument("fill: regions must be (2, H, W)");
+  FillBlur f;
+  f.h = dims[1], f.w = dims[2];
+  const size_t hw2 = static_cast<size_t>(2 * f.h * f.w);
+  f.r = static_cast<int>(taps.element_count() / 2);
+  if (sums.element_count() != 3 * hw2 || n.element_count() != hw2 || bad.element_count() != hw2 ||
+      ecc.element_count() != hw2 || bad_color.element_count() != 3 || taps.element_count() % 2 != 1 ||
+      fovea_deg.element_count() != 1 || image->element_count() != 3 * hw2 || block_periphery < 1 ||
+      block_outside < 1 || f.h <= f.r || f.w <= f.r || taps.element_count() > 15) {
+    return ffi::Error::InvalidArgument("fill: operand shapes do not match the regions");
+  }
+  f.sums = sums.typed_data(), f.n = n.typed_data(), f.bad = bad.typed_data();
+  f.region = region.typed_data(), f.ecc = ecc.typed_data(), f.taps = taps.typed_data();
+  for (int c = 0; c < 3; ++c) f.bad_color[c] = bad_color.typed_data()[c];
+  f.block[0] = 1, f.block[1] = block_periphery, f.block[2] = block_outside;
+  f.fovea_deg = fovea_deg.typed_data()[0], f.blend_deg = blend_deg;
+  f.blur_fovea = blur_fovea != 0;
+  f.column_top_left.resize(static_cast<size_t>(3 * f.w));
+  for (int c = 0; c < 3; ++c)
+    for (int64_t x = 0; x < f.w; ++x) f.column_top_left[c * f.w + x] = static_cast<int32_t>(x - x % f.block[c]);
+  // Bands of 64 rows: each reads r rows beyond its ends (and the blocks' top-left rows above),
+  // a few percent more with 64 rows than its own.
+  const int64_t rows = 64, bands = (f.h + rows - 1) / rows;
+  std::atomic<bool> ok{true};
+  float* out = image->typed_data();
+  ParallelFor(pool, 2 * bands, [&](int64_t job) {
+    const int64_t e = job / bands, y0 = (job % bands) * rows;
+    if (!FillBlurRows(f, e, y0, std::min(f.h, y0 + rows), out)) ok.store(false);
+  });
+  complete->typed_data()[0] = ok.load();
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxFillAndBlur, FillAndBlur,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // traced samples per pixel (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // regions (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // eccentricity (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the bad pixels' colour (3)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // blur taps (2r + 1)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the fovea's radius, degrees (1)
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // the image side by side (H, 2W, 3)
+                                  .Ret<ffi::Buffer<ffi::PRED>>()  // every blank pixel filled (1)
+                                  .Attr<int32_t>("block_periphery")
+                                  .Attr<int32_t>("block_outside")
+                                  .Attr<float>("blend_deg")
+                                  .Attr<int32_t>("blur_fovea"));

@@ -1,0 +1,175 @@
+"""The foveated frame's native side: sample selection (`foveate/_select.cc`), the slots
+integrator (`foveate/_slots.cc`) and the reconstruction (`foveate/_fill.cc`), each the primal of
+its JAX oracle in `_frame.py` / `_fill.py` on a CPU. Not differentiable: the callers' custom
+JVPs take derivatives from the JAX side (`fovjax.native.internal.on_platforms`)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..native.internal import handler, layout
+
+SELECT_TARGET = "fovjax_select_samples"
+SLOTS_TARGET = "fovjax_whitted_slots"
+FILL_TARGET = "fovjax_fill_and_blur"
+
+
+def camera_rows(cameras) -> Float[Array, "2 stride"]:
+    """The eyes' cameras as the slots handler reads them (`layout.CAMERA_COLUMNS`): position,
+    rotation (row-major), tan(vfov / 2), aspect, offset (what `Camera.ray_direction_components`
+    uses)."""
+    rows = []
+    for cam in cameras:
+        columns = {
+            "position": cam.position,
+            "rotation": cam.rotation,
+            "tan_half_vfov": jnp.tan(jnp.deg2rad(cam.vfov_deg) / 2),
+            "aspect": cam.width / cam.height,
+            "offset": cam.offset,
+        }
+        rows.append(
+            jnp.concatenate(
+                [
+                    jnp.asarray(columns[name], jnp.float32).reshape(width)
+                    for name, width in layout.CAMERA_COLUMNS
+                ]
+            )
+        )
+    return jnp.stack(rows)
+
+
+def native_whitted_slots(
+    operands: tuple,
+    order,
+    n_live,
+    key_data,
+    locality,
+    grid,
+    cameras,
+    *,
+    spp: int,
+    height: int,
+    width: int,
+    jitter: bool,
+    max_depth: int,
+    recompute: bool,
+    packets: bool,
+    robust: bool = True,
+):
+    """A foveated frame's live slots made into rays, traced through the Whitted integrator and
+    summed into their pixels, in one call of the slots handler (CPU only): (sums (2·H·W, 3), bad
+    pixel (2·H·W), [primary, shadow, reflection rays, bad samples]). `order` the slots in
+    compaction order, the first `n_live` live; `key_data` the frame key's (2,) uint32
+    (threefry2x32; unused without `jitter`); `locality` each locality rank's pixel; `grid` the
+    sub-samples' cell centres (S, 2); `cameras` (`camera_rows`). `operands`: the scene's
+    (`fovjax.render.internal.whitted_operands`) with the ray offset last; `robust`: the BVH's
+    `watertight`. What `_frame.trace_selection` with the native integrator and `sample_adder`
+    compute, in their order."""
+    from ..render.internal import MAX_NATIVE_DEPTH
+
+    if not 0 <= max_depth <= MAX_NATIVE_DEPTH:
+        raise ValueError(
+            f"the native integrator counts at most {MAX_NATIVE_DEPTH} reflections, got max_depth {max_depth}"
+        )
+    f32, i32 = jnp.float32, jnp.int32
+    n_pixels = 2 * height * width
+    out = (
+        jax.ShapeDtypeStruct((n_pixels, 3), f32),
+        jax.ShapeDtypeStruct((n_pixels,), jnp.bool_),
+        jax.ShapeDtypeStruct((4,), i32),
+    )
+    call = handler(SLOTS_TARGET, out, what="the native slots integrator", vmap_method="sequential")
+    return call(
+        jnp.asarray(order, i32).reshape(-1),
+        jnp.asarray(n_live, i32).reshape(1),
+        jnp.asarray(key_data, jnp.uint32).reshape(2),
+        jnp.asarray(locality, i32).reshape(-1),
+        jnp.asarray(grid, f32).reshape(spp, 2),
+        jax.lax.stop_gradient(jnp.asarray(cameras, f32).reshape(2, layout.CAMERA_STRIDE)),
+        *operands,
+        spp=np.int32(spp),
+        height=np.int32(height),
+        width=np.int32(width),
+        jitter=np.int32(jitter),
+        max_depth=np.int32(max_depth),
+        recompute=np.int32(recompute),
+        packets=np.int32(packets),
+        robust=np.int32(robust),
+    )
+
+
+def native_select_samples(
+    region,
+    probability,
+    key_data,
+    locality,
+    per_region_spp,
+    subsample_rank,
+    *,
+    spp: int,
+    rule: str,
+    blocks: tuple[int, int],
+    budget: int,
+):
+    """The foveated frame's sample selection through the selection handler (CPU only): (classes
+    int8 (2, S, H, W), compaction order (2·H·W·S), count per class (3), traced mask (2, S, H, W),
+    traced samples per pixel (2, H, W), traced samples per region (3)); see
+    `_frame.selection_with_mask` for what each operand is. `rule`: `Foveation.rule`."""
+    _, h, w = region.shape
+    out = (
+        jax.ShapeDtypeStruct((2, spp, h, w), jnp.int8),
+        jax.ShapeDtypeStruct((2 * spp * h * w,), jnp.int32),
+        jax.ShapeDtypeStruct((3,), jnp.int32),
+        jax.ShapeDtypeStruct((2, spp, h, w), jnp.bool_),
+        jax.ShapeDtypeStruct((2, h, w), jnp.int32),
+        jax.ShapeDtypeStruct((3,), jnp.int32),
+    )
+    call = handler(SELECT_TARGET, out, what="the native sample selection", vmap_method="sequential")
+    return call(
+        jnp.asarray(region, jnp.int32),
+        jax.lax.stop_gradient(jnp.asarray(probability, jnp.float32)),
+        jnp.asarray(key_data, jnp.uint32).reshape(2, 2),
+        jnp.asarray(locality, jnp.int32),
+        jnp.asarray(per_region_spp, jnp.int32),
+        jnp.asarray(subsample_rank, jnp.int32),
+        spp=np.int32(spp),
+        rule=np.int32(layout.RULES[rule]),
+        block_periphery=np.int32(blocks[0]),
+        block_outside=np.int32(blocks[1]),
+        budget=np.int64(budget),
+    )
+
+
+def native_fill_and_blur(
+    sums, n, bad_pixel, region, ecc, bad_color, taps, fovea_deg, *, blocks, blend_deg, blur_fovea
+):
+    """The foveated frame's reconstruction through the fill handler (CPU only): each pixel's
+    mean of its traced samples (`sums` (2·H·W, 3) over `n` (2, H, W); `bad_pixel` (2·H·W) in
+    `bad_color`), every blank pixel filled from its block's top-left, the 5×5 Gaussian (`taps`)
+    blended in beyond `fovea_deg` over `blend_deg` (or everywhere with `blur_fovea`), both eyes
+    side by side: (image (H, 2W, 3), whether every blank pixel's block top-left was traced;
+    where not, the image is not the JAX path's and the caller runs that). The arithmetic of
+    `_frame.pixel_means`, `_fill.fill_blanks` and `blur_and_blend` in their order: equal to
+    float rounding."""
+    _, h, w = region.shape
+    out = (jax.ShapeDtypeStruct((h, 2 * w, 3), jnp.float32), jax.ShapeDtypeStruct((1,), jnp.bool_))
+    call = handler(FILL_TARGET, out, what="the native fill and blur", vmap_method="sequential")
+    f32 = jnp.float32
+    image, complete = call(
+        jax.lax.stop_gradient(jnp.asarray(sums, f32).reshape(2 * h * w, 3)),
+        jnp.asarray(n, jnp.int32),
+        jnp.asarray(bad_pixel, bool).reshape(2 * h * w),
+        jnp.asarray(region, jnp.int32),
+        jax.lax.stop_gradient(jnp.asarray(ecc, f32)),
+        jnp.broadcast_to(jnp.asarray(bad_color, f32), (3,)),
+        jnp.asarray(taps, f32),
+        jax.lax.stop_gradient(jnp.asarray(fovea_deg, f32).reshape(1)),
+        block_periphery=np.int32(blocks[0]),
+        block_outside=np.int32(blocks[1]),
+        blend_deg=np.float32(blend_deg),
+        blur_fovea=np.int32(blur_fovea),
+    )
+    return image, complete[0]

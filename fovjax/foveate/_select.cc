@@ -1,0 +1,346 @@
+// The foveated frame's sample selection (its oracle: fovjax/foveate/_frame.py, `select_samples`).
+#pragma once
+
+#include "native/csrc/layout.h"
+#include "native/csrc/thread_pool.h"
+
+namespace {
+
+//
+// `fovjax.foveate._frame.select_samples` (no image tiles), its traced mask and per-pixel counts
+// in one pass over the screen on both cores, with the same results to the bit: the classes of
+// every sub-sample (`_sampling.sample_classes`: block top-lefts, the P(ω) draw of JAX's
+// threefry2x32 uniform for the sub-sample's flat index, the rule, each region's samples per
+// pixel), their stable compaction in locality order (`compaction_order`), and which samples the
+// budget keeps. The regions and P(ω) come from the program (JAX computes both).
+
+// One lane's threefry2x32 (see UniformRun): the uniform float of counter `c`.
+inline float UniformOne(const uint32_t ks[3], uint32_t c) {
+  static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
+  uint32_t x0 = ks[0], x1 = c + ks[1];
+  for (int group = 0; group < 5; ++group) {
+    for (int j = 0; j < 4; ++j) {
+      const int r = kRotations[group % 2][j];
+      x0 += x1;
+      x1 = (x1 << r) | (x1 >> (32 - r));
+      x1 ^= x0;
+    }
+    x0 += ks[(group + 1) % 3];
+    x1 += ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+  }
+  const uint32_t mantissa = ((x0 ^ x1) >> 9) | 0x3F800000u;
+  float f;
+  std::memcpy(&f, &mantissa, sizeof f);
+  f -= 1.0f;
+  return f > 0.0f ? f : 0.0f;
+}
+
+// The uniforms of n counters, `first + i` or `index[i]`: 64 lanes at a time, each round a
+// loop over the lanes that the compiler vectorises. Each vector of lanes is one long chain of
+// dependent rounds; 64 lanes keep several chains in flight on the vector unit.
+template <bool kIndexed>
+inline __attribute__((always_inline)) void UniformLanes(uint32_t k0, uint32_t k1, uint32_t first,
+                                                        const uint32_t* __restrict__ index, int64_t n,
+                                                        float* __restrict__ out) {
+  static constexpr int kRotations[2][4] = {{13, 15, 26, 6}, {17, 29, 16, 24}};
+  constexpr int kLanes = 64;
+  const uint32_t ks[3] = {k0, k1, k0 ^ k1 ^ 0x1BD11BDAu};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    uint32_t x0[kLanes], x1[kLanes];
+    for (int j = 0; j < kLanes; ++j) {
+      x0[j] = ks[0];
+      x1[j] = (kIndexed ? index[i + j] : first + static_cast<uint32_t>(i + j)) + ks[1];
+    }
+#pragma GCC unroll 5
+    for (int group = 0; group < 5; ++group) {
+#pragma GCC unroll 4
+      for (int r4 = 0; r4 < 4; ++r4) {
+        const int r = kRotations[group % 2][r4];
+        for (int j = 0; j < kLanes; ++j) {
+          x0[j] += x1[j];
+          x1[j] = (x1[j] << r) | (x1[j] >> (32 - r));
+          x1[j] ^= x0[j];
+        }
+      }
+      const uint32_t a = ks[(group + 1) % 3], b = ks[(group + 2) % 3] + static_cast<uint32_t>(group + 1);
+      for (int j = 0; j < kLanes; ++j) {
+        x0[j] += a;
+        x1[j] += b;
+      }
+    }
+    for (int j = 0; j < kLanes; ++j) {
+      const uint32_t mantissa = ((x0[j] ^ x1[j]) >> 9) | 0x3F800000u;
+      float f;
+      std::memcpy(&f, &mantissa, sizeof f);
+      f -= 1.0f;
+      out[i + j] = f > 0.0f ? f : 0.0f;
+    }
+  }
+  for (; i < n; ++i) out[i] = UniformOne(ks, kIndexed ? index[i] : first + static_cast<uint32_t>(i));
+}
+
+// JAX's uniform float32 in [0, 1) at flat indices first..first+n-1 of the key (k0, k1):
+// threefry2x32 of each 64-bit counter (hi 0, index), its two words xor-ed, the top 23 bits as a
+// mantissa in [1, 2), minus 1. A plain loop over lanes that the compiler vectorises, built for
+// the widest vector unit the CPU has (chosen when the library loads).
+FOVJAX_VECTOR_CLONES
+void UniformRun(uint32_t k0, uint32_t k1, uint32_t first, int64_t n, float* out) {
+  UniformLanes<false>(k0, k1, first, nullptr, n, out);
+}
+
+
+// One row of one sub-sample's classes (`_sampling.sample_classes`), branch-free so that the
+// compiler vectorises it: class = 2 - 2·mandatory - optional (the two exclude each other),
+// skipped beyond the region's samples per pixel (`allowed` per region code). Adds the traced
+// samples to `n`.
+template <int kRule>
+void ClassRow(const int32_t* __restrict__ row, const uint8_t* __restrict__ top_left,
+              const float* __restrict__ u, const float* __restrict__ prob, const uint8_t* allowed,
+              uint8_t first, int64_t w, int8_t* __restrict__ cls, uint8_t* __restrict__ traced,
+              int32_t* __restrict__ n) {
+  // int32 lanes throughout: GCC vectorises the loop only when its values share one width.
+  const int32_t a0 = allowed[0], a1 = allowed[1], a2 = allowed[2], f = first;
+  for (int64_t x = 0; x < w; ++x) {
+    const int32_t r = row[x];
+    const int32_t fovea = r == kFovea, tl = top_left[x], kept = u[x] < prob[x];
+    int32_t mandatory, optional;
+    if (kRule == kRuleEither) {
+      mandatory = fovea | tl;
+      optional = (mandatory ^ 1) & kept;
+    } else if (kRule == kRuleStrict) {
+      mandatory = fovea;
+      optional = (mandatory ^ 1) & tl & kept;
+    } else {  // thesis-measured
+      mandatory = (r != kOutside) | f;
+      optional = 0;
+    }
+    const int32_t ok = (fovea & a0) | ((r == kPeriphery) & a1) | ((r == kOutside) & a2);
+    const int32_t live = ok & (mandatory | optional);
+    cls[x] = static_cast<int8_t>(2 - live * (2 * mandatory + optional));
+    traced[x] = static_cast<uint8_t>(live);
+    n[x] += live;
+  }
+}
+
+// Pass 1 of `SelectSamples` for one band of rows of one eye (`job`): its operands.
+struct SelectBand {
+  const int32_t* region;
+  const float* p;
+  const uint32_t* key;
+  const int32_t* rspp;
+  const int32_t* srank;
+  int8_t* cls;
+  bool* traced;
+  int32_t* per_pixel;
+  int64_t* band_sums;
+  int64_t h, w, hw, spp, rows, bands;
+  int32_t rule, block_periphery, block_outside;
+};
+
+// Built for the widest vector unit the CPU has, as UniformRun (the row loops are byte- and
+// int-wide lanes; ClassRow is inlined into each build).
+FOVJAX_VECTOR_CLONES
+void SelectBandRows(const SelectBand& a, int64_t job) {
+  const int32_t* region = a.region;
+  const float* p = a.p;
+  const uint32_t* key = a.key;
+  const int32_t* rspp = a.rspp;
+  const int32_t* srank = a.srank;
+  int8_t* cls = a.cls;
+  bool* traced = a.traced;
+  int32_t* per_pixel = a.per_pixel;
+  int64_t* band_sums = a.band_sums;
+  const int64_t h = a.h, w = a.w, hw = a.hw, spp = a.spp, rows = a.rows, bands = a.bands;
+  const int32_t rule = a.rule, block_periphery = a.block_periphery, block_outside = a.block_outside;
+  // The sizes as locals: the byte-wide stores below may alias anything the lambda captures by
+  // reference, which would be reloaded after each of them.
+  const int64_t W = w, H = h;
+  const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(H, y0 + rows);
+  const int32_t* reg = region + eye * hw;
+  std::vector<float> u(static_cast<size_t>(W * spp));
+  std::vector<uint8_t> top_left(static_cast<size_t>(W)), in_block(static_cast<size_t>(W));
+  const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
+  for (int64_t y = y0; y < y1; ++y) {
+    const int32_t* row = reg + y * W;
+    // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
+    // one pixel; else the top-left of every aligned block holding a pixel of that region.
+    uint8_t* tl = top_left.data();
+    for (int64_t x = 0; x < W; ++x) tl[x] = row[x] == kFovea;
+    for (int c = 0; c < 2; ++c) {
+      const int64_t b = sizes[c];
+      const int32_t code = codes[c];
+      if (b == 1) {
+        for (int64_t x = 0; x < W; ++x) tl[x] |= row[x] == code;
+        continue;
+      }
+      if (y % b != 0) continue;
+      uint8_t* any = in_block.data();  // per column: a pixel of the region in the block's rows
+      for (int64_t x = 0; x < W; ++x) any[x] = row[x] == code;
+      for (int64_t yy = y + 1; yy < std::min(H, y + b); ++yy) {
+        const int32_t* below = reg + yy * W;
+        for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
+      }
+      for (int64_t xb = 0; xb < W; xb += b) {
+        uint8_t found = 0;
+        for (int64_t xx = xb; xx < std::min(W, xb + b); ++xx) found |= any[xx];
+        tl[xb] |= found;
+      }
+    }
+    for (int64_t s = 0; s < spp; ++s)
+      UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
+    const float* prow = p + eye * hw + y * W;
+    int32_t* n = per_pixel + eye * hw + y * W;
+    std::fill(n, n + W, 0);
+    for (int64_t s = 0; s < spp; ++s) {
+      const float* us = &u[s * W];
+      int8_t* c_row = cls + (eye * spp + s) * hw + y * W;
+      uint8_t* t_row = reinterpret_cast<uint8_t*>(traced) + (eye * spp + s) * hw + y * W;
+      const uint8_t allowed[3] = {srank[s] < rspp[0], srank[s] < rspp[1], srank[s] < rspp[2]};
+      const uint8_t first = s == 0;
+      if (rule == kRuleEither) ClassRow<kRuleEither>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+      else if (rule == kRuleStrict) ClassRow<kRuleStrict>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+      else ClassRow<kRuleThesisMeasured>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+    }
+    // Per region, in registers (a sum through memory would wait on each previous add).
+    int32_t fovea = 0, periphery = 0, outside = 0;
+    for (int64_t x = 0; x < W; ++x) {
+      const int32_t r = row[x], v = n[x];
+      fovea += r == 0 ? v : 0;
+      periphery += r == 1 ? v : 0;
+      outside += r == 2 ? v : 0;
+    }
+    band_sums[3 * job] += fovea, band_sums[3 * job + 1] += periphery, band_sums[3 * job + 2] += outside;
+  }
+}
+
+ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
+                         ffi::Buffer<ffi::F32> probability, ffi::Buffer<ffi::U32> keys,
+                         ffi::Buffer<ffi::S32> locality, ffi::Buffer<ffi::S32> region_spp,
+                         ffi::Buffer<ffi::S32> subsample_rank, ffi::ResultBuffer<ffi::S8> classes_out,
+                         ffi::ResultBuffer<ffi::S32> order_out, ffi::ResultBuffer<ffi::S32> counts_out,
+                         ffi::ResultBuffer<ffi::PRED> traced_out, ffi::ResultBuffer<ffi::S32> per_pixel_out,
+                         ffi::ResultBuffer<ffi::S32> by_region_out, int32_t spp, int32_t rule, int32_t block_periphery, int32_t block_outside,
+                         int64_t budget) {
+  const auto dims = region_buf.dimensions();
+  if (dims.size() != 3 || dims[0] != 2) return ffi::Error::InvalidArgument("select: regions must be (2, H, W)");
+  const int64_t h = dims[1], w = dims[2], hw = h * w, per_eye = hw * spp;
+  if (probability.element_count() != static_cast<size_t>(2 * hw) || keys.element_count() != 4 ||
+      locality.element_count() != static_cast<size_t>(hw) || region_spp.element_count() != 3 ||
+      subsample_rank.element_count() != static_cast<size_t>(spp) || block_periphery < 1 || block_outside < 1) {
+    return ffi::Error::InvalidArgument("select: operand shapes do not match the regions");
+  }
+  const int32_t* region = region_buf.typed_data();
+  const float* p = probability.typed_data();
+  const uint32_t* key = keys.typed_data();
+  const int32_t* perm = locality.typed_data();
+  const int32_t* rspp = region_spp.typed_data();
+  const int32_t* srank = subsample_rank.typed_data();
+  int8_t* cls = classes_out->typed_data();           // (2, S, H, W)
+  int32_t* order = order_out->typed_data();          // (2 · H·W · S), locality order
+  int32_t* counts = counts_out->typed_data();        // (3)
+  bool* traced = traced_out->typed_data();           // (2, S, H, W)
+  int32_t* per_pixel = per_pixel_out->typed_data();  // (2, H, W)
+  int32_t* by_region = by_region_out->typed_data();  // (3): traced samples per region
+
+  // Pass 1, rows in bands: each sub-sample's class, whether it is wanted, and the wanted
+  // samples per pixel (the budget's drops are taken off in pass 2).
+  const int64_t rows = 16;
+  const int64_t bands = (h + rows - 1) / rows;
+  std::vector<int64_t> band_sums(3 * 2 * bands, 0);  // wanted samples per region, per band
+  const SelectBand band{region, p, key, rspp, srank, cls, traced, per_pixel, band_sums.data(), h, w, hw, spp,
+                        rows, bands, rule, block_periphery, block_outside};
+  ParallelFor(pool, 2 * bands, [&](int64_t job) { SelectBandRows(band, job); });
+
+  // Pass 2, the locality-ordered samples in chunks: each chunk lists its mandatory and its
+  // optional samples (the stable partition of `compaction_order`), then the lists go to their
+  // places. Slots past the traced samples (`order` beyond the wanted ones) are never read as
+  // live rays: zeros.
+  const int64_t pixels_per_chunk = 8192;
+  const int64_t chunks_per_eye = (hw + pixels_per_chunk - 1) / pixels_per_chunk;
+  const int64_t chunks = 2 * chunks_per_eye;
+  // Each chunk's two lists, allocated uninitialised (zeroing them cost more than filling them).
+  std::vector<std::unique_ptr<int32_t[]>> listed(2 * chunks);
+  std::vector<int64_t> listed_size(2 * chunks, 0);
+  ParallelFor(pool, chunks, [&](int64_t c) {
+    const int64_t eye = c / chunks_per_eye, j0 = (c % chunks_per_eye) * pixels_per_chunk;
+    const int64_t j1 = std::min(hw, j0 + pixels_per_chunk);
+    const int64_t S = spp, HW = hw, first = eye * per_eye;  // locals: see pass 1
+    listed[2 * c].reset(new int32_t[static_cast<size_t>((j1 - j0) * S)]);
+    listed[2 * c + 1].reset(new int32_t[static_cast<size_t>((j1 - j0) * S)]);
+    int32_t* m = listed[2 * c].get();
+    int32_t* o = listed[2 * c + 1].get();
+    int64_t nm = 0, no = 0;  // written unconditionally, kept by the counts (no branch)
+    const int8_t* classes = cls + eye * S * HW;
+    for (int64_t j = j0; j < j1; ++j) {
+      const int64_t pix = perm[j];
+      for (int64_t s = 0; s < S; ++s) {
+        const int8_t k = classes[s * HW + pix];
+        const int32_t slot = static_cast<int32_t>(first + j * S + s);
+        m[nm] = slot, o[no] = slot;
+        nm += k == kMandatory, no += k == kOptional;
+      }
+    }
+    listed_size[2 * c] = nm, listed_size[2 * c + 1] = no;
+  });
+  int64_t total[2] = {0, 0};
+  std::vector<int64_t> offset(2 * chunks);
+  for (int k = 0; k < 2; ++k)
+    for (int64_t c = 0; c < chunks; ++c) {
+      offset[2 * c + k] = total[k];
+      total[k] += listed_size[2 * c + k];
+    }
+  const int64_t wanted = total[0] + total[1];
+  for (int64_t c = 0; c < chunks; ++c) offset[2 * c + 1] += total[0];
+  ParallelFor(pool, chunks + 1, [&](int64_t c) {
+    if (c == chunks) {  // the rest of the list
+      std::fill(order + wanted, order + 2 * per_eye, 0);
+      return;
+    }
+    for (int k = 0; k < 2; ++k) {
+      const int64_t size = listed_size[2 * c + k];
+      if (size > 0) std::memcpy(order + offset[2 * c + k], listed[2 * c + k].get(), size * sizeof(int32_t));
+    }
+  });
+  // Beyond the budget (`traced_mask`'s drops): the listed samples past it are not traced.
+  for (int64_t rank = std::min(budget, wanted); rank < wanted; ++rank) {
+    const int64_t slot = order[rank], eye = slot / per_eye, j = (slot % per_eye) / spp, s = slot % spp;
+    const int64_t pix = perm[j];
+    traced[(eye * spp + s) * hw + pix] = false;
+    --per_pixel[eye * hw + pix];
+    const int32_t r = region[eye * hw + pix];
+    if (r >= 0 && r < 3) --band_sums[r];  // any band's sum: only the total is read
+  }
+  for (int r = 0; r < 3; ++r) {
+    int64_t sum = 0;
+    for (int64_t b = 0; b < 2 * bands; ++b) sum += band_sums[3 * b + r];
+    by_region[r] = static_cast<int32_t>(sum);
+  }
+  counts[0] = static_cast<int32_t>(total[0]);
+  counts[1] = static_cast<int32_t>(total[1]);
+  counts[2] = static_cast<int32_t>(2 * per_eye - wanted);
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // regions (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // P(ω) per pixel (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::U32>>()   // each eye's key data (2, 2)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // locality order of the pixels (H·W)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // samples per pixel per region (3)
+                                  .Arg<ffi::Buffer<ffi::S32>>()   // each sub-sample's rank (S)
+                                  .Ret<ffi::Buffer<ffi::S8>>()    // classes (2, S, H, W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // compaction order (2·H·W·S)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // count per class (3)
+                                  .Ret<ffi::Buffer<ffi::PRED>>()  // traced (2, S, H, W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // traced per pixel (2, H, W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // traced per region (3)
+                                  .Attr<int32_t>("spp")
+                                  .Attr<int32_t>("rule")  // 0 either, 1 strict, 2 thesis-measured
+                                  .Attr<int32_t>("block_periphery")
+                                  .Attr<int32_t>("block_outside")
+                                  .Attr<int64_t>("budget"));

@@ -1,0 +1,246 @@
+// The foveated frame's slots (its oracle: fovjax/foveate/_frame.py, `traced_sums`' chunked path).
+#pragma once
+
+#include "native/csrc/layout.h"
+#include "native/csrc/thread_pool.h"
+#include "render/_whitted.cc"
+#include "foveate/_select.cc"
+
+namespace {
+
+//
+// `fovjax.foveate._frame.trace_selection` through the native integrator with `sample_adder`
+// consuming its chunks, in one call: each live slot's primary ray from its index
+// (`_slot_samples`, `positions_at`, `Camera.ray_directions`, `normalize`: the same operations
+// in the same order), its Whitted radiance (`WhittedBlock`), then every slot's radiance added to
+// its pixel in slot order, as the chunks add them. Its work is the live slots' (the chunk loop's
+// per-chunk operations around the integrator are gone).
+
+// JAX's threefry2x32 uniform (see UniformRun) at each of n counters.
+FOVJAX_VECTOR_CLONES
+void UniformAt(uint32_t k0, uint32_t k1, const uint32_t* __restrict__ index, int64_t n,
+               float* __restrict__ out) {
+  UniformLanes<true>(k0, k1, 0, index, n, out);
+}
+
+
+struct SlotLayout {
+  const int32_t* order;
+  const int32_t* locality;  // (H·W): pixel of each locality rank
+  const float* grid;        // (S, 2): the sub-samples' cell centres
+  const float* cameras;     // (2, kCameraStride)
+  uint32_t key[2];
+  bool jitter;
+  int64_t spp, h, w, per_eye, cells;  // cells: the strata per row, sqrt(spp)
+};
+
+// Per-block scratch of `SlotRays`.
+struct SlotScratch {
+  std::vector<float> x, y, jitter;
+  std::vector<uint32_t> counter;
+  std::vector<int32_t> eye, sample;
+  void Reserve(int64_t n) {
+    for (auto* v : {&x, &y}) v->resize(n);
+    jitter.resize(2 * n), counter.resize(2 * n);
+    for (auto* v : {&eye, &sample}) v->resize(n);
+  }
+};
+
+// Slots [begin, begin + n) as rays (o, d, active) and whether each is valid (a primary ray
+// `radiance` counts); the pixel each goes to in `target`. The index arithmetic in 32 bits (the
+// caller checks the sizes), then the positions and directions in loops over lanes.
+void SlotRays(const SlotLayout& L, const int32_t* position, int64_t begin, int64_t n, float* o, float* d,
+              bool* active, bool* valid, int32_t* target, SlotScratch& t) {
+  const uint32_t S = static_cast<uint32_t>(L.spp), W = static_cast<uint32_t>(L.w);
+  const uint32_t H = static_cast<uint32_t>(L.h), per_eye = static_cast<uint32_t>(L.per_eye);
+  const uint32_t hw = H * W;
+  for (int64_t i = 0; i < n; ++i) {
+    const uint32_t slot = static_cast<uint32_t>(L.order[position[begin + i]]);
+    const uint32_t eye = slot >= per_eye, within = slot - eye * per_eye;  // two eyes
+    const uint32_t rank = S == 1 ? within : within / S, sample = within - rank * S;
+    const uint32_t pixel = static_cast<uint32_t>(L.locality[rank]);
+    const uint32_t y = pixel / W, x = pixel - y * W;
+    target[i] = static_cast<int32_t>(eye * hw + pixel);
+    t.counter[2 * i] = ((sample * H + y) * W + x) * 2;
+    t.counter[2 * i + 1] = t.counter[2 * i] + 1;
+    t.eye[i] = static_cast<int32_t>(eye), t.sample[i] = static_cast<int32_t>(sample);
+    t.x[i] = static_cast<float>(x), t.y[i] = static_cast<float>(y);
+  }
+  if (L.jitter) UniformAt(L.key[0], L.key[1], t.counter.data(), 2 * n, t.jitter.data());
+  const float cells = static_cast<float>(L.cells), width = static_cast<float>(W),
+              height = static_cast<float>(H);
+  const float* c0 = L.cameras;
+  const float* c1 = L.cameras + kCameraStride;
+  for (int64_t i = 0; i < n; ++i) {
+    const float* cell = L.grid + 2 * t.sample[i];
+    float x = t.x[i], y = t.y[i];
+    if (L.jitter) {
+      x = x + (cell[0] + (t.jitter[2 * i] - 0.5f) / cells);
+      y = y + (cell[1] + (t.jitter[2 * i + 1] - 0.5f) / cells);
+    } else {
+      x = x + cell[0];
+      y = y + cell[1];
+    }
+    const float* c = t.eye[i] ? c1 : c0;
+    const float* r = c + 3;
+    const float tan_half = c[12], aspect = c[13];
+    const float sx = ((2.0f * x / width - 1.0f + c[14]) * tan_half) * aspect;
+    const float sy = (1.0f - 2.0f * y / height + c[15]) * tan_half;
+    float raw[3];
+    for (int k = 0; k < 3; ++k) raw[k] = sx * r[3 * k] + sy * r[3 * k + 1] - r[3 * k + 2];
+    const float scale = 1.0f / std::sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2]);
+    for (int k = 0; k < 3; ++k) raw[k] = raw[k] * scale;  // `ray_direction_components`
+    const float n2 = raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2];  // `normalize`
+    const float inv = n2 > 0.0f ? 1.0f / std::sqrt(n2) : 0.0f;
+    bool finite = true, nonzero = false;
+    for (int k = 0; k < 3; ++k) {
+      o[3 * i + k] = c[k];
+      d[3 * i + k] = raw[k] * inv;
+      finite = finite && std::isfinite(c[k]) && std::isfinite(raw[k]);
+      nonzero = nonzero || d[3 * i + k] != 0.0f;
+    }
+    active[i] = true;
+    valid[i] = finite && nonzero;
+  }
+}
+
+ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::Buffer<ffi::S32> n_live,
+                        ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::S32> locality,
+                        ffi::Buffer<ffi::F32> grid, ffi::Buffer<ffi::F32> cameras, FOVJAX_SCENE_PARAMS,
+                        ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
+                        ffi::ResultBuffer<ffi::S32> counts_out, int32_t spp, int32_t height,
+                        int32_t width, int32_t jitter, int32_t max_depth, int32_t recompute,
+                        int32_t packets, int32_t robust) {
+  if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
+  const int64_t hw = static_cast<int64_t>(height) * width, per_eye = hw * spp;
+  int64_t cells = 1;
+  while (cells * cells < spp) ++cells;
+  if (spp < 1 || cells * cells != spp || height < 1 || width < 1 || 2 * per_eye >= (int64_t{1} << 31) ||
+      n_live.element_count() != 1 || key.element_count() != 2 ||
+      locality.element_count() != static_cast<size_t>(hw) ||
+      grid.element_count() != 2 * static_cast<size_t>(spp) ||
+      cameras.element_count() != 2 * static_cast<size_t>(kCameraStride) ||
+      sums_out->element_count() != 6 * static_cast<size_t>(hw) ||
+      bad_out->element_count() != 2 * static_cast<size_t>(hw) || counts_out->element_count() != 4) {
+    return ffi::Error::InvalidArgument("fovjax slots: operand shapes do not match the image");
+  }
+  std::atomic<int> out_of_range{0};
+  ShadeScene s;
+  std::shared_ptr<NativeScene> tree;
+  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, &out_of_range, &s, &tree);
+  if (status.failure()) return status;
+  const int64_t n = std::max<int64_t>(
+      0, std::min<int64_t>(n_live.typed_data()[0], static_cast<int64_t>(order.element_count())));
+  SlotLayout L{order.typed_data(), locality.typed_data(), grid.typed_data(), cameras.typed_data(),
+               {key.typed_data()[0], key.typed_data()[1]}, jitter != 0, spp, height, width, per_eye, cells};
+  for (int64_t i = 0; i < n; ++i) {
+    if (L.order[i] < 0 || L.order[i] >= 2 * per_eye) {
+      return ffi::Error::InvalidArgument("fovjax slots: a live slot is outside the image's samples");
+    }
+  }
+  // Each live slot's radiance, rays traced, valid flag and pixel (scratch for the sums below).
+  std::unique_ptr<float[]> radiance(new float[3 * std::max<int64_t>(n, 1)]);
+  std::unique_ptr<int32_t[]> traced(new int32_t[std::max<int64_t>(n, 1)]);
+  std::unique_ptr<int32_t[]> target(new int32_t[std::max<int64_t>(n, 1)]);
+  std::unique_ptr<bool[]> valid(new bool[std::max<int64_t>(n, 1)]);
+  // The order the slots are traced in: the live slots are two ascending runs (the mandatory
+  // samples, then the optional ones, each in locality order), merged so that neighbouring
+  // samples of both classes share packets; `traced_at[i]`: where slot i was traced. The sums
+  // below still go in slot order.
+  std::unique_ptr<int32_t[]> position(new int32_t[std::max<int64_t>(n, 1)]);
+  std::unique_ptr<int32_t[]> traced_at(new int32_t[std::max<int64_t>(n, 1)]);
+  {
+    const int32_t* o = L.order;
+    int64_t split = 1;
+    while (split < n && o[split] > o[split - 1]) ++split;
+    int64_t end = split + 1;
+    while (end < n && o[end] > o[end - 1]) ++end;
+    int64_t k = 0;
+    if (split < n && end >= n) {
+      int64_t a = 0, b = split;
+      while (a < split && b < n) position[k++] = static_cast<int32_t>(o[a] < o[b] ? a++ : b++);
+      while (a < split) position[k++] = static_cast<int32_t>(a++);
+      while (b < n) position[k++] = static_cast<int32_t>(b++);
+    } else {
+      for (; k < n; ++k) position[k] = static_cast<int32_t>(k);
+    }
+    for (int64_t i = 0; i < n; ++i) traced_at[position[i]] = static_cast<int32_t>(i);
+  }
+  const NativeScene& t = *tree;
+  const int64_t per_block = 1024;
+  ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
+    thread_local std::vector<float> o, d;
+    thread_local SlotScratch scratch;
+    thread_local std::unique_ptr<bool[]> active;
+    o.resize(3 * per_block), d.resize(3 * per_block);
+    scratch.Reserve(per_block);
+    if (!active) active.reset(new bool[per_block]);
+    const int64_t begin = blk * per_block, m = std::min(n, begin + per_block) - begin;
+    SlotRays(L, position.get(), begin, m, o.data(), d.data(), active.get(), valid.get() + begin,
+             target.get() + begin, scratch);
+    BlockRays block;
+    block.n = m;
+    WhittedBlock(t, s, o.data(), d.data(), active.get(), block, radiance.get() + 3 * begin,
+                 traced.get() + begin, packets != 0, true);
+  });
+  if (out_of_range.load() != 0) {
+    return ffi::Error::InvalidArgument(
+        "fovjax Whitted: a hit face names a vertex or a material out of range");
+  }
+  // The sums, per eye on its own task: every slot's radiance added to its pixel in slot order
+  // (`sample_adder`: a sample whose radiance is not finite adds nothing and marks its pixel).
+  float* sums = sums_out->typed_data();
+  bool* bad = bad_out->typed_data();
+  int64_t eye_counts[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};
+  ParallelFor(pool, 2, [&](int64_t eye) {
+    float* eye_sums = sums + 3 * eye * hw;
+    bool* eye_bad = bad + eye * hw;
+    std::fill(eye_sums, eye_sums + 3 * hw, 0.0f);
+    std::fill(eye_bad, eye_bad + hw, false);
+    const int32_t first = static_cast<int32_t>(eye * hw), last = static_cast<int32_t>(first + hw);
+    int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
+    for (int64_t i = 0; i < n; ++i) {
+      const int64_t k = traced_at[i];
+      const int32_t px = target[k];
+      if (px < first || px >= last) continue;
+      const float* rgb = radiance.get() + 3 * k;
+      primary += valid[k];
+      shadow += traced[k] >> 8;
+      reflection += traced[k] & 255;
+      if (!(std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]))) {
+        eye_bad[px - first] = true;
+        ++n_bad;
+        continue;
+      }
+      float* out = sums + 3 * static_cast<int64_t>(px);
+      out[0] += rgb[0], out[1] += rgb[1], out[2] += rgb[2];
+    }
+    eye_counts[eye][0] = primary, eye_counts[eye][1] = shadow;
+    eye_counts[eye][2] = reflection, eye_counts[eye][3] = n_bad;
+  });
+  for (int k = 0; k < 4; ++k) counts_out->typed_data()[k] = static_cast<int32_t>(eye_counts[0][k] + eye_counts[1][k]);
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
+                              WithSceneArgs(ffi::Ffi::Bind()
+                                                .Ctx<ffi::ThreadPool>()
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // slots in compaction order (P)
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // live slots (1)
+                                                .Arg<ffi::Buffer<ffi::U32>>()   // the frame key's data (2)
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // locality order (H·W)
+                                                .Arg<ffi::Buffer<ffi::F32>>()   // sub-sample cell centres (S, 2)
+                                                .Arg<ffi::Buffer<ffi::F32>>())  // the eyes' cameras (2, 16)
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
+                                  .Ret<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples
+                                  .Attr<int32_t>("spp")
+                                  .Attr<int32_t>("height")
+                                  .Attr<int32_t>("width")
+                                  .Attr<int32_t>("jitter")
+                                  .Attr<int32_t>("max_depth")
+                                  .Attr<int32_t>("recompute")
+                                  .Attr<int32_t>("packets")
+                                  .Attr<int32_t>("robust"));

@@ -1,0 +1,117 @@
+"""The one place a program chooses between a stage's native implementation and its JAX one.
+
+Every stage that has a native handler (a ray query, the Whitted integrator, the foveated
+frame's selection, slots and reconstruction) is a pair: the native function and the JAX
+function that is its oracle and the source of its derivatives. `plan_native` decides once per
+configuration whether the native side can run (the handlers built, the configuration allows
+it), and `on_platforms` builds the stage: the native function on the platforms it serves and the
+JAX function elsewhere, chosen inside the program (`jax.lax.platform_dependent`), so that one
+program lowers for CPU and CUDA; with derivatives from the JAX function (a custom JVP) where the
+outputs are differentiable."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+from collections.abc import Callable
+
+import jax
+
+from ._library import status
+
+REQUESTS = ("auto", "native", "jax")
+
+
+@dataclasses.dataclass(frozen=True)
+class NativePlan:
+    """Where a configuration's native stages run, resolved once (`plan_native`).
+
+    - `cpu`: the native handlers run the stages' CPU side;
+    - `cpu_only`: the program is built for the CPU alone (no JAX branch: "native" asked for);
+    - `reason`: what the native handlers are (where they run) or why they do not run.
+    """
+
+    cpu: bool
+    cpu_only: bool
+    reason: str
+
+
+def plan_native(
+    request: str = "auto", *, allowed: bool = True, why_not: str = "", what: str = "the configuration"
+) -> NativePlan:
+    """Whether a configuration's native stages run: `request` "auto" (where the handlers built and
+    `allowed`), "native" (the handlers, or an error naming `what` asked for them and why they
+    cannot run) or "jax" (never). `why_not` says why a configuration is not `allowed`."""
+    if request not in REQUESTS:
+        raise ValueError(f"the native request must be one of {REQUESTS}, got {request!r}")
+    if request == "jax":
+        return NativePlan(False, False, "the JAX implementation was asked for")
+    if not allowed:
+        if request == "native":
+            raise ValueError(f"{what} needs the native handlers, but {why_not}")
+        return NativePlan(False, False, why_not)
+    found = status()
+    if not found:
+        if request == "native":
+            raise RuntimeError(f"{what} needs the native handlers, which are unavailable: {found.reason}")
+        return NativePlan(False, False, found.reason)
+    return NativePlan(True, request == "native", found.reason)
+
+
+@functools.cache
+def other_platforms() -> bool:
+    """Whether a stage chosen per platform also lowers its JAX side for platforms other than CPU
+    and CUDA: where JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...),
+    or FOVJAX_AUTO_OTHER_PLATFORMS=1 (to export such a program from a machine without one). Every
+    branch is traced though only one is compiled, so a branch no device needs is left out."""
+    setting = os.environ.get("FOVJAX_AUTO_OTHER_PLATFORMS", "")
+    if setting not in ("", "0", "1"):
+        raise ValueError(f"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got {setting!r}")
+    if setting == "1":
+        return True
+    for device in jax.devices():
+        version = str(getattr(device.client, "platform_version", "")).lower()
+        if device.platform != "cpu" and not (device.platform in ("gpu", "cuda") and "cuda" in version):
+            return True
+    return False
+
+
+def on_platforms(
+    reference: Callable,
+    *,
+    cpu: Callable | None = None,
+    cuda: Callable | None = None,
+    cpu_only: bool = False,
+    derivatives: bool = True,
+) -> Callable:
+    """One stage as a function of its operands: `cpu` on a CPU, `cuda` on an NVIDIA GPU,
+    `reference` (the JAX implementation) wherever neither is given, chosen per platform inside
+    the program. `cpu_only`: `cpu` alone (a program for the CPU, or a caller already inside the
+    CPU's branch). `derivatives`: the stage's derivatives are `reference`'s (a custom JVP), so
+    they do not depend on where the primal ran; False where the outputs are not differentiable
+    (integers, masks) or the caller differentiates elsewhere. All three take the same operands
+    and return the same structure."""
+    if cpu_only:
+        if cpu is None:
+            raise ValueError("on_platforms: cpu_only needs a cpu function")
+        primal = cpu
+    elif cpu is None and cuda is None:
+        return reference
+    else:
+
+        def primal(*args):
+            branches = {name: f for name, f in (("cpu", cpu), ("cuda", cuda)) if f is not None}
+            if len(branches) < 2 or other_platforms():
+                branches["default"] = reference
+            return jax.lax.platform_dependent(*args, **branches)
+
+    if not derivatives:
+        return primal
+    stage = jax.custom_jvp(primal)
+
+    @stage.defjvp
+    def _from_reference(primals, tangents):
+        return jax.jvp(reference, primals, tangents)
+
+    return stage

@@ -1,0 +1,30 @@
+// Every stride, code and operand order that the Python side and the native handlers share.
+// `fovjax_native_layout` (library.cc) exports them; the loader compares the export with
+// fovjax/native/_layout.py before registering a handler, and tests/test_native_layout.py compares
+// both with the constants of the packages that own them.
+#pragma once
+
+#include <cstdint>
+
+namespace {
+
+// Materials: rows of ka (3), kd (3), ks (3), ke (3), kr (3), ns (1) (`whitted_operands`).
+constexpr int kMaterialStride = 16;
+// Lights: rows of position or direction towards the light (3), colour (3).
+constexpr int kLightStride = 6;
+// Light kinds (`Scene.light_kind`).
+constexpr int kLightPoint = 0, kLightDirectional = 1;
+// Cameras: rows of position (3), rotation (3×3, row-major), tan(vfov / 2), aspect, offset (2).
+constexpr int kCameraStride = 16;
+// Regions of a pixel (fovjax/foveate/_sampling.py).
+constexpr int kFovea = 0, kPeriphery = 1, kOutside = 2;
+// Sample classes (fovjax/foveate/_sampling.py).
+constexpr int8_t kMandatory = 0, kOptional = 1, kSkipped = 2;
+// Sampling rules (`Foveation.rule`).
+constexpr int kRuleEither = 0, kRuleStrict = 1, kRuleThesisMeasured = 2;
+// The Whitted handlers' scene operands, in order (`FOVJAX_SCENE_PARAMS`, render/_whitted.cc).
+constexpr const char* kSceneOperands =
+    "bvh_host_id,bvh_vertices,bvh_faces,bvh_first_face,vertices,faces,face_material,normals,uvs,"
+    "materials,texture,texels,texture_shape,lights,light_kind,ambient,environment,offset";
+
+}  // namespace

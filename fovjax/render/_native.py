@@ -1,0 +1,126 @@
+"""The Whitted integrator's native side: the handler `render/_whitted.cc` (the primal of
+`radiance` on a CPU), the scene operands in the handler's layout, and the plan that says
+whether a configuration runs it. Its oracle and its derivatives are the JAX integrator
+(`_integrator.py`)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..native.internal import NativePlan, handler, layout, plan_native
+from ..trace import BVH
+
+WHITTED_TARGET = "fovjax_embree_whitted"
+# The most reflections the handler counts per ray (its counts are 8 bits).
+MAX_NATIVE_DEPTH = 255
+
+
+@functools.cache
+def integrator_plan(config) -> NativePlan:
+    """Whether `config` runs its integrator natively on a CPU (`RenderConfig.integrator` "auto":
+    where the handlers built and the ray backend is "auto" or "embree"; "native": those or an
+    error naming why not; "jax": never), resolved once per configuration."""
+    why_not = ""
+    if config.backend not in ("auto", "embree"):
+        why_not = f"the ray backend is {config.backend!r} (the native integrator traces with Embree)"
+    elif config.max_depth > MAX_NATIVE_DEPTH:
+        why_not = f"max_depth {config.max_depth} is above the native integrator's {MAX_NATIVE_DEPTH}"
+    what = f"RenderConfig.integrator {config.integrator!r}"
+    return plan_native(config.integrator, allowed=not why_not, why_not=why_not, what=what)
+
+
+def whitted_operands(scene, bvh: BVH) -> tuple:
+    """The scene operands of the Whitted handlers, in `layout.SCENE_OPERANDS` order without the
+    ray offset (the caller appends it): the BVH (its host id, geometry and trees, for the Embree
+    scene) and the scene's arrays in the handler's layout (materials and lights as rows of
+    `layout.MATERIAL_COLUMNS` and `layout.LIGHT_COLUMNS`, textures concatenated with their
+    shapes). Made once where many calls share a scene (the foveated frame's chunks)."""
+    f32, i32 = jnp.float32, jnp.int32
+
+    def flat(x, dtype):
+        return jnp.zeros((0,), dtype) if x is None else jnp.asarray(x, dtype).reshape(-1)
+
+    def rows(columns, arrays):
+        return jnp.concatenate(
+            [jnp.asarray(arrays[name], f32).reshape(-1, width) for name, width in columns], axis=1
+        )
+
+    textures = tuple(jnp.asarray(t, f32).reshape(-1) for t in scene.textures)
+    texels = jnp.concatenate(textures) if textures else jnp.zeros((0,), f32)
+    shapes = np.asarray([np.shape(t)[:2] for t in scene.textures], np.int32).reshape(-1)
+    material = {name: getattr(scene, name) for name, _ in layout.MATERIAL_COLUMNS}
+    light = {"position": scene.light_position, "color": scene.light_color}
+    operands = (
+        jnp.asarray(bvh.host_id, i32),
+        jnp.asarray(bvh.vertices, f32),
+        jnp.asarray(bvh.faces, i32),
+        jnp.asarray(bvh.tree_faces(), i32),
+        jnp.asarray(scene.vertices, f32),
+        jnp.asarray(scene.faces, i32),
+        flat(scene.face_material, i32),
+        flat(scene.normals, f32),
+        flat(scene.uvs, f32),
+        rows(layout.MATERIAL_COLUMNS, material),
+        flat(scene.texture, i32),
+        texels,
+        jnp.asarray(shapes, i32),
+        rows(layout.LIGHT_COLUMNS, light),
+        flat(scene.light_kind, i32),
+        flat(scene.ambient, f32),
+        jnp.asarray(scene.environment, f32),
+    )
+    assert len(operands) == len(layout.SCENE_OPERANDS) - 1  # the offset comes last, from the caller
+    return jax.tree.map(jax.lax.stop_gradient, operands)
+
+
+def native_whitted(
+    operands: tuple,
+    o,
+    d,
+    active,
+    offset,
+    *,
+    max_depth: int,
+    recompute: bool,
+    packets: bool,
+    tile_width: int = 0,
+    robust: bool = True,
+):
+    """The Whitted integrator's primal through the native handler, on flat rays: (radiance
+    (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
+    in bits 0-7). `operands`: the scene's (`whitted_operands`); `d` unit directions; `offset`
+    the ray offset in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
+    (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
+    where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
+    one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
+    pixels (0: a flat list); `robust`: the BVH's `watertight`. Not differentiable (the caller's
+    custom JVP is)."""
+    if not 0 <= max_depth <= MAX_NATIVE_DEPTH:
+        raise ValueError(
+            f"the native integrator counts at most {MAX_NATIVE_DEPTH} reflections, got max_depth {max_depth}"
+        )
+    f32 = jnp.float32
+    n = active.shape[0]
+    rays = (
+        jnp.asarray(o, f32).reshape(n, 3),
+        jnp.asarray(d, f32).reshape(n, 3),
+        jnp.asarray(active, bool).reshape(n),
+    )
+    rays = jax.tree.map(jax.lax.stop_gradient, rays)
+    offset = jax.lax.stop_gradient(jnp.asarray(offset, f32).reshape(1))
+    out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), jnp.int32))
+    call = handler(WHITTED_TARGET, out, what="the native integrator", vmap_method="sequential")
+    return call(
+        *rays,
+        *operands,
+        offset,
+        max_depth=np.int32(max_depth),
+        recompute=np.int32(recompute),
+        packets=np.int32(packets),
+        tile_width=np.int32(tile_width),
+        robust=np.int32(robust),
+    )
