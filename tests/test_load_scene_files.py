@@ -146,7 +146,8 @@ def test_a_missing_file_is_reported_before_any_file_is_parsed(tmp_path):
 def test_a_bad_file_among_many_names_its_line_and_its_index(tmp_path):
     folder = write_parts(tmp_path / "parts", count=5)
     (folder / "part_3.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
-    with pytest.raises(ValueError, match=r"part_3\.obj:4: v index 9 out of range.*skip it with skip=\[3\]"):
+    message = r"part_3\.obj:4: v index 9 out of range.*\(index 3 of the 5 scene files; skip=\[3\] leaves"
+    with pytest.raises(ValueError, match=message):
         fovjax.load_scene(folder)
     assert load_quietly(folder, skip=[3]).num_triangles == 4  # and leaving it out works
 

@@ -119,7 +119,9 @@ def load_scene(
     skipped = _check_skip(skip, len(files))
     chosen = [(i, f) for i, f in enumerate(files) if i not in skipped]
     if not chosen:
-        raise ValueError(f"load_scene: skip={sorted(skipped)} leaves none of the {len(files)} files to load")
+        n = len(files)
+        files_text = f"{n} file{'s' * (n != 1)}"
+        raise ValueError(f"load_scene: skip={sorted(skipped)} leaves none of the {files_text} to load")
     for _, file in chosen:  # every file checked before any is parsed
         ext = file.suffix.lower()
         if ext not in SUPPORTED_FORMATS:
@@ -136,7 +138,8 @@ def load_scene(
         except ValueError as e:
             if len(files) == 1:
                 raise
-            raise ValueError(f"{e} (scene file {i} of 0 to {len(files) - 1}; skip it with skip=[{i}])") from e
+            hint = f"index {i} of the {len(files)} scene files; skip=[{i}] leaves it out"
+            raise ValueError(f"{e} ({hint})") from e
         index = [materials.add(spec, n, file) for spec, n in zip(specs, names, strict=True)]
         parts += [dataclasses.replace(p, material=index[p.material]) for p in file_parts]
     first = chosen[0][1]
