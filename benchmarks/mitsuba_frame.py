@@ -35,9 +35,9 @@ Renders one stereo frame three ways in one process and prints ms per frame (the 
   `--integrator` as `RenderConfig.integrator` (the native Whitted loop or the JAX integrator;
   "auto", the default, is the native one on this CPU where the handler builds): the frame's
   `stats.render_seconds` (the compiled program's wall time) and the wall time around the call;
-  compile times printed apart. fovjax's Embree scenes are watertight (Embree's robust mode), the
-  Mitsuba scene here is not (Mitsuba's default); `--not-watertight` renders fovjax's frames
-  without it too (`BVH.with_watertight(False)`).
+  compile times printed apart. fovjax's Embree scenes use Embree's robust mode (not watertight at
+  every vertex: `BVH.with_watertight`), the Mitsuba scene here does not (Mitsuba's default);
+  `--not-watertight` renders fovjax's frames without it too (`BVH.with_watertight(False)`).
 
 After the warm-ups the three frames are timed in turn, --repeats rounds, so that all three see the
 same momentary load of a shared machine; each row also gives the median wall time of the whole

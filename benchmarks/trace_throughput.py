@@ -16,8 +16,9 @@ peers, timed on their own call alone, on arrays prepared beforehand:
 - Mitsuba 3 (`llvm_ad_rgb`: `scene.ray_intersect_preliminary` / `scene.ray_test`, evaluated with
   `dr.eval`), which uses every core; optional (`pip install 'fovjax[bench]'`; it also needs the
   system's LLVM shared library >= 16, from Debian's package libllvm19). Its default scene, as a
-  user gets it, builds Embree's BVH without Embree's robust (watertight) mode; fovjax's Embree
-  scenes use it (a ray through a shared edge or vertex never leaks: `tests/test_trace_native.py`),
+  user gets it, builds Embree's BVH without Embree's robust mode; fovjax's Embree scenes use it
+  (rays through a flat grid's shared edges and vertices hit: `tests/test_trace_native.py`; a ray
+  aimed exactly at a closed mesh's vertex can still pass: `tests/test_trace_properties.py`),
   so "Mitsuba 3 robust" (`--peers mitsuba_robust`, on by default) is the same call on a scene
   loaded with `embree_use_robust_intersections`, the like-for-like peer; `--not-watertight`
   times fovjax without it (`BVH.with_watertight(False)`), like for like with "Mitsuba 3".

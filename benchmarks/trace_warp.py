@@ -7,8 +7,10 @@
 
 Both sides run inside `jax.jit` on the default JAX device (a GPU where one is visible, else the CPU,
 where Warp runs its kernel on one thread) and return the same thing: the JAX side is
-`closest_hit` / `occluded` (`backend="jax"`, 8x8 packets for primary rays, one by one otherwise, as
-benchmarks/trace_throughput.py); the Warp side is `fovjax.trace._warp.warp_query` on the flat rays,
+`closest_hit` / `occluded` with `backend="jax"` named (the default, "auto", is Warp itself on CUDA;
+records before this was named, up to trace_warp-20261204T195340-7232702-h200, timed Warp in the
+"JAX" column on the GPU), 8x8 packets for primary rays, one by one otherwise, as
+benchmarks/trace_throughput.py; the Warp side is `fovjax.trace._warp.warp_query` on the flat rays,
 followed for closest hits by the same differentiable `hit_geometry` recomputation. Ray sets
 (seeded) are trace_throughput.py's: primary (one per pixel of the default camera), random (origins
 in the bounding box, uniform directions), shadow (from the primary hits that saw something towards
@@ -63,14 +65,14 @@ def bench_row(bvh, kind, o, d, tmin, tmax, packet, shape, any_hit, repeats, buil
     flat = [jnp.asarray(x) for x in (o, d, tmin, tmax)]
     shaped = [x.reshape(shape + x.shape[1:]) for x in flat]
     if any_hit:
-        jax_fn = jax.jit(lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet))
+        jax_fn = jax.jit(lambda o, d, a, b: occluded(bvh, o, d, b, tmin=a, packet=packet, backend="jax"))
 
         def warp_fn(bvh, o, d, a, b):
             return warp_query(bvh, o, d, a, b, None, any_hit=True)[1] >= 0
     else:
 
         def jax_fn(o, d, a, b):
-            hit = closest_hit(bvh, o, d, a, b, packet=packet)
+            hit = closest_hit(bvh, o, d, a, b, packet=packet, backend="jax")
             return hit.t, hit.prim
 
         jax_fn = jax.jit(jax_fn)
@@ -180,4 +182,6 @@ if __name__ == "__main__":
 
     rows = main()
     builders = sorted({k[len("warp_") :] for r in rows for k in r if k.startswith("warp_")})
-    write_record("trace_warp", {"rows": rows, "tables": warp_tables(rows, builders)})
+    write_record(
+        "trace_warp", {"rows": rows, "tables": warp_tables(rows, builders), "jax_column_backend": "jax"}
+    )

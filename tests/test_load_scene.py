@@ -363,9 +363,10 @@ def test_missing_file(tmp_path):
         fovjax.load_scene(tmp_path / "nowhere.obj")
 
 
-def test_directory_is_not_a_scene(tmp_path):
-    (tmp_path / "dir.obj").mkdir()
-    with pytest.raises(IsADirectoryError, match=r"dir\.obj"):
+def test_a_folder_without_scene_files(tmp_path):
+    (tmp_path / "dir.obj").mkdir()  # a folder is read as the scene files in it, whatever its name
+    (tmp_path / "dir.obj" / "notes.txt").write_text("not a scene")
+    with pytest.raises(FileNotFoundError, match=r"dir\.obj: the folder holds no scene file \(\.obj"):
         fovjax.load_scene(tmp_path / "dir.obj")
 
 

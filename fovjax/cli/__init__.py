@@ -373,22 +373,26 @@ def input_file(path, option: str, *, suffixes=None, text: bool = False) -> Path:
     return p
 
 
-def scene(name: str, option: str = "--scene") -> None:
-    """A built-in scene name (or alias) or an existing scene file of a supported format."""
-    from ..scene import BUILTIN, SUPPORTED_FORMATS
+def scene(name: str, option: str = "--scene") -> list[Path]:
+    """A built-in scene name (or alias), or existing scene files of supported formats: a file, a
+    folder or a glob pattern (`fovjax.scene.scene_files`). Returns the files ([] for a built-in)."""
+    from ..scene import BUILTIN, SUPPORTED_FORMATS, scene_files
 
     if name in BUILTIN or name == "cornell":
-        return
+        return []
     formats = ", ".join(SUPPORTED_FORMATS)
-    if Path(name).suffix.lower() not in SUPPORTED_FORMATS:
-        raise UsageError(
-            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor a scene file ({formats})"
-        )
-    if not Path(name).is_file():
-        raise UsageError(
-            f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor an existing file"
-        )
-    input_file(name, option)
+    not_builtin = f"{option} {name!r}: not a built-in scene (atrium, cornell, spheres) nor"
+    try:
+        files = scene_files(name)
+    except (OSError, ValueError) as err:
+        raise UsageError(f"{not_builtin} scene files: {err}") from None
+    for file in files:
+        if file.suffix.lower() not in SUPPORTED_FORMATS:
+            raise UsageError(f"{not_builtin} a scene file ({formats})")
+        if not file.is_file():
+            raise UsageError(f"{not_builtin} an existing file")
+        input_file(file, option)
+    return files
 
 
 def source_spec(spec: str, kind: str, option: str) -> None:

@@ -42,6 +42,18 @@ def _gaze(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
     return (v[0], v[1]), (v[2], v[3])
 
 
+def _skip(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        values = (-1,)
+    if any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError(
+            f"--scene-skip takes file indices from 0, separated by commas (e.g. 2,4), got {text!r}"
+        )
+    return values
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "render",
@@ -52,7 +64,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "64 mm apart) side by side. PNG output is clipped and sRGB-encoded; EXR/HDR keep linear radiance.",
     )
     p.add_argument(
-        "--scene", default="atrium", help="atrium, cornell, spheres, or a path (OBJ, glTF/GLB, PLY)"
+        "--scene",
+        default="atrium",
+        help="atrium, cornell, spheres, or a path (OBJ, glTF/GLB, PLY): a file, or a folder or a quoted "
+        "glob pattern whose files make one scene",
+    )
+    p.add_argument(
+        "--scene-skip",
+        type=_skip,
+        default=(),
+        metavar="I,J,...",
+        help="leave out these files of a scene of many, counted from 0 in name order with numbers "
+        "compared as numbers (the thesis's Sponza: --scene 'sponza_*.obj' --scene-skip 2,4 --scene-scale 2)",
+    )
+    p.add_argument(
+        "--scene-scale", type=float, default=1.0, help="multiply a scene file's positions (default 1)"
     )
     view = p.add_mutually_exclusive_group()
     view.add_argument(
@@ -132,12 +158,8 @@ def _load_scene(args):
     if name in fovjax.scenes.BUILTIN:
         kwargs = {"triangles": args.triangles} if name == "atrium" else {}
         return fovjax.scenes.BUILTIN[name](**kwargs)
-    if not Path(args.scene).is_file():
-        raise ValueError(
-            f"--scene {args.scene!r}: not a built-in scene "
-            f"({', '.join(['cornell', *fovjax.scenes.BUILTIN])}) nor an existing file"
-        )
-    return fovjax.load_scene(args.scene)
+    skip, scale = getattr(args, "scene_skip", ()), getattr(args, "scene_scale", 1.0)
+    return fovjax.load_scene(args.scene, skip=skip, scale=scale)
 
 
 def validate(args) -> Path:
@@ -145,7 +167,20 @@ def validate(args) -> Path:
     output path."""
     from fovjax.files import HDR_SUFFIXES
 
-    cli.scene(args.scene)
+    files = cli.scene(args.scene)
+    cli.number(args.scene_scale, "--scene-scale", gt=0)
+    if not files and (args.scene_skip or args.scene_scale != 1.0):
+        raise cli.UsageError(
+            f"--scene-skip and --scene-scale apply to scene files, not the built-in {args.scene}"
+        )
+    for index in args.scene_skip:
+        if index >= len(files):
+            raise cli.UsageError(
+                f"--scene-skip {index}: out of range, --scene {args.scene} has {len(files)} "
+                f"file{'s' if len(files) != 1 else ''} (indices 0 to {len(files) - 1})"
+            )
+    if files and len(set(args.scene_skip)) == len(files):
+        raise cli.UsageError(f"--scene-skip leaves none of the {len(files)} files of --scene {args.scene}")
     cli.squares(args.spp, "--spp")
     cli.seed(args.seed)
     cli.number(args.width, "--width", ge=1)
@@ -180,7 +215,10 @@ def _scene_name(args) -> str:
     import fovjax
 
     name = SCENE_ALIASES.get(args.scene, args.scene)
-    return name if name in fovjax.scenes.BUILTIN else Path(args.scene).stem
+    if name in fovjax.scenes.BUILTIN:
+        return name
+    files = fovjax.scene.scene_files(args.scene)  # load_scene's default name
+    return files[0].stem if len(files) == 1 else files[0].resolve().parent.name
 
 
 def run(args) -> int:

@@ -267,10 +267,15 @@ class Foveation(eqx.Module):
       sampling the thesis's Table 2 implies (not its text): every sub-sample of the pixels
       within `periphery_deg`, one sample per pixel beyond it at any SPP, no draws (see
       `Foveation.thesis_measured` and docs/thesis.md);
-    - `blur_sigma`: σ of the 5×5 Gaussian of the fill pass (pixels); `blur_fovea`: blur every
-      pixel (the all-pixel reading of thesis 4.5) instead of keeping the fovea sharp;
-    - `eccentricity`: "angle" (default; the angle between the pixel's ray and the gaze ray) or
-      "planar" (thesis eq. 4-5: Euclidean distance on the display, V = 2·atan(S / 2D));
+    - `blur_sigma`: σ of the 5×5 Gaussian of the fill pass (pixels). Default 1: fovjax's
+      choice, as the thesis names the 5×5 mask but no σ (§4.5);
+    - `blur_fovea`: True blurs every pixel, as the thesis does ("For each pixel we apply a 5x5
+      Gaussian blurring mask", §4.5). Default False: fovjax's choice, the fovea kept sharp and
+      the blur blended in over a band of 1° beyond `fovea_deg` (a smoothstep; the thesis has no
+      such band);
+    - `eccentricity`: "angle" (default, fovjax's choice: the angle between the pixel's ray and
+      the gaze ray) or "planar" (the thesis's eq. 4-5: Euclidean distance on the display,
+      V = 2·atan(S / 2D));
     - `eye_display_mm` (D, thesis: 24 mm) and `pixel_pitch_mm` (default: derived from the
       display width and field of view) for the planar mode;
     - `ray_budget`: static number of samples traced per eye (None: derived by `plan_budget` from
@@ -439,7 +444,7 @@ def with_regions(foveation: Foveation, reading: str, eye_height: int) -> Foveati
     """`foveation` with its regions measured by `reading`:
 
     - "angle" (fovjax's default): the exact angle between a pixel's ray and the gaze ray, on the
-      rig's own field of view (90° vertical by default);
+      rig's own field of view (90° horizontal per eye by default, the thesis's cameras);
     - "thesis": the reading behind the thesis's Table 2 (`Foveation.thesis_measured`'s regions
       without its rule): the planar formula (eq. 4-5, D = 24 mm) at the pitch of the SX111's
       16 pixels per degree, scaled to `eye_height` rows (`thesis_pixel_pitch_mm`). On the 90°

@@ -6,7 +6,9 @@
 - `Camera` (a pinhole camera with its primary rays), `look_at_rotation`, `vfov_from_hfov`,
   `stratified_offsets` and `pixel_sample_positions` (the per-pixel sample positions every
   renderer shares).
-- `load_scene(path)`: OBJ+MTL, glTF/GLB and PLY files (`SUPPORTED_FORMATS`).
+- `load_scene(path)`: OBJ+MTL, glTF/GLB and PLY files (`SUPPORTED_FORMATS`); one file, or a
+  scene of many (a folder, a glob pattern or a list; `scene_files` lists them) with `skip=` and
+  `scale=`, as the thesis loads Sponza's 382 parts.
 - `cornell_box()`: the classic box from its published dimensions (metres by default).
 - `atrium(triangles=262_000)`: an indoor courtyard like Sponza in layout and scale.
 - `spheres()`: a minimal scene for fast tests.
@@ -27,6 +29,7 @@ from ._camera import pixel_sample_positions as pixel_sample_positions
 from ._camera import stratified_offsets as stratified_offsets
 from ._camera import vfov_from_hfov as vfov_from_hfov
 from ._cornell import cornell_box as cornell_box
+from ._files import scene_files as scene_files
 from ._loaders import SUPPORTED_FORMATS as SUPPORTED_FORMATS
 from ._loaders import load_scene as load_scene
 from ._lod import DEFAULT_RATIOS as DEFAULT_RATIOS
@@ -63,6 +66,7 @@ __all__ = [
     "cornell_box",
     "SUPPORTED_FORMATS",
     "load_scene",
+    "scene_files",
     "DEFAULT_RATIOS",
     "LODLevels",
     "decimate",

@@ -15,17 +15,21 @@ leaves out or gets wrong silently:
   row 0 is v = 0; `Materials.texture` indexes `Scene.textures`.
 
 One private module per format: `_obj.py` (OBJ and MTL), `_gltf.py`, `_ply.py`; `_parts.py` holds
-what they share (`_Part`, the texture table, texture files); this module dispatches on the
-suffix and assembles the parts into a `Scene`.
+what they share (`_Part`, the texture table, texture files); `_files.py` turns a folder, a
+pattern or a list into the files to read. This module dispatches each file on its suffix and
+assembles the parts of all the files into one `Scene`.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import equinox as eqx
 import numpy as np
 
+from ._files import scene_files
 from ._gltf import _load_gltf
 from ._obj import _load_obj
 from ._parts import (
@@ -39,14 +43,22 @@ from ._scene import Lights, Materials, Scene, Textures, _build_scene, make_light
 def load_scene(
     path,
     *,
+    skip: int | Sequence[int] = (),
     scale: float = 1.0,
     lights: Lights | None = None,
     name: str | None = None,
 ) -> Scene:
-    """Load a triangle scene from an OBJ (+MTL), glTF/GLB or PLY file.
+    """Load a triangle scene from OBJ (+MTL), glTF/GLB or PLY files: one file or many.
 
     Args:
-        path: the file; its extension picks the format (.obj, .gltf, .glb, .ply).
+        path: the file; its extension picks the format (.obj, .gltf, .glb, .ply). Or several
+            files making one scene: a folder (its scene files), a glob pattern, or a list of
+            these; `scene_files(path)` lists them in the order `skip` counts (by name, with
+            numbers compared as numbers: `part_2.obj` before `part_10.obj`).
+        skip: indices (from 0) into that list of files to leave out. The thesis loads Sponza
+            from its 382 parts, `sponza_0.obj` to `sponza_381.obj`, leaving out parts 2 and 4,
+            scaled by 2 (its Figure 54): `load_scene("Sponza/sponza_*.obj", skip=[2, 4],
+            scale=2)`.
         scale: multiplies every vertex position (the thesis loaded Sponza scaled by 2).
         lights: the scene's lights. Files carry none that we read, so by default one white point
             light (colour 1) is a headlight at the position of `fovjax.scenes.default_camera`
@@ -54,7 +66,8 @@ def load_scene(
             light, so the default view shows the whole model lit (shaded by n·l, no shadow
             visible from there). Materials keep the file's Ka (MTL's default is 0, so the scene's
             ambient adds nothing unless the file sets Ka). Pass `lights` for any other set-up.
-        name: the scene's name; defaults to the file's stem.
+        name: the scene's name; defaults to the file's stem, or with several files to the name
+            of the folder holding the first.
 
     Materials (`Scene.materials`, Blinn-Phong; the diffuse colour at a point is
     `kd * texture(uv)` where `texture >= 0`, as the MTL spec multiplies `map_Kd` by `Kd` and glTF
@@ -79,6 +92,11 @@ def load_scene(
       trimesh stores `baseColorFactor` as 8-bit, so `kd` is quantised to 1/255.
     - PLY: geometry only, one default grey material (colours are not read).
 
+    With several files each keeps its own materials: a material that another file already
+    defined with the same name and the same values is shared (parts of one model usually
+    share one MTL); one with the same name and other values is kept apart, named
+    `"name (file name)"`. Textures are decoded once however many files use them.
+
     Textures are read with Pillow, converted to RGB, decoded from sRGB to linear float32 and
     flipped vertically so that `Scene.textures[i][row, col]` covers `v = (row + 0.5) / H`,
     `u = (col + 0.5) / W`, with the OBJ convention (v = 0 at the bottom of the image; trimesh
@@ -88,44 +106,119 @@ def load_scene(
     Vertex normals and texture coordinates are kept when the file has them (normals are
     normalised; parts without normals get trimesh's area-weighted ones, parts without UVs get 0).
 
-    Errors name the file and the line (OBJ/MTL) or field: a missing file raises
-    `FileNotFoundError`; an unreadable one `OSError`; an unknown extension, a file that does not
-    parse, no triangles, NaN/inf values, or face indices out of range raise `ValueError`.
-    Zero-area triangles are dropped with a warning giving their count.
+    Errors name the file and the line (OBJ/MTL) or field, and are raised for every file before
+    any is parsed where they can be: a missing file raises `FileNotFoundError` (so does a folder
+    or pattern with no scene file); an unreadable one `OSError`; a `skip` index out of range or
+    a `scale` that is not a positive finite number, an unknown extension, a file that does not
+    parse, no triangles, NaN/inf values, or face indices out of range raise `ValueError` (with
+    several files, a file's error also gives its index, for `skip`). Zero-area triangles are
+    dropped with a warning giving their count.
     """
-    path = Path(path)
-    ext = path.suffix.lower()
-    if ext not in SUPPORTED_FORMATS:
-        known = ", ".join(SUPPORTED_FORMATS)
-        raise ValueError(f"{path}: unknown scene format {ext!r} (supported: {known})")
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: scene file does not exist")
-    if path.is_dir():
-        raise IsADirectoryError(f"{path}: is a directory, not a scene file")
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise OSError(f"{path}: cannot read scene file ({e.strerror or e})") from e
-    if not np.isfinite(scale) or scale <= 0:
-        raise ValueError(f"load_scene: scale must be a positive finite number, got {scale}")
+    _check_scale(scale)
+    files = scene_files(path)
+    skipped = _check_skip(skip, len(files))
+    chosen = [(i, f) for i, f in enumerate(files) if i not in skipped]
+    if not chosen:
+        n = len(files)
+        files_text = f"{n} file{'s' * (n != 1)}"
+        raise ValueError(f"load_scene: skip={sorted(skipped)} leaves none of the {files_text} to load")
+    for _, file in chosen:  # every file checked before any is parsed
+        ext = file.suffix.lower()
+        if ext not in SUPPORTED_FORMATS:
+            known = ", ".join(SUPPORTED_FORMATS)
+            raise ValueError(f"{file}: unknown scene format {ext!r} (supported: {known})")
+        if not file.exists():  # a folder is expanded by scene_files, so a path that exists is a file
+            raise FileNotFoundError(f"{file}: scene file does not exist")
 
     textures = _TextureTable()
+    parts, materials = [], _MaterialTable()
+    for i, file in chosen:
+        try:
+            file_parts, specs, names = _load_file(file, textures)
+        except ValueError as e:
+            if len(files) == 1:
+                raise
+            hint = f"index {i} of the {len(files)} scene files; skip=[{i}] leaves it out"
+            raise ValueError(f"{e} ({hint})") from e
+        index = [materials.add(spec, n, file) for spec, n in zip(specs, names, strict=True)]
+        parts += [dataclasses.replace(p, material=index[p.material]) for p in file_parts]
+    first = chosen[0][1]
+    where = str(first) if len(chosen) == 1 else f"{first.parent} ({len(chosen)} scene files)"
+    if name is None:
+        name = files[0].stem if len(files) == 1 else files[0].resolve().parent.name
+    return _assemble(where, parts, materials, textures, scale=scale, lights=lights, name=name)
+
+
+def _load_file(file: Path, textures: _TextureTable):
+    try:
+        data = file.read_bytes()
+    except OSError as e:
+        raise OSError(f"{file}: cannot read scene file ({e.strerror or e})") from e
+    ext = file.suffix.lower()
     if ext == ".obj":
-        parts, specs, names = _load_obj(path, data, textures)
+        parts, specs, names = _load_obj(file, data, textures)
     elif ext in (".gltf", ".glb"):
-        parts, specs, names = _load_gltf(path, data, textures)
+        parts, specs, names = _load_gltf(file, data, textures)
     else:
-        parts, specs, names = _load_ply(path, data)
+        parts, specs, names = _load_ply(file, data)
     if not parts:
-        raise ValueError(f"{path}: the file contains no triangles")
-    return _assemble(path, parts, specs, names, textures, scale=scale, lights=lights, name=name)
+        raise ValueError(f"{file}: the file contains no triangles")
+    return parts, specs, names
+
+
+def _check_scale(scale) -> None:
+    if not isinstance(scale, int | float | np.integer | np.floating) or isinstance(scale, bool):
+        raise TypeError(f"load_scene: scale must be a number, got {scale!r} ({type(scale).__name__})")
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"load_scene: scale must be a positive finite number, got {scale!r}")
+
+
+def _check_skip(skip, count: int) -> set[int]:
+    values = [skip] if isinstance(skip, int | np.integer) else skip
+    try:
+        values = list(values)
+    except TypeError:
+        raise TypeError(
+            f"load_scene: skip must be a file index or a list of them, got {skip!r} ({type(skip).__name__})"
+        ) from None
+    for value in values:
+        if not isinstance(value, int | np.integer) or isinstance(value, bool):
+            raise TypeError(
+                f"load_scene: skip holds {value!r} ({type(value).__name__}); expected file indices (int)"
+            )
+        if not 0 <= value < count:
+            raise ValueError(
+                f"load_scene: skip index {value} is out of range: the scene has {count} "
+                f"file{'s' if count != 1 else ''} (indices 0 to {count - 1})"
+            )
+    return {int(v) for v in values}
+
+
+class _MaterialTable:
+    """Materials of several files: one entry per distinct (name, values); a name that comes back
+    with other values is kept apart under the file's name."""
+
+    def __init__(self):
+        self.specs: list[dict] = []
+        self.names: list[str] = []
+        self.index: dict = {}
+
+    def add(self, spec: dict, name: str, file: Path) -> int:
+        values = tuple(sorted((k, tuple(np.ravel(v).tolist())) for k, v in spec.items() if k != "name"))
+        key = (name, values)
+        if key not in self.index:
+            shown = name if name not in self.names else f"{name} ({file.name})"
+            self.index[key] = len(self.specs)
+            self.specs.append(spec)
+            self.names.append(shown)
+        return self.index[key]
 
 
 # ----------------------------------------------------------------------------------------------
 # Assembly
 
 
-def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Scene:
+def _assemble(path, parts, material_table, textures, *, scale, lights, name) -> Scene:
     offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
     vertices = np.concatenate([p.vertices for p in parts]) * scale
     faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets[:-1], strict=True)])
@@ -181,7 +274,7 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
     headlight = lights is None
     if headlight:  # placeholder until the scene exists to place the camera in
         lights = make_lights([[0.0, 0.0, 0.0]], [[1.0, 1.0, 1.0]])
-    materials: Materials = make_materials(specs, names=names)
+    materials: Materials = make_materials(material_table.specs, names=material_table.names)
     scene = _build_scene(
         str(path),
         vertices,
@@ -192,7 +285,7 @@ def _assemble(path, parts, specs, names, textures, *, scale, lights, name) -> Sc
         normals=normals,
         uvs=uvs,
         textures=Textures(tuple(textures.images), tuple(textures.names)),
-        name=name or Path(path).stem,
+        name=name,
     )
     if headlight:
         from ._poses import default_camera

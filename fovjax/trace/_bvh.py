@@ -63,15 +63,18 @@ class BVH(eqx.Module):
     # A merged BVH: the first face of each level's tree, then the face count (native backends
     # build one scene per tree from it); None: one tree.
     first_face: Int[np.ndarray | Array, " L1"] | None = None
-    # The Embree backend's intersector (`with_watertight`): robust, so that a ray through a shared
-    # edge or vertex never passes between the faces, or Embree's default, faster one.
+    # The Embree backend's intersector (`with_watertight`): robust, which closes most gaps at
+    # shared edges and vertices (not every one, see `with_watertight`), or Embree's default, faster one.
     watertight: bool = eqx.field(static=True, default=True)
 
     def with_watertight(self, watertight: bool) -> BVH:
         """This BVH with the Embree backend's intersector chosen (a static setting: one program
-        each). `True` (the default, what `build_bvh` makes): Embree's robust mode, a watertight
-        triangle test and conservative box tests, so a ray through an edge or vertex two faces
-        share hits one of them (`tests/test_trace_native.py`). `False`: Embree's default
+        each). `True` (the default, what `build_bvh` makes): Embree's robust mode, its watertight
+        triangle test and conservative box tests: a ray through the shared edges and vertices of
+        a flat grid hits one of their faces (`tests/test_trace_native.py`), but a ray aimed
+        exactly at a vertex of a closed tetrahedron can pass through (a known limitation of
+        Embree's robust mode, found by `tests/test_trace_properties.py`, which therefore pins the
+        JAX traversal; that one hits them all). `False`: Embree's default
         intersector, as Mitsuba 3 builds its scenes unless asked
         (`embree_use_robust_intersections`): faster (`benchmarks/trace_throughput.py
         --not-watertight`), and a ray that grazes such an edge or vertex may miss both faces, a

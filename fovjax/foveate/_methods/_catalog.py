@@ -79,15 +79,17 @@ class Weier2016:
             value it uses could not be read here).
         widened_fovea: what the gaze tracker's fallback does to this method when tracking
             degrades or is lost (`fovjax.devices.widen_thresholds`: the fovea widens towards the
-            whole display, at full quality). The fallback is the thesis's; how Weier's method
-            meets it is fovjax's choice. "reproject" (default): the widening adds no traced
-            pixels; the thresholds stay the configured ones around the held gaze, and the full
-            quality the widening asks for comes from the history: every pixel shows a
-            full-resolution sample, reprojected where the history covers it and traced where not
-            (after the reset at a loss the first frame traces every pixel). The widening exists
-            for the thesis's sparse, filled and blurred periphery, which this method does not
-            have. "trace": the widened fovea is traced whole as the fovea (a lost tracker then
-            traces the whole display every frame, as the thesis's method does).
+            whole display, at full quality). The fallback is fovjax's (the thesis keeps each
+            eye's last gaze point whose quality code passes, its Figure 45, and has no
+            widening); how Weier's method meets it is fovjax's choice too. "reproject"
+            (default): the widening adds no traced pixels; the thresholds stay the configured
+            ones around the held gaze, and the full quality the widening asks for comes from
+            the history: every pixel shows a full-resolution sample, reprojected where the
+            history covers it and traced where not (after the reset at a loss the first frame
+            traces every pixel). The widening exists for the thesis's method's sparse, filled
+            and blurred periphery, which this method does not have. "trace": the widened fovea
+            is traced whole as the fovea (a lost tracker then traces the whole display every
+            frame, as the thesis's method does under the fallback).
 
     A pixel's samples are traced together (every sub-sample at the frame's spp); its world
     point is the hit of its first sub-sample's ray (a second closest-hit query over the traced
