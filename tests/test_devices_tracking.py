@@ -1,4 +1,6 @@
+import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from fovjax.devices import (
     HeadPose,
     HeadTracker,
     OneEuroFilter,
+    RigGeometry,
     Scanpath,
     TrackingState,
     VelocityThresholdDetector,
@@ -74,7 +77,7 @@ def test_stale_gaze_holds_then_widens_step_by_step_then_recovers():
 
 
 def test_bad_samples_are_never_rendered_from():
-    tracker = GazeTracker(FallbackPolicy(recover_after=1, mirror_single_eye=False), predictor=None)
+    tracker = GazeTracker(FallbackPolicy(recover_after=1, single_eye="reject"), predictor=None)
     tracker.step(1.0, [good(1.0, 0.4, 0.4)])
     bad = [
         GazeSample(1.01, EyeGaze(math.nan, 0.5, 1.0), EyeGaze(0.9, 0.9, 1.0)),
@@ -83,7 +86,7 @@ def test_bad_samples_are_never_rendered_from():
         GazeSample(1.04, MISSING_EYE, MISSING_EYE),
         GazeSample(math.nan, EyeGaze(0.9, 0.9), EyeGaze(0.9, 0.9)),
         GazeSample(9.0, EyeGaze(0.9, 0.9), EyeGaze(0.9, 0.9)),  # from the future: a broken clock
-        GazeSample(1.05, EyeGaze(0.9, 0.9), MISSING_EYE),  # one eye, mirroring off
+        GazeSample(1.05, EyeGaze(0.9, 0.9), MISSING_EYE),  # one eye, single_eye="reject"
     ]
     frame = tracker.step(1.06, bad)
     assert frame.left[0] == pytest.approx(0.4) and frame.right[0] == pytest.approx(0.41)
@@ -98,10 +101,96 @@ def test_bad_samples_are_never_rendered_from():
     )
 
 
-def test_one_good_eye_is_mirrored_when_allowed():
+# The thesis's rig: eyes turned 13° outwards, 90° horizontal field of view each. A far point
+# straight ahead is at x = 0.615 in the left eye's display and 0.385 in the right's.
+THESIS_RIG = RigGeometry()
+AHEAD_LEFT, AHEAD_RIGHT = (tuple(float(v) for v in eye) for eye in THESIS_RIG.fixation((0.5, 0.5)))
+
+
+def binocular(t, left, right):
+    return GazeSample(t, EyeGaze(*left), EyeGaze(*right))
+
+
+def test_a_far_point_ahead_lies_26_degrees_apart_in_the_two_eyes_displays():
+    assert AHEAD_LEFT == (pytest.approx(0.6154, abs=1e-4), 0.5)
+    assert AHEAD_RIGHT == (pytest.approx(0.3846, abs=1e-4), 0.5)
+    # Copying one eye's position to the other moves that eye's fovea by twice the toe-out.
+    assert THESIS_RIG.angle_deg("right", AHEAD_LEFT, AHEAD_RIGHT) == pytest.approx(26.0, abs=1e-9)
+
+
+def test_a_bad_eye_keeps_its_own_last_gaze_on_the_thesis_rig():
+    """The thesis's rule (Fig 45): an eye whose sample fails keeps its own last good point; it
+    does not take the other eye's display position (0.615 for the right eye: 26° off)."""
+    tracker = GazeTracker(FallbackPolicy(recover_after=1), predictor=GazePredictor(max_horizon=0.05))
+    tracker.step(1.0, [binocular(1.0, AHEAD_LEFT, AHEAD_RIGHT)])
+    frame = tracker.step(1.01, [binocular(1.01, AHEAD_LEFT, AHEAD_RIGHT)])
+    assert frame.unmeasured_eye is None
+    # The right eye fails while the left moves on: the right stays where it was, not predicted.
+    moved = (AHEAD_LEFT[0] + 0.02, 0.5)
+    frame = tracker.step(1.02, [GazeSample(1.02, EyeGaze(*moved), MISSING_EYE)], display_time=1.04)
+    assert frame.state is TrackingState.OK and frame.unmeasured_eye == "right"
+    assert frame.right == AHEAD_RIGHT
+    assert frame.left[0] > moved[0]  # the measured eye is still predicted to the display time
+    assert frame.stats()["unmeasured_eye"] == "right"
+    # Both eyes again: the right eye's own gaze, no jump from the time it was kept.
+    back = (AHEAD_RIGHT[0] + 0.02, 0.5)
+    frame = tracker.step(1.03, [binocular(1.03, moved, back)], display_time=1.03)
+    assert frame.right == back and frame.unmeasured_eye is None
+
+
+def test_keep_has_nothing_to_keep_for_an_eye_never_seen():
     tracker = GazeTracker(FallbackPolicy(recover_after=1), predictor=None)
     frame = tracker.step(2.0, [GazeSample(2.0, MISSING_EYE, EyeGaze(0.25, 0.75, 0.9))])
-    assert frame.state is TrackingState.OK and frame.left == frame.right == (0.25, 0.75)
+    assert frame.state is TrackingState.LOST and frame.left == frame.right == (0.5, 0.5)
+    assert frame.rejected["invalid"] == 1
+    # Once both eyes were seen, a one-eye sample is used (the left keeps its point).
+    tracker.step(2.01, [binocular(2.01, (0.6, 0.4), (0.4, 0.4))])
+    frame = tracker.step(2.02, [GazeSample(2.02, MISSING_EYE, EyeGaze(0.45, 0.5, 0.9))])
+    assert frame.state is TrackingState.OK and frame.left == (0.6, 0.4) and frame.right == (0.45, 0.5)
+
+
+@pytest.mark.parametrize("distance", [math.inf, 0.8])
+def test_map_puts_the_bad_eye_where_it_sees_the_good_eyes_point(distance):
+    """``single_eye="map"``: the good eye's ray, `vergence_distance` along it, projected into the
+    other eye -- exactly where the other eye sees a point the two eyes look at."""
+    xy = (0.42, 0.55)
+    left, right = THESIS_RIG.fixation(xy, distance)
+    along = distance
+    if math.isfinite(distance):  # the point's distance from the good (left) eye
+        point = distance * THESIS_RIG.cyclopean_ray(xy)
+        along = float(np.linalg.norm(point - THESIS_RIG.eye_position("left")))
+    policy = FallbackPolicy(recover_after=1, single_eye="map", vergence_distance=along)
+    tracker = GazeTracker(policy, predictor=None, geometry=THESIS_RIG)
+    frame = tracker.step(3.0, [GazeSample(3.0, EyeGaze(*left), MISSING_EYE)])
+    assert frame.state is TrackingState.OK and frame.unmeasured_eye == "right"
+    assert frame.right == (pytest.approx(right[0], abs=1e-9), pytest.approx(right[1], abs=1e-9))
+    assert abs(frame.right[0] - frame.left[0]) > 0.2  # not the left eye's display position
+
+
+@pytest.mark.no_typecheck
+def test_map_needs_the_rig():
+    tracker = GazeTracker(FallbackPolicy(single_eye="map"))
+    with pytest.raises(ValueError, match=re.escape("geometry=RigGeometry.from_rig(rig)")):
+        tracker.step(0.0, [])
+    with pytest.raises(TypeError, match="geometry must be a fovjax.devices.RigGeometry"):
+        GazeTracker(geometry=(13.0, 0.064))
+
+
+@pytest.mark.no_typecheck
+def test_the_one_eye_rule_and_vergence_distance_are_checked():
+    with pytest.raises(ValueError, match="single_eye must be one of .* got 'mirror'"):
+        FallbackPolicy(single_eye="mirror")
+    for bad in (0.0, -1.0, math.nan):
+        with pytest.raises(ValueError, match="vergence_distance must be > 0"):
+            FallbackPolicy(vergence_distance=bad)
+
+
+def test_mirror_single_eye_is_deprecated_for_the_rule_it_meant():
+    with pytest.warns(DeprecationWarning, match="mirror_single_eye=True.*single_eye='keep'"):
+        assert FallbackPolicy(mirror_single_eye=True).single_eye == "keep"
+    with pytest.warns(DeprecationWarning, match="single_eye='reject'"):
+        policy = FallbackPolicy(mirror_single_eye=False)
+    assert policy.single_eye == "reject" and "mirror_single_eye" not in dataclasses.asdict(policy)
 
 
 def test_latest_sample_passed_every_frame_is_used_once():

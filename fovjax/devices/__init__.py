@@ -12,8 +12,52 @@ Conventions (details in each class):
   ``open``/``close`` or a ``with`` block.
 * Per frame: `GazeTracker.step(now, samples, display_time)` -> `TrackingFrame` (gaze per eye,
   state ok/holding/degraded/lost, fovea widening).
+* The rig: `RigGeometry` (`RigGeometry.from_rig(rig)`) relates the two eyes' displays; one
+  eye's gaze is never the other's position.
+* Calibration: `calibrate(source, present)` -> `CalibrationResult` (per-eye accuracy and
+  precision in degrees, a `GazeCorrection` to set as ``source.correction``); `validate`.
 """
 
+from ._calibration import (
+    CalibrationError as CalibrationError,
+)
+from ._calibration import (
+    CalibrationPoint as CalibrationPoint,
+)
+from ._calibration import (
+    CalibrationResult as CalibrationResult,
+)
+from ._calibration import (
+    CalibrationSettings as CalibrationSettings,
+)
+from ._calibration import (
+    CalibrationTarget as CalibrationTarget,
+)
+from ._calibration import (
+    EyeAccuracy as EyeAccuracy,
+)
+from ._calibration import (
+    PointEye as PointEye,
+)
+from ._calibration import (
+    ValidationResult as ValidationResult,
+)
+from ._calibration import (
+    calibrate as calibrate,
+)
+from ._calibration import (
+    calibration_targets as calibration_targets,
+)
+from ._calibration import (
+    load_calibration as load_calibration,
+)
+from ._calibration import (
+    targets_at as targets_at,
+)
+from ._calibration import (
+    validate as validate,
+)
+from ._correction import GazeCorrection as GazeCorrection
 from ._filters import (
     ExponentialMovingAverage as ExponentialMovingAverage,
 )
@@ -35,6 +79,7 @@ from ._filters import (
 from ._filters import (
     ivt_classify as ivt_classify,
 )
+from ._geometry import RigGeometry as RigGeometry
 from ._intersense import InterSenseSource as InterSenseSource
 from ._paced import PacedSource as PacedSource
 from ._protocol import (
@@ -132,6 +177,9 @@ from ._synthetic import (
     SyntheticHeadSource as SyntheticHeadSource,
 )
 from ._synthetic import (
+    TargetFollower as TargetFollower,
+)
+from ._synthetic import (
     min_jerk as min_jerk,
 )
 from ._synthetic import (
@@ -178,6 +226,21 @@ from ._viewpoint import (
 )
 
 __all__ = [
+    "CalibrationError",
+    "CalibrationPoint",
+    "CalibrationResult",
+    "CalibrationSettings",
+    "CalibrationTarget",
+    "EyeAccuracy",
+    "PointEye",
+    "ValidationResult",
+    "calibrate",
+    "calibration_targets",
+    "load_calibration",
+    "targets_at",
+    "validate",
+    "GazeCorrection",
+    "RigGeometry",
     "ExponentialMovingAverage",
     "GazePredictor",
     "OneEuroFilter",
@@ -221,6 +284,7 @@ __all__ = [
     "SmoothPursuit",
     "SyntheticGazeSource",
     "SyntheticHeadSource",
+    "TargetFollower",
     "min_jerk",
     "saccade_duration",
     "saccade_peak_velocity",

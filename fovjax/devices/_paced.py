@@ -105,7 +105,7 @@ class PacedSource(Source):
                     return None
                 self.sleep(wait)
         self._next = i + 1
-        sample = self._sample(i, self._stamp(i))
+        sample = self._corrected(self._sample(i, self._stamp(i)))
         self._last = sample
         self.status.samples += 1
         return sample
@@ -123,7 +123,7 @@ class PacedSource(Source):
             self._next += 1
             if self._skip(i):
                 continue
-            sample = self._sample(i, self._stamp(i))
+            sample = self._corrected(self._sample(i, self._stamp(i)))
             self._last = sample
             self.status.samples += 1
             out.append(sample)
@@ -142,4 +142,4 @@ class PacedSource(Source):
             i -= 1
         if i < 0:
             return None
-        return self._sample(i, self._stamp(i))
+        return self._corrected(self._sample(i, self._stamp(i)))

@@ -59,7 +59,12 @@ class SourceStatus:
 
 
 class Source(Generic[S]):
-    """Base class of all sources. Subclasses implement `_open`, `_close`, `read`, `latest`."""
+    """Base class of all sources. Subclasses implement `_open`, `_close`, `read`, `latest`.
+
+    `correction` (a gaze source's; None by default): a `GazeCorrection`, e.g. a calibration's
+    (`calibrate`), applied to every sample read from the source from then on (`read`,
+    iteration, `latest`, `drain`).
+    """
 
     kind: str = "gaze"
 
@@ -70,6 +75,34 @@ class Source(Generic[S]):
         self.spec: str | None = None
         self._opened = False
         self._closed = False
+        self._correction = None
+
+    @property
+    def correction(self):
+        """The `GazeCorrection` applied to the samples read from now on, or None."""
+        return self._correction
+
+    @correction.setter
+    def correction(self, correction) -> None:
+        from ._correction import GazeCorrection
+
+        if correction is not None and not isinstance(correction, GazeCorrection):
+            raise TypeError(
+                f"{type(self).__name__}.correction must be a fovjax.devices.GazeCorrection or None, "
+                f"got {type(correction).__name__}"
+            )
+        if correction is not None and self.kind != "gaze":
+            raise ValueError(
+                f"{type(self).__name__}: a gaze correction applies to gaze sources, not {self.kind}"
+            )
+        self._correction = correction
+
+    def _corrected(self, sample):
+        """`sample` with the source's correction applied (None stays None)."""
+        correction = self._correction
+        if correction is None or not isinstance(sample, GazeSample):
+            return sample
+        return correction.apply(sample)
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
@@ -289,17 +322,19 @@ class ThreadedSource(Source[S]):
                 if remaining is not None and remaining <= 0:
                     return None
                 self._cond.wait(0.1 if remaining is None else min(remaining, 0.1))
-            return self._buffer.popleft()
+            sample = self._buffer.popleft()
+        return self._corrected(sample)
 
     def latest(self) -> S | None:
         with self._cond:
-            return self._latest
+            sample = self._latest
+        return self._corrected(sample)
 
     def drain(self) -> list[S]:
         with self._cond:
             out = list(self._buffer)
             self._buffer.clear()
-            return out
+        return [self._corrected(sample) for sample in out]
 
     @property
     def exhausted(self) -> bool:

@@ -26,6 +26,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ._correction import GazeCorrection
+from ._geometry import RigGeometry, as_pair
 from ._paced import PacedSource
 from ._samples import EyeGaze, GazeSample, HeadPose
 from ._source import Clock
@@ -72,6 +74,26 @@ class FixedPoints(GazeModel):
 
     def position(self, t: float) -> tuple[float, float]:
         return self.points[int(t // self.dwell) % len(self.points)]
+
+
+class TargetFollower(GazeModel):
+    """A synthetic observer who looks at whatever target was presented last: pass its
+    `present` as a calibration's ``present`` (`calibrate`); ``position(t)`` is that target's
+    position (a `CalibrationTarget`'s ``xy``, or any (x, y)) from then on, `start` before any.
+    The eye arrives at once: a calibration's settle time stands for a real eye's latency and
+    saccade."""
+
+    def __init__(self, start: tuple[float, float] = (0.5, 0.5)):
+        self.target = as_pair(start, "TargetFollower: start")
+        self.presented = 0
+
+    def present(self, target) -> None:
+        """Look at `target` (a `CalibrationTarget` or a display position (x, y)) from now on."""
+        self.target = as_pair(getattr(target, "xy", target), "TargetFollower.present")
+        self.presented += 1
+
+    def position(self, t: float) -> tuple[float, float]:
+        return self.target
 
 
 class SmoothPursuit(GazeModel):
@@ -202,10 +224,20 @@ DEFAULT_GAZE_RATE = 120.0
 
 
 class SyntheticGazeSource(PacedSource):
-    """Gaze samples at `rate` Hz from a `GazeModel`, both eyes at the model's point (each eye's
-    display shows the fixated point at the same normalised place when `vergence_offset` is 0; a
-    non-zero offset moves the left eye's point right and the right eye's left by that much, as a
-    near target does).
+    """Gaze samples at `rate` Hz from a `GazeModel`.
+
+    Where each eye looks: with a `geometry` (a `RigGeometry`, e.g.
+    ``RigGeometry.from_rig(rig)``) the model's point is a position on the rig's cyclopean display
+    (a direction from the head, `RigGeometry.fixation`), and each eye's gaze is the display
+    position of the point `fixation_distance` away that way, in that eye's own display (rig
+    units; ``math.inf``: infinitely far). On the thesis's rig the point straight ahead is at
+    x = 0.615 in the left eye and 0.385 in the right. Without a geometry both eyes are at the
+    model's point -- true only of a rig whose displays are parallel, looking infinitely far --
+    and a non-zero `vergence_offset` moves the left eye's point right and the right eye's left by
+    that much, as a near target does.
+
+    `distortion` (a `GazeCorrection`) moves each eye's position by that eye's affine map before
+    the noise: a tracker with a known systematic error, for testing a calibration.
 
     `duration` ends the stream (None: endless). `noise_sd` adds seeded Gaussian noise (normalised
     units) per eye; `dropouts` lists ``(start, end)`` intervals of the timeline with no samples at
@@ -218,6 +250,12 @@ class SyntheticGazeSource(PacedSource):
     0.25°-1.0° accuracy (§2.1.3). For that tracker pass ``rate=60`` (or 30) and a `noise_sd` of
     the accuracy in normalised units (degrees over the display's field of view, e.g.
     0.5 / 64 vertically on the SX111).
+
+    Raises:
+        ValueError: a rate or duration that is not > 0, a `fixation_distance` that is not > 0,
+            a `vergence_offset` together with a `geometry` (the geometry gives each eye's
+            point).
+        TypeError: a `geometry` that is not a `RigGeometry`.
     """
 
     kind = "gaze"
@@ -230,6 +268,9 @@ class SyntheticGazeSource(PacedSource):
         duration: float | None = None,
         noise_sd: float = 0.0,
         vergence_offset: float = 0.0,
+        geometry: RigGeometry | None = None,
+        fixation_distance: float = math.inf,
+        distortion: GazeCorrection | None = None,
         dropouts: Sequence[tuple[float, float]] = (),
         seed: int = 0,
         speed: float | None = 1.0,
@@ -242,13 +283,48 @@ class SyntheticGazeSource(PacedSource):
             raise ValueError(f"SyntheticGazeSource: rate must be > 0 Hz, got {rate}")
         if duration is not None and not duration > 0:
             raise ValueError(f"SyntheticGazeSource: duration must be > 0 s or None, got {duration}")
+        if geometry is not None and not isinstance(geometry, RigGeometry):
+            raise TypeError(
+                "SyntheticGazeSource: geometry must be a fovjax.devices.RigGeometry, "
+                f"got {type(geometry).__name__}"
+            )
+        if geometry is not None and vergence_offset != 0:
+            raise ValueError(
+                f"SyntheticGazeSource: give vergence_offset ({vergence_offset}) or geometry, not both: "
+                "the geometry puts each eye's point where it sees the fixation point"
+            )
+        if distortion is not None and not isinstance(distortion, GazeCorrection):
+            raise TypeError(
+                f"SyntheticGazeSource: distortion must be a fovjax.devices.GazeCorrection, "
+                f"got {type(distortion).__name__}"
+            )
+        if not (isinstance(fixation_distance, int | float) and fixation_distance > 0):
+            raise ValueError(
+                f"SyntheticGazeSource: fixation_distance must be > 0 (math.inf: infinitely far), "
+                f"got {fixation_distance!r}"
+            )
         self.model = model
         self.rate = float(rate)
         self.duration = duration
         self.noise_sd = noise_sd
         self.vergence_offset = vergence_offset
+        self.geometry = geometry
+        self.fixation_distance = float(fixation_distance)
+        self.distortion = distortion
         self.dropouts = sorted((float(a), float(b)) for a, b in dropouts)
         self.seed = seed
+
+    def eye_positions(self, xy: tuple[float, float]) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(left, right) display positions, without noise, of the model's point `xy` (the
+        `distortion` applied)."""
+        x, y = xy
+        if self.geometry is None:
+            left, right = np.array([x + self.vergence_offset, y]), np.array([x - self.vergence_offset, y])
+        else:
+            left, right = self.geometry.fixation((x, y), self.fixation_distance)
+        if self.distortion is not None:
+            left, right = self.distortion.apply_xy("left", left), self.distortion.apply_xy("right", right)
+        return (float(left[0]), float(left[1])), (float(right[0]), float(right[1]))
 
     def _count(self) -> int | None:
         return None if self.duration is None else int(math.floor(self.duration * self.rate + 1e-9)) + 1
@@ -265,8 +341,7 @@ class SyntheticGazeSource(PacedSource):
 
     def _sample(self, i: int, timestamp: float) -> GazeSample:
         t = i / self.rate
-        x, y = self.model.position(t)
-        lx, ly, rx, ry = x + self.vergence_offset, y, x - self.vergence_offset, y
+        (lx, ly), (rx, ry) = self.eye_positions(self.model.position(t))
         if self.noise_sd > 0:
             # Per-sample generator keyed by (seed, i): the same sample whenever it is asked for.
             n = np.random.default_rng([self.seed, i]).normal(0.0, self.noise_sd, 4)

@@ -20,10 +20,23 @@ States (`FallbackPolicy` holds the times):
 A sample is *bad* -- counted by reason, never rendered from -- when its timestamp is not finite or
 lies more than ``max_future`` s after ``now`` (a broken clock), or when an eye fails the
 `QualityFilter` (invalid, NaN, confidence below ``min_confidence``, off screen by more than
-``max_offscreen``). With ``mirror_single_eye`` a sample with one good eye is used with that eye's
-gaze for both (per-eye display coordinates of the two eyes differ only by vergence); otherwise it is
-bad. Stale data, a disconnected port, garbage bytes, a silent tracker all show up the same way: no
-new good sample, so the state walks ok -> holding -> degraded -> lost.
+``max_offscreen``). Stale data, a disconnected port, garbage bytes, a silent tracker all show up
+the same way: no new good sample, so the state walks ok -> holding -> degraded -> lost.
+
+One good eye (``FallbackPolicy.single_eye``): each eye's gaze is a position on that eye's own
+display, and the two displays need not be parallel -- on the thesis's rig (eyes turned 13°
+outwards) a far point straight ahead is at x = 0.615 in the left eye and 0.385 in the right, so
+one eye's position copied to the other would put that eye's fovea about 26° from where it looks.
+
+``"keep"``    (default; the thesis's rule, Fig 45: each eye's point is updated only when that
+              eye's quality code is good) the sample is used for its good eye; the other eye
+              keeps its own last good gaze (standing still: no velocity, no prediction). An eye
+              that never had a good sample has nothing to keep: such a sample is bad.
+``"map"``     the other eye's gaze is the good eye's mapped through the rig: the point
+              ``vergence_distance`` along the good eye's ray, projected into the other eye
+              (`RigGeometry.transfer`; the tracker's ``geometry``, which `run_session` sets from
+              its renderer's rig). Right when the eyes verge at about that distance.
+``"reject"``  the sample is bad.
 
 Recovery: from ``ok`` or ``holding`` one good sample is enough. Once the fovea has widened
 (``degraded`` or ``lost``), ``recover_after`` consecutive good samples are needed before their gaze
@@ -33,7 +46,8 @@ is used and the widening drops back to 0 -- a flickering tracker does not make t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import InitVar, dataclass, field
 from enum import StrEnum
 from typing import cast
 
@@ -47,6 +61,7 @@ from ._filters import (
     QualityFilter,
     VelocityThresholdDetector,
 )
+from ._geometry import RigGeometry
 from ._samples import DISPLAY_CENTRE, EyeGaze, GazeSample, HeadPose
 
 
@@ -60,9 +75,38 @@ class TrackingState(StrEnum):
         return self.value
 
 
+SINGLE_EYE_RULES = ("keep", "map", "reject")
+
+
 @dataclass(frozen=True)
 class FallbackPolicy:
-    """Times in seconds; see the module docstring for what each does."""
+    """What the `GazeTracker` does when tracking is late, bad or gone (module docstring).
+
+    The hold-and-widen states are fovjax's: the thesis renders from the last gaze it received,
+    with no hold time and no widening. Its one-eye rule is ``single_eye="keep"``, the default.
+
+    Args:
+        stale_after: seconds a good sample counts as fresh (state ``ok``).
+        hold_for: seconds the last good gaze is held unchanged (``holding``).
+        widen_every: seconds per widening step after `hold_for` (``degraded``).
+        widen_steps: steps to full quality (``lost``).
+        recover_after: consecutive good samples needed once the fovea has widened.
+        min_confidence: an eye's confidence below this is bad.
+        max_offscreen: an eye farther than this outside the display ([0, 1]^2) is bad.
+        max_future: a timestamp more than this after `now` is a broken clock.
+        single_eye: a sample with one good eye: ``"keep"`` the other eye's own last good gaze
+            (the thesis's Fig 45), ``"map"`` the good eye's gaze through the rig into the other
+            eye, or ``"reject"`` the sample.
+        vergence_distance: with ``"map"``, how far along the good eye's ray the eyes are taken
+            to converge, in the rig's units (`RigGeometry.ipd`'s; ``math.inf``: parallel).
+        mirror_single_eye: deprecated (it copied the good eye's display position to the other
+            eye, wrong on a toed-out rig): True means ``single_eye="keep"``, False
+            ``"reject"``.
+
+    Raises:
+        ValueError: times out of order, fewer than one step or recovery sample, an unknown
+            `single_eye`, a `vergence_distance` that is not > 0.
+    """
 
     stale_after: float = 0.05
     hold_for: float = 0.15
@@ -72,9 +116,34 @@ class FallbackPolicy:
     min_confidence: float = 0.5
     max_offscreen: float = 0.1
     max_future: float = 0.05
-    mirror_single_eye: bool = True
+    single_eye: str = "keep"
+    vergence_distance: float = math.inf
+    mirror_single_eye: InitVar[bool | None] = None
 
-    def __post_init__(self):
+    def __post_init__(self, mirror_single_eye: bool | None):
+        if mirror_single_eye is not None:
+            replacement = "keep" if mirror_single_eye else "reject"
+            warnings.warn(
+                f"FallbackPolicy(mirror_single_eye={mirror_single_eye!r}) is deprecated: copying one eye's "
+                f"display position to the other is wrong on a toed-out rig; using "
+                f"single_eye={replacement!r} (or 'map': the good eye's gaze through the rig)",
+                DeprecationWarning,
+                stacklevel=3,
+            )
+            object.__setattr__(self, "single_eye", replacement)
+        if self.single_eye not in SINGLE_EYE_RULES:
+            raise ValueError(
+                f"FallbackPolicy: single_eye must be one of {SINGLE_EYE_RULES}, got {self.single_eye!r}"
+            )
+        try:
+            distance = float(self.vergence_distance)
+        except (TypeError, ValueError):
+            distance = math.nan
+        if not distance > 0:
+            raise ValueError(
+                f"FallbackPolicy: vergence_distance must be > 0 (math.inf: parallel eyes), "
+                f"got {self.vergence_distance!r}"
+            )
         if not (0 <= self.stale_after <= self.hold_for):
             raise ValueError(
                 f"FallbackPolicy: need 0 <= stale_after <= hold_for, got {self.stale_after}, {self.hold_for}"
@@ -125,6 +194,9 @@ class TrackingFrame:
     prediction_horizon: float
     saccade: bool
     rejected: dict[str, int] = field(default_factory=dict)
+    # The eye whose gaze the newest sample used did not measure ("left" or "right": kept or
+    # mapped, `FallbackPolicy.single_eye`); None when both were measured.
+    unmeasured_eye: str | None = None
 
     def thresholds(self, omega0: float, omega1: float, omega_full: float) -> tuple[float, float]:
         """This frame's widened (fovea, periphery) eccentricity thresholds; see `widen_thresholds`."""
@@ -141,6 +213,7 @@ class TrackingFrame:
             "gaze_right": list(self.right),
             "prediction_s": self.prediction_horizon,
             "saccade": self.saccade,
+            "unmeasured_eye": self.unmeasured_eye,
         }
 
 
@@ -166,7 +239,12 @@ def _make_filter(smoothing) -> GazeFilter | None:
 class GazeTracker:
     """The per-frame gaze state machine (module docstring), with optional smoothing (`smoothing`:
     None, ``"ema"``, ``"one_euro"`` or a zero-argument factory of a filter), I-VT saccade flag and
-    constant-velocity prediction to the display time."""
+    constant-velocity prediction to the display time.
+
+    `geometry` (a `RigGeometry`) is the rig the gaze is on, which ``single_eye="map"`` maps
+    through; `run_session` sets it from its renderer's rig when it is None. A ``"map"``
+    policy with no geometry is refused at the first `step`.
+    """
 
     def __init__(
         self,
@@ -176,8 +254,17 @@ class GazeTracker:
         predictor: GazePredictor | None = _DEFAULT_PREDICTOR,
         saccade_threshold: float = 30.0,
         display_fov_deg: tuple[float, float] = (90.0, 90.0),
+        geometry: RigGeometry | None = None,
     ):
+        if policy is not None and not isinstance(policy, FallbackPolicy):
+            raise TypeError(f"GazeTracker: policy must be a FallbackPolicy, got {type(policy).__name__}")
+        if geometry is not None and not isinstance(geometry, RigGeometry):
+            raise TypeError(
+                f"GazeTracker: geometry must be a fovjax.devices.RigGeometry "
+                f"(RigGeometry.from_rig(rig)), got {type(geometry).__name__}"
+            )
         self.policy = policy or FallbackPolicy()
+        self.geometry = geometry
         self.predictor = predictor
         self._quality = self.policy.quality
         self._filters = {eye: _make_filter(smoothing) for eye in ("left", "right")}
@@ -192,7 +279,9 @@ class GazeTracker:
         self._confirmed: GazeSample | None = None
         self._gaze: dict[str, tuple[float, float]] = {}
         self._velocity: dict[str, np.ndarray] = {"left": np.zeros(2), "right": np.zeros(2)}
-        self._pending: list[GazeSample] = []
+        self._pending: list[tuple[GazeSample, tuple[str, ...], str | None]] = []
+        self._unmeasured: str | None = None
+        self._eye_time: dict[str, float] = {}
         self._step = self.policy.widen_steps
         for f in self._filters.values():
             if f is not None:
@@ -200,8 +289,11 @@ class GazeTracker:
         self._ivt.reset()
 
     # -- classification ---------------------------------------------------------------------
-    def _clean(self, sample: GazeSample, now: float) -> GazeSample | None:
-        """The sample with both eyes usable, or None (counting why)."""
+    def _clean(self, sample: GazeSample, now: float) -> tuple[GazeSample, tuple[str, ...], str | None] | None:
+        """The sample to use, the eyes whose gaze it gives and the eye it did not measure (or
+        None), or None when it is bad (counting why). With one good eye the other is filled in
+        by the policy's `single_eye` rule: kept (not taken from the sample) or mapped through
+        the rig (taken from the sample, which holds the mapped gaze)."""
         t = sample.timestamp
         if not math.isfinite(t) or t > now + self.policy.max_future:
             self.rejected["clock"] += 1
@@ -210,42 +302,65 @@ class GazeTracker:
         for r in reasons.values():
             if r is not None:
                 self.rejected[r] += 1
-        good = [eye for eye, r in reasons.items() if r is None]
+        good = tuple(eye for eye, r in reasons.items() if r is None)
         if len(good) == 2:
-            return sample
-        if len(good) == 1 and self.policy.mirror_single_eye:
-            eye = sample.eye(good[0])
-            return GazeSample(t, eye, eye, sample.device_time)
-        return None
+            return sample, good, None
+        if len(good) == 0 or self.policy.single_eye == "reject":
+            return None
+        (measured,) = good
+        other = "right" if measured == "left" else "left"
+        if self.policy.single_eye == "keep":
+            # Nothing to keep for an eye never seen: its gaze would be made up.
+            seen = other in self._gaze or any(other in eyes for _, eyes, _ in self._pending)
+            return (sample, good, other) if seen else None
+        eye = sample.eye(measured)
+        if self.geometry is None:  # not reached: `step` checks it first
+            raise ValueError("GazeTracker: single_eye='map' needs geometry=")
+        x, y = self.geometry.transfer((eye.x, eye.y), measured, self.policy.vergence_distance)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return None
+        mapped = EyeGaze(float(x), float(y), eye.confidence, True)
+        left, right = (eye, mapped) if measured == "left" else (mapped, eye)
+        return GazeSample(t, left, right, sample.device_time), ("left", "right"), other
 
     # -- filtering --------------------------------------------------------------------------
-    def _use(self, sample: GazeSample) -> None:
+    def _use(self, sample: GazeSample, measured: tuple[str, ...], unmeasured: str | None) -> None:
         previous = self._confirmed
         gap = previous is None or sample.timestamp - previous.timestamp > self.policy.hold_for
         if gap:
-            for f in self._filters.values():
-                if f is not None:
-                    f.reset()
             self._ivt.reset()
+        used = {}
         for name in ("left", "right"):
+            if name not in measured:  # a kept eye stands still where it was last seen
+                used[name] = self._gaze[name]
+                self._velocity[name] = np.zeros(2)
+                continue
             eye: EyeGaze = sample.eye(name)
+            used[name] = (eye.x, eye.y)
             raw = np.array([eye.x, eye.y])
+            # Each eye's own gap: an eye kept for a while is not smoothed or differentiated
+            # across the time it was not seen.
+            since = sample.timestamp - self._eye_time.get(name, -math.inf)
+            eye_gap = gap or not since <= self.policy.hold_for
             f = self._filters[name]
             if f is not None:
+                if eye_gap:
+                    f.reset()
                 xy = f(sample.timestamp, raw)
                 velocity = np.asarray(f.velocity, dtype=float)
             else:
                 xy = raw
-                if gap or previous is None or sample.timestamp <= previous.timestamp:
+                if eye_gap or since <= 0:
                     velocity = np.zeros(2)
                 else:
-                    old = np.asarray(self._gaze[name])
-                    velocity = (raw - old) / (sample.timestamp - previous.timestamp)
+                    velocity = (raw - np.asarray(self._gaze[name])) / since
             self._gaze[name] = (float(xy[0]), float(xy[1]))
             self._velocity[name] = velocity
-        mid = ((sample.left.x + sample.right.x) / 2.0, (sample.left.y + sample.right.y) / 2.0)
-        self._ivt(sample.timestamp, mid)
+            self._eye_time[name] = sample.timestamp
+        (lx, ly), (rx, ry) = used["left"], used["right"]
+        self._ivt(sample.timestamp, ((lx + rx) / 2.0, (ly + ry) / 2.0))
         self._confirmed = sample
+        self._unmeasured = unmeasured
         self.accepted += 1
 
     # -- the frame --------------------------------------------------------------------------
@@ -258,6 +373,12 @@ class GazeTracker:
         elif isinstance(samples, GazeSample):
             samples = (samples,)
         policy = self.policy
+        if policy.single_eye == "map" and self.geometry is None:
+            raise ValueError(
+                "GazeTracker: FallbackPolicy(single_eye='map') maps the good eye's gaze through the rig, "
+                "but the tracker has no geometry: GazeTracker(policy, geometry=RigGeometry.from_rig(rig)) "
+                "(run_session sets it from its renderer's rig)"
+            )
         fresh = []
         for s in samples:
             if s is None:
@@ -278,8 +399,8 @@ class GazeTracker:
             self._pending.append(clean)
             needed = 1 if self._step == 0 else policy.recover_after
             if len(self._pending) >= needed:
-                for s in self._pending:
-                    self._use(s)
+                for pending in self._pending:
+                    self._use(*pending)
                 self._pending.clear()
                 self._step = 0
 
@@ -326,6 +447,7 @@ class GazeTracker:
             prediction_horizon=horizon,
             saccade=bool(self._ivt.in_saccade) and state is TrackingState.OK,
             rejected=dict(self.rejected),
+            unmeasured_eye=self._unmeasured,
         )
 
 

@@ -253,14 +253,16 @@ class ViewPointSource(Source[GazeSample]):
                 if remaining is not None and remaining <= 0:
                     return None
                 self._cond.wait(0.1 if remaining is None else min(remaining, 0.1))
-            return self._buffer.popleft()
+            sample = self._buffer.popleft()
+        return self._corrected(sample)
 
     def latest(self) -> GazeSample | None:
         with self._cond:
-            return self._latest
+            sample = self._latest
+        return self._corrected(sample)
 
     def drain(self) -> list[GazeSample]:
         with self._cond:
             out = list(self._buffer)
             self._buffer.clear()
-            return out
+        return [self._corrected(sample) for sample in out]

@@ -375,7 +375,8 @@ def run_session(
         out: where to write the frames and the log: a `SessionOutput` (with the video and the
             debug views), a directory (`SessionOutput(directory)`), or None (nothing written).
         tracker: the `fovjax.devices.GazeTracker` (default `GazeTracker()`; its `policy` sets
-            the fallback).
+            the fallback). Its `geometry`, when None, is set to the renderer's rig's; a tracker
+            whose policy maps one eye's gaze through another rig is refused.
         key: the PRNG key (default key 0), folded with the frame number unless
             `session.fresh_key_per_frame` is False.
         progress: print progress.
@@ -402,7 +403,7 @@ def run_session(
         print(result.summary["tracking_states"])
         ```
     """
-    from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, widen_thresholds
+    from ..devices import DEFAULT_CONNECT_TIMEOUT, GazeTracker, HeadTracker, RigGeometry, widen_thresholds
     from ..files import deferred_interrupt, interrupt_flag
     from ..foveate import DEBUG_VIEW_DIAGNOSTICS, FoveatedRenderer
     from ..scene import Scene
@@ -454,6 +455,15 @@ def run_session(
             f"got {type(renderer).__name__}"
         )
     rig, foveation = renderer.rig, renderer.foveation
+    # The tracker's rig: its one-eye fallback "map" goes through the rig the frames show.
+    geometry = RigGeometry.from_rig(rig)
+    if tracker.geometry is None:
+        tracker.geometry = geometry
+    elif tracker.policy.single_eye == "map" and not tracker.geometry.matches(geometry):
+        raise ValueError(
+            f"run_session: the tracker maps one eye's gaze through {tracker.geometry}, "
+            f"not the renderer's rig {geometry}; give GazeTracker(geometry=None) to use the renderer's"
+        )
     omega_full = float(max(full_eccentricity(rig, foveation), foveation.periphery_deg))
 
     vclock = VirtualClock() if clock == "virtual" else None
