@@ -22,7 +22,16 @@ import pytest
 
 import fovjax
 from fovjax import FoveatedRenderer, foveate
-from fovjax.devices import EyeGaze, FallbackPolicy, GazeSample, GazeTracker, Source, load_recording
+from fovjax.devices import (
+    MISSING_EYE,
+    EyeGaze,
+    FallbackPolicy,
+    GazeSample,
+    GazeTracker,
+    RigGeometry,
+    Source,
+    load_recording,
+)
 from fovjax.foveate import Foveation
 from fovjax.render import RenderConfig, StereoRig
 from fovjax.session import SessionConfig, SessionOutput
@@ -215,6 +224,40 @@ def test_nan_samples_are_never_rendered(scene, rig, monkeypatch):
     assert result.frames[-1].rejected_samples == len(bad) * 2  # both eyes of every NaN sample
     assert states[-1] == "ok"
     assert result.frames[-1].gaze_left == (pytest.approx(0.7), pytest.approx(0.6))
+
+
+def test_a_bad_eye_keeps_its_own_gaze_on_the_toed_out_rig(scene, rig):
+    """The rig turns each eye 13° outwards: a far point ahead is at x = 0.615 in the left eye and
+    0.385 in the right. When the right eye's samples fail, its fovea stays on its own last gaze
+    (the thesis's rule), not on the left eye's display position 26° from where it looks; with
+    ``single_eye="map"`` it follows the left eye through the session's rig."""
+    geometry = RigGeometry.from_rig(rig)
+    left, right = (tuple(float(v) for v in eye) for eye in geometry.fixation((0.5, 0.5)))
+    assert left[0] == pytest.approx(0.615, abs=2e-3) and right[0] == pytest.approx(0.385, abs=2e-3)
+    both = [GazeSample(i / 120, EyeGaze(*left), EyeGaze(*right)) for i in range(36)]  # 0 .. 0.3 s
+    moved = (left[0] + 0.05, left[1])
+    one_eye = [GazeSample(0.3 + i / 120, EyeGaze(*moved), MISSING_EYE) for i in range(36)]
+    result = session(scene, rig, gaze=ListSource(both + one_eye), frames=6, fps=10)
+    late = [f for f in result.frames if f.time_s > 0.35]
+    assert late and all(f.tracking_state == "ok" for f in late)
+    for f in late:
+        assert f.gaze_left == (pytest.approx(moved[0], abs=1e-6), pytest.approx(0.5, abs=1e-6))
+        assert f.gaze_right == (pytest.approx(right[0], abs=1e-6), pytest.approx(0.5, abs=1e-6))
+
+    mapped = session(
+        scene,
+        rig,
+        gaze=ListSource(both + one_eye),
+        frames=6,
+        fps=10,
+        tracker=GazeTracker(FallbackPolicy(single_eye="map"), predictor=None),
+    )
+    expected = geometry.transfer(moved, "left")  # the session gave the tracker its rig
+    for f in (f for f in mapped.frames if f.time_s > 0.35):
+        assert f.gaze_right == (pytest.approx(expected[0], abs=1e-6), pytest.approx(expected[1], abs=1e-6))
+    elsewhere = GazeTracker(FallbackPolicy(single_eye="map"), geometry=RigGeometry(toe_out_deg=0.0))
+    with pytest.raises(ValueError, match="not the renderer's rig"):
+        session(scene, rig, gaze=ListSource(both), frames=2, fps=10, tracker=elsewhere)
 
 
 def test_outputs_written(scan):

@@ -726,15 +726,15 @@ def validate(
 
     Points with too few valid samples are re-presented up to `settings.max_presentations`
     times, then omitted; there is no fit, so no stray rule. `settings` None:
-    ``CalibrationSettings(points=9, min_points=3)``; `targets` None:
-    ``calibration_targets(settings.points, ...)`` (with the default settings a 3 x 3 grid, whose
-    points differ from the 5 x 4 calibration grid's).
+    ``CalibrationSettings(points=9, min_points=3, margin=0.2)``; `targets` None:
+    ``calibration_targets(settings.points, ..., margin=settings.margin)`` (with the default
+    settings a 3 x 3 grid inside the default 5 x 4 calibration grid, on none of its points).
 
     Raises:
         TypeError, ValueError: as `calibrate`.
         CalibrationError: the source ended, or an eye has no usable point.
     """
-    settings = CalibrationSettings(points=9, min_points=3) if settings is None else settings
+    settings = CalibrationSettings(points=9, min_points=3, margin=0.2) if settings is None else settings
     geometry, targets = _prepare(source, present, geometry, settings, targets, "validate")
     verdicts, _, shown = _run(source, present, targets, settings, geometry, fit=False)
     identity = {eye: np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) for eye in EYES}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -48,8 +49,8 @@ class GazeCorrection:
         ValueError: a map that is not 2 x 3 and finite, or not invertible.
     """
 
-    left: Affine = IDENTITY
-    right: Affine = IDENTITY
+    left: Affine | Sequence[Sequence[float]] | np.ndarray = IDENTITY
+    right: Affine | Sequence[Sequence[float]] | np.ndarray = IDENTITY
 
     def __post_init__(self):
         object.__setattr__(self, "left", _affine(self.left, "left"))

@@ -87,7 +87,10 @@ class RigGeometry:
     fov_axis: str = "horizontal"
     toe_out_deg: float = THESIS_TOE_OUT_DEG
     ipd: float = THESIS_IPD_M
-    offsets: tuple[tuple[float, float], tuple[float, float]] = ((0.0, 0.0), (0.0, 0.0))
+    offsets: tuple[tuple[float, float], tuple[float, float]] | Sequence[Sequence[float]] | np.ndarray = (
+        (0.0, 0.0),
+        (0.0, 0.0),
+    )
 
     def __post_init__(self):
         for name in ("eye_width", "eye_height"):

@@ -311,6 +311,7 @@ class SyntheticGazeSource(PacedSource):
         self.geometry = geometry
         self.fixation_distance = float(fixation_distance)
         self.distortion = distortion
+        self._last_positions = None
         self.dropouts = sorted((float(a), float(b)) for a, b in dropouts)
         self.seed = seed
 
@@ -318,13 +319,17 @@ class SyntheticGazeSource(PacedSource):
         """(left, right) display positions, without noise, of the model's point `xy` (the
         `distortion` applied)."""
         x, y = xy
+        if self._last_positions is not None and self._last_positions[0] == (x, y):
+            return self._last_positions[1]  # a fixation: the same point sample after sample
         if self.geometry is None:
             left, right = np.array([x + self.vergence_offset, y]), np.array([x - self.vergence_offset, y])
         else:
             left, right = self.geometry.fixation((x, y), self.fixation_distance)
         if self.distortion is not None:
             left, right = self.distortion.apply_xy("left", left), self.distortion.apply_xy("right", right)
-        return (float(left[0]), float(left[1])), (float(right[0]), float(right[1]))
+        positions = (float(left[0]), float(left[1])), (float(right[0]), float(right[1]))
+        self._last_positions = ((x, y), positions)
+        return positions
 
     def _count(self) -> int | None:
         return None if self.duration is None else int(math.floor(self.duration * self.rate + 1e-9)) + 1
