@@ -1,6 +1,7 @@
 import dataclasses
 import math
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -191,6 +192,9 @@ def test_mirror_single_eye_is_deprecated_for_the_rule_it_meant():
     with pytest.warns(DeprecationWarning, match="single_eye='reject'"):
         policy = FallbackPolicy(mirror_single_eye=False)
     assert policy.single_eye == "reject" and "mirror_single_eye" not in dataclasses.asdict(policy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # `fovjax session` replaces fields: no warning, the rule kept
+        assert dataclasses.replace(policy, hold_for=0.3).single_eye == "reject"
 
 
 def test_latest_sample_passed_every_frame_is_used_once():
