@@ -28,7 +28,8 @@ PACKAGES = [
     ("fovjax.scene", "scene.md", "Scenes, cameras, loaders, built-in scenes and geometry level of detail."),
     ("fovjax.scenes", "scenes.md", "The built-in procedural scenes and their default cameras."),
     ("fovjax.files", "files.md", "Images in and out; writes that are complete or absent."),
-    ("fovjax.trace", "trace.md", "BVH construction and ray queries."),
+    ("fovjax.trace", "trace.md", "BVH construction, ray queries and ray-query backends."),
+    ("fovjax.native", "native.md", "The native handlers: whether they built here, their Embree scenes."),
     ("fovjax.render", "render.md", "The Whitted renderer, the stereo HMD rig and the compile cache."),
     (
         "fovjax.render.internal",
