@@ -292,8 +292,8 @@ class Foveation(eqx.Module):
       beyond it go through the list), and with `grid_tile` every `blocks[1]`-th pixel of each
       row and column (where every outside block's top-left lies), a pixel's sub-samples side
       by side. Only when the budget is every sample (`max_periphery_deg` and `ray_budget`
-      None). Off by default: on a 2-core CPU they measured at most ~5% faster frames at 1.6-2.7x
-      the compile time (records on docs/performance.md, "Foveated frames").
+      None). Off by default: they gain little on a CPU and lengthen the compile (records on
+      docs/performance.md, "Foveated frames").
     - `fidelity`: None (full fidelity everywhere) or a `Fidelity` per region, (fovea,
       periphery, outside): reflection depth and shadow rays per region, and texture
       level of detail and samples per pixel per region (regions move with the gaze without a

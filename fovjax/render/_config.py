@@ -30,60 +30,59 @@ def _rgb(name: str, value) -> tuple[float, float, float]:
 class RenderConfig:
     """How the integrator traces and shades. Hashable: every distinct config is compiled once.
 
+    What the image is:
+
     - `max_depth`: reflection rays are spawned while depth < max_depth (primary rays have depth
       0), so at most `max_depth` bounces; 0 disables reflections. Thesis: 5.
-    - `background`: radiance of rays that miss everything when no environment map is given.
-    - `bad_color`: what a sample whose radiance is NaN or inf becomes (counted as bad).
+    - `background`: radiance of rays that miss everything when no environment map is given
+      (thesis: its "bg color").
+    - `bad_color`: what a sample whose radiance is NaN or inf becomes (counted as bad; thesis:
+      its exception colour).
     - `ray_offset`: secondary-ray origins move this far along the surface's geometric normal
       (to the side the new ray leaves from), relative to the scene's size (the larger of its
       bounding-box diagonal and its largest absolute coordinate), so surfaces never shadow or
       reflect themselves.
+    - `hits`: where the distance t and barycentrics u, v of a hit come from. "recomputed"
+      (the default): from the hit face's corners in `scene.vertices` (Möller–Trumbore), so the
+      image follows vertices other than the BVH's build-time ones (differentiating a scene's
+      geometry without rebuilding the BVH). "backend": the ray query's own t, u, v, for a
+      scene whose vertices are the BVH's: equal up to float rounding, and cheaper
+      (`benchmarks/mitsuba_frame.py --hits`). Derivatives are the same closed form at
+      `scene.vertices` either way.
+
+    How it is computed (the image is the same up to float rounding whichever is chosen):
+
+    - `backend`: the ray queries (`fovjax.trace.closest_hit`): "auto" (Embree through XLA's FFI
+      on CPU where the native handlers build, Warp on CUDA where installed, else the JAX
+      traversal; chosen per platform inside the program), "jax", "embree", "warp" or a
+      registered `fovjax.trace.RayBackend`'s name. Only the hit face comes from the backend, so
+      images differ at most by ties between faces at equal distance.
+    - `integrator`: who runs the per-ray work (tracing, shading, shadow rays, reflections).
+      "auto": on a CPU where the native handlers built and `backend` is "auto" or "embree", the
+      native integrator (`fovjax/render/_whitted.cc`: the same arithmetic as the JAX integrator,
+      written per ray); elsewhere (a GPU, another backend, shading classes of a per-region
+      fidelity, image tiles of rays) the JAX integrator, chosen per platform inside the
+      program. "native": the native integrator or an error saying why not; "jax": always JAX.
+      Derivatives are the JAX integrator's whichever ran the primal (a custom JVP); the two
+      agree to float rounding except where a ray passes within rounding of an edge or a light's
+      horizon (`tests/test_render_native.py` holds their agreement).
     - `packet`: traversal of primary rays and of the shadow rays from their hit points, as in
       `fovjax.trace.closest_hit` (a tile (h, w) over the last two batch axes of the rays, an int
       for runs of consecutive rays, or None for one by one; a tile needs rays with at least two
       batch axes laid out as an image). Reflection rays and later shadow rays are incoherent
       and always traced one by one.
-    - `backend`: the ray queries (`fovjax.trace.closest_hit`): "auto" (Embree through XLA's FFI
-      on CPU where its handler builds, Warp on CUDA where installed, else the JAX traversal;
-      chosen per platform inside the program), "jax", "embree" or "warp". Images are the same
-      up to float rounding and ties between faces at equal distance: only the hit face comes
-      from the backend, the rest is recomputed in JAX.
-    - `chunk_size`: `radiance` traces and shades depth 0 in bands of about this many rays
-      (whole image rows, so that packets keep their pixels; a band's intermediates stay in
-      cache) and the reflection levels' live rays in chunks of the band's size (dead chunks
-      are skipped); larger chunks keep more traversal lanes busy, smaller ones waste less on
-      the last, partly filled chunk.
+    - `chunk_size`: the JAX integrator traces and shades depth 0 in bands of about this many
+      rays (whole image rows, so that packets keep their pixels) and the reflection levels'
+      live rays in chunks of the band's size (dead chunks are skipped).
     - `queue_chunk_size`: the chunk of the reflection levels of `radiance_in_chunks` (the
-      foveated frame's integrator), whose queues hold few rays: a level with 2 live rays
-      shades one chunk of this size.
+      foveated frame's JAX integrator), whose queues hold few rays.
     - `first_bounce_chunk_size`: the chunk of the first reflection level of
-      `radiance_in_chunks` (its queue holds every primary ray's mirror reflection: tens of
-      thousands of rays, which wider chunks trace in fewer, fuller traversal loops: 16384
-      measured 7-13% faster foveated frames than 4096, benchmarks/foveation.py); None: the same
-      as `queue_chunk_size` (one loop body for every level, a shorter compile).
-    - `hits`: where the distance t and barycentrics u, v of a hit come from. "recomputed"
-      (the default): from the hit face's corners in `scene.vertices` (Möller–Trumbore in JAX),
-      so the image follows vertices other than the BVH's build-time ones (differentiating a
-      scene's geometry by moving its vertices without rebuilding the BVH). "backend": the ray
-      query's own t, u, v (Embree's, Warp's or the JAX traversal's), not recomputed: for a scene
-      whose vertices are the BVH's, faster (benchmarks/mitsuba_frame.py `--hits`) and equal up
-      to float rounding. Derivatives are the same closed form at `scene.vertices` either way.
-    - `integrator`: who runs the per-ray work of a frame (tracing, shading, shadow rays,
-      reflections). "auto" (the default): on a CPU where the Embree FFI handler is built and
-      `backend` is "auto" or "embree", the native integrator, a Whitted loop per ray inside
-      the same handler (`fovjax/trace/_embree_ffi.cc`: the same arithmetic as the JAX
-      integrator, written per ray, with no intermediate arrays between the stages); elsewhere
-      (a GPU, another backend, shading classes of a per-region fidelity, image tiles of rays)
-      the JAX integrator, chosen per platform inside the program. "native": the native
-      integrator or an error saying why not; "jax": always JAX. Derivatives are the JAX
-      integrator's whichever ran the primal (a custom JVP), and the two agree to float
-      rounding except where a ray meets an edge or a light's horizon (a few pixels in a
-      million; `tests/test_render_native.py`). Hits follow `hits` either way.
+      `radiance_in_chunks`, whose queue holds every primary ray's mirror reflection (wider
+      chunks trace it in fewer, fuller loops; `benchmarks/foveation.py` compares sizes); None:
+      `queue_chunk_size` (one loop body for every level, a shorter compile).
     - `depth_batch_size`: `radiance_in_chunks` takes its slots through every depth level in
-      batches of this many (rounded up to whole chunks), so its reflection queue holds one
-      batch's rays: the program's memory, which on a CPU is fresh pages touched every frame,
-      follows the batch and not the slot budget (every sample of the screen when the
-      foveation is uncapped). None: one batch of every slot.
+      batches of this many (rounded up to whole chunks), so the program's memory follows the
+      batch and not the slot budget. None: one batch of every slot.
     """
 
     max_depth: int = 5

@@ -141,17 +141,13 @@ LOWERING_HOOKS: list = []
 
 
 # XLA:CPU emits fused loops two ways: its newer fusion emitters (XLA's default) and its loop
-# emitters. Full frames compile with loop emitters: measured on the atrium
-# (`benchmarks/compile_options.py`, and frames alternated in one process), they run 3-20% faster
-# and their programs compile faster. The thesis's foveated frame keeps the fusion emitters: its
-# screen passes (the sampling's threefry draws, written out round by round, above all) run
-# faster with them where the JAX selection runs: the frame 10-13% faster, both programs
-# compiled in one process and their frames alternated (`FOVJAX_XLA_EMITTERS` below measures it
-# across processes); where the native selection and fill run the two measured the same. The two round
-# some sums differently: images differ in the last bits. The option is
-# XLA:CPU's: a program compiled for another platform gets none (XLA's GPU compiler refuses an
-# option it does not know). FOVJAX_XLA_EMITTERS=loop or =fusion makes every frame program
-# compile with those (to measure them), read when a program compiles.
+# emitters. Full frames compile with loop emitters, which ran them faster and compiled them
+# faster (`benchmarks/compile_options.py`); the thesis's foveated frame keeps the fusion
+# emitters, which run its screen passes (the JAX selection's threefry draws) faster. The two
+# round some sums differently: images differ in the last bits. The option is XLA:CPU's: a
+# program compiled for another platform gets none (XLA's GPU compiler refuses an option it does
+# not know). FOVJAX_XLA_EMITTERS=loop or =fusion makes every frame program compile with those
+# (to measure them), read when a program compiles.
 LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
 EMITTER_CHOICES = ("auto", "loop", "fusion")
 FUSION_EMITTER_ENTRIES = ("foveated", "batch:foveated")

@@ -207,8 +207,8 @@ def scene_scale(scene: SceneArrays):
     diagonal and the largest absolute coordinate (float32 rounding grows with both)."""
     v = jax.lax.stop_gradient(jnp.asarray(scene.vertices, jnp.float32))
     # Per coordinate, as whole-column reductions (XLA:CPU's kernel for a reduction over the
-    # vertex axis of (V, 3) took 1.7 ms a frame on the atrium, these 0.3 ms); the largest
-    # |coordinate| is that of the box's corners: the same values.
+    # vertex axis of (V, 3) is slower); the largest |coordinate| is that of the box's corners:
+    # the same values.
     lo = jnp.stack([jnp.min(v[:, i]) for i in range(3)])
     hi = jnp.stack([jnp.max(v[:, i]) for i in range(3)])
     return jnp.maximum(norm(hi - lo), jnp.maximum(jnp.max(jnp.abs(lo)), jnp.max(jnp.abs(hi))))

@@ -152,8 +152,7 @@ struct BlockRays {
 
 // `sparse`: the rays are samples scattered over the screen (a foveated frame's), whose hits'
 // faces and vertices are seldom in the cache from a neighbour's: they are prefetched a few rays
-// ahead of the shading (a foveated frame 4-6% faster, measured in one process; a full frame's
-// neighbouring rays share their faces, and it measured 1-2% slower with it).
+// ahead of the shading (a full frame's neighbouring rays share their faces: it gains nothing).
 void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
                   const bool* active, const BlockRays& block, float* total, int32_t* traced,
                   bool packets, bool sparse) {
@@ -383,8 +382,8 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, 
       scene_id.element_count() != 1 || first_face.element_count() < 2) {
     return ffi::Error::InvalidArgument("fovjax Whitted: scene arrays of unexpected shapes");
   }
-  // Faces and their materials are checked where a ray hits them (a pass over every face on
-  // every call measured ~0.7 ms on the atrium, seven calls a foveated frame).
+  // Faces and their materials are checked where a ray hits them, not in a pass over every face
+  // on every call.
   s.num_vertices = nv;
   s.out_of_range = out_of_range;
   s.vertices = vertices.typed_data();

@@ -5,13 +5,11 @@ surface points towards a light, a compacted list of an image's hits) trace well 
 once neighbours are consecutive. The order here is a Morton (Z-order) code of each ray's origin
 within the live rays' bounding box, sorted within blocks of consecutive rays.
 
-Why blocks: XLA:CPU sorts a single int32 operand about six times faster than a (key, index)
-pair (1.24 M rays: 57 vs 346 ms, measured), so the key and the ray's index within its block
-share one int32: the block's index bits below, as many of the Morton code's leading bits as
-fit above. Blocks of 2^14 rays keep 17 bits of the code; on the atrium's 1.24 M shadow rays their
-packets traced in 242 ms against 230 ms after a full sort (one core, a scratch A/B; the
-docs' Performance page, "Ray queries"; `benchmarks/trace_throughput.py` row "shadow sorted" times
-the whole call).
+Why blocks: XLA:CPU sorts a single int32 operand several times faster than a (key, index)
+pair, so the key and the ray's index within its block share one int32: the block's index bits
+below, as many of the Morton code's leading bits as fit above. Blocks of 2^14 rays keep 17 bits
+of the code, which packs the atrium's shadow rays into packets nearly as well as a full sort
+(`benchmarks/trace_throughput.py`, row "shadow sorted", times the whole call).
 """
 
 from __future__ import annotations

@@ -295,8 +295,8 @@ def _step_any(table, num_nodes, stack_size, any_hit, rays, state):
 
     The triangle test is materialised once, as the carried distance `t_new`, and the other
     consumers read whether it shrank: given to them as a boolean, XLA:CPU re-derived the whole
-    test inside each consumer (measured 3x slower). Likewise the nearest child is picked with
-    selects, not a gather (a gather fused the box tests into itself, 5x slower).
+    test inside each consumer. Likewise the nearest child is picked with selects, not a gather
+    (a gather fused the box tests into itself).
     """
     del any_hit
     barrier = lax.optimization_barrier
