@@ -359,7 +359,7 @@ def test_other_platforms_setting_is_read_and_a_bad_value_named(monkeypatch):
     dispatch.other_platforms.cache_clear()
     try:
         monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "yes")
-        with pytest.raises(ValueError, match=r"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got 'yes'"):
+        with pytest.raises(ValueError, match=r"FOVJAX_AUTO_OTHER_PLATFORMS='yes': expected 0 \(off\) or 1"):
             dispatch.other_platforms()
         monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "1")
         assert dispatch.other_platforms()
