@@ -116,15 +116,16 @@ def describe_malloc(state: str | None = None, environ: Mapping[str, str] | None 
     """How this process's malloc runs, in words (`fovjax render`'s `memory:` line), from
     `keep_memory`'s `state` (default: what it did at import); None where it is not glibc's."""
     state = MALLOC if state is None else state
-    tunables = (os.environ if environ is None else environ).get("GLIBC_TUNABLES", "")
+    environ = os.environ if environ is None else environ
+    tunables = environ.get("GLIBC_TUNABLES", "")
     names = set(tunables.split(":"))
     said = {
         KEPT: "freed memory kept for the next frame",
         LATE: (
-            "freed memory kept for the next frame by the main thread only: JAX had computed "
-            "before fovjax was imported, and XLA's threads keep their own (import fovjax first)"
+            "freed memory kept for the main thread only: XLA's threads started before fovjax was "
+            "imported (import fovjax before the first JAX computation)"
         ),
-        OFF: "freed memory returned (FOVJAX_KEEP_MEMORY=0)",
+        OFF: f"freed memory returned (FOVJAX_KEEP_MEMORY={environ.get('FOVJAX_KEEP_MEMORY', '')})",
         USERS: (
             "freed memory kept for the next frame (your GLIBC_TUNABLES)"
             if {"glibc.malloc.arena_max=1", "glibc.malloc.mmap_max=0"} <= names
