@@ -6,16 +6,16 @@ foveated frame, in alternating processes.
     python benchmarks/kept_memory.py --rounds 3 --repeats 7 --size 640 512
 
 Importing fovjax keeps malloc's freed memory for the next frame (fovjax/_startup.py): `mallopt`,
-before JAX starts, in every process that imports it. Until now only the `fovjax` program had it:
-it started itself again (`os.execv`) with the settings as GLIBC_TUNABLES, and a script that
+before JAX starts, in every process that imports it. Before that, only the `fovjax` program had
+it: it started itself again (`os.execv`) with the settings as GLIBC_TUNABLES, and a script that
 imported fovjax ran on malloc's defaults. The variants, each a process of its own, in turn
 (`--rounds` rounds, the order alternated):
 
 - `script`: a plain Python script (`import jax`, `import numpy`, `import fovjax`, the renderer,
   its frames) started with no GLIBC_TUNABLES: kept memory is what importing fovjax sets.
-- `program (re-exec)`: the `fovjax` program as it started until now: the process starts itself
-  again with GLIBC_TUNABLES=KEPT_MEMORY_TUNABLES, then the same frames (importing fovjax leaves
-  malloc to the user's tunables).
+- `program (re-exec)`: the `fovjax` program as it started when only it kept memory: the process
+  starts itself again with GLIBC_TUNABLES=KEPT_MEMORY_TUNABLES, then the same frames (importing
+  fovjax leaves malloc to the user's tunables).
 - `defaults`: FOVJAX_KEEP_MEMORY=0, malloc's defaults: a script before this change.
 - `late`: a JAX computation before fovjax is imported, so XLA's threads exist and keep the
   arenas they have; importing fovjax still calls mallopt.
@@ -57,7 +57,7 @@ VARIANTS = (SCRIPT, PROGRAM, DEFAULTS, LATE)
 def child(args) -> None:
     """One process of `args.child`'s variant: frames timed after a warm-up; one RESULT line."""
     if args.child == PROGRAM and "GLIBC_TUNABLES" not in os.environ:
-        # What the program did at import until now, before anything else.
+        # What the program did at import when only it kept memory, before anything else.
         os.environ["GLIBC_TUNABLES"] = args.tunables
         sys.stdout.flush()
         os.execv(sys.executable, [sys.executable, *sys.orig_argv[1:]])
@@ -167,7 +167,8 @@ def main(argv=None) -> None:
         {
             "title": (
                 f"A plain script that imports fovjax (kept memory through mallopt at import) against "
-                f"the fovjax program as it started until now (re-executed with GLIBC_TUNABLES={tunables}), "
+                f"the fovjax program as it started when only it kept memory (re-executed with "
+                f"GLIBC_TUNABLES={tunables}), "
                 f"malloc's defaults (FOVJAX_KEEP_MEMORY=0) and mallopt after a JAX computation (late): "
                 f"the atrium's foveated 5°/10° frame, 2 x {w}x{h}, SPP 1; medians of {args.rounds} "
                 f"processes per variant, {args.repeats} frames each, the order alternated"
