@@ -58,6 +58,13 @@ VARIABLES: dict[str, Variable] = {
             "0 turns the native FFI handler off: the JAX traversal and integrator run instead",
         ),
         Variable(
+            "FOVJAX_NATIVE_SANITIZE",
+            SWITCH,
+            "0",
+            "1 builds the native handlers with AddressSanitizer and UndefinedBehaviorSanitizer (the "
+            "process must start with their runtime preloaded: `.ci/sanitize`)",
+        ),
+        Variable(
             "FOVJAX_KEEP_MEMORY",
             SWITCH,
             "1",
