@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, merge_bvhs, occluded
 from fovjax.native import cached_scenes as cached_embree_scenes
 from fovjax.native import release_scenes as release_embree_scenes
 from fovjax.native import status as embree_status
+from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, merge_bvhs, occluded
 
 
 def need_native():
