@@ -65,7 +65,7 @@ def _gpus() -> list[str]:
     return [line.strip() for line in out.stdout.splitlines() if line.strip()] if out.returncode == 0 else []
 
 
-SETTINGS = ("FOVJAX_XLA_EMITTERS", "FOVJAX_HUGE_PAGES", "XLA_FLAGS")
+SETTINGS = ("FOVJAX_XLA_EMITTERS", "FOVJAX_KEEP_MEMORY", "XLA_FLAGS")
 
 
 def machine() -> dict:
@@ -77,7 +77,7 @@ def machine() -> dict:
         "platform": platform.platform(),
         "python": platform.python_version(),
         "gpus": _gpus(),
-        # malloc's settings (the fovjax program starts with huge-page advice: fovjax/_startup.py)
+        # malloc's settings read at process start; importing fovjax sets its own (below)
         "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
         # Settings that change how frame programs compile or run (fovjax's own and XLA's).
         "settings": {k: os.environ[k] for k in SETTINGS if k in os.environ},
@@ -86,6 +86,9 @@ def machine() -> dict:
         info["load_average"] = [round(x, 2) for x in os.getloadavg()]
     except OSError:
         pass
+    startup = sys.modules.get("fovjax._startup")  # how importing fovjax left malloc
+    if startup is not None and startup.describe_malloc() is not None:
+        info["malloc"] = startup.describe_malloc()
     jax = sys.modules.get("jax")
     if jax is not None:
         try:

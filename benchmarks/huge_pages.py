@@ -9,11 +9,12 @@ XLA allocates a frame program's buffers on every call and frees them after; with
 defaults each call faults its pages in afresh (`benchmarks/mitsuba_frame.py` prints them as
 "fresh MiB"). Two settings: huge pages (`glibc.malloc.hugetlb=1`: 2 MiB pages for malloc's
 large blocks) and kept memory (one arena, no mmap'd blocks, no trimming: a freed frame's memory
-serves the next); the `fovjax` program starts with kept memory, huge pages where asked
-(fovjax/_startup.py, which says why from this benchmark's records). The settings are read when
-a process starts, so the variants run in separate processes, in turn (`--rounds` rounds, the order
-alternated), each one the same renderer (`FoveatedRenderer`: the full frame and the foveated
-5°/10° frame at an off-centre gaze) compiled once then timed `--repeats` times. Printed per
+serves the next). Importing fovjax sets kept memory itself, through mallopt (fovjax/_startup.py;
+`benchmarks/kept_memory.py` measures that way against this one); here each variant is its
+tunables alone (FOVJAX_KEEP_MEMORY=0). The tunables are read when a process starts, so the
+variants run in separate processes, in turn (`--rounds` rounds, the order alternated), each one
+the same renderer (`FoveatedRenderer`: the full frame and the foveated 5°/10° frame at an
+off-centre gaze) compiled once then timed `--repeats` times. Printed per
 variant: the median wall and CPU ms per frame, the kernel (sys) ms and the minor page faults per
 frame, the process's peak resident memory, and the time ratios over the defaults (< 1: faster).
 Writes a record.
@@ -39,13 +40,13 @@ from _processes import (  # noqa: E402
     run_measuring_process,
 )
 
-from fovjax._startup import HUGE_PAGES_TUNABLE, KEPT_MEMORY_TUNABLES  # noqa: E402
+from fovjax._startup import HUGE_PAGES_TUNABLE, KEPT_MEMORY_TUNABLES, glibc_version  # noqa: E402
 
 KEPT = ":".join(KEPT_MEMORY_TUNABLES)
 VARIANTS = {
     "default pages": None,
     "huge pages": HUGE_PAGES_TUNABLE,
-    "kept memory": KEPT,  # how the fovjax program runs
+    "kept memory": KEPT,  # what importing fovjax sets through mallopt
     "huge + kept": f"{HUGE_PAGES_TUNABLE}:{KEPT}",
 }
 
@@ -71,7 +72,7 @@ def child(args) -> None:
 
 
 def run_variant(tunables: str | None, args) -> dict:
-    env = dict(os.environ)
+    env = dict(os.environ, FOVJAX_KEEP_MEMORY="0")  # malloc as the tunables say, no more
     env.pop("GLIBC_TUNABLES", None)
     if tunables:
         env["GLIBC_TUNABLES"] = tunables
@@ -89,7 +90,7 @@ def main(argv=None) -> None:
     if args.child:
         child(args)
         return
-    if not sys.platform.startswith("linux") or not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"):
+    if glibc_version() is None:
         sys.exit("huge_pages: needs Linux with glibc (its malloc tunables)")
     variants = list(dict.fromkeys(["default pages", *args.variants]))
     runs = {name: [] for name in variants}
@@ -146,7 +147,7 @@ def main(argv=None) -> None:
         {
             "title": (
                 f"malloc's settings: default, large blocks on huge pages (GLIBC_TUNABLES="
-                f"{HUGE_PAGES_TUNABLE}), kept memory ({KEPT}; how the fovjax program starts) "
+                f"{HUGE_PAGES_TUNABLE}), kept memory ({KEPT}; what importing fovjax sets) "
                 f"and both, as run: the atrium, 2 x {w}x{h}, SPP 1, full and foveated 5°/10° frames; "
                 f"medians of {args.rounds} processes per variant, {args.repeats} frames each; peak: the "
                 "largest resident memory of a variant's processes (both frames compiled and run)"

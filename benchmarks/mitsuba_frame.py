@@ -819,12 +819,12 @@ def _json_default(x):
 
 
 if __name__ == "__main__":
-    # As the `fovjax` program runs (fovjax/_startup.py): malloc keeps freed memory for the next
-    # frame, for both renderers in this process (FOVJAX_KEEP_MEMORY=0: the system's default).
-    from fovjax._startup import relaunch_with_malloc_settings
-
-    relaunch_with_malloc_settings()
+    # First, before Mitsuba starts its threads: importing fovjax keeps malloc's freed memory for
+    # the next frame (fovjax/_startup.py), for both renderers in this process
+    # (FOVJAX_KEEP_MEMORY=0: the system's default).
     from _record import write_record
+
+    import fovjax  # noqa: F401
 
     figures = main()
     if figures is not None:  # None: skipped (no mitsuba or no libLLVM)

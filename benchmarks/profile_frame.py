@@ -34,12 +34,6 @@ import tempfile
 import time
 from pathlib import Path
 
-if __name__ == "__main__":
-    # As the `fovjax` program runs (fovjax/_startup.py): malloc keeps freed memory for the next
-    # frame (FOVJAX_KEEP_MEMORY=0: the system's default). Before the HLO folder is made.
-    from fovjax._startup import relaunch_with_malloc_settings
-
-    relaunch_with_malloc_settings()
 DUMP = tempfile.mkdtemp(prefix="fovjax-profile-hlo-")
 # Before JAX starts: the optimised HLO of every program, for the operations' source lines.
 os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_dump_to={DUMP}").strip()

@@ -183,10 +183,9 @@ def main(argv=None) -> dict | None:
 
 
 if __name__ == "__main__":
-    from fovjax._startup import relaunch_with_malloc_settings
-
-    relaunch_with_malloc_settings()
     from _record import write_record
+
+    import fovjax  # noqa: F401 -- first: kept memory before Mitsuba's threads (fovjax/_startup.py)
 
     figures = main()
     if figures is not None:

@@ -36,6 +36,7 @@ SECTIONS = [
     ("profile_frame", "Inside the frame program"),
     ("compile_options", "Compile options: XLA's emitters, the ray queries' branches"),
     ("huge_pages", "Malloc settings: kept memory, huge pages"),
+    ("kept_memory", "Kept memory: a script and the program"),
     ("fidelity", "Fidelity per region"),
     ("fidelity_density", "Sampling density"),
     ("plan_fidelity", "Planned fidelity"),

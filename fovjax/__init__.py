@@ -1,7 +1,8 @@
 """fovjax: a differentiable JAX reference renderer and model-fitting toolkit for foveated ray
 tracing on eye-tracked stereo head-mounted displays."""
 
-# First: Ctrl-C while the program starts (fovjax/_startup.py).
+# First, before JAX starts: malloc's kept memory, and Ctrl-C while the program starts
+# (fovjax/_startup.py).
 from . import _startup  # noqa: F401
 from . import foveate as foveate
 from . import render as render

@@ -14,7 +14,9 @@ reaches (`fovjax.<package>`; the top-level modules belong to the package `fovjax
     that package's `__all__`: what siblings share and users do not need lives in the package's
     `internal` module (`fovjax.render.internal`), imported by name;
 (f) the layers a user stands on, the command line and the `fovjax` top level, import no
-    `internal` module: they use the library as a user would.
+    `internal` module: they use the library as a user would;
+(g) the foundation modules (`FOUNDATION`: the environment variables and cache directory, what
+    importing fovjax does first), which any package may import, import nothing else of fovjax.
 
 Every package, and every `internal` module, defines `__all__` (`test_every_package_defines_all`).
 
@@ -32,6 +34,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "fovjax"
 ROOT = "fovjax"  # the top level: fovjax/__init__.py and fovjax/_*.py
 
 CORE = ("native", "files", "scene", "trace", "render", "foveate", "acuity", "devices")
+# Top-level modules below every package, each imported by name by any of them (docs/concepts/
+# architecture.md): every environment variable and the cache directory, and what every process
+# does as it imports fovjax, before JAX starts.
+FOUNDATION = ("fovjax._environment", "fovjax._startup")
 APPLICATION = ("eval", "session", "view", "cli", ROOT)
 
 # Which package may import which (besides itself). Core first, bottom-up.
@@ -150,10 +156,15 @@ def _is_submodule(module: str, name: str) -> bool:
 
 def check(path: Path, tree: ast.AST | None = None) -> dict[str, list[str]]:
     """Every rule `path` breaks, by rule letter, as `file:line: what`."""
-    found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": []}
-    mine = package_of(module_name(path))
+    found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": [], "g": []}
+    me = module_name(path)
+    mine = package_of(me)
     where = path.relative_to(PACKAGE.parent)
     for line, target, names in imports(path, tree):
+        if me in FOUNDATION and target not in FOUNDATION:
+            found["g"].append(f"{where}:{line}: foundation module {me} imports {target}")
+        if target in FOUNDATION:
+            continue
         theirs = package_of(target)
         if theirs == mine:
             continue
@@ -186,7 +197,7 @@ def check(path: Path, tree: ast.AST | None = None) -> dict[str, list[str]]:
 
 
 def violations() -> dict[str, list[str]]:
-    found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": []}
+    found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": [], "g": []}
     for path in _sources():
         for rule, hits in check(path).items():
             found[rule] += hits
@@ -212,6 +223,7 @@ def test_every_package_has_a_place_in_the_table():
         pytest.param("d", id="only-allowed-package-imports"),
         pytest.param("e", id="only-public-names-from-a-package-top"),
         pytest.param("f", id="user-layers-import-no-internal"),
+        pytest.param("g", id="foundation-imports-nothing-of-fovjax"),
     ],
 )
 def test_import_rules(rule):
@@ -231,6 +243,10 @@ BAD = {
     "foveate/_bad2.py": ("from ..render import run_compiled\n", {"e"}),
     "cli/_bad.py": ("from ..foveate.internal import foveated_stereo\n", {"f"}),
     "_bad.py": ("from .render import internal\n", {"f"}),
+    "_environment.py": ("from .trace import build_bvh\n", {"g"}),
+    "_startup.py": ("import fovjax.render\n", {"g"}),
+    # any package may import a foundation module, private as its name is
+    "trace/_bad2.py": ("from .. import _environment\nfrom fovjax._startup import MALLOC\n", set()),
 }
 
 

@@ -1,133 +1,223 @@
-"""The `fovjax` program starts itself with its malloc settings (fovjax/_startup.py: freed memory
-kept; huge pages for large blocks where asked): the environment it adds, what it leaves alone,
-and the running program's own environment, read from /proc."""
+"""Importing fovjax keeps malloc's freed memory for the next frame (fovjax/_startup.py): glibc's
+`mallopt` before JAX starts, in every process, with no re-exec. What it decides from the
+environment, what it says, and what a process that imports fovjax gets: kept memory, checked
+by the page faults of a freed block used again; malloc untouched where the C library is not
+glibc; the call made late, and said, after a JAX computation."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from fovjax import _startup
 from fovjax._startup import (
-    HUGE_PAGES_TUNABLE,
+    KEPT,
+    KEPT_MEMORY_MALLOPT,
     KEPT_MEMORY_TUNABLES,
-    malloc_environment,
+    LATE,
+    NOT_GLIBC,
+    OFF,
+    REFUSED,
+    USERS,
+    describe_malloc,
+    keep_memory,
 )
 
 REPO = Path(__file__).resolve().parents[1]
-GLIBC = "glibc 2.36"
+ON_GLIBC = _startup.glibc_version() is not None
 
 
-KEPT = ":".join(KEPT_MEMORY_TUNABLES)
-BOTH = f"{HUGE_PAGES_TUNABLE}:{KEPT}"
+class Mallopt:
+    """A stand-in for glibc's mallopt that records its calls and answers `answer`."""
+
+    def __init__(self, answer: int = 1):
+        self.calls: list[tuple[int, int]] = []
+        self.answer = answer
+
+    def __call__(self, param: int, value: int) -> int:
+        self.calls.append((param, value))
+        return self.answer
+
+
+@pytest.fixture
+def glibc(monkeypatch):
+    """This process as Linux with glibc, whatever runs the test."""
+    monkeypatch.setattr(os, "confstr", lambda name: "glibc 2.36", raising=False)
+    monkeypatch.setattr(_startup, "_xla_started", lambda: False)
 
 
 @pytest.mark.parametrize(
-    ("environ", "platform", "libc", "expected"),
+    ("environ", "expected", "called"),
     [
-        ({}, "linux", GLIBC, KEPT),
-        # a user's own tunables are kept, the settings appended
-        (
-            {"GLIBC_TUNABLES": "glibc.malloc.tcache_count=0"},
-            "linux",
-            GLIBC,
-            f"glibc.malloc.tcache_count=0:{KEPT}",
-        ),
-        # a user's own choice of a tunable the settings use wins, whatever its value
-        ({"GLIBC_TUNABLES": "glibc.malloc.arena_max=2"}, "linux", GLIBC, None),
-        (
-            {"GLIBC_TUNABLES": "glibc.malloc.mmap_max=9", "FOVJAX_HUGE_PAGES": "1"},
-            "linux",
-            GLIBC,
-            f"glibc.malloc.mmap_max=9:{HUGE_PAGES_TUNABLE}",
-        ),
-        (
-            {"GLIBC_TUNABLES": "glibc.malloc.hugetlb=0", "FOVJAX_HUGE_PAGES": "1"},
-            "linux",
-            GLIBC,
-            f"glibc.malloc.hugetlb=0:{KEPT}",
-        ),
-        # each setting has its own switch: huge pages opt-in, kept memory opt-out
-        ({"FOVJAX_HUGE_PAGES": "1"}, "linux", GLIBC, BOTH),
-        ({"FOVJAX_HUGE_PAGES": "0"}, "linux", GLIBC, KEPT),
-        ({"FOVJAX_KEEP_MEMORY": "0"}, "linux", GLIBC, None),
-        ({"FOVJAX_HUGE_PAGES": "1", "FOVJAX_KEEP_MEMORY": "0"}, "linux", GLIBC, HUGE_PAGES_TUNABLE),
-        ({}, "darwin", "", None),
-        ({}, "linux", "", None),  # musl and others: no glibc tunables
+        ({}, KEPT, True),
+        ({"FOVJAX_KEEP_MEMORY": "1"}, KEPT, True),
+        ({"FOVJAX_KEEP_MEMORY": ""}, KEPT, True),  # empty: the default
+        ({"FOVJAX_KEEP_MEMORY": "0"}, OFF, False),
+        # a user's own tunables that name none of the settings leave them to fovjax
+        ({"GLIBC_TUNABLES": "glibc.malloc.tcache_count=0"}, KEPT, True),
+        ({"GLIBC_TUNABLES": f"glibc.malloc.hugetlb=1:{KEPT_MEMORY_TUNABLES[0]}"}, USERS, False),
+        # a user's own choice of one of the settings wins, whatever its value
+        ({"GLIBC_TUNABLES": "glibc.malloc.arena_max=2"}, USERS, False),
+        ({"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=0"}, USERS, False),
     ],
 )
-def test_the_environment_it_adds(environ, platform, libc, expected):
-    assert malloc_environment(environ, platform=platform, libc=libc) == expected
+def test_what_it_sets_from_the_environment(glibc, environ, expected, called):
+    mallopt = Mallopt()
+    assert keep_memory(environ, platform="linux", mallopt=mallopt) == expected
+    assert mallopt.calls == (list(KEPT_MEMORY_MALLOPT) if called else [])
 
 
-def test_a_switch_that_is_not_0_or_1_is_named_and_the_default_kept(capsys):
-    environ = {"FOVJAX_KEEP_MEMORY": "no", "FOVJAX_HUGE_PAGES": "yes"}
-    assert malloc_environment(environ, platform="linux", libc=GLIBC) == KEPT
+def test_the_settings_are_one_arena_no_mapped_blocks_no_trimming():
+    """glibc's malloc.h numbers: M_ARENA_MAX -8, M_MMAP_MAX -4, M_TRIM_THRESHOLD -1 (-1: the
+    largest size_t), the same settings as the tunables a user may set instead."""
+    assert dict(KEPT_MEMORY_MALLOPT) == {-8: 1, -4: 0, -1: -1}
+    assert [t.split("=")[0] for t in KEPT_MEMORY_TUNABLES] == [
+        "glibc.malloc.arena_max",
+        "glibc.malloc.mmap_max",
+        "glibc.malloc.trim_threshold",
+    ]
+
+
+def test_a_switch_it_cannot_use_is_named_and_malloc_left_alone(glibc, capsys):
+    mallopt = Mallopt()
+    assert keep_memory({"FOVJAX_KEEP_MEMORY": "no"}, platform="linux", mallopt=mallopt) == OFF
+    assert mallopt.calls == []
     err = capsys.readouterr().err
-    assert "FOVJAX_KEEP_MEMORY='no' is not 0 or 1; using 1" in err
-    assert "FOVJAX_HUGE_PAGES='yes' is not 0 or 1; using 0" in err
+    assert "FOVJAX_KEEP_MEMORY='no'" in err and "0 (off) or 1 (on)" in err and "malloc left" in err
 
 
-def _environ(raw: bytes) -> dict[str, str]:
-    """A process's environment from /proc/PID/environ. glibc (2.36) parses GLIBC_TUNABLES in
-    place, writing a NUL over each ':' between tunables, so the tunables after the first read
-    as entries of their own ("glibc.malloc...."): they are joined back."""
-    env: dict[str, str] = {}
-    last = None
-    for entry in raw.decode().split("\0"):
-        if last == "GLIBC_TUNABLES" and entry.startswith("glibc."):
-            env[last] += ":" + entry
-        elif "=" in entry:
-            last, value = entry.split("=", 1)
-            env[last] = value
-    return env
+def test_after_xla_started_it_still_sets_them_and_says_late(glibc, monkeypatch):
+    monkeypatch.setattr(_startup, "_xla_started", lambda: True)
+    mallopt = Mallopt()
+    assert keep_memory({}, platform="linux", mallopt=mallopt) == LATE
+    assert mallopt.calls == list(KEPT_MEMORY_MALLOPT)
 
 
-def _program_environment(tmp_path, **extra) -> dict[str, str]:
-    """The environment of a running `python -m fovjax render`, read once JAX is loading (after
-    any restart: the process id stays), then the program is stopped."""
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""), **extra)
-    env.pop("GLIBC_TUNABLES", None)
-    cmd = [sys.executable, "-m", "fovjax", "render", "--scene", "cornell", "--width", "8", "--height", "8"]
-    cmd += ["--mono", "-o", str(tmp_path / "img.png")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
-    try:
-        deadline = time.monotonic() + 60
-        while proc.poll() is None and time.monotonic() < deadline:
-            try:
-                if "jaxlib" in Path(f"/proc/{proc.pid}/maps").read_text():
-                    return _environ(Path(f"/proc/{proc.pid}/environ").read_bytes())
-            except OSError:
-                pass
-            time.sleep(0.01)
-        raise AssertionError(f"the program did not start: {proc.communicate()[1]!r}")
-    finally:
-        proc.kill()
-        proc.wait()
+def test_a_refused_setting_is_said(glibc):
+    assert keep_memory({}, platform="linux", mallopt=Mallopt(answer=0)) == REFUSED
 
 
-@pytest.mark.skipif(
-    not sys.platform.startswith("linux") or not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"),
-    reason="glibc's tunables and /proc (Linux with glibc)",
-)
-def test_the_program_runs_with_the_settings_unless_told_not_to(tmp_path):
-    tunables = _program_environment(tmp_path).get("GLIBC_TUNABLES", "").split(":")
-    assert set(KEPT_MEMORY_TUNABLES) <= set(tunables)
-    assert HUGE_PAGES_TUNABLE not in tunables
-    switched = _program_environment(tmp_path, FOVJAX_HUGE_PAGES="1", FOVJAX_KEEP_MEMORY="0")
-    assert switched.get("GLIBC_TUNABLES") == HUGE_PAGES_TUNABLE
+@pytest.mark.parametrize("platform", ["win32", "darwin", "linux"])
+def test_without_glibc_nothing_is_set_or_said(monkeypatch, capsys, platform):
+    """Windows has no `os.confstr`; macOS has no glibc; Linux with musl answers no glibc."""
+    monkeypatch.delattr(os, "confstr", raising=False)
+    mallopt = Mallopt()
+    assert keep_memory({}, platform=platform, mallopt=mallopt) == NOT_GLIBC
+    monkeypatch.setattr(os, "confstr", lambda name: "", raising=False)  # musl
+    assert keep_memory({}, platform=platform, mallopt=mallopt) == NOT_GLIBC
+
+    def unknown(name):
+        raise ValueError(f"unrecognized configuration name {name!r}")
+
+    monkeypatch.setattr(os, "confstr", unknown, raising=False)
+    assert keep_memory({}, platform=platform, mallopt=mallopt) == NOT_GLIBC
+    assert mallopt.calls == []
+    assert capsys.readouterr() == ("", "")
+    assert describe_malloc(NOT_GLIBC, {}) is None
 
 
-def test_render_says_how_malloc_runs(monkeypatch):
-    from fovjax.cli._render import _pages
+def test_what_fovjax_render_says_about_memory():
+    assert describe_malloc(KEPT, {}) == "freed memory kept for the next frame"
+    assert "main thread only" in describe_malloc(LATE, {})
+    assert "import fovjax before the first JAX computation" in describe_malloc(LATE, {})
+    assert describe_malloc(OFF, {"FOVJAX_KEEP_MEMORY": "0"}) == "freed memory returned (FOVJAX_KEEP_MEMORY=0)"
+    assert "refused" in describe_malloc(REFUSED, {})
+    kept = {"GLIBC_TUNABLES": ":".join(KEPT_MEMORY_TUNABLES)}
+    assert describe_malloc(USERS, kept) == "freed memory kept for the next frame (your GLIBC_TUNABLES)"
+    assert describe_malloc(USERS, {"GLIBC_TUNABLES": "glibc.malloc.arena_max=4"}) == (
+        "as your GLIBC_TUNABLES sets it"
+    )
+    # huge pages: a tunable only (no mallopt parameter), said where the user set it
+    huge = describe_malloc(KEPT, {"GLIBC_TUNABLES": "glibc.malloc.hugetlb=1"})
+    assert huge == "freed memory kept for the next frame; large blocks on huge pages (glibc.malloc.hugetlb=1)"
+    assert "huge" not in describe_malloc(KEPT, {"GLIBC_TUNABLES": "glibc.malloc.hugetlb=0"})
+    assert "GLIBC_TUNABLES" not in describe_malloc(KEPT, {})
 
-    monkeypatch.setenv("GLIBC_TUNABLES", KEPT)
-    assert _pages().startswith("freed memory kept for the next frame; no huge pages")
-    monkeypatch.setenv("GLIBC_TUNABLES", BOTH)
-    assert "transparent huge pages" in _pages()
-    monkeypatch.delenv("GLIBC_TUNABLES")
-    assert _pages() == "freed memory returned; no huge pages (GLIBC_TUNABLES=unset)"
+
+# A process that imports fovjax as the `fovjax` program would (its argv), with `os.execv`
+# forbidden, then frees a 64 MiB block and counts the page faults of using that much again:
+# none to speak of where freed memory is kept; where malloc returns it (its defaults map such a
+# block and unmap it when freed) every page faults afresh, or every huge page where the kernel
+# backs it with them.
+CHILD = r"""
+import ctypes, json, os, sys
+if sys.platform.startswith("linux"):
+    import resource
+PRE = sys.argv[1]
+if PRE == "late":
+    import jax
+    jax.block_until_ready(jax.numpy.zeros(8) + 1)
+elif PRE == "no confstr":
+    del os.confstr
+
+def no_execv(*args):
+    raise SystemExit("os.execv called at import")
+
+os.execv = no_execv
+sys.orig_argv = [sys.executable, "-m", "fovjax"]
+import fovjax
+from fovjax import _startup
+
+result = {"malloc": _startup.MALLOC}
+if sys.platform.startswith("linux"):
+    libc = ctypes.CDLL(None)
+    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    size = 64 << 20
+
+    def use_and_free():
+        block = libc.malloc(size)
+        ctypes.memset(block, 1, size)
+        libc.free(block)
+
+    use_and_free()
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    use_and_free()
+    result["faults"] = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+    result["pages"] = size // os.sysconf("SC_PAGE_SIZE")
+print(json.dumps(result))
+"""
+
+
+def _child(pre: str) -> tuple[dict, str]:
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for name in ("GLIBC_TUNABLES", "FOVJAX_KEEP_MEMORY"):
+        env.pop(name, None)
+    done = subprocess.run(
+        [sys.executable, "-c", CHILD, pre], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
+
+
+@pytest.fixture(scope="module")
+def without_confstr():
+    """A process that imports fovjax with no `os.confstr`, as on Windows: its result, stderr."""
+    return _child("no confstr")
+
+
+def test_without_confstr_the_package_imports_and_says_nothing(without_confstr):
+    result, err = without_confstr
+    assert result["malloc"] == NOT_GLIBC
+    assert "fovjax" not in err
+
+
+@pytest.mark.skipif(not ON_GLIBC, reason="glibc's malloc (Linux with glibc)")
+def test_a_process_that_imports_fovjax_keeps_freed_memory_without_a_reexec(without_confstr):
+    kept, _ = _child("plain")
+    assert kept["malloc"] == KEPT
+    assert kept["faults"] < kept["pages"] // 8
+    untouched, _ = without_confstr  # malloc's defaults
+    assert untouched["faults"] > kept["faults"]
+
+
+@pytest.mark.skipif(not ON_GLIBC, reason="glibc's malloc (Linux with glibc)")
+def test_importing_fovjax_after_a_jax_computation_is_late():
+    late, _ = _child("late")
+    assert late["malloc"] == LATE
+    assert late["faults"] < late["pages"] // 8  # the main thread's blocks are still kept

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 import fovjax
-from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, merge_bvhs, occluded
 from fovjax.native import cached_scenes as cached_embree_scenes
 from fovjax.native import release_scenes as release_embree_scenes
 from fovjax.native import status as embree_status
+from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit, merge_bvhs, occluded
 
 
 def need_native():
@@ -359,7 +359,7 @@ def test_other_platforms_setting_is_read_and_a_bad_value_named(monkeypatch):
     dispatch.other_platforms.cache_clear()
     try:
         monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "yes")
-        with pytest.raises(ValueError, match=r"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got 'yes'"):
+        with pytest.raises(ValueError, match=r"FOVJAX_AUTO_OTHER_PLATFORMS='yes': expected 0 \(off\) or 1"):
             dispatch.other_platforms()
         monkeypatch.setenv("FOVJAX_AUTO_OTHER_PLATFORMS", "1")
         assert dispatch.other_platforms()

@@ -22,6 +22,7 @@ import signal
 import sys
 from pathlib import Path
 
+from .. import _environment
 from ..files import atomic_path as atomic_path
 from ..files import deferred_interrupt as deferred_interrupt
 
@@ -87,10 +88,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     name = f"fovjax {args.command}"
     _WRITTEN.clear()
-    _compile_cache(name)
     if program:
         _on_interrupt_exit(name)
     try:
+        _compile_cache(name)  # inside: a FOVJAX_COMPILE_CACHE it cannot use is a user's mistake
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         if program:
@@ -112,7 +113,7 @@ def _compile_cache(name: str) -> None:
     said once and skipped (it is an optimisation, never a reason to fail)."""
     from fovjax.render import compile_cache_problem, enable_compile_cache
 
-    if os.environ.get("FOVJAX_COMPILE_CACHE", "1").strip() == "0":
+    if not _environment.switch("FOVJAX_COMPILE_CACHE"):
         return
     if enable_compile_cache() is None:
         print(f"{name}: note: {compile_cache_problem()}", file=sys.stderr, flush=True)

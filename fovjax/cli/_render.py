@@ -10,12 +10,12 @@ geometry preview (primary rays only, coloured by surface normal and darkened wit
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
 from fovjax import cli
+from fovjax._startup import describe_malloc
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
 
@@ -130,21 +130,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "-o", "--output", default=None, help="output image (.png, .exr, .hdr); default out/SCENE.png"
     )
     p.set_defaults(func=run)
-
-
-def _pages() -> str:
-    """How this process's malloc runs: the `fovjax` program starts with freed memory kept
-    (fovjax/_startup.py) unless FOVJAX_KEEP_MEMORY=0, and huge pages where FOVJAX_HUGE_PAGES=1."""
-    raw = os.environ.get("GLIBC_TUNABLES", "")
-    tunables = set(raw.split(":"))
-    kept = {"glibc.malloc.arena_max=1", "glibc.malloc.mmap_max=0"} <= tunables
-    said = [
-        "freed memory kept for the next frame" if kept else "freed memory returned",
-        "large buffers on transparent huge pages"
-        if "glibc.malloc.hugetlb=1" in tunables
-        else "no huge pages",
-    ]
-    return f"{'; '.join(said)} (GLIBC_TUNABLES={raw or 'unset'})"
 
 
 def _progress(step: int, total: int, text: str) -> None:
@@ -305,8 +290,9 @@ def _run(args, out: Path) -> int:
     platform = jax.devices()[0].platform
     print(f"ray queries: {describe_backend(config.backend, platform)}")
     print(f"integrator: {describe_integrator(config, platform)}")
-    if sys.platform.startswith("linux"):
-        print(f"memory: {_pages()}")
+    memory = describe_malloc()  # None: not glibc's malloc, nothing to say
+    if memory is not None:
+        print(f"memory: {memory}")
     if foveated and isinstance(frame, fovjax.FoveatedFrame):
         f = frame.foveation
         print(

@@ -36,6 +36,7 @@ import os
 import threading
 import time
 
+from .. import _environment
 from ._samples import EyeGaze, GazeSample
 from ._source import Clock, DeviceError, LibraryNotFoundError, Source
 
@@ -67,7 +68,7 @@ def find_library(path: str | os.PathLike | None, *, env: str, names: tuple[str, 
     """Resolve a vendor library: explicit `path`, else ``$env``, else the system search for
     `names`. Raises `LibraryNotFoundError` saying where it looked."""
     tried = []
-    candidate = path if path is not None else os.environ.get(env)
+    candidate = path if path is not None else _environment.path(env)
     if candidate is not None:
         candidate = os.fspath(candidate)
         if os.path.exists(candidate):

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import os
 from collections.abc import Callable
 
 import jax
 
+from .. import _environment
 from ._library import status
 
 REQUESTS = ("auto", "native", "jax")
@@ -65,10 +65,7 @@ def other_platforms() -> bool:
     and CUDA: where JAX sees a device that is neither a CPU nor an NVIDIA GPU (ROCm, TPU, ...),
     or FOVJAX_AUTO_OTHER_PLATFORMS=1 (to export such a program from a machine without one). Every
     branch is traced though only one is compiled, so a branch no device needs is left out."""
-    setting = os.environ.get("FOVJAX_AUTO_OTHER_PLATFORMS", "")
-    if setting not in ("", "0", "1"):
-        raise ValueError(f"FOVJAX_AUTO_OTHER_PLATFORMS must be 0 or 1, got {setting!r}")
-    if setting == "1":
+    if _environment.switch("FOVJAX_AUTO_OTHER_PLATFORMS"):
         return True
     for device in jax.devices():
         version = str(getattr(device.client, "platform_version", "")).lower()

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import jax
 
+from .. import _environment
+
 # Only programs that took at least this long to compile are written (JAX's default too): the
 # frame programs, not the many small helper jits.
 MIN_COMPILE_SECONDS = 1.0
@@ -32,10 +34,7 @@ MAX_BYTES = 2 << 30
 def compile_cache_dir() -> Path:
     """Where `enable_compile_cache()` keeps executables by default: `$FOVJAX_CACHE_DIR/xla`, else
     `$XDG_CACHE_HOME/fovjax/xla` (`~/.cache/fovjax/xla`), beside the BVH and LOD caches."""
-    env = os.environ.get("FOVJAX_CACHE_DIR")
-    if env:
-        return Path(env) / "xla"
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "fovjax" / "xla"
+    return _environment.cache_dir("xla")
 
 
 def enable_compile_cache(directory: str | os.PathLike | None = None) -> Path | None:

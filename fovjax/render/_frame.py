@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from .. import _environment
 from ..scene import Camera, Scene
 from ..trace import BVH, build_bvh
 from ._arrays import SceneArrays, scene_arrays
@@ -149,7 +150,6 @@ LOWERING_HOOKS: list = []
 # not know). FOVJAX_XLA_EMITTERS=loop or =fusion makes every frame program compile with those
 # (to measure them), read when a program compiles.
 LOOP_EMITTERS = {"xla_cpu_use_fusion_emitters": False}
-EMITTER_CHOICES = ("auto", "loop", "fusion")
 FUSION_EMITTER_ENTRIES = ("foveated", "batch:foveated")
 
 
@@ -158,11 +158,7 @@ def frame_compiler_options(entry: str, platform: str = "cpu") -> dict[str, Any]:
     ...) compiles with for `platform` ("cpu", "gpu", ...): on a CPU `LOOP_EMITTERS`, except for
     the thesis's foveated frame (`FUSION_EMITTER_ENTRIES`: XLA's default); FOVJAX_XLA_EMITTERS=
     loop or fusion for every program; none on other platforms."""
-    choice = os.environ.get("FOVJAX_XLA_EMITTERS", "auto") or "auto"
-    if choice not in EMITTER_CHOICES:
-        raise ValueError(
-            f"FOVJAX_XLA_EMITTERS must be one of {EMITTER_CHOICES}, got {choice!r} (frame program {entry!r})"
-        )
+    choice = _environment.choice("FOVJAX_XLA_EMITTERS")
     if choice == "auto":
         choice = "fusion" if entry in FUSION_EMITTER_ENTRIES else "loop"
     return dict(LOOP_EMITTERS) if choice == "loop" and platform == "cpu" else {}

@@ -56,6 +56,7 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Int
 
+from .. import _environment
 from ._scene import Scene, Textures, drop_degenerate, geometry_hash, make_scene
 
 FORMAT_VERSION = 4  # 3: welded before decimating, coplanar flips after; 4: normals per corner
@@ -522,11 +523,7 @@ class LODLevels(eqx.Module):
 
 
 def _cache_dir(cache_dir) -> Path:
-    if cache_dir is not None:
-        return Path(cache_dir)
-    env = os.environ.get("FOVJAX_CACHE_DIR")
-    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "fovjax"
-    return base / "lod"
+    return Path(cache_dir) if cache_dir is not None else _environment.cache_dir("lod")
 
 
 def _cache_key(scene: Scene, ratio: float, preserve_border: bool) -> str:

@@ -25,6 +25,7 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, Real
 
+from .. import _environment
 from ..scene import Scene
 from ._build import BuildParams, build_tree
 from ._wide import ROW_WORDS, pack
@@ -108,12 +109,7 @@ class BVH(eqx.Module):
 
 
 def _cache_dir(cache_dir) -> Path:
-    if cache_dir is not None:
-        return Path(cache_dir)
-    env = os.environ.get("FOVJAX_CACHE_DIR")
-    if env:
-        return Path(env)
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "fovjax" / "bvh"
+    return Path(cache_dir) if cache_dir is not None else _environment.cache_dir("bvh")
 
 
 def _key(geometry_hash: str, params: BuildParams) -> str:
