@@ -30,6 +30,7 @@ from pathlib import Path
 
 import jax
 
+from .. import _environment
 from ._layout import layout_differences, parse_layout
 
 PACKAGE = Path(__file__).resolve().parents[1]  # fovjax/: the sources' include root
@@ -87,13 +88,7 @@ def sources() -> list[Path]:
 
 
 def _native_dir() -> Path:
-    env = os.environ.get("FOVJAX_NATIVE_DIR")
-    if env:
-        return Path(env)
-    root = os.environ.get("FOVJAX_CACHE_DIR")
-    if root:
-        return Path(root) / "native"
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "fovjax" / "native"
+    return _environment.path("FOVJAX_NATIVE_DIR") or _environment.cache_dir("native")
 
 
 def _compiler() -> str | None:
@@ -104,10 +99,7 @@ def _compiler() -> str | None:
 
 
 def _flags() -> tuple[str, ...]:
-    sanitize = os.environ.get("FOVJAX_NATIVE_SANITIZE", "0")
-    if sanitize not in ("0", "1"):
-        raise ValueError(f"FOVJAX_NATIVE_SANITIZE must be 0 or 1, got {sanitize!r}")
-    return FLAGS + (SANITIZE_FLAGS if sanitize == "1" else ())
+    return FLAGS + (SANITIZE_FLAGS if _environment.switch("FOVJAX_NATIVE_SANITIZE") else ())
 
 
 def embree_library() -> str | None:
@@ -171,8 +163,11 @@ def status() -> NativeStatus:
 
 
 def _load() -> NativeStatus:
-    if os.environ.get("FOVJAX_NATIVE", "1") == "0":
-        return NativeStatus(False, "turned off by FOVJAX_NATIVE=0")
+    try:
+        if not _environment.switch("FOVJAX_NATIVE"):
+            return NativeStatus(False, "turned off by FOVJAX_NATIVE=0")
+    except ValueError as exc:  # a bad value: named, and the handlers stay off
+        return NativeStatus(False, str(exc))
     if not sys.platform.startswith("linux"):
         return NativeStatus(False, f"the native handlers are built for Linux only (this is {sys.platform})")
     library = embree_library()
