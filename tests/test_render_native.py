@@ -29,10 +29,10 @@ import pytest
 import fovjax
 import fovjax.scenes
 from fovjax.foveate import Foveation
+from fovjax.native import status as embree_status
 from fovjax.render import RenderConfig, StereoRig, radiance, render_stereo, scene_arrays, stereo_sample_rays
 from fovjax.scene import DIRECTIONAL_LIGHT, POINT_LIGHT
 from fovjax.trace import build_bvh
-from fovjax.native import status as embree_status
 
 _extras.require("embreex", module_level=True)
 if not embree_status():  # embreex is here but the handler did not build (e.g. no C++ compiler)
@@ -191,7 +191,9 @@ def test_integrator_setting_is_checked():
 
 def test_native_with_another_ray_backend_is_an_error_naming_it(featured):
     _, arrays, bvh, rig = featured
-    with pytest.raises(ValueError, match="integrator 'native' needs the native handlers, but the ray backend is 'jax'"):
+    with pytest.raises(
+        ValueError, match="integrator 'native' needs the native handlers, but the ray backend is 'jax'"
+    ):
         _radiance_config(arrays, bvh, rig, RenderConfig(integrator="native", backend="jax"))
 
 
