@@ -428,8 +428,8 @@ class FoveatedRenderer:
         history = self._history.value
         if reset or history is None:  # a temporal method's reset (None: a method without history)
             history = jax.tree.map(jnp.asarray, method.empty_history(self.rig.eye_height, self.rig.eye_width))
-        frame_args = jax.tree.map(jnp.asarray, (angles, gaze, key, foveation))
-        inputs = FrameInputs(arrays, bvh, rig, *frame_args, lod, shading)
+        traced = jax.tree.map(jnp.asarray, (angles, gaze, key, foveation))  # this frame's values
+        inputs = FrameInputs(arrays, bvh, rig, traced[0], traced[1], traced[2], traced[3], lod, shading)
         (out, reused, history), compile_s, render_s = run_compiled(
             method.entry, method.frame, (inputs, history), self._static(jitter, diagnostics)
         )

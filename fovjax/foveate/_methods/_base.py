@@ -15,6 +15,11 @@ from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, TypeAlias
 
 import equinox as eqx
 
+if TYPE_CHECKING:  # equinox's advice for pyright (its issue 4965)
+    from typing import ClassVar as AbstractClassVar
+else:
+    from equinox import AbstractClassVar
+
 if TYPE_CHECKING:  # annotations only: these modules import this one
     from jaxtyping import Array, Float, Int, PRNGKeyArray
 
@@ -95,8 +100,8 @@ class AbstractFoveationMethod(eqx.Module):
     CONTRIBUTING.md ("Add a foveation method") has a complete small method.
     """
 
-    name: eqx.AbstractClassVar[str]
-    citation: eqx.AbstractClassVar[Citation | None]
+    name: AbstractClassVar[str]
+    citation: AbstractClassVar[Citation | None]
     temporal: ClassVar[bool] = False
     thesis_options: ClassVar[frozenset[str]] = frozenset()
     batches: ClassVar[bool] = False

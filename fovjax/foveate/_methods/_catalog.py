@@ -90,7 +90,7 @@ class Guenter2012(AbstractFoveationMethod):
     sharpness). `Foveation.fovea_deg` and `periphery_deg` are the layer radii, traced, so a
     threshold sweep compares radii; `layer_radii` gives the paper's.
 
-    Parameters:
+    Attributes:
         strides: the middle and outer layers' sampling factors in display pixels (fovjax's
             choice, (2, 4): the thesis's block edges, so the two methods trace comparable grids;
             the paper chooses them with the radii by minimising its cost model).
@@ -144,7 +144,7 @@ class Guenter2012(AbstractFoveationMethod):
         """`fovjax.foveate._methods._guenter.guenter_stereo` (no history)."""
         from ._guenter import guenter_stereo
 
-        return guenter_stereo(inputs, history, options=options)
+        return guenter_stereo(self, inputs, history, options=options)
 
 
 @register_method
@@ -170,7 +170,7 @@ class Patney2016(AbstractFoveationMethod):
       unblurred to the blurred local standard deviation of luminance (Gaussian windows of
       `window_per_sigma`·σ, the gain within [1, `max_gain`]).
 
-    Parameters:
+    Attributes:
         strides: the middle and outer shading rates in display pixels (fovjax's choice,
             (2, 4): coarse pixels of 2×2 and 4×4; the paper's exact rates could not be read
             here).
@@ -237,7 +237,7 @@ class Patney2016(AbstractFoveationMethod):
         """`fovjax.foveate._methods._patney.patney_stereo`."""
         from ._patney import patney_stereo
 
-        return patney_stereo(inputs, history, options=options)
+        return patney_stereo(self, inputs, history, options=options)
 
     def empty_history(self, eye_height: int, eye_width: int) -> History:
         """No pixel holds a history (`TaaHistory`): the next frame is shown as traced."""
@@ -270,7 +270,7 @@ class Weier2016(AbstractFoveationMethod):
     - the image is the traced samples where traced and the reprojected ones elsewhere: every
       pixel holds a sample, so the fill and blur of the thesis's method are not needed.
 
-    Parameters:
+    Attributes:
         retrace_tolerance: the relative depth step above which a reprojected sample is rejected
             (fovjax's choice, 0.1: the paper schedules "possible errors introduced by this
             reprojection" for resampling from a coarse geometry it rebuilds from a G-buffer; the
@@ -328,7 +328,7 @@ class Weier2016(AbstractFoveationMethod):
         """`fovjax.foveate._methods._weier.weier_stereo`."""
         from ._weier import weier_stereo
 
-        return weier_stereo(inputs, history, options=options)
+        return weier_stereo(self, inputs, history, options=options)
 
     def empty_history(self, eye_height: int, eye_width: int) -> History:
         """No pixel holds a sample (`WeierHistory`): the next frame traces every pixel."""

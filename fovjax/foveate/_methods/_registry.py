@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import types
 from collections.abc import Mapping
+from typing import TypeVar
 
 from ._base import THESIS_OPTIONS, AbstractFoveationMethod, Citation
 
@@ -16,9 +17,10 @@ METHODS: Mapping[str, type[AbstractFoveationMethod]] = types.MappingProxyType(_R
 --methods`), in the order they were registered (read-only: `register_method` adds one)."""
 
 _NAME = re.compile(r"[a-z][a-z0-9_-]*")
+_Method = TypeVar("_Method", bound=AbstractFoveationMethod)
 
 
-def register_method(cls: type[AbstractFoveationMethod]) -> type[AbstractFoveationMethod]:
+def register_method(cls: type[_Method]) -> type[_Method]:
     """Register a foveation method class under its `name` (a class decorator; returns `cls`).
 
     Args:
