@@ -3,9 +3,10 @@ traces the fovea and paints every other pixel one colour, registered, then a fra
 it) is executed here, and the frame is checked against what the method says it does: exactly the
 fovea's pixels are traced (the sample mask and the primary-ray count, against the frame's own
 eccentricity map), every other pixel is the fill colour bit for bit (a copied constant), and the
-fovea's pixels are the full render's (another program: float32 rounding, tests/_frames.py). The
-registry's checks of a method class are tested beside it. The example's tiny rig (the Cornell box
-at 2 x 32x24, depth 0) is tests/test_eval_compare.py's, so the full render's program is shared."""
+fovea's pixels are the full render's (another program: float32 rounding, tests/_frames.py).
+Beside it: the registry's checks of a method class, and the command line's use of the registry.
+The example's tiny rig (the Cornell box at 2 x 32x24, depth 0) is tests/test_eval_compare.py's,
+so the full render's program is shared."""
 
 from __future__ import annotations
 
@@ -73,6 +74,20 @@ def test_the_example_traces_exactly_the_fovea(example):
     assert (frame.image[~side_by_side] == 0.0).all()  # the fill, (0, 0, 0)
     full = renderer.render_full().image
     assert_same_radiance(frame.image[side_by_side], full[side_by_side])
+
+
+def test_the_command_line_takes_the_registered_name(example, tmp_path, capsys):
+    """`fovjax compare --methods` checks names against the registry: the example's passes that
+    check and the command stops at the next one (an output path that is a file), before any work."""
+    from fovjax.cli import main
+
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    argv = ["compare", "--scene", "cornell_box", "--methods", "thesis", "fovea-only", "-o", str(a_file)]
+    assert main(argv) != 0
+    assert "exists and is not a folder" in capsys.readouterr().err
+    assert main([*argv[:4], "fovea-only-nope", *argv[6:]]) != 0
+    assert "--methods 'fovea-only-nope': expected one of thesis" in capsys.readouterr().err
 
 
 class _Named(AbstractFoveationMethod):
