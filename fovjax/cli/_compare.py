@@ -84,12 +84,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run on N processes (hosts) with jax.distributed: the same command on every host, "
         "ID 0..N-1, HOST:PORT the address of process 0; implies --shard, process 0 writes the results",
     )
+    from fovjax.foveate import METHODS
+
     p.add_argument(
         "--methods",
         nargs="+",
         default=["thesis"],
-        help="foveation methods to sweep with every threshold pair (fovjax.foveate.METHODS: thesis, "
-        "guenter2012, patney2016, weier2016); one table and one chart across them",
+        help="foveation methods to sweep with every threshold pair (the registered methods, "
+        f"fovjax.foveate.METHODS: {', '.join(METHODS)}); one table and one chart across them",
     )
     p.add_argument(
         "--video",
@@ -181,9 +183,16 @@ def validate(args) -> None:
 
     for method in args.methods:
         cli.choice(method, "--methods", tuple(METHODS))
-    if set(args.methods) != {"thesis"} and (args.shard or args.distributed or args.fidelity):
+    # A batch (--shard, --distributed) and a fidelity plan need a method that takes them.
+    refusing = [
+        m
+        for m in args.methods
+        if ((args.shard or args.distributed) and not METHODS[m].batches)
+        or (args.fidelity and "fidelity" not in METHODS[m].thesis_options)
+    ]
+    if refusing:
         raise cli.UsageError(
-            "--methods other than thesis: --shard, --distributed and --fidelity are the thesis's method's"
+            f"--methods {' '.join(refusing)}: --shard, --distributed and --fidelity are the thesis's method's"
         )
     cli.output(args.output, "-o", directory=True)
     _validate_video(args)

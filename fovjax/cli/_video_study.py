@@ -59,10 +59,12 @@ def add_arguments(p) -> None:
     g.add_argument(
         "--keys", choices=("fresh", "fixed"), help="sampling key: new every frame (default) or the same"
     )
+    from fovjax.foveate import METHODS
+
     g.add_argument(
         "--method",
-        help="foveation method of the foveated frames (fovjax.foveate.METHODS: thesis (default), "
-        "guenter2012, patney2016, weier2016); a temporal one carries its history frame to frame",
+        help="foveation method of the foveated frames (the registered methods, fovjax.foveate.METHODS: "
+        f"{', '.join(METHODS)}; default thesis); a temporal one carries its history frame to frame",
     )
     g.add_argument("--walk-speed", type=float, help="m/s along the view direction (default 1)")
     g.add_argument("--peak-luminance", type=float, help="the display's peak, cd/m² (default 100)")

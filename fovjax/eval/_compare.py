@@ -345,10 +345,17 @@ def compare_thresholds(
             f"got {type(scene).__name__}"
         )
     methods = [Foveation(method=m).method for m in sweep.methods]  # names checked by Foveation
-    others = [m.name for m in methods if m.name != "thesis"]
-    if others and (shard or plan is not None or rule != "either"):
+    # A batch (shard), a fidelity plan and a sampling rule need a method that takes them.
+    refusing = [
+        m.name
+        for m in methods
+        if (shard and not m.batches)
+        or (plan is not None and "fidelity" not in m.thesis_options)
+        or (rule != "either" and "rule" not in m.thesis_options)
+    ]
+    if refusing:
         raise ValueError(
-            f"compare_thresholds: methods {others} take neither shard, plan nor a rule "
+            f"compare_thresholds: methods {refusing} take neither shard, plan nor a rule "
             f"(got shard={shard}, plan={plan!r}, rule={rule!r}); those are the thesis's"
         )
     models = list(models) if models is not None else [None]

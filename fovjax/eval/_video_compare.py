@@ -184,10 +184,10 @@ def _configurations(base, sweep):
 
     models = [None] if sweep.models is None else list(sweep.models)
     methods = [Foveation(method=m).method for m in sweep.methods]  # names checked by Foveation
-    others = [m.name for m in methods if m.name != "thesis"]
-    if others and sweep.rule != "either":
+    without_rule = [m.name for m in methods if "rule" not in m.thesis_options]
+    if without_rule and sweep.rule != "either":
         raise ValueError(
-            f"{_where()}: sweep.rule {sweep.rule!r}: expected 'either' with the methods {others} "
+            f"{_where()}: sweep.rule {sweep.rule!r}: expected 'either' with the methods {without_rule} "
             "(a sampling rule is the thesis's method's)"
         )
     out = []

@@ -6,7 +6,8 @@ batches and their full references for given gaze, head pose, key and thresholds 
 render frames in a loop); `render_foveated` renders one frame through a renderer made for it.
 `check_gaze(gaze)` is the per-eye gaze check. `Foveation(method=...)` chooses the foveation
 method (`METHODS`: the thesis's, `Guenter2012`, `Patney2016`,
-`Weier2016`), each with its paper's citation.
+`Weier2016`), each with its paper's citation; a new method is an `AbstractFoveationMethod`
+registered with `register_method`.
 The frame program's parts (`foveated_stereo`, `budget_for`, `program_fidelity`, the sampling
 steps) are in `fovjax.foveate.internal`, for the packages built on this one."""
 
@@ -34,12 +35,14 @@ from ._frame import DEBUG_VIEW_DIAGNOSTICS as DEBUG_VIEW_DIAGNOSTICS
 from ._frame import DIAGNOSTICS as DIAGNOSTICS
 from ._frame import DiagnosticsLike as DiagnosticsLike
 from ._methods import METHODS as METHODS
+from ._methods import AbstractFoveationMethod as AbstractFoveationMethod
 from ._methods import Citation as Citation
 from ._methods import Guenter2012 as Guenter2012
 from ._methods import Patney2016 as Patney2016
 from ._methods import Thesis as Thesis
 from ._methods import Weier2016 as Weier2016
 from ._methods import method_label as method_label
+from ._methods import register_method as register_method
 from ._renderer import FoveatedRenderer as FoveatedRenderer
 from ._sampling import FOVEA as FOVEA
 from ._sampling import OUTSIDE as OUTSIDE
@@ -89,12 +92,14 @@ __all__ = [
     "DIAGNOSTICS",
     "DiagnosticsLike",
     "METHODS",
+    "AbstractFoveationMethod",
     "Citation",
     "Guenter2012",
     "Patney2016",
     "Thesis",
     "Weier2016",
     "method_label",
+    "register_method",
     "FoveatedRenderer",
     "FOVEA",
     "OUTSIDE",

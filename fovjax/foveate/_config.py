@@ -13,7 +13,7 @@ import numpy as np
 from jax.core import Tracer
 from jaxtyping import Array, ArrayLike, Float, Real
 
-from ._methods._catalog import FoveationMethod, as_method
+from ._methods import AbstractFoveationMethod, as_method
 
 # The thesis's (fovea, periphery) pairs in degrees (section 5.1, tables 2-5).
 THESIS_PAIRS: tuple[tuple[float, float], ...] = (
@@ -304,9 +304,11 @@ class Foveation(eqx.Module):
       nested layers at decreasing resolution, magnified and blended, `Guenter2012`),
       "patney2016" (shading rate by eccentricity, temporal antialiasing and a
       contrast-preserving pre-filter, `Patney2016`), "weier2016" (sparse tracing plus
-      reprojection of the previous frames' samples, `Weier2016`). Each method
-      cites its paper (`Foveation().method.citation`); the options above that only the
-      thesis's frame has (`fidelity`, budgets, tiles) are refused with another method.
+      reprojection of the previous frames' samples, `Weier2016`), or a method registered with
+      `register_method` (an `AbstractFoveationMethod`). Each method cites its paper
+      (`Foveation().method.citation`); the options above that only the thesis's frame has
+      (`fidelity`, budgets, tiles) are refused with a method that does not read them
+      (`AbstractFoveationMethod.thesis_options`).
     """
 
     # Floats, or traced under jit (a new pair compiles nothing).
@@ -327,7 +329,7 @@ class Foveation(eqx.Module):
     grid_tile: bool = eqx.field(static=True, default=False)
     fidelity: tuple | None = eqx.field(static=True, default=None)
     # The method (`fovjax.foveate.METHODS`; default the thesis's): a name or a method instance.
-    method: FoveationMethod = eqx.field(static=True, default="thesis", converter=as_method)
+    method: AbstractFoveationMethod = eqx.field(static=True, default="thesis", converter=as_method)
 
     def __check_init__(self):
         traced = isinstance(self.fovea_deg, Tracer) or isinstance(self.periphery_deg, Tracer)
@@ -394,20 +396,20 @@ class Foveation(eqx.Module):
                     )
         if self.ray_budget is not None and self.ray_budget < 1:
             raise ValueError(f"Foveation.ray_budget must be positive, got {self.ray_budget}")
-        if self.method.name != "thesis":  # options of the thesis's frame program only
-            thesis_only = {
-                "fidelity": self.fidelity,
-                "ray_budget": self.ray_budget,
-                "max_periphery_deg": self.max_periphery_deg,
-                "fovea_tile_deg": self.fovea_tile_deg,
-                "grid_tile": self.grid_tile or None,
-            }
-            given = [k for k, v in thesis_only.items() if v is not None]
-            if given:
-                raise ValueError(
-                    f"Foveation: {', '.join(given)} apply to the thesis's method only, not to "
-                    f"method {self.method.name!r} (expected None)"
-                )
+        # The thesis's frame's options that the method's frame does not read (`thesis_options`).
+        thesis_only = {
+            "fidelity": self.fidelity,
+            "ray_budget": self.ray_budget,
+            "max_periphery_deg": self.max_periphery_deg,
+            "fovea_tile_deg": self.fovea_tile_deg,
+            "grid_tile": self.grid_tile or None,
+        }
+        given = [k for k, v in thesis_only.items() if v is not None and k not in self.method.thesis_options]
+        if given:
+            raise ValueError(
+                f"Foveation: {', '.join(given)} apply to the thesis's method only, not to "
+                f"method {self.method.name!r} (expected None)"
+            )
 
     @classmethod
     def thesis(cls, pair: int | tuple[float, float] = 0, **kwargs: Any) -> Foveation:

@@ -60,12 +60,11 @@ from ._frame import (
     DiagnosticsLike,
     FoveatedOutputs,
     FoveationStats,
-    FrameOptions,
     diagnostics_tuple,
-    foveated_stereo,
     region_view,
 )
 from ._lod import check_levels, lod_needed, prepare_levels
+from ._methods import METHODS, FrameInputs
 
 CENTRE_GAZE = ((0.5, 0.5), (0.5, 0.5))
 _BUDGETS: dict = {}
@@ -211,9 +210,9 @@ def _batch_program(scene, bvh, rig, foveation, lod, shading, head_poses, gazes, 
     def frame(xs):
         head_pose, gaze, key = xs
         key = jax.random.wrap_key_data(key)
-        return foveated_stereo(
-            scene, bvh, rig, head_pose, gaze, key, foveation, lod, shading, options=options
-        )
+        inputs = FrameInputs(scene, bvh, rig, head_pose, gaze, key, foveation, lod, shading)
+        outputs, _, _ = foveation.method.frame(inputs, None, options=options)  # no history
+        return outputs
 
     # One frame after another (lax.map), not vmap: a foveated frame skips the chunks of slots it
     # does not trace with lax.cond, which vmap would turn into a select that runs every chunk.
@@ -365,17 +364,10 @@ class FoveatedRenderer:
     # ---- frames ----
 
     def _static(self, jitter: bool, diagnostics: tuple[str, ...]) -> dict:
-        """The frame program's static arguments (`run_compiled`'s `static`)."""
-        options = FrameOptions(
-            spp=self.foveation.spp,
-            jitter=jitter,
-            config=self.config,
-            budget=self.budget,
-            tile=self.tile,
-            grid=self.grid,
-            diagnostics=diagnostics,
-        )
-        return {"options": options}
+        """The frame program's static arguments (`run_compiled`'s `static`): the method's
+        `FrameOptions` for this renderer."""
+        method = self.foveation.method
+        return {"options": method.frame_options(self, jitter=jitter, diagnostics=diagnostics)}
 
     def _frame_foveation(self, thresholds) -> Foveation:
         """The program's foveation with the frame's (fovea, periphery) thresholds (traced)."""
@@ -432,20 +424,18 @@ class FoveatedRenderer:
         angles = np.asarray(head_pose_angles(head_pose), np.float32)
         arrays, bvh, rig = self._scene_inputs
         lod, shading = self._tables
-        reused = 0
-        if foveation.method.name == "thesis":
-            frame_args = jax.tree.map(jnp.asarray, (angles, gaze, key, foveation))
-            args = (arrays, bvh, rig, *frame_args, lod, shading)
-            out, compile_s, render_s = run_compiled(
-                "foveated", foveated_stereo, args, self._static(jitter, diagnostics)
-            )
-        else:  # another method's frame program (`fovjax.foveate._methods`)
-            from ._methods._render import render_with_method
-
-            frame_args = jax.tree.map(jnp.asarray, (angles, gaze, key))
-            out, reused, compile_s, render_s = render_with_method(
-                self, foveation, frame_args, jitter=jitter, diagnostics=diagnostics, reset=reset
-            )
+        method = foveation.method
+        history = self._history.value
+        if reset or history is None:  # a temporal method's reset (None: a method without history)
+            history = jax.tree.map(jnp.asarray, method.empty_history(self.rig.eye_height, self.rig.eye_width))
+        traced = jax.tree.map(jnp.asarray, (angles, gaze, key, foveation))  # this frame's values
+        inputs = FrameInputs(arrays, bvh, rig, traced[0], traced[1], traced[2], traced[3], lod, shading)
+        (out, reused, history), compile_s, render_s = run_compiled(
+            method.entry, method.frame, (inputs, history), self._static(jitter, diagnostics)
+        )
+        if method.temporal:
+            self._history.value = history
+        reused = 0 if reused is None else int(np.asarray(reused))
         image = np.asarray(out.image)
         stats = frame_stats(
             out.counts,
@@ -550,10 +540,12 @@ class FoveatedRenderer:
         from ..render import frame_mesh
         from ..render import internal as render_internal
 
-        if self.foveation.method.name != "thesis":
+        method = self.foveation.method
+        if not method.batches:
+            batched = [name for name, cls in METHODS.items() if cls.batches]
             raise ValueError(
-                f"render_batch: foveation method {self.foveation.method.name!r} renders frames one "
-                "after another (FoveatedRenderer.render); batches are the thesis's method's"
+                f"render_batch: foveation method {method.name!r} renders frames one after another "
+                f"(FoveatedRenderer.render); batches are for the methods {batched}"
             )
         n = render_internal.batch_size({"gazes": gazes, "keys": keys, "head_poses": head_poses})
 
@@ -568,7 +560,7 @@ class FoveatedRenderer:
         arrays, bvh, rig = self._scene_inputs
         lod, shading = self._tables
         out, padded, compile_s, render_s, sharding = render_internal.run_sharded(
-            "foveated",
+            method.entry,
             _batch_program,
             (arrays, bvh, rig, self._program_foveation, lod, shading),
             (poses, gaze, raw_keys),

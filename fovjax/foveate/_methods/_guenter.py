@@ -9,6 +9,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
+from ._base import FrameInputs
+from ._catalog import Guenter2012
 from ._sparse import trace_pixels
 
 
@@ -65,23 +67,14 @@ def layer_weights(ecc: Float[Array, "E H W"], radii, blend_deg: float):
 
 
 def guenter_stereo(
-    scene,
-    bvh,
-    rig,
-    head_pose,
-    gaze,
-    key,
-    foveation,
-    history=None,
-    *,
-    options: FrameOptions,
+    method: Guenter2012, inputs: FrameInputs, history: None = None, *, options: FrameOptions
 ) -> tuple[FoveatedOutputs, Int[Array, ""], None]:
     """One stereo frame of Guenter et al. 2012 (`Guenter2012`): (the frame's outputs, 0 pixels
     reused, no history). Pure; jit with `options`
     (the `FrameOptions`: its spp, jitter, config and diagnostics) static."""
+    scene, bvh, rig, head_pose, gaze, key, foveation, *_ = inputs  # no fidelity tables
     spp, jitter, config = options.spp, options.jitter, options.config
     diagnostics = diagnostics_tuple(options.diagnostics, "guenter_stereo")
-    method = foveation.method
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)

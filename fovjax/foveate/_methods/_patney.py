@@ -18,6 +18,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
+from ._base import FrameInputs
+from ._catalog import Patney2016
 from ._guenter import layer_weights
 from ._sparse import trace_pixels
 
@@ -148,24 +150,15 @@ def hold(pix: Float[Array, "E H W 3"], stride: int) -> Float[Array, "E H W 3"]:
 
 
 def patney_stereo(
-    scene,
-    bvh,
-    rig,
-    head_pose,
-    gaze,
-    key,
-    foveation,
-    history: TaaHistory,
-    *,
-    options: FrameOptions,
+    method: Patney2016, inputs: FrameInputs, history: TaaHistory, *, options: FrameOptions
 ) -> tuple[FoveatedOutputs, Int[Array, ""], TaaHistory]:
     """One stereo frame of Patney et al. 2016 (`Patney2016`) from the previous frame's
     `history`: (the frame's outputs, the pixels that blended a history, this frame's history).
     Pure; jit with `options` (the `FrameOptions`: its spp, jitter, config and diagnostics)
     static."""
+    scene, bvh, rig, head_pose, gaze, key, foveation, *_ = inputs  # no fidelity tables
     spp, jitter, config = options.spp, options.jitter, options.config
     diagnostics = diagnostics_tuple(options.diagnostics, "patney_stereo")
-    method = foveation.method
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)

@@ -25,6 +25,8 @@ from .._frame import (
     eccentricities,
     slot_rays,
 )
+from ._base import FrameInputs
+from ._catalog import Weier2016
 from ._sparse import trace_pixels
 
 # A ray that misses keeps a point this many scene sizes along it: reprojected, it moves with
@@ -135,23 +137,14 @@ def traced_points(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, 
 
 
 def weier_stereo(
-    scene,
-    bvh,
-    rig,
-    head_pose,
-    gaze,
-    key,
-    foveation,
-    history: WeierHistory,
-    *,
-    options: FrameOptions,
+    method: Weier2016, inputs: FrameInputs, history: WeierHistory, *, options: FrameOptions
 ) -> tuple[FoveatedOutputs, Int[Array, ""], WeierHistory]:
     """One stereo frame of Weier et al. 2016 (`Weier2016`) from the previous frame's `history`:
     (the frame's outputs, the pixels shown from the history, this frame's history). Pure; jit
     with `options` (the `FrameOptions`: its spp, jitter, config and diagnostics) static."""
+    scene, bvh, rig, head_pose, gaze, key, foveation, *_ = inputs  # no fidelity tables
     spp, jitter, config = options.spp, options.jitter, options.config
     diagnostics = diagnostics_tuple(options.diagnostics, "weier_stereo")
-    method = foveation.method
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
