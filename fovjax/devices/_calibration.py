@@ -354,7 +354,7 @@ class CalibrationResult:
             left=EyeAccuracy(**data["eyes"]["left"]),
             right=EyeAccuracy(**data["eyes"]["right"]),
             geometry=RigGeometry(**geometry),
-            settings=CalibrationSettings(**{k: _number(v) for k, v in data["settings"].items()}),
+            settings=CalibrationSettings(**_settings_fields(data["settings"])),
             source=str(data.get("source", "")),
             validation=None if validation is None else ValidationResult.from_dict(validation),
         )
@@ -367,6 +367,11 @@ class CalibrationResult:
         tmp.write_text(text + "\n", encoding="utf-8")
         os.replace(tmp, path)
         return path
+
+
+def _settings_fields(data: dict) -> dict:
+    """A recorded `CalibrationSettings`' fields as its constructor takes them."""
+    return {k: _number(v) for k, v in data.items()}
 
 
 def _number(value):
@@ -546,7 +551,9 @@ def _check_source(source, where: str) -> None:
         raise ValueError(f"{where}: source must be a gaze source, got a {source.kind} source")
 
 
-def _prepare(source, present, geometry, settings, targets, where):
+def _prepare(
+    source, present, geometry, settings, targets, where
+) -> tuple[RigGeometry, tuple[CalibrationTarget, ...]]:
     """Every argument checked before anything is presented; the targets to show."""
     _check_source(source, where)
     if not callable(present):
@@ -559,19 +566,20 @@ def _prepare(source, present, geometry, settings, targets, where):
     if not isinstance(settings, CalibrationSettings):
         raise TypeError(f"{where}: settings must be a CalibrationSettings, got {type(settings).__name__}")
     if targets is None:
-        targets = calibration_targets(
-            settings.points, geometry, distance=settings.distance, margin=settings.margin
+        return geometry, tuple(
+            calibration_targets(settings.points, geometry, distance=settings.distance, margin=settings.margin)
         )
+    given = tuple(targets)
+    if not given:
+        raise ValueError(f"{where}: targets is empty")
+    if all(isinstance(t, CalibrationTarget) for t in given):
+        chosen = tuple(t for t in given if isinstance(t, CalibrationTarget))
     else:
-        targets = tuple(targets)
-        if not targets:
-            raise ValueError(f"{where}: targets is empty")
-        if not all(isinstance(t, CalibrationTarget) for t in targets):
-            targets = targets_at(targets, geometry, settings.distance)
-        indices = [t.index for t in targets]
-        if len(set(indices)) != len(indices):
-            raise ValueError(f"{where}: target indices must be distinct, got {indices}")
-    return geometry, targets
+        chosen = tuple(targets_at(given, geometry, settings.distance))
+    indices = [t.index for t in chosen]
+    if len(set(indices)) != len(indices):
+        raise ValueError(f"{where}: target indices must be distinct, got {indices}")
+    return geometry, chosen
 
 
 def _run(source, present, targets, settings, geometry, fit: bool):
@@ -601,7 +609,8 @@ def _points(targets, verdicts, shown, geometry, matrices) -> tuple[CalibrationPo
             v = verdicts[eye]
             xy, goal = v.xy[k], np.asarray(target.eye(eye))
             corrected = _apply(matrices[eye], xy) if len(xy) else xy
-            mean = tuple(float(c) for c in xy.mean(axis=0)) if len(xy) else None
+            centre = xy.mean(axis=0) if len(xy) else None
+            mean = None if centre is None else (float(centre[0]), float(centre[1]))
             eyes[eye] = PointEye(
                 samples=v.counts[k],
                 valid=len(xy),
@@ -673,7 +682,8 @@ def calibrate(
             usable points (naming each omitted point's reason).
     """
     settings = CalibrationSettings() if settings is None else settings
-    geometry, targets = _prepare(source, present, geometry, settings, targets, "calibrate")
+    geometry, shown_targets = _prepare(source, present, geometry, settings, targets, "calibrate")
+    targets = shown_targets
     if settings.min_points > len(targets):
         raise ValueError(
             f"calibrate: settings.min_points ({settings.min_points}) is more than the {len(targets)} targets"
@@ -735,7 +745,8 @@ def validate(
         CalibrationError: the source ended, or an eye has no usable point.
     """
     settings = CalibrationSettings(points=9, min_points=3, margin=0.2) if settings is None else settings
-    geometry, targets = _prepare(source, present, geometry, settings, targets, "validate")
+    geometry, shown_targets = _prepare(source, present, geometry, settings, targets, "validate")
+    targets = shown_targets
     verdicts, _, shown = _run(source, present, targets, settings, geometry, fit=False)
     identity = {eye: np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) for eye in EYES}
     points = _points(targets, verdicts, shown, geometry, identity)

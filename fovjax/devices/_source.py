@@ -19,7 +19,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Generic, TypeVar
+from typing import Generic, TypeVar, cast, overload
 
 from ._samples import GazeSample, HeadPose
 
@@ -97,12 +97,17 @@ class Source(Generic[S]):
             )
         self._correction = correction
 
-    def _corrected(self, sample):
-        """`sample` with the source's correction applied (None stays None)."""
+    @overload
+    def _corrected(self, sample: S) -> S: ...
+    @overload
+    def _corrected(self, sample: None) -> None: ...
+    def _corrected(self, sample: S | None) -> S | None:
+        """`sample` with the source's correction applied (None, a head pose, or no correction: as
+        it is)."""
         correction = self._correction
         if correction is None or not isinstance(sample, GazeSample):
             return sample
-        return correction.apply(sample)
+        return cast(S, correction.apply(sample))
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
