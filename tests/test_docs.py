@@ -1,12 +1,13 @@
 """The documentation: the site builds with `mkdocs build --strict` (a broken link, a missing page
 or a docstring reference that does not resolve fails), every public name has an entry in the API
-reference, the generated pages (API, Performance) are current, every tutorial's code runs, and
-the README stays a short front door.
+reference, the generated pages (API, Performance) are current, every tutorial's code (and the home
+page's example) runs and writes the images its page shows, and the README stays a short front door.
 
 The tutorials run in this process, so their compiled programs go through the run's shared
 compile cache (tests/conftest.py); they use the shapes other tests compile (the Cornell box at
 2 x 32x24 with `compare_thresholds`'s sweep of tests/test_eval_compare.py, the session of
-tests/test_session.py), so most of their compiling is shared with those tests."""
+tests/test_session.py), so most of their compiling is shared with those tests; the home page's
+example renders the program of docs/tutorials/compare-thresholds.md's first frame."""
 
 from __future__ import annotations
 
@@ -30,6 +31,8 @@ import api_pages  # noqa: E402
 import run_page  # noqa: E402
 
 TUTORIALS = sorted((DOCS / "tutorials").glob("*.md"))
+# The pages whose Python runs: the home page's example and every tutorial.
+EXECUTED = [DOCS / "index.md", *TUTORIALS]
 # Internal branch names and session talk the repository must not carry.
 FORBIDDEN = re.compile(r"this session|pix12|out12|lod16|texspp|lodframe")
 
@@ -186,10 +189,37 @@ def test_api_pages_say_which_render_stereo_is_which():
         assert all(link in text for link in both), page
 
 
-@pytest.mark.parametrize("page", TUTORIALS, ids=[p.stem for p in TUTORIALS])
-def test_tutorial_runs(page, tmp_path):
+@pytest.mark.parametrize("page", EXECUTED, ids=[p.stem for p in EXECUTED])
+def test_tutorial_runs(page, tmp_path, capsys):
     assert run_page.code_blocks(page), f"{page.name} has no Python code"
     run_page.run_page(page, tmp_path)
+    # The images the page shows from its run are files its code writes (the committed copies
+    # come from `python docs/_tools/run_page.py --images`).
+    assert run_page.missing_outputs(page, tmp_path) == []
+    printed = capsys.readouterr().out
+    assert "<bound method" not in printed and "<function " not in printed
+
+
+def test_every_image_a_page_shows_exists():
+    missing = [
+        f"{page.relative_to(DOCS)}: {image}"
+        for page in DOCS.rglob("*.md")
+        for image in run_page.images(page)
+        if not image.is_file()
+    ]
+    assert not missing, missing
+
+
+def test_getting_started_and_every_tutorial_show_pictures(tmp_path):
+    for page in (DOCS / "getting-started.md", *TUTORIALS):
+        assert run_page.images(page), f"{page.name} shows no image"
+    # The tutorials that render or plot show what their own code wrote.
+    for name in ("acuity-fit", "stereo-jit-grad", "compare-thresholds", "sessions", "user-study"):
+        assert run_page.outputs(DOCS / "tutorials" / f"{name}.md"), name
+    assert run_page.outputs(DOCS / "index.md")
+    # An image a page names that its run did not write is caught (here: no run at all).
+    page = DOCS / "tutorials" / "stereo-jit-grad.md"
+    assert run_page.missing_outputs(page, tmp_path) == ["out/frame.png", "out/again.png"]
 
 
 def test_readme_is_a_short_front_door():
