@@ -4,7 +4,9 @@ A package's public names are its `__all__` when it has one, else what its `__ini
 without a leading underscore and what it re-exports as `from ._x import name as name` (the
 explicit re-export the packages use). Each page lists them for mkdocstrings, so a name added to a
 package appears on its page when this is re-run; tests/test_docs.py fails while a page is stale
-and checks that the built site has an entry for every name.
+and checks that the built site has an entry for every name. A page lists functions and classes
+first, then constants and type aliases; a name two packages export for two different functions
+gets a line on both pages saying which is which.
 
     python docs/_tools/api_pages.py          # rewrite the pages
     python docs/_tools/api_pages.py --check  # exit 1 if a page would change
@@ -12,6 +14,7 @@ and checks that the built site has an entry for every name.
 
 import argparse
 import ast
+import functools
 import sys
 from pathlib import Path
 
@@ -76,8 +79,95 @@ def public_names(module: str) -> tuple[list[str], list[str]]:
     return names, modules
 
 
+def _module_file(module: str) -> Path | None:
+    path = ROOT / Path(*module.split("."))
+    for candidate in (path / "__init__.py", path.with_suffix(".py")):
+        if candidate.exists():
+            return candidate
+    return None
+
+
+def _top_level(tree: ast.Module):
+    """The module's top-level statements, those under `if`/`try` included."""
+    for node in tree.body:
+        if isinstance(node, (ast.If, ast.Try)):
+            for block in (node.body, getattr(node, "orelse", []), getattr(node, "finalbody", [])):
+                yield from block
+            for handler in getattr(node, "handlers", []):
+                yield from handler.body
+        else:
+            yield node
+
+
+@functools.cache
+def _parse(path: Path) -> ast.Module:
+    return ast.parse(path.read_text())
+
+
+@functools.cache
+def definition(module: str, name: str) -> tuple[str, ast.AST]:
+    """(module, node): where `module.name` is defined in the source, following the packages'
+    re-exports (`from ._x import name`). The node is a def, a class or an assignment."""
+    path = _module_file(module)
+    if path is None:
+        raise LookupError(f"{module}.{name}: no source file for {module}")
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    for node in _top_level(_parse(path)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == name:
+            return module, node
+        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+                return module, node
+        if isinstance(node, ast.ImportFrom) and node.level > 0:
+            for alias in node.names:
+                if (alias.asname or alias.name) == name:
+                    base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                    source = f"{base}.{node.module}" if node.module else base
+                    return definition(source, alias.name)
+    raise LookupError(f"{module}.{name}: not defined or re-exported in {path.relative_to(ROOT)}")
+
+
+def is_data(module: str, name: str) -> bool:
+    """A constant or a type alias (an assignment), not a function or a class."""
+    return isinstance(definition(module, name)[1], (ast.Assign, ast.AnnAssign))
+
+
+def summary(node: ast.AST) -> str:
+    """The first sentence of a def's or class's docstring, on one line."""
+    doc = " ".join((ast.get_docstring(node) or "").split())
+    return doc.split(". ")[0].rstrip(".") + "." if doc else ""
+
+
+def _shape(node: ast.AST) -> str:
+    """What tells two definitions of one name apart: a function's parameters; a class is its own."""
+    if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+        return ast.unparse(node.args)
+    return f"class at line {node.lineno}"
+
+
+@functools.cache
+def same_names() -> dict[str, list[tuple[str, str, str, str]]]:
+    """Names that packages export for different functions (other parameters) or classes: name ->
+    [(module, page, summary, "function" or "class"), ...] in the reference's order. The reference
+    says which is which on each of their pages. A function re-exported, or wrapped with the same
+    parameters, is one."""
+    found: dict[str, dict[tuple[str, str], tuple[str, str, str, str]]] = {}
+    for module, page_name, _ in PACKAGES:
+        for name in public_names(module)[0]:
+            where, node = definition(module, name)
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                continue
+            kind = "class" if isinstance(node, ast.ClassDef) else "function"
+            key = (kind, _shape(node) + where if kind == "class" else _shape(node))
+            found.setdefault(name, {}).setdefault(key, (module, page_name, summary(node), kind))
+    return {name: list(defs.values()) for name, defs in found.items() if len(defs) > 1}
+
+
 def page(module: str, blurb: str) -> str:
     names, modules = public_names(module)
+    # Functions and classes first (in the package's order), then constants and type aliases.
+    names = [n for n in names if not is_data(module, n)] + [n for n in names if is_data(module, n)]
     lines = [
         f"# `{module}`",
         "",
@@ -95,6 +185,15 @@ def page(module: str, blurb: str) -> str:
             f"`{module}.{name}` is [`fovjax.eval.{name}`](eval.md#fovjax.eval.{name}), imported on use.",
             "",
         ]
+    for name, defs in same_names().items():
+        if module not in [d[0] for d in defs]:
+            continue
+        kinds = {d[3] for d in defs}
+        what = f"{kinds.pop()}s" if len(kinds) == 1 else "names"
+        count = {2: "two", 3: "three"}.get(len(defs), str(len(defs)))
+        lines += [f"`{name}` names {count} different {what}:", ""]
+        lines += [f"- [`{m}.{name}`]({p}#{m}.{name})" + (f": {s}" if s else "") for m, p, s, _ in defs]
+        lines.append("")
     lines += [f"::: {module}", "    options:", "      members:"]
     lines += [f"        - {n}" for n in names]
     return "\n".join(lines) + "\n"

@@ -416,10 +416,11 @@ def render_stereo(
     envmap: EnvmapLike = None,
     bvh: BVH | None = None,
 ) -> Frame:
-    """Render both eyes of `rig` (default: the thesis HMD at the scene's default viewpoint)
-    side by side for a head pose ((yaw, pitch, roll) degrees or a `fovjax.devices.HeadPose`).
-    Other arguments as `render`. (Foveated frames: `fovjax.render_stereo(..., foveation=,
-    gaze=)`, the package's entry point above this one and `fovjax.foveate`.)"""
+    """The full stereo frame, every pixel traced (no foveation). Both eyes of `rig` (default: the
+    thesis HMD at the scene's default viewpoint) side by side for a head pose ((yaw, pitch, roll)
+    degrees or a `fovjax.devices.HeadPose`); other arguments as `render`. Foveated frames:
+    `fovjax.render_stereo(..., foveation=, gaze=)`, the package's entry point above this one and
+    `fovjax.foveate`, which calls this one when neither is given."""
     if rig is None:
         from ..scene import default_camera
 
