@@ -51,21 +51,31 @@ def test_the_mirror_is_the_owners_constants():
         "skipped": _sampling.SKIPPED,
     }
     assert set(layout.RULES) == set(_config.SAMPLING_RULES)
-    assert layout.LIGHT_KINDS == _scene.LIGHT_KINDS == {
-        "point": _scene.POINT_LIGHT,
-        "directional": _scene.DIRECTIONAL_LIGHT,
-        "spot": _scene.SPOT_LIGHT,
-    }
+    assert (
+        layout.LIGHT_KINDS
+        == _scene.LIGHT_KINDS
+        == {
+            "point": _scene.POINT_LIGHT,
+            "directional": _scene.DIRECTIONAL_LIGHT,
+            "spot": _scene.SPOT_LIGHT,
+        }
+    )
     assert tuple(layout.SPECULARS) == render_config.SPECULARS
     assert sorted(layout.SPECULARS.values()) == list(range(len(render_config.SPECULARS)))
     scene = fovjax.render.scene_arrays(fovjax.scenes.cornell_box())
     for name, width in layout.MATERIAL_COLUMNS:  # each column a field of the scene, that wide
         assert np.asarray(getattr(scene, name)).reshape(len(scene.kd), -1).shape[1] == width, name
+    spot = fovjax.make_lights(
+        [(0, 1, 0)], [(1, 1, 1)], kind=[fovjax.SPOT_LIGHT], direction=[(0, -1, 0)], cone_deg=[30]
+    )
+    spot_scene = fovjax.render.scene_arrays(
+        eqx.tree_at(lambda s: s.lights, fovjax.scenes.cornell_box(), spot)
+    )
     light_fields = {"position": "light_position", "color": "light_color", "direction": "light_direction"}
     light_fields["cone"] = "light_cone"
     for name, width in layout.LIGHT_COLUMNS:  # each light column a field of the scene arrays, that wide
-        field = np.asarray(getattr(scene, light_fields[name]))
-        assert field.reshape(scene.num_lights, -1).shape[1] == width, name
+        field = np.asarray(getattr(spot_scene, light_fields[name]))
+        assert field.reshape(spot_scene.num_lights, -1).shape[1] == width, name
 
 
 def test_the_wrappers_build_the_layout():

@@ -46,7 +46,8 @@ class SceneArrays(eqx.Module):
     # each texture's mip pyramid (`with_texture_mips`), for texture level of detail.
     texture_mips: tuple | None = None
     # Spot lights (`fovjax.Lights`): each light's unit axis and the cosines of its (inner,
-    # outer) half-angles; None: no light is a spot (`light_columns` fills them).
+    # outer) half-angles, one row per light; None where no light is a spot (`scene_arrays`
+    # leaves them None then, so that the other light arrays can be replaced alone).
     light_direction: Float[np.ndarray | Array, "L 3"] | None = None
     light_cone: Float[np.ndarray | Array, "L 2"] | None = None
 
@@ -98,7 +99,12 @@ def scene_arrays(
 
 def _spot_columns(lights):
     """(unit axis (L, 3), cos of the (inner, outer) half-angles (L, 2)) of `lights`: NumPy for
-    host arrays, JAX for traced ones (differentiable in the axis and the angles)."""
+    host arrays, JAX for traced ones (differentiable in the axis and the angles); (None, None)
+    where the kinds are host values and none is a spot light."""
+    from ..scene import SPOT_LIGHT
+
+    if isinstance(lights.kind, np.ndarray) and not np.any(lights.kind == SPOT_LIGHT):
+        return None, None
     n = len(lights)
     direction = np.zeros((n, 3), np.float32) if lights.direction is None else lights.direction
     cone = np.full((n, 2), 180.0, np.float32) if lights.cone_deg is None else lights.cone_deg
@@ -113,7 +119,8 @@ def _spot_columns(lights):
 
 def light_columns(scene: SceneArrays):
     """Each light's spot columns as the integrators read them: (unit axis (L, 3), cos of the
-    (inner, outer) half-angles (L, 2)); zeros and cos 180° where the arrays carry none."""
+    (inner, outer) half-angles (L, 2)); zeros and cos 180° where the arrays carry none (a spot
+    light then shines everywhere, as a point light)."""
     n = scene.num_lights
     direction = jnp.zeros((n, 3), jnp.float32) if scene.light_direction is None else scene.light_direction
     cone = jnp.full((n, 2), -1.0, jnp.float32) if scene.light_cone is None else scene.light_cone

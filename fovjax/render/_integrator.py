@@ -275,10 +275,13 @@ def _shadow_rays(scene, surface, lit, offset) -> ShadowRays:
     distance = norm(to_light)
     l_dir = normalize(to_light)
     n_dot_l = dot(n, l_dir)
-    axis, cone = light_columns(scene)
-    cone = jnp.reshape(cone, lead + (2,))
-    spot = spot_factor(jnp.reshape(axis, lead + (3,)), l_dir, cone[..., 0], cone[..., 1])
-    spot = jnp.where(kind == SPOT_LIGHT, spot, 1.0)
+    if scene.light_direction is None and scene.light_cone is None:  # no spot light
+        spot = jnp.ones(n_dot_l.shape, jnp.float32)
+    else:
+        axis, cone = light_columns(scene)
+        cone = jnp.reshape(cone, lead + (2,))
+        spot = spot_factor(jnp.reshape(axis, lead + (3,)), l_dir, cone[..., 0], cone[..., 1])
+        spot = jnp.where(kind == SPOT_LIGHT, spot, 1.0)
     wanted = lit[None] & (n_dot_l > 0) & (dot(n_geo, l_dir) > 0) & (spot > 0)
     origin = jnp.broadcast_to(p + offset * n_geo, wanted.shape + (3,))
     tmax = jnp.where(positional, distance, jnp.inf)
