@@ -105,8 +105,8 @@ class RenderConfig:
       threshold; its closest-hit program (`phong.cu`, Fig 51) comes from the OptiX SDK samples,
       whose `phong.h` spawns a reflection while that "importance" is >= 0.01, the value
       `fovjax.foveate.thesis_preset` takes (an inference from the SDK, not a line of the
-      thesis). Default 0: fovjax's choice, every reflection with a nonzero weight traced to
-      `max_depth`.
+      thesis; the SDK multiplies the luminance of each Kr, the same for grey mirrors). Default
+      0: fovjax's choice, every reflection with a nonzero weight traced to `max_depth`.
     """
 
     max_depth: int = 5
