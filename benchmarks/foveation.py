@@ -13,10 +13,15 @@
     python benchmarks/foveation.py --full --rule thesis-measured   # the sampling Table 2 implies
     python benchmarks/foveation.py --full --rule thesis-measured --count-only  # samples, no render
     python benchmarks/foveation.py --regions       # region shares under each reading (issue 17)
+    python benchmarks/foveation.py --preset thesis --size 320 256 --spp 1 4   # tables 2-5, the
+                                                   # thesis's configuration, written to a record
 
 `--rule thesis-measured` uses `Foveation.thesis_measured` (that rule, and the planar eccentricity
 at the SX111's 16 pixels per degree); `--count-only` prints Tables 2-3 from the samples each
 frame traces (primary rays, no shading), foveated against full, without rendering.
+`--preset thesis` renders every frame, foveated and full, in the thesis's whole configuration
+(`fovjax.foveate.thesis_preset`: its regions, sampling, blur, shading, depth 5) and writes the
+tables, the thesis's beside them, to a record.
 
 For every SPP and every thesis (fovea, periphery) pair plus full rendering, on the atrium, in
 stereo, gaze at each display's centre, head still: rays per frame (primary + shadow +
@@ -40,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import fovjax
-from fovjax.foveate import DIAGNOSTICS, THESIS_PAIRS, Foveation, render_foveated
+from fovjax.foveate import DIAGNOSTICS, THESIS_PAIRS, Foveation, render_foveated, thesis_preset
 from fovjax.render import RenderConfig, StereoRig, render_stereo, scene_arrays
 from fovjax.render.internal import scene_scale
 from fovjax.trace import build_bvh
@@ -707,7 +712,9 @@ def floor_table(scene, bvh, config, n_slots, repeats):
     sys.stdout.flush()
 
 
-def foveation_for(pair, spp, rule, eye_height):
+def foveation_for(pair, spp, rule, eye_height, preset=None):
+    if preset == "thesis":
+        return thesis_preset(pair, spp=spp, eye_height=eye_height).foveation
     if rule == "thesis-measured":
         return Foveation.thesis_measured(pair, spp=spp, eye_height=eye_height)
     return Foveation.thesis(pair, spp=spp, rule=rule)
@@ -769,6 +776,14 @@ def main(argv=None):
     ap.add_argument("--rule", choices=("either", "strict", "thesis-measured"), default="either")
     ap.add_argument("--count-only", action="store_true", help="tables 2-3 from traced samples, no render")
     ap.add_argument("--regions", action="store_true", help="region shares under each reading (issue 17)")
+    ap.add_argument(
+        "--preset",
+        choices=("thesis",),
+        default=None,
+        help="the thesis's whole configuration (thesis_preset; replaces --rule and --max-depth); "
+        "tables 2-5 written to a record",
+    )
+    ap.add_argument("--note", default=None, help="the record's note (--preset): the run's conditions")
     args = ap.parse_args(argv)
     if args.regions:
         return region_shares()
@@ -779,6 +794,9 @@ def main(argv=None):
     bvh = build_bvh(scene)
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    if args.preset:  # the thesis's shading, depth and background on the chosen ray backend
+        config = thesis_preset(config=RenderConfig(backend=args.backend)).config
+        args.rule = thesis_preset().foveation.rule
     if args.floor:
         return floor_table(scene, bvh, config, args.floor, args.repeats)
     if args.profile:
@@ -799,16 +817,18 @@ def main(argv=None):
     gaze = ((0.5, 0.5), (0.5, 0.5))
     print(
         f"atrium {scene.num_triangles:,} triangles, stereo 2 x {w}x{h}, gaze at the display centres, "
-        f"backend {args.backend}, max depth {args.max_depth}, "
+        f"backend {args.backend}, max depth {config.max_depth}, "
         f"jax {jax.__version__} on {jax.devices()[0].platform}"
     )
     print(f"sampling rule {args.rule}" + (" (samples traced, no render)" if args.count_only else ""))
+    if args.preset:
+        print(f"preset {args.preset}: {config}")
     results = {}
     for spp in args.spp:
         if args.count_only:
             results["full", spp] = (2 * spp * w * h, float("nan"))
             for pair in THESIS_PAIRS:
-                n = count_samples(rig, gaze, foveation_for(pair, spp, args.rule, h))
+                n = count_samples(rig, gaze, foveation_for(pair, spp, args.rule, h, args.preset))
                 results[pair, spp] = (n, float("nan"))
             continue
         rays, t, c, _ = measure(
@@ -820,7 +840,7 @@ def main(argv=None):
         )
         sys.stdout.flush()
         for pair in THESIS_PAIRS:
-            f = foveation_for(pair, spp, args.rule, h)
+            f = foveation_for(pair, spp, args.rule, h, args.preset)
             rays, t, c, frame = measure(
                 lambda k, f=f: render_foveated(
                     scene, rig, gaze=gaze, foveation=f, key=k, config=config, bvh=bvh, **FRAME
@@ -879,7 +899,58 @@ def main(argv=None):
         lambda p, s: speedup(results["full", s][1] / results[p, s][1]),
         lambda p, s: pct((THESIS_FPS[p][idx[s]] / THESIS_FPS["full"][idx[s]] - 1) * 100),
     )
+    if args.preset:
+        tables = preset_tables(results, args.spp, (w, h), config)
+        return {"preset": args.preset, "eye": [w, h], "tables": tables, "note": args.note}
     return results
+
+
+def preset_tables(results, spps, eye, config) -> list[dict]:
+    """Tables 2-5 of a --preset run as the record's tables: ours beside the thesis's, per SPP."""
+    w, h = eye
+    rows = [*THESIS_PAIRS, "full"]
+    label = {p: "full" if p == "full" else f"{p[0]:g}° / {p[1]:g}°" for p in rows}
+    idx = {s: SPPS.index(s) for s in spps}
+    columns = ["ω0 / ω1"] + [c for s in spps for c in (f"SPP {s}", "thesis")]
+    scale = (2 * 1280 * 1024) / (2 * w * h)
+    where = f"atrium, 2 × {w}×{h}, gaze at the centres, the thesis's configuration ({config.backend} rays)"
+
+    def table(title, ours, theirs, skip_full=False):
+        body = [
+            [label[p]] + [c for s in spps for c in (ours(p, s), theirs(p, s))]
+            for p in rows
+            if not (skip_full and p == "full")
+        ]
+        return {"title": title, "columns": columns, "rows": body}
+
+    def ratio(p, s, i):
+        return results[p, s][i] / results["full", s][i]
+
+    return [
+        table(
+            f"Table 2: rays per frame (×10⁶), {where}; ours scaled by the pixels to 2 × 1280×1024 "
+            f"(×{scale:g}) beside the thesis's",
+            lambda p, s: round(results[p, s][0] * scale / 1e6, 2),
+            lambda p, s: THESIS_RPF[p][idx[s]],
+        ),
+        table(
+            f"Table 3: reduction of rays per frame (foveated / full − 1), {where}",
+            lambda p, s: f"{(ratio(p, s, 0) - 1) * 100:+.1f}%",
+            lambda p, s: f"{(THESIS_RPF[p][idx[s]] / THESIS_RPF['full'][idx[s]] - 1) * 100:+.1f}%",
+            skip_full=True,
+        ),
+        table(
+            f"Table 4: frames per second (median), {where}: this CPU's, the thesis's an RTX 2060's",
+            lambda p, s: round(1 / results[p, s][1], 2),
+            lambda p, s: THESIS_FPS[p][idx[s]],
+        ),
+        table(
+            f"Table 5: speed-up in frames per second (foveated / full − 1), {where}",
+            lambda p, s: f"{(1 / ratio(p, s, 1) - 1) * 100:+.1f}%",
+            lambda p, s: f"{(THESIS_FPS[p][idx[s]] / THESIS_FPS['full'][idx[s]] - 1) * 100:+.1f}%",
+            skip_full=True,
+        ),
+    ]
 
 
 if __name__ == "__main__":
@@ -889,3 +960,8 @@ if __name__ == "__main__":
         from _record import write_record
 
         write_record("foveation", {**out, "tables": foveation_tables(out)})
+    elif isinstance(out, dict) and "preset" in out:
+        from _record import write_record
+
+        note = out.pop("note")
+        write_record("foveation", out, note=note)

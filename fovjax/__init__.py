@@ -25,6 +25,7 @@ from .render import StereoRig as StereoRig
 from .render import enable_compile_cache as enable_compile_cache
 from .scene import DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT
 from .scene import POINT_LIGHT as POINT_LIGHT
+from .scene import SPOT_LIGHT as SPOT_LIGHT
 from .scene import Camera as Camera
 from .scene import Lights as Lights
 from .scene import LODLevels as LODLevels
@@ -94,6 +95,7 @@ __all__ = [
     "enable_compile_cache",
     "DIRECTIONAL_LIGHT",
     "POINT_LIGHT",
+    "SPOT_LIGHT",
     "Camera",
     "Lights",
     "LODLevels",

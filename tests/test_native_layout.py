@@ -6,6 +6,7 @@ layout's widths. A library whose layout differs is refused with the difference n
 from __future__ import annotations
 
 import _extras
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ def test_a_layout_that_differs_is_named():
 
 def test_the_mirror_is_the_owners_constants():
     from fovjax.foveate import _config, _sampling
+    from fovjax.render import _config as render_config
     from fovjax.scene import _scene
 
     assert layout.REGIONS == {
@@ -49,10 +51,31 @@ def test_the_mirror_is_the_owners_constants():
         "skipped": _sampling.SKIPPED,
     }
     assert set(layout.RULES) == set(_config.SAMPLING_RULES)
-    assert layout.LIGHT_KINDS == {"point": _scene.POINT_LIGHT, "directional": _scene.DIRECTIONAL_LIGHT}
+    assert (
+        layout.LIGHT_KINDS
+        == _scene.LIGHT_KINDS
+        == {
+            "point": _scene.POINT_LIGHT,
+            "directional": _scene.DIRECTIONAL_LIGHT,
+            "spot": _scene.SPOT_LIGHT,
+        }
+    )
+    assert tuple(layout.SPECULARS) == render_config.SPECULARS
+    assert sorted(layout.SPECULARS.values()) == list(range(len(render_config.SPECULARS)))
     scene = fovjax.render.scene_arrays(fovjax.scenes.cornell_box())
     for name, width in layout.MATERIAL_COLUMNS:  # each column a field of the scene, that wide
         assert np.asarray(getattr(scene, name)).reshape(len(scene.kd), -1).shape[1] == width, name
+    spot = fovjax.make_lights(
+        [(0, 1, 0)], [(1, 1, 1)], kind=[fovjax.SPOT_LIGHT], direction=[(0, -1, 0)], cone_deg=[30]
+    )
+    spot_scene = fovjax.render.scene_arrays(
+        eqx.tree_at(lambda s: s.lights, fovjax.scenes.cornell_box(), spot)
+    )
+    light_fields = {"position": "light_position", "color": "light_color", "direction": "light_direction"}
+    light_fields["cone"] = "light_cone"
+    for name, width in layout.LIGHT_COLUMNS:  # each light column a field of the scene arrays, that wide
+        field = np.asarray(getattr(spot_scene, light_fields[name]))
+        assert field.reshape(spot_scene.num_lights, -1).shape[1] == width, name
 
 
 def test_the_wrappers_build_the_layout():
@@ -70,6 +93,14 @@ def test_the_wrappers_build_the_layout():
     assert materials.shape == (len(arrays.kd), layout.MATERIAL_STRIDE)
     assert lights.shape == (len(arrays.light_kind), layout.LIGHT_STRIDE)
     assert np.array_equal(np.asarray(materials[:, 3:6]), np.asarray(arrays.kd, np.float32))  # kd second
+    spot = fovjax.make_lights(
+        [(0, 1, 0)], [(1, 1, 1)], kind=[fovjax.SPOT_LIGHT], direction=[(0, -2, 0)], cone_deg=[(20, 30)]
+    )
+    spot_arrays = fovjax.render.scene_arrays(eqx.tree_at(lambda s: s.lights, scene, spot))
+    spot_operands = whitted_operands(spot_arrays, build_bvh(scene))
+    row = np.asarray(spot_operands[layout.SCENE_OPERANDS.index("lights")])[0]
+    # position, colour, unit axis, cos(inner), cos(outer): the columns the handler reads
+    np.testing.assert_allclose(row, [0, 1, 0, 1, 1, 1, 0, -1, 0, *np.cos(np.radians([20, 30]))], rtol=1e-6)
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=8, eye_height=6)
     rows = camera_rows(rig.eye_cameras(jnp.zeros(3)))
     assert rows.shape == (2, layout.CAMERA_STRIDE)

@@ -5,11 +5,13 @@ sample per pixel, foveated around the display centres (fovea 5°, periphery 10°
 out/atrium.png, and the full render of the same frame for comparison (out/atrium_full.png), with
 both ray counts and times printed. `--full` renders only the full frame; `--preview` draws the
 geometry preview (primary rays only, coloured by surface normal and darkened with depth).
+`--preset thesis` renders with the thesis's whole configuration (`fovjax.foveate.thesis_preset`).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -85,7 +87,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--stereo", dest="stereo", action="store_true", default=True, help="both eyes (default)"
     )
     view.add_argument("--mono", dest="stereo", action="store_false", help="one camera")
-    p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, 16, ... (default 1)")
+    p.add_argument(
+        "--spp",
+        type=int,
+        default=None,
+        help="samples per pixel: 1, 4, 9, 16, ... (default 1; 4 with --preset thesis)",
+    )
+    p.add_argument(
+        "--preset",
+        choices=("thesis",),
+        default=None,
+        help="thesis: the thesis's whole configuration (docs/thesis.md): its regions (planar eccentricity "
+        "at 16 px/degree, replacing --regions) and sampling (rule thesis-measured), the blur over every "
+        "pixel, Blinn-Phong with the n.l payload on the specular, the contribution cut-off 0.01, the "
+        "background 'bg color', depth 5 and SPP 4; --fovea/--periphery, --spp, --max-depth and the "
+        "rest stay options",
+    )
     p.add_argument("--seed", type=int, default=None, help="jitter the samples with this PRNG seed")
     p.add_argument(
         "--head",
@@ -166,6 +183,10 @@ def validate(args) -> Path:
             )
     if files and len(set(args.scene_skip)) == len(files):
         raise cli.UsageError(f"--scene-skip leaves none of the {len(files)} files of --scene {args.scene}")
+    if args.spp is None:  # the preset's own (the thesis's user study: 4), else 1
+        from fovjax.foveate import thesis_preset
+
+        args.spp = thesis_preset().foveation.spp if args.preset == "thesis" else 1
     cli.squares(args.spp, "--spp")
     cli.seed(args.seed)
     cli.number(args.width, "--width", ge=1)
@@ -230,6 +251,15 @@ def _run(args, out: Path) -> int:
     from fovjax.trace import build_bvh, describe_backend, last_build_info
 
     config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    preset = None
+    if args.preset == "thesis":
+        from fovjax.foveate import thesis_preset
+
+        preset = thesis_preset(
+            (args.fovea, args.periphery), spp=args.spp, eye_height=args.height, config=config
+        )
+        # the thesis's depth (5) is --max-depth's default; another given there is kept
+        config = dataclasses.replace(preset.config, max_depth=args.max_depth)
     steps = 4
     t0 = time.perf_counter()
     _progress(1, steps, f"building scene {args.scene}")
@@ -249,8 +279,11 @@ def _run(args, out: Path) -> int:
         if foveated:
             from fovjax.foveate import Foveation
 
-            fov = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp)
-            fov = cli.regions(fov, args, args.height)
+            if preset is not None:
+                fov = preset.foveation
+            else:
+                fov = Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp)
+                fov = cli.regions(fov, args, args.height)
             frame = render_stereo(
                 arrays,
                 rig,
@@ -293,6 +326,13 @@ def _run(args, out: Path) -> int:
     memory = describe_malloc()  # None: not glibc's malloc, nothing to say
     if memory is not None:
         print(f"memory: {memory}")
+    if preset is not None:
+        f = preset.foveation
+        print(
+            f"preset thesis: regions {f.eccentricity} at {f.pixel_pitch_mm:.5f} mm per pixel, rule {f.rule}, "
+            f"blur every pixel, specular {config.specular} with the n·l payload, cut-off "
+            f"{config.min_contribution:g}, depth {config.max_depth}, SPP {args.spp}"
+        )
     if foveated and isinstance(frame, fovjax.FoveatedFrame):
         f = frame.foveation
         print(

@@ -134,7 +134,7 @@ def inspect_scene(
 
     from ..foveate import Foveation, check_gaze, eccentricity_angle, eccentricity_map, eccentricity_planar
     from ..render import DEFAULT_CONFIG, RenderConfig, StereoRig, render_stereo, scene_arrays
-    from ..scene import Scene, default_camera, make_lights
+    from ..scene import Scene, default_camera
     from ..trace import build_bvh
 
     if not isinstance(scene, Scene):
@@ -204,10 +204,9 @@ def inspect_scene(
     depth_parts = [by_depth[0]] + [by_depth[d] - by_depth[d - 1] for d in range(1, max_depth + 1)]
     lights = scene.lights
     n_lights = len(lights)
-    position, color, kind = (np.asarray(a) for a in (lights.position, lights.color, lights.kind))
 
     def only(idx):
-        return Scene(**{**_fields(scene), "lights": make_lights(position[idx], color[idx], kind[idx])})
+        return Scene(**{**_fields(scene), "lights": lights.take(idx)})
 
     unlit = frame(only(np.zeros(0, int)), max_depth)
     light_parts = {"ambient+emission": unlit}

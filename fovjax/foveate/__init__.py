@@ -4,7 +4,9 @@ budget, and the fill-and-blur reconstruction (thesis chapter 4, eq. 4-7, section
 `FoveatedRenderer(scene, rig, foveation, config)` prepares a scene once and renders frames,
 batches and their full references for given gaze, head pose, key and thresholds (the way to
 render frames in a loop); `render_foveated` renders one frame through a renderer made for it.
-`check_gaze(gaze)` is the per-eye gaze check. `Foveation(method=...)` chooses the foveation
+`check_gaze(gaze)` is the per-eye gaze check. `thesis_preset(pair)` is the thesis's whole
+configuration (regions, sampling, blur, shading, depth, SPP) as a `ThesisPreset(foveation,
+config)`. `Foveation(method=...)` chooses the foveation
 method (`METHODS`: the thesis's, `Guenter2012`, `Patney2016`,
 `Weier2016`), each with its paper's citation; a new method is an `AbstractFoveationMethod`
 registered with `register_method`.
@@ -23,7 +25,9 @@ from ._config import Fidelity as Fidelity
 from ._config import Foveation as Foveation
 from ._config import GazeLike as GazeLike
 from ._config import LinearFalloff as LinearFalloff
+from ._config import ThesisPreset as ThesisPreset
 from ._config import check_gaze as check_gaze
+from ._config import thesis_preset as thesis_preset
 from ._config import with_regions as with_regions
 from ._eccentricity import display_pixel_pitch_mm as display_pixel_pitch_mm
 from ._eccentricity import eccentricity_angle as eccentricity_angle
@@ -80,7 +84,9 @@ __all__ = [
     "GazeLike",
     "Foveation",
     "LinearFalloff",
+    "ThesisPreset",
     "check_gaze",
+    "thesis_preset",
     "with_regions",
     "display_pixel_pitch_mm",
     "eccentricity_angle",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, TypeAlias
+from typing import Any, NamedTuple, TypeAlias
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -13,6 +13,7 @@ import numpy as np
 from jax.core import Tracer
 from jaxtyping import Array, ArrayLike, Float, Real
 
+from ..render import THESIS_BACKGROUND, RenderConfig
 from ._methods import AbstractFoveationMethod, as_method
 
 # The thesis's (fovea, periphery) pairs in degrees (section 5.1, tables 2-5).
@@ -414,7 +415,9 @@ class Foveation(eqx.Module):
     @classmethod
     def thesis(cls, pair: int | tuple[float, float] = 0, **kwargs: Any) -> Foveation:
         """One of the thesis's pairs: an index into `THESIS_PAIRS` or a (fovea, periphery) pair
-        (`kwargs`: the other fields)."""
+        (`kwargs`: the other fields, fovjax's defaults otherwise). The thesis's whole
+        configuration, its sampling, regions, blur and shading with the pair, is
+        `fovjax.foveate.thesis_preset`."""
         fovea, periphery = THESIS_PAIRS[pair] if isinstance(pair, int) else pair
         return cls(fovea_deg=float(fovea), periphery_deg=float(periphery), **kwargs)
 
@@ -440,6 +443,74 @@ class Foveation(eqx.Module):
         omega = jnp.asarray(omega, jnp.float32)
         p = jnp.clip(jnp.asarray(self.acuity(omega), jnp.float32), 0.0, 1.0)
         return jnp.where(omega <= self.fovea_deg, 1.0, p)
+
+
+# The thesis's shading (`thesis_preset`): Blinn–Phong with the shadow payload n·l on the specular
+# (§4.4.3), reflections cut below a luminance of 0.01 of their weight (§2.5.2, the OptiX SDK's
+# `phong.h` threshold), OptiX's max trace depth 5 (Fig 49) and "bg color" (Fig 51).
+THESIS_MIN_CONTRIBUTION = 0.01
+THESIS_MAX_DEPTH = 5
+# The user study's samples per pixel (§5.2); Tables 2-5 also take 1, 9 and 16.
+THESIS_SPP = 4
+
+
+class ThesisPreset(NamedTuple):
+    """The thesis's whole configuration (`thesis_preset`): the foveation and the render config
+    a frame takes (`render_foveated(..., foveation=preset.foveation, config=preset.config)`;
+    the full reference frame: `render_stereo(..., spp=preset.foveation.spp,
+    config=preset.config)`)."""
+
+    foveation: Foveation
+    config: RenderConfig
+
+
+def thesis_preset(
+    pair: int | tuple[float, float] = 0,
+    *,
+    spp: int = THESIS_SPP,
+    eye_height: int = 1024,
+    config: RenderConfig | None = None,
+) -> ThesisPreset:
+    """The thesis's configuration in one switch (`fovjax render --preset thesis`); each item,
+    with the thesis's line it comes from, is tabled in docs/thesis.md ("The thesis's
+    configuration"):
+
+    - regions by the planar eccentricity (eq. 4-5, D = 24 mm) at the SX111's 16 pixels per
+      degree scaled to `eye_height` rows (`thesis_pixel_pitch_mm`), and the sampling Table 2
+      implies, rule "thesis-measured" (`Foveation.thesis_measured`);
+    - blocks of 2 and 4 pixels, the 5×5 Gaussian over every pixel (`blur_fovea=True`, §4.5: no
+      sharp fovea, no blend band; σ = 1 pixel is fovjax's, the thesis names none);
+    - the thesis's shading (`config`): Blinn–Phong with the specular times the shadow ray's
+      payload n·l (`specular_payload`, §4.4.3), the contribution cut-off 0.01
+      (`min_contribution`, §2.5.2), max depth 5 (Fig 49), misses in "bg color" (0.34, 0.55,
+      0.85) (Fig 51; the thesis's miss program samples an HDR environment map that fovjax does
+      not ship: pass one with `scene_arrays(..., envmap=)`);
+    - `spp` samples per pixel (4, the user study's, §5.2).
+
+    Args:
+        pair: an index into `THESIS_PAIRS` or a (fovea, periphery) pair in degrees.
+        spp: samples per pixel (a square).
+        eye_height: rows per eye (the pixel pitch scales with them so that a threshold covers
+            the thesis's share of the display at any resolution).
+        config: the render config whose other settings (ray backend, integrator, chunk sizes)
+            the thesis's shading is put on (None: `RenderConfig()`'s).
+
+    Returns:
+        `ThesisPreset(foveation, config)`.
+    """
+    base = RenderConfig() if config is None else config
+    shading = dataclasses.replace(
+        base,
+        max_depth=THESIS_MAX_DEPTH,
+        background=THESIS_BACKGROUND,
+        specular="blinn-phong",
+        specular_payload=True,
+        min_contribution=THESIS_MIN_CONTRIBUTION,
+    )
+    foveation = Foveation.thesis_measured(
+        pair, spp=spp, eye_height=eye_height, blocks=(2, 4), blur_fovea=True, blur_sigma=1.0
+    )
+    return ThesisPreset(foveation, shading)
 
 
 def with_regions(foveation: Foveation, reading: str, eye_height: int) -> Foveation:

@@ -489,7 +489,7 @@ def traced_sums(
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
     def in_one_call(scene, cameras, order, n_traced):
-        from ..render.internal import whitted_operands
+        from ..render.internal import shading_attributes, whitted_operands
         from ..scene import stratified_offsets
 
         with jax.ensure_compile_time_eval():
@@ -513,6 +513,7 @@ def traced_sums(
             recompute=config.hits == "recomputed",
             packets=config.packet is not None,
             robust=bvh.watertight,
+            shading=shading_attributes(config),
         )
         return (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
 

@@ -58,6 +58,7 @@ def native_whitted_slots(
     recompute: bool,
     packets: bool,
     robust: bool = True,
+    shading: dict | None = None,
 ):
     """A foveated frame's live slots made into rays, traced through the Whitted integrator and
     summed into their pixels, in one call of the slots handler (CPU only): (sums (2·H·W, 3), bad
@@ -66,9 +67,12 @@ def native_whitted_slots(
     (threefry2x32; unused without `jitter`); `locality` each locality rank's pixel; `grid` the
     sub-samples' cell centres (S, 2); `cameras` (`camera_rows`). `operands`: the scene's
     (`fovjax.render.internal.whitted_operands`) with the ray offset last; `robust`: the BVH's
-    `watertight`. What `_frame.trace_selection` with the native integrator and `sample_adder`
-    compute, in their order."""
-    from ..render.internal import MAX_NATIVE_DEPTH
+    `watertight`; `shading`: the shading options' attributes
+    (`fovjax.render.internal.shading_attributes`; None: `RenderConfig`'s defaults). What
+    `_frame.trace_selection` with the native integrator and `sample_adder` compute, in their
+    order."""
+    from ..render import DEFAULT_CONFIG
+    from ..render.internal import MAX_NATIVE_DEPTH, shading_attributes
 
     if not 0 <= max_depth <= MAX_NATIVE_DEPTH:
         raise ValueError(
@@ -98,6 +102,7 @@ def native_whitted_slots(
         recompute=np.int32(recompute),
         packets=np.int32(packets),
         robust=np.int32(robust),
+        **(shading_attributes(DEFAULT_CONFIG) if shading is None else shading),
     )
 
 

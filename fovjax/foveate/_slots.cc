@@ -110,7 +110,8 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
                         ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
                         ffi::ResultBuffer<ffi::S32> counts_out, int32_t spp, int32_t height,
                         int32_t width, int32_t jitter, int32_t max_depth, int32_t recompute,
-                        int32_t packets, int32_t robust) {
+                        int32_t packets, int32_t robust, int32_t specular, int32_t specular_payload,
+                        float min_contribution) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   const int64_t hw = static_cast<int64_t>(height) * width, per_eye = hw * spp;
   int64_t cells = 1;
@@ -127,7 +128,9 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   std::atomic<int> out_of_range{0};
   ShadeScene s;
   std::shared_ptr<NativeScene> tree;
-  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, &out_of_range, &s, &tree);
+  const Shading shading{specular, specular_payload != 0, min_contribution};
+  ffi::Error status =
+      SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
   if (status.failure()) return status;
   const int64_t n = std::max<int64_t>(
       0, std::min<int64_t>(n_live.typed_data()[0], static_cast<int64_t>(order.element_count())));
@@ -243,4 +246,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
                                   .Attr<int32_t>("max_depth")
                                   .Attr<int32_t>("recompute")
                                   .Attr<int32_t>("packets")
-                                  .Attr<int32_t>("robust"));
+                                  .Attr<int32_t>("robust")
+                                  .Attr<int32_t>("specular")          // as the Whitted handler's
+                                  .Attr<int32_t>("specular_payload")
+                                  .Attr<float>("min_contribution"));

@@ -3,17 +3,19 @@
 The loader compares the library's export (`fovjax_native_layout`) with `LAYOUT` before it
 registers a handler; `tests/test_native_layout.py` compares `LAYOUT` with the constants of the
 packages that own each code (regions and sample classes in `fovjax.foveate`, light kinds in
-`fovjax.scene`) and with the operands the wrappers pass."""
+`fovjax.scene`, specular terms in `fovjax.render`) and with the operands the wrappers pass."""
 
 from __future__ import annotations
 
 # Materials: rows of ka, kd, ks, ke, kr (3 each) and ns (1).
 MATERIAL_COLUMNS = (("ka", 3), ("kd", 3), ("ks", 3), ("ke", 3), ("kr", 3), ("ns", 1))
-# Lights: rows of position (or direction towards the light) and colour.
-LIGHT_COLUMNS = (("position", 3), ("color", 3))
+# Lights: rows of position (or direction towards the light), colour, a spot light's unit axis
+# and the cosines of its (inner, outer) half-angles.
+LIGHT_COLUMNS = (("position", 3), ("color", 3), ("direction", 3), ("cone", 2))
 # Cameras: rows of position, rotation (3×3, row-major), tan(vfov / 2), aspect, offset.
 CAMERA_COLUMNS = (("position", 3), ("rotation", 9), ("tan_half_vfov", 1), ("aspect", 1), ("offset", 2))
-LIGHT_KINDS = {"point": 0, "directional": 1}
+LIGHT_KINDS = {"point": 0, "directional": 1, "spot": 2}
+SPECULARS = {"blinn-phong": 0, "phong": 1}
 REGIONS = {"fovea": 0, "periphery": 1, "outside": 2}
 CLASSES = {"mandatory": 0, "optional": 1, "skipped": 2}
 RULES = {"either": 0, "strict": 1, "thesis-measured": 2}
@@ -57,7 +59,14 @@ def expected_layout() -> dict[str, str]:
         "camera_stride": str(CAMERA_STRIDE),
         "scene_operands": ",".join(SCENE_OPERANDS),
     }
-    for prefix, codes in (("light", LIGHT_KINDS), ("region", REGIONS), ("class", CLASSES), ("rule", RULES)):
+    groups = (
+        ("light", LIGHT_KINDS),
+        ("specular", SPECULARS),
+        ("region", REGIONS),
+        ("class", CLASSES),
+        ("rule", RULES),
+    )
+    for prefix, codes in groups:
         layout.update({f"{prefix}_{name.replace('-', '_')}": str(code) for name, code in codes.items()})
     return layout
 

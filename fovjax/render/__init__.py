@@ -33,7 +33,10 @@ Mitsuba elsewhere):
 
 - the specular term is not multiplied by n·l: per visible light Kd·(n·l) + Ks·(n·h)^Ns (Blinn–
   Phong as usually written), where the thesis's shadow payload (§4.4.3) scales both terms by
-  n·l; under a light at grazing incidence a highlight is brighter here than in the thesis;
+  n·l; under a light at grazing incidence a highlight is brighter here than in the thesis
+  (`RenderConfig(specular_payload=True)` reads the thesis literally; `specular="phong"` is
+  eq. 1's (r·v)^Ns; `min_contribution` is §2.5.2's cut-off; `fovjax.foveate.thesis_preset`
+  sets the thesis's whole configuration);
 - rays that miss every surface see a constant background, `RenderConfig.background`
   (default `THESIS_BACKGROUND` (0.34, 0.55, 0.85), the thesis's OptiX "bg color"), unless an
   environment map is given (`scene_arrays(..., envmap=)`, `fovjax render --envmap`); the

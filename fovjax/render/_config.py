@@ -16,6 +16,10 @@ MAGENTA = (1.0, 0.0, 1.0)
 HITS = ("recomputed", "backend")
 # Who runs the integrator's per-ray work (`RenderConfig.integrator`).
 INTEGRATORS = ("auto", "native", "jax")
+# The specular term of the local shading (`RenderConfig.specular`).
+SPECULARS = ("blinn-phong", "phong")
+# The luminance weights of `RenderConfig.min_contribution` (OptiX's `optix::luminance`).
+LUMINANCE = (0.30, 0.59, 0.11)
 
 
 def _rgb(name: str, value) -> tuple[float, float, float]:
@@ -49,6 +53,25 @@ class RenderConfig:
       scene whose vertices are the BVH's: equal up to float rounding, and cheaper
       (`benchmarks/mitsuba_frame.py --hits`). Derivatives are the same closed form at
       `scene.vertices` either way.
+    - `specular`: the specular term of each light. "blinn-phong" (the default, and the thesis's
+      implementation, §4.4.3: the halfway vector h = normalize(l − d), Ks·(n·h)^Ns) or "phong"
+      (the thesis's eq. 1, §2.4: Ks·(r̂·v̂)^Ns with r̂ the light direction mirrored about the
+      normal and v̂ = −d, counted where r̂·v̂ > 0).
+    - `specular_payload`: multiply the specular term by n·l too. The thesis's closest-hit
+      program (§4.4.3, Fig 61) sets the shadow ray's payload to n·l and multiplies both the
+      diffuse and the specular contribution by "the payload of the shadow ray", so read
+      literally its specular is Ks·(n·h)^Ns·(n·l)·light. Default False: fovjax's choice, the
+      Blinn–Phong of OptiX's own samples (whose shadow payload is the attenuation 1), where
+      n·l multiplies the diffuse term only. `fovjax.foveate.thesis_preset` sets it.
+    - `min_contribution`: the contribution cut-off of §2.5.2 ("if the contribution of rays has
+      a significant decrease there is no point to continue"): a reflection ray is spawned only
+      where the luminance (0.30 R + 0.59 G + 0.11 B) of its weight, the product of the Kr of
+      every surface on its path, is at least this. The thesis states the criterion but no
+      threshold; its closest-hit program (`phong.cu`, Fig 51) comes from the OptiX SDK samples,
+      whose `phong.h` spawns a reflection while that "importance" is >= 0.01, the value
+      `fovjax.foveate.thesis_preset` takes (an inference from the SDK, not a line of the
+      thesis; the SDK multiplies the luminance of each Kr, the same for grey mirrors). Default
+      0: fovjax's choice, every reflection with a nonzero weight traced to `max_depth`.
 
     How it is computed (the image is the same up to float rounding whichever is chosen):
 
@@ -97,6 +120,9 @@ class RenderConfig:
     depth_batch_size: int | None = 262144
     hits: str = "recomputed"
     integrator: str = "auto"
+    specular: str = "blinn-phong"
+    specular_payload: bool = False
+    min_contribution: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.max_depth, int | np.integer) or self.max_depth < 0:
@@ -148,6 +174,21 @@ class RenderConfig:
             raise ValueError(f"RenderConfig.backend must be one of {backend_names()}, got {self.backend!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"RenderConfig.integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
+        if self.specular not in SPECULARS:
+            raise ValueError(f"RenderConfig.specular must be one of {SPECULARS}, got {self.specular!r}")
+        if not isinstance(self.specular_payload, bool | np.bool_):
+            raise ValueError(
+                f"RenderConfig.specular_payload must be True or False, got {self.specular_payload!r}"
+            )
+        object.__setattr__(self, "specular_payload", bool(self.specular_payload))
+        cut = self.min_contribution
+        if (
+            isinstance(cut, bool)
+            or not isinstance(cut, int | float | np.integer | np.floating)
+            or not (np.isfinite(cut) and 0 <= cut <= 1)
+        ):
+            raise ValueError(f"RenderConfig.min_contribution must be a number in [0, 1], got {cut!r}")
+        object.__setattr__(self, "min_contribution", float(cut))
 
 
 DEFAULT_CONFIG = RenderConfig()

@@ -1,4 +1,4 @@
-"""The Whitted integrator: closest hit, Blinn–Phong with shadow rays, mirror reflections.
+"""The Whitted integrator: closest hit, Blinn–Phong (or Phong) with shadow rays, mirror reflections.
 
 One depth level at a time, for every ray at once (the thesis's closest-hit program, section
 4.4.3, iterated to a static maximum depth instead of recursing):
@@ -8,10 +8,14 @@ One depth level at a time, for every ray at once (the thesis's closest-hit progr
 2. misses add weight × environment(direction) (the miss program, section 4.4.4);
 3. hits add weight × (Ka·ambient + Ke + Σ_lights visible · (Kd·(n·l) + Ks·(n·h)^Ns) · light),
    where a shadow ray (any hit, `occluded`) is traced only where n·l > 0, and h = normalize(l − d)
-   is the Blinn–Phong halfway vector; point lights have infinite range and no falloff (the
-   thesis's light), directional lights shine along −position;
+   is the Blinn–Phong halfway vector (`RenderConfig.specular` "phong": (r·v)^Ns, eq. 1;
+   `specular_payload`: the specular term times n·l too, §4.4.3's payload); point lights have
+   infinite range and no falloff (the thesis's light), directional lights shine along
+   −position, spot lights are point lights times their cone's factor (no shadow ray outside
+   the cone);
 4. where depth < max_depth and the hit material's Kr is not zero, a reflection ray continues
-   with weight × Kr.
+   with weight × Kr (`RenderConfig.min_contribution`: only while the luminance of that weight
+   is at least the cut-off, §2.5.2).
 
 Depth 0 runs band by band (rows of the image, so that packets keep their neighbouring
 pixels): XLA:CPU materialises every intermediate of the shading, and a band's stay in cache.
@@ -45,14 +49,14 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..native.internal import on_platforms
-from ..scene import POINT_LIGHT
+from ..scene import POINT_LIGHT, SPOT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
 from ..trace.internal import backend_geometry
-from ._arrays import SceneArrays
-from ._config import DEFAULT_CONFIG, RenderConfig
+from ._arrays import SceneArrays, light_columns
+from ._config import DEFAULT_CONFIG, LUMINANCE, RenderConfig
 from ._envmap import envmap_lookup
 from ._mips import lod_uv, mip_level, mip_lookup
-from ._native import integrator_plan, native_whitted, whitted_operands
+from ._native import integrator_plan, native_whitted, shading_attributes, whitted_operands
 from ._vec import all3, any3, cross, dot, interpolate, norm, normalize
 
 
@@ -220,6 +224,23 @@ def _usable_packet(packet, batch_ndim: int):
     return packet
 
 
+class Shading(NamedTuple):
+    """The shading options of a `RenderConfig` (static): `specular` ("blinn-phong" or "phong"),
+    `payload` (`specular_payload`) and `min_contribution`."""
+
+    specular: str = "blinn-phong"
+    payload: bool = False
+    min_contribution: float = 0.0
+
+
+DEFAULT_SHADING = Shading()
+
+
+def shading_of(config: RenderConfig) -> Shading:
+    """`config`'s shading options."""
+    return Shading(config.specular, config.specular_payload, config.min_contribution)
+
+
 class ShadowRays(NamedTuple):
     """The shadow rays of a batch of surface points, one per light: (lights, *batch)."""
 
@@ -228,24 +249,49 @@ class ShadowRays(NamedTuple):
     tmax: jax.Array  # (lights, *batch); 0 where no ray is wanted
     wanted: jax.Array  # (lights, *batch) bool
     n_dot_l: jax.Array  # (lights, *batch)
+    spot: jax.Array  # (lights, *batch): a spot light's cone factor, 1 for the other kinds
+
+
+def spot_factor(axis, l_dir, cos_inner, cos_outer):
+    """How much of a spot light reaches a point whose direction towards the light is `l_dir`:
+    1 within the inner half-angle of its unit `axis`, 0 beyond the outer, linear in the cosine
+    of the angle between (`fovjax.Lights`)."""
+    c = -dot(axis, l_dir)
+    width = cos_inner - cos_outer
+    ramp = (c - cos_outer) / jnp.where(width > 0, width, 1.0)
+    return jnp.where(c >= cos_inner, 1.0, jnp.where(c > cos_outer, ramp, 0.0))
 
 
 def _shadow_rays(scene, surface, lit, offset) -> ShadowRays:
-    """Towards every light, from every lit surface point where the light is above both normals."""
+    """Towards every light, from every lit surface point where the light is above both normals
+    (and, for a spot light, within its cone)."""
     batch = surface.found.shape
-    shape = (scene.num_lights,) + (1,) * len(batch) + (3,)
-    position = jnp.reshape(scene.light_position, shape)
-    is_point = jnp.reshape(scene.light_kind == POINT_LIGHT, shape[:-1])
+    lead = (scene.num_lights,) + (1,) * len(batch)
+    position = jnp.reshape(scene.light_position, lead + (3,))
+    kind = jnp.reshape(scene.light_kind, lead)
+    positional = (kind == POINT_LIGHT) | (kind == SPOT_LIGHT)
     p, n_geo, n = surface.point[None], surface.geometric_normal[None], surface.shading_normal[None]
-    to_light = jnp.where(is_point[..., None], position - p, position)
+    to_light = jnp.where(positional[..., None], position - p, position)
     distance = norm(to_light)
     l_dir = normalize(to_light)
     n_dot_l = dot(n, l_dir)
-    wanted = lit[None] & (n_dot_l > 0) & (dot(n_geo, l_dir) > 0)
+    if scene.light_direction is None and scene.light_cone is None:  # no spot light
+        spot = jnp.ones(n_dot_l.shape, jnp.float32)
+    else:
+        axis, cone = light_columns(scene)
+        cone = jnp.reshape(cone, lead + (2,))
+        spot = spot_factor(jnp.reshape(axis, lead + (3,)), l_dir, cone[..., 0], cone[..., 1])
+        spot = jnp.where(kind == SPOT_LIGHT, spot, 1.0)
+    wanted = lit[None] & (n_dot_l > 0) & (dot(n_geo, l_dir) > 0) & (spot > 0)
     origin = jnp.broadcast_to(p + offset * n_geo, wanted.shape + (3,))
-    tmax = jnp.where(is_point, distance, jnp.inf)
+    tmax = jnp.where(positional, distance, jnp.inf)
     return ShadowRays(
-        origin, jnp.broadcast_to(l_dir, origin.shape), jnp.where(wanted, tmax, 0.0), wanted, n_dot_l
+        origin,
+        jnp.broadcast_to(l_dir, origin.shape),
+        jnp.where(wanted, tmax, 0.0),
+        wanted,
+        n_dot_l,
+        jnp.broadcast_to(spot, wanted.shape),
     )
 
 
@@ -264,21 +310,27 @@ def _trace_shadows(bvh, rays: ShadowRays, packet, backend, level=None):
     )
 
 
-def _light_sum(scene, surface, d, rays: ShadowRays, blocked, kd, ks, ns):
-    """Σ over lights of visible · (Kd·(n·l) + Ks·(n·h)^Ns) · colour."""
+def _light_sum(scene, surface, d, rays: ShadowRays, blocked, kd, ks, ns, shading: Shading = DEFAULT_SHADING):
+    """Σ over lights of visible · (Kd·(n·l) + Ks·(n·h)^Ns) · colour · spot (`shading`: Phong's
+    (r·v)^Ns for (n·h)^Ns, the specular times n·l too)."""
     batch = surface.found.shape
     color = jnp.reshape(scene.light_color, (scene.num_lights,) + (1,) * len(batch) + (3,))
+    color = color * rays.spot[..., None]
     n = surface.shading_normal[None]
     visible = rays.wanted & ~blocked
-    half = normalize(rays.direction - d[None])
-    n_dot_h = dot(n, half)
+    n_dot_l = jnp.where(rays.wanted, rays.n_dot_l, 0.0)
+    if shading.specular == "phong":  # eq. 1: r the light's direction mirrored about n, v = -d
+        mirrored = 2.0 * rays.n_dot_l[..., None] * n - rays.direction
+        cosine = -dot(mirrored, d[None])
+    else:
+        cosine = dot(n, normalize(rays.direction - d[None]))
     # (n·h)^Ns as 2^(Ns·log2(n·h)): XLA:CPU's general `pow` is an order of magnitude slower
     # over a frame's hits; the two agree to float rounding of the exponent.
-    safe = jnp.where(n_dot_h > 0, n_dot_h, 1.0)
-    specular = jnp.where(n_dot_h > 0, jnp.exp2(ns[None] * jnp.log2(safe)), 0.0)
-    contribution = (
-        kd[None] * jnp.where(rays.wanted, rays.n_dot_l, 0.0)[..., None] + ks[None] * specular[..., None]
-    ) * color
+    safe = jnp.where(cosine > 0, cosine, 1.0)
+    specular = jnp.where(cosine > 0, jnp.exp2(ns[None] * jnp.log2(safe)), 0.0)
+    if shading.payload:  # §4.4.3: the specular times the shadow ray's payload, n·l
+        specular = specular * n_dot_l
+    contribution = (kd[None] * n_dot_l[..., None] + ks[None] * specular[..., None]) * color
     lit_terms = jnp.where(visible[..., None], contribution, 0.0)
     shaded = lit_terms[0]
     for i in range(1, scene.num_lights):
@@ -308,21 +360,39 @@ def _surface_and_shadow_rays(scene, hit, d, alive, offset):
     return surface, rays
 
 
-def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, spawn, lod=None):
+def _finish_shading(
+    scene,
+    surface,
+    d,
+    alive,
+    weight,
+    rays,
+    blocked,
+    *,
+    offset,
+    spawn,
+    lod=None,
+    shading: Shading = DEFAULT_SHADING,
+):
     """What the rays see (weighted) given the shadow rays' visibility, and the reflection rays
-    they spawn where `spawn`: (contribution, (o, d, weight, alive) of the next level)."""
+    they spawn where `spawn` (and, with `shading.min_contribution`, where the luminance of
+    their weight reaches it): (contribution, (o, d, weight, alive) of the next level)."""
     lit = alive & surface.found
     missed = alive & ~surface.found
     m = surface.material
     local = scene.ka[m] * jnp.asarray(scene.ambient, jnp.float32) + scene.ke[m]
     if rays is not None:
         kd = diffuse_color(scene, m, surface.uv, lod)
-        local = local + _light_sum(scene, surface, d, rays, blocked, kd, scene.ks[m], scene.ns[m])
+        local = local + _light_sum(scene, surface, d, rays, blocked, kd, scene.ks[m], scene.ns[m], shading)
     contribution = jnp.where(missed[..., None], weight * envmap_lookup(scene.environment, d), 0.0)
     contribution = contribution + jnp.where(lit[..., None], weight * local, 0.0)
 
     weight = weight * scene.kr[m]
     alive = lit & any3(weight != 0) & spawn
+    if shading.min_contribution > 0:  # §2.5.2's contribution cut-off
+        r, g, b = LUMINANCE
+        luminance = r * weight[..., 0] + g * weight[..., 1] + b * weight[..., 2]
+        alive = alive & (luminance >= shading.min_contribution)
     n_s, n_g = surface.shading_normal, surface.geometric_normal
     reflected = d - 2.0 * dot(d, n_s)[..., None] * n_s
     # A smooth normal can send the mirror direction into the surface: mirror about the
@@ -333,7 +403,20 @@ def _finish_shading(scene, surface, d, alive, weight, rays, blocked, *, offset, 
 
 
 def _trace_and_shade(
-    scene, bvh, o, d, alive, weight, *, packet, offset, backend, spawn, fidelity=None, hits="recomputed"
+    scene,
+    bvh,
+    o,
+    d,
+    alive,
+    weight,
+    *,
+    packet,
+    offset,
+    backend,
+    spawn,
+    fidelity=None,
+    hits="recomputed",
+    shading: Shading = DEFAULT_SHADING,
 ):
     """One depth level: trace `alive` rays (unit directions `d`), add what they see (weighted),
     and the reflection rays they spawn where `spawn`. `fidelity`: None, or (ShadingClasses,
@@ -361,7 +444,7 @@ def _trace_and_shade(
     if fidelity is not None and classes.texture_level is not None and scene.textures:
         lod = _texture_lod(scene, classes, cls, hit, d, surface)
     contribution, nxt = _finish_shading(
-        scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn, lod=lod
+        scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=spawn, lod=lod, shading=shading
     )
     return contribution, nxt, n_shadow
 
@@ -414,6 +497,7 @@ def _reflection_level(scene, bvh, total, source, n_queued, queue, depth, *, offs
                 offset=offset,
                 backend=config.backend,
                 hits=config.hits,
+                shading=shading_of(config),
                 spawn=spawn,
             )
             total = total.at[pixel].add(contribution)
@@ -486,6 +570,7 @@ def _depth0(scene, bvh, o, d, active, *, offset, config):
             offset=offset,
             backend=config.backend,
             hits=config.hits,
+            shading=shading_of(config),
             spawn=spawn,
         )
         if spawn:
@@ -637,6 +722,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             packets=config.packet is not None,
             tile_width=_tile_width(batch, config),
             robust=bvh.watertight,
+            shading=shading_attributes(config),
         )
         n_shadow = jnp.sum(jnp.right_shift(traced, 8), dtype=jnp.int32)
         n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)
@@ -821,6 +907,7 @@ def _primary_level(
             offset=offset,
             backend=config.backend,
             hits=config.hits,
+            shading=shading_of(config),
             spawn=spawn,
             fidelity=fidelity,
         )
@@ -868,6 +955,7 @@ def _tile_level(scene, bvh, tiles, chunks: _Chunks, *, offset, config, classes=N
             offset=offset,
             backend=config.backend,
             hits=config.hits,
+            shading=shading_of(config),
             spawn=spawn,
             fidelity=fidelity,
         )
@@ -926,6 +1014,7 @@ def _queue_level(
             offset=offset,
             backend=config.backend,
             hits=config.hits,
+            shading=shading_of(config),
             spawn=spawn,
             fidelity=fidelity,
         )

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..native.internal import NativePlan, handler, layout, plan_native
 from ..trace import BVH
+from ._arrays import light_columns
 
 WHITTED_TARGET = "fovjax_embree_whitted"
 # The most reflections the handler counts per ray (its counts are 8 bits).
@@ -53,7 +54,13 @@ def whitted_operands(scene, bvh: BVH) -> tuple:
     texels = jnp.concatenate(textures) if textures else jnp.zeros((0,), f32)
     shapes = np.asarray([np.shape(t)[:2] for t in scene.textures], np.int32).reshape(-1)
     material = {name: getattr(scene, name) for name, _ in layout.MATERIAL_COLUMNS}
-    light = {"position": scene.light_position, "color": scene.light_color}
+    direction, cone = light_columns(scene)
+    light = {
+        "position": scene.light_position,
+        "color": scene.light_color,
+        "direction": direction,
+        "cone": cone,
+    }
     operands = (
         jnp.asarray(bvh.host_id, i32),
         jnp.asarray(bvh.vertices, f32),
@@ -77,6 +84,16 @@ def whitted_operands(scene, bvh: BVH) -> tuple:
     return jax.tree.map(jax.lax.stop_gradient, operands)
 
 
+def shading_attributes(config) -> dict:
+    """`config`'s shading options as the Whitted and slots handlers' attributes: `specular`
+    (`layout.SPECULARS`' code), `specular_payload` and `min_contribution`."""
+    return {
+        "specular": np.int32(layout.SPECULARS[config.specular]),
+        "specular_payload": np.int32(config.specular_payload),
+        "min_contribution": np.float32(config.min_contribution),
+    }
+
+
 def native_whitted(
     operands: tuple,
     o,
@@ -89,6 +106,7 @@ def native_whitted(
     packets: bool,
     tile_width: int = 0,
     robust: bool = True,
+    shading: dict | None = None,
 ):
     """The Whitted integrator's primal through the native handler, on flat rays: (radiance
     (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
@@ -97,8 +115,9 @@ def native_whitted(
     (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
     where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
     one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
-    pixels (0: a flat list); `robust`: the BVH's `watertight`. Not differentiable (the caller's
-    custom JVP is)."""
+    pixels (0: a flat list); `robust`: the BVH's `watertight`; `shading`: the shading options'
+    attributes (`shading_attributes`; None: the defaults of `RenderConfig`). Not
+    differentiable (the caller's custom JVP is)."""
     if not 0 <= max_depth <= MAX_NATIVE_DEPTH:
         raise ValueError(
             f"the native integrator counts at most {MAX_NATIVE_DEPTH} reflections, got max_depth {max_depth}"
@@ -114,6 +133,10 @@ def native_whitted(
     offset = jax.lax.stop_gradient(jnp.asarray(offset, f32).reshape(1))
     out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), jnp.int32))
     call = handler(WHITTED_TARGET, out, what="the native integrator", vmap_method="sequential")
+    if shading is None:
+        from ._config import DEFAULT_CONFIG
+
+        shading = shading_attributes(DEFAULT_CONFIG)
     return call(
         *rays,
         *operands,
@@ -123,4 +146,5 @@ def native_whitted(
         packets=np.int32(packets),
         tile_width=np.int32(tile_width),
         robust=np.int32(robust),
+        **shading,
     )

@@ -11,9 +11,11 @@ namespace {
 
 //
 // The same arithmetic as the JAX integrator (fovjax/render/_integrator.py), written per ray:
-// closest hit, Blinn–Phong with a shadow ray per light, mirror reflections to max_depth. It
-// returns each ray's radiance (NaN/inf kept: the caller paints bad samples) and the rays it
-// traced; derivatives come from the JAX integrator (a custom JVP on the Python side).
+// closest hit, Blinn–Phong or Phong with a shadow ray per light (point, directional and spot
+// lights), mirror reflections to max_depth (or until their weight's luminance falls below the
+// contribution cut-off). It returns each ray's radiance (NaN/inf kept: the caller paints bad
+// samples) and the rays it traced; derivatives come from the JAX integrator (a custom JVP on
+// the Python side).
 
 struct Vec3 {
   float x, y, z;
@@ -45,6 +47,13 @@ struct Texture {
   int64_t h, w;
 };
 
+// The shading options of `RenderConfig` (the handlers' attributes).
+struct Shading {
+  int32_t specular = kSpecularBlinnPhong;  // kSpecularBlinnPhong or kSpecularPhong
+  bool payload = false;                    // the specular term times n·l too (`specular_payload`)
+  float min_contribution = 0.0f;           // reflections stop below this luminance of their weight
+};
+
 struct ShadeScene {
   const float* vertices;
   const int32_t* faces;
@@ -58,15 +67,42 @@ struct ShadeScene {
   const int32_t* texture;  // (M,): index into textures, -1: none
   int64_t num_materials;
   std::vector<Texture> textures;
-  const float* lights;  // (L, 6): position (or direction towards the light), colour
-  const int32_t* light_kind;  // kLightPoint or kLightDirectional
+  const float* lights;  // (L, kLightStride): position (or direction towards the light), colour,
+                        // a spot light's unit axis and cos of its (inner, outer) half-angles
+  const int32_t* light_kind;  // kLightPoint, kLightDirectional or kLightSpot
   int num_lights;
   Vec3 ambient;
   Texture environment;
   float offset;
   int max_depth;
   bool recompute;  // u, v by Möller–Trumbore on `vertices` (RenderConfig.hits "recomputed")
+  Shading shading;
 };
+
+// Where a light is and how much of it reaches p (`_shadow_rays`): the direction and distance
+// towards it, and a spot light's cone factor (1 for the other kinds): 1 within the inner
+// half-angle of its axis, 0 beyond the outer, linear in the cosine between.
+struct LightAt {
+  Vec3 to_light;
+  bool positional;
+  float spot;
+};
+
+LightAt LightTowards(const ShadeScene& s, int l, Vec3 p, Vec3* dir) {
+  const float* row = s.lights + kLightStride * l;
+  const int32_t kind = s.light_kind[l];
+  LightAt at;
+  at.positional = kind == kLightPoint || kind == kLightSpot;
+  Vec3 position = Load3(row);
+  at.to_light = at.positional ? position - p : position;
+  *dir = Normalize(at.to_light);
+  at.spot = 1.0f;
+  if (kind == kLightSpot) {
+    const float c = -Dot(Load3(row + 6), *dir), cos_inner = row[9], cos_outer = row[10];
+    at.spot = c >= cos_inner ? 1.0f : c > cos_outer ? (c - cos_outer) / (cos_inner - cos_outer) : 0.0f;
+  }
+  return at;
+}
 
 constexpr float kPi = 3.14159265358979323846f;
 
@@ -119,7 +155,7 @@ struct WhittedBuffers {
   std::vector<int32_t> prim, pixel;
   std::vector<float> point, n_geo, n_shade, kd;
   std::vector<int32_t> material;
-  std::vector<float> so, sd, stmin, stmax, st, su, sv, n_dot_l;
+  std::vector<float> so, sd, stmin, stmax, st, su, sv, n_dot_l, spot;
   std::vector<int32_t> sprim;
   void Reserve(int64_t n, int lights) {
     for (auto* x : {&o, &d, &weight, &point, &n_geo, &n_shade, &kd}) x->resize(3 * n);
@@ -129,7 +165,7 @@ struct WhittedBuffers {
     material.resize(n);
     const int64_t ns = n * std::max(lights, 1);
     for (auto* x : {&so, &sd}) x->resize(3 * ns);
-    for (auto* x : {&stmin, &stmax, &st, &su, &sv, &n_dot_l}) x->resize(ns);
+    for (auto* x : {&stmin, &stmax, &st, &su, &sv, &n_dot_l, &spot}) x->resize(ns);
     sprim.resize(ns);
   }
 };
@@ -265,22 +301,21 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       b.material[k] = mat;
       Vec3 origin = p + s.offset * ng;
       for (int l = 0; l < nl; ++l) {
-        Vec3 position = Load3(s.lights + kLightStride * l);
-        const bool point_light = s.light_kind[l] == kLightPoint;
-        Vec3 to_light = point_light ? position - p : position;
-        float n2 = Dot(to_light, to_light);
+        Vec3 dir;
+        const LightAt at = LightTowards(s, l, p, &dir);
+        float n2 = Dot(at.to_light, at.to_light);
         float distance = n2 > 0.0f ? std::sqrt(n2) : 0.0f;
-        Vec3 dir = Normalize(to_light);
         float ndl = Dot(nsh, dir);
-        if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f)) continue;
+        if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
         const int64_t j = ns++;
         for (int c = 0; c < 3; ++c) {
           b.so[3 * j + c] = (&origin.x)[c];
           b.sd[3 * j + c] = (&dir.x)[c];
         }
         b.stmin[j] = 0.0f;
-        b.stmax[j] = point_light ? distance : INFINITY;
+        b.stmax[j] = at.positional ? distance : INFINITY;
         b.n_dot_l[j] = ndl;
+        b.spot[j] = at.spot;
       }
     }
     Rays shadow{b.so.data(), b.sd.data(), b.stmin.data(), b.stmax.data(), nullptr,
@@ -310,18 +345,26 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
         Vec3 sum{0.0f, 0.0f, 0.0f};
         bool first = true;
         for (int l = 0; l < nl; ++l) {
-          Vec3 position = Load3(s.lights + kLightStride * l);
-          const bool point_light = s.light_kind[l] == kLightPoint;
-          Vec3 dir = Normalize(point_light ? position - p : position);
+          Vec3 dir;
+          const LightAt at = LightTowards(s, l, p, &dir);
           float ndl = Dot(nsh, dir);
-          if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f)) continue;  // not wanted: no ray, no light
+          // not wanted: no ray, no light
+          if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
           const int64_t j = js++;
           traced[px] += 1 << 8;
           if (b.sprim[j] >= 0) continue;  // blocked
-          Vec3 half = Normalize(dir - d);
-          float ndh = Dot(nsh, half);
-          float spec = ndh > 0.0f ? std::exp2(shininess * std::log2(ndh)) : 0.0f;
-          Vec3 term = (kd * b.n_dot_l[j] + ks * spec) * Load3(s.lights + kLightStride * l + 3);
+          // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
+          float cosine;
+          if (s.shading.specular == kSpecularPhong) {
+            Vec3 mirrored = (2.0f * b.n_dot_l[j]) * nsh - dir;
+            cosine = -Dot(mirrored, d);
+          } else {
+            cosine = Dot(nsh, Normalize(dir - d));
+          }
+          float spec = cosine > 0.0f ? std::exp2(shininess * std::log2(cosine)) : 0.0f;
+          if (s.shading.payload) spec = spec * b.n_dot_l[j];  // §4.4.3's shadow payload, n·l
+          Vec3 color = Load3(s.lights + kLightStride * l + 3) * b.spot[j];
+          Vec3 term = (kd * b.n_dot_l[j] + ks * spec) * color;
           sum = first ? term : sum + term;
           first = false;
         }
@@ -333,6 +376,8 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       out[2] += c.z;
       w = w * kr;
       if (!(spawn && (w.x != 0.0f || w.y != 0.0f || w.z != 0.0f))) continue;
+      const float cut = s.shading.min_contribution;  // §2.5.2's contribution cut-off
+      if (cut > 0.0f && !(0.30f * w.x + 0.59f * w.y + 0.11f * w.z >= cut)) continue;
       Vec3 reflected = d - 2.0f * Dot(d, nsh) * nsh;
       if (Dot(reflected, ng) <= 0.0f) reflected = d - 2.0f * Dot(d, ng) * ng;
       Vec3 o2 = p + s.offset * ng, d2 = Normalize(reflected);
@@ -364,7 +409,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       materials, texture, texels, texture_shape, lights, light_kind, ambient, environment, offset
 
 ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, int32_t robust,
-                     std::atomic<int>* out_of_range, ShadeScene* scene,
+                     Shading shading, std::atomic<int>* out_of_range, ShadeScene* scene,
                      std::shared_ptr<NativeScene>* tree_out) {
   ShadeScene& s = *scene;
   const int64_t nv = static_cast<int64_t>(vertices.element_count() / 3);
@@ -413,6 +458,11 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, 
   s.offset = offset.typed_data()[0];
   s.max_depth = max_depth;
   s.recompute = recompute != 0;
+  if ((shading.specular != kSpecularBlinnPhong && shading.specular != kSpecularPhong) ||
+      !(shading.min_contribution >= 0.0f)) {
+    return ffi::Error::InvalidArgument("fovjax Whitted: unknown specular term or a negative cut-off");
+  }
+  s.shading = shading;
   std::string error;
   *tree_out = GetScene(scene_id.typed_data()[0], robust != 0, bvh_vertices.typed_data(),
                        static_cast<int64_t>(bvh_vertices.element_count() / 3), bvh_faces.typed_data(),
@@ -425,7 +475,8 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, 
 ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
                    ffi::Buffer<ffi::PRED> active, FOVJAX_SCENE_PARAMS, ffi::ResultBuffer<ffi::F32> total,
                    ffi::ResultBuffer<ffi::S32> traced, int32_t max_depth, int32_t recompute,
-                   int32_t packets, int32_t tile_width, int32_t robust) {
+                   int32_t packets, int32_t tile_width, int32_t robust, int32_t specular,
+                   int32_t specular_payload, float min_contribution) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
   const int64_t n = static_cast<int64_t>(active.element_count());
   if (origins.element_count() != 3 * static_cast<size_t>(n) ||
@@ -437,7 +488,9 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   std::atomic<int> out_of_range{0};
   ShadeScene s;
   std::shared_ptr<NativeScene> tree;
-  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, &out_of_range, &s, &tree);
+  const Shading shading{specular, specular_payload != 0, min_contribution};
+  ffi::Error status =
+      SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
   if (status.failure()) return status;
   const NativeScene& t = *tree;
   const float* o = origins.typed_data();
@@ -492,7 +545,7 @@ auto WithSceneArgs(Binding binding) {
       .template Arg<ffi::Buffer<ffi::S32>>()   // texture per material (M)
       .template Arg<ffi::Buffer<ffi::F32>>()   // every texture's texels, flat
       .template Arg<ffi::Buffer<ffi::S32>>()   // (T, 2) texture heights, widths
-      .template Arg<ffi::Buffer<ffi::F32>>()   // lights (L, 6)
+      .template Arg<ffi::Buffer<ffi::F32>>()   // lights (L, kLightStride)
       .template Arg<ffi::Buffer<ffi::S32>>()   // light kind (L)
       .template Arg<ffi::Buffer<ffi::F32>>()   // ambient (3)
       .template Arg<ffi::Buffer<ffi::F32>>()   // environment (He, We, 3)
@@ -511,4 +564,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,
                                   .Attr<int32_t>("recompute")
                                   .Attr<int32_t>("packets")
                                   .Attr<int32_t>("tile_width")  // rays an image this wide, 0
-                                  .Attr<int32_t>("robust"));
+                                  .Attr<int32_t>("robust")
+                                  .Attr<int32_t>("specular")          // kSpecularBlinnPhong, kSpecularPhong
+                                  .Attr<int32_t>("specular_payload")  // the specular times n·l too
+                                  .Attr<float>("min_contribution"));  // the reflections' cut-off

@@ -37,6 +37,7 @@ from ._mips import texture_mips as texture_mips
 from ._mips import with_texture_mips as with_texture_mips
 from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
 from ._native import integrator_plan as integrator_plan
+from ._native import shading_attributes as shading_attributes
 from ._native import whitted_operands as whitted_operands
 
 __all__ = [
@@ -59,6 +60,7 @@ __all__ = [
     "integrator_plan",
     "MAX_NATIVE_DEPTH",
     "whitted_operands",
+    "shading_attributes",
     "radiance_in_chunks",
     "scene_scale",
     "surface_at",

@@ -1,7 +1,7 @@
 """Scenes: the `Scene` pytree, cameras, loading from files, and the built-in procedural scenes.
 
 - `Scene`, `Materials`, `Lights`, `Textures` and their constructors `make_scene`, `make_materials`,
-  `make_lights` (`POINT_LIGHT`, `DIRECTIONAL_LIGHT` name the light kinds); `geometry_hash` and
+  `make_lights` (`POINT_LIGHT`, `DIRECTIONAL_LIGHT`, `SPOT_LIGHT` name the light kinds); `geometry_hash` and
   `validate_geometry` check and identify a triangle mesh (the BVH cache keys on the hash).
 - `Camera` (a pinhole camera with its primary rays), `look_at_rotation`, `vfov_from_hfov`,
   `stratified_offsets` and `pixel_sample_positions` (the per-pixel sample positions every
@@ -43,6 +43,7 @@ from ._poses import CameraPose as CameraPose
 from ._poses import default_camera as default_camera
 from ._scene import DIRECTIONAL_LIGHT as DIRECTIONAL_LIGHT
 from ._scene import POINT_LIGHT as POINT_LIGHT
+from ._scene import SPOT_LIGHT as SPOT_LIGHT
 from ._scene import Lights as Lights
 from ._scene import Materials as Materials
 from ._scene import Scene as Scene
@@ -78,6 +79,7 @@ __all__ = [
     "default_camera",
     "DIRECTIONAL_LIGHT",
     "POINT_LIGHT",
+    "SPOT_LIGHT",
     "Lights",
     "Materials",
     "Scene",

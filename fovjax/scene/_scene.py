@@ -17,6 +17,8 @@ from jaxtyping import Array, Float, Int
 
 POINT_LIGHT = 0
 DIRECTIONAL_LIGHT = 1
+SPOT_LIGHT = 2
+LIGHT_KINDS = {"point": POINT_LIGHT, "directional": DIRECTIONAL_LIGHT, "spot": SPOT_LIGHT}
 
 
 class Materials(eqx.Module):
@@ -75,28 +77,118 @@ def make_materials(specs: list[dict], names: list[str] | None = None) -> Materia
 
 
 class Lights(eqx.Module):
-    """Lights, one row each. `kind` is POINT_LIGHT (position is a point, infinite range, no falloff,
-    as in the thesis) or DIRECTIONAL_LIGHT (position is the direction *towards* the light)."""
+    """Lights, one row each, of three kinds (`kind`):
+
+    - POINT_LIGHT: `position` is a point; infinite range and no falloff, as the thesis's light
+      ("emitted to all directions like the point light", infinite range like the directional
+      light, §2.3.4 and Fig 56);
+    - DIRECTIONAL_LIGHT: `position` is the direction *towards* the light;
+    - SPOT_LIGHT: a point light focused in a cone (§2.3.4: "all the parameters of point light and
+      additionally the angle of the cone"): `position` is its apex, `direction` the cone's axis
+      (the way it shines), `cone_deg` its (inner, outer) half-angles in degrees. A point within
+      the inner angle of the axis is lit fully, beyond the outer angle not at all (no shadow ray
+      is traced to it), and in between by a factor falling linearly in the cosine of the angle
+      from 1 to 0. The thesis names one angle: equal inner and outer angles (`make_lights`'
+      default) give its hard-edged cone; the falloff between two is fovjax's addition. Infinite
+      range and no distance falloff, as the point light.
+
+    `direction` and `cone_deg` are ignored for the other kinds (`make_lights` fills them with
+    zeros and 180°)."""
 
     position: Float[np.ndarray | Array, "L 3"]
     color: Float[np.ndarray | Array, "L 3"]
     kind: Int[np.ndarray | Array, " L"]
+    direction: Float[np.ndarray | Array, "L 3"] | None = None
+    cone_deg: Float[np.ndarray | Array, "L 2"] | None = None
 
     def __len__(self) -> int:
         return int(np.shape(self.kind)[0])
 
+    def take(self, index) -> Lights:
+        """The lights at `index` (an integer array), every field with them."""
+        index = np.asarray(index, np.int64).reshape(-1)
+        direction = np.zeros((len(self), 3), np.float32) if self.direction is None else self.direction
+        cone = np.full((len(self), 2), 180.0, np.float32) if self.cone_deg is None else self.cone_deg
+        return Lights(
+            position=np.asarray(self.position)[index],
+            color=np.asarray(self.color)[index],
+            kind=np.asarray(self.kind)[index],
+            direction=np.asarray(direction)[index],
+            cone_deg=np.asarray(cone)[index],
+        )
 
-def make_lights(position, color, kind=None) -> Lights:
+
+def make_lights(position, color, kind=None, *, direction=None, cone_deg=None) -> Lights:
+    """`Lights` from per-light rows (see `Lights` for the kinds).
+
+    Args:
+        position: (L, 3) points (point and spot lights) or directions towards the light
+            (directional lights).
+        color: (L, 3) linear RGB.
+        kind: (L,) `POINT_LIGHT`, `DIRECTIONAL_LIGHT` or `SPOT_LIGHT` (None: every light a
+            point light).
+        direction: (L, 3) each spot light's axis, the way it shines (nonzero for a spot; any
+            value, e.g. zeros, for the other kinds); None where no light is a spot.
+        cone_deg: each spot light's half-angles in degrees: (L,) outer angles (a hard-edged
+            cone, the thesis's), or (L, 2) (inner, outer) with 0 <= inner <= outer <= 180 and
+            outer > 0; None where no light is a spot.
+
+    Raises:
+        ValueError: shapes that differ, values that are not finite, an unknown kind, or a spot
+            light without a nonzero direction or a valid cone, each naming the light.
+    """
     position = np.atleast_2d(np.asarray(position, np.float32))
     color = np.atleast_2d(np.asarray(color, np.float32))
     if position.shape != color.shape or position.shape[-1] != 3:
         raise ValueError(f"lights: position {position.shape} and color {color.shape} must both be (L, 3)")
+    n = position.shape[0]
     if kind is None:
-        kind = np.full(position.shape[0], POINT_LIGHT, np.int32)
+        kind = np.full(n, POINT_LIGHT, np.int32)
     kind = np.asarray(kind, np.int32).reshape(-1)
+    if kind.shape != (n,):
+        raise ValueError(f"lights: kind must have one entry per light ({n}), got shape {kind.shape}")
+    unknown = ~np.isin(kind, list(LIGHT_KINDS.values()))
+    if unknown.any():
+        i = int(np.flatnonzero(unknown)[0])
+        raise ValueError(f"lights: light {i} has kind {int(kind[i])}, expected one of {LIGHT_KINDS}")
     if not np.all(np.isfinite(position)) or not np.all(np.isfinite(color)):
         raise ValueError("lights: position and color must be finite")
-    return Lights(position=position, color=color, kind=kind)
+    spot = kind == SPOT_LIGHT
+    if direction is None:
+        if spot.any():
+            i = int(np.flatnonzero(spot)[0])
+            raise ValueError(f"lights: light {i} is a spot light and needs a direction (its axis), got None")
+        direction = np.zeros((n, 3), np.float32)
+    direction = np.atleast_2d(np.asarray(direction, np.float32))
+    if direction.shape != (n, 3) or not np.isfinite(direction).all():
+        raise ValueError(f"lights: direction must be ({n}, 3) finite numbers, got {direction.tolist()}")
+    if cone_deg is None:
+        if spot.any():
+            i = int(np.flatnonzero(spot)[0])
+            raise ValueError(
+                f"lights: light {i} is a spot light and needs cone_deg (its cone's angle), got None"
+            )
+        cone_deg = np.full((n, 2), 180.0, np.float32)
+    cone = np.asarray(cone_deg, np.float32)
+    if cone.shape == (n,):
+        cone = np.stack([cone, cone], axis=-1)
+    if cone.shape != (n, 2) or not np.isfinite(cone).all():
+        raise ValueError(
+            f"lights: cone_deg must be {n} outer half-angles or ({n}, 2) (inner, outer) half-angles in "
+            f"degrees, got {np.asarray(cone_deg).tolist()}"
+        )
+    for i in np.flatnonzero(spot):
+        inner, outer = (float(a) for a in cone[i])
+        if not (0.0 <= inner <= outer <= 180.0 and outer > 0.0):
+            raise ValueError(
+                f"lights: spot light {i} has cone_deg (inner {inner:g}, outer {outer:g}), expected "
+                "0 <= inner <= outer <= 180 and outer > 0 (half-angles in degrees)"
+            )
+        if not np.any(direction[i] != 0):
+            raise ValueError(
+                f"lights: spot light {i} has direction {direction[i].tolist()}, expected a nonzero axis"
+            )
+    return Lights(position=position, color=color, kind=kind, direction=direction, cone_deg=cone)
 
 
 class Scene(eqx.Module):

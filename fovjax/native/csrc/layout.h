@@ -10,10 +10,13 @@ namespace {
 
 // Materials: rows of ka (3), kd (3), ks (3), ke (3), kr (3), ns (1) (`whitted_operands`).
 constexpr int kMaterialStride = 16;
-// Lights: rows of position or direction towards the light (3), colour (3).
-constexpr int kLightStride = 6;
-// Light kinds (`Scene.light_kind`).
-constexpr int kLightPoint = 0, kLightDirectional = 1;
+// Lights: rows of position or direction towards the light (3), colour (3), a spot light's unit
+// axis (3) and the cosines of its inner and outer half-angles (2).
+constexpr int kLightStride = 11;
+// Light kinds (`Lights.kind`).
+constexpr int kLightPoint = 0, kLightDirectional = 1, kLightSpot = 2;
+// Specular terms (`RenderConfig.specular`).
+constexpr int kSpecularBlinnPhong = 0, kSpecularPhong = 1;
 // Cameras: rows of position (3), rotation (3×3, row-major), tan(vfov / 2), aspect, offset (2).
 constexpr int kCameraStride = 16;
 // Regions of a pixel (fovjax/foveate/_sampling.py).

@@ -113,6 +113,8 @@ const char* fovjax_native_layout() {
   static const std::string text =
       "material_stride=" + std::to_string(kMaterialStride) + ";light_stride=" + std::to_string(kLightStride) +
       ";light_point=" + std::to_string(kLightPoint) + ";light_directional=" + std::to_string(kLightDirectional) +
+      ";light_spot=" + std::to_string(kLightSpot) + ";specular_blinn_phong=" + std::to_string(kSpecularBlinnPhong) +
+      ";specular_phong=" + std::to_string(kSpecularPhong) +
       ";camera_stride=" + std::to_string(kCameraStride) + ";region_fovea=" + std::to_string(kFovea) +
       ";region_periphery=" + std::to_string(kPeriphery) + ";region_outside=" + std::to_string(kOutside) +
       ";class_mandatory=" + std::to_string(kMandatory) + ";class_optional=" + std::to_string(kOptional) +
