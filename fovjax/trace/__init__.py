@@ -16,7 +16,9 @@ from ..native import release_scenes as release_embree_scenes
 from ..native import status as embree_status
 from ._backends import BACKENDS as BACKENDS
 from ._backends import BUILTIN_BACKENDS as BUILTIN_BACKENDS
+from ._backends import QueryOptions as QueryOptions
 from ._backends import RayBackend as RayBackend
+from ._backends import RayBatch as RayBatch
 from ._backends import backend_names as backend_names
 from ._backends import describe_backend as describe_backend
 from ._backends import register_backend as register_backend
@@ -54,7 +56,9 @@ __all__ = [
     "release_embree_scenes",
     "BACKENDS",
     "BUILTIN_BACKENDS",
+    "QueryOptions",
     "RayBackend",
+    "RayBatch",
     "backend_names",
     "register_backend",
     "unregister_backend",

@@ -11,11 +11,37 @@ from __future__ import annotations
 
 import abc
 import importlib.util
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import jax
 
 from ..native.internal import plan_native
+
+
+class RayBatch(NamedTuple):
+    """Flat rays for a backend: `origins`, `directions` (n, 3); `tmin`, `tmax` (n,) (scalars where
+    the backend takes `scalar_bounds`); `level` (n,): the tree of a merged BVH each ray is traced
+    against (None: tree 0)."""
+
+    origins: jax.Array
+    directions: jax.Array
+    tmin: jax.Array
+    tmax: jax.Array
+    level: jax.Array | None
+
+
+class QueryOptions(NamedTuple):
+    """How a backend is asked: `any_hit` (occlusion: any hit, not the nearest); `packet_size` rays
+    a packet (None: one by one); `traversal` the JAX traversal's tuning; `split`: the rays may be
+    split over host devices; `tile`, `batch`: the rays are an image of `batch` to trace in
+    tile-sized packets (None otherwise). A backend uses what applies to it."""
+
+    any_hit: bool
+    packet_size: int | None = None
+    traversal: object = None
+    split: bool = False
+    tile: tuple[int, int] | None = None
+    batch: tuple[int, ...] | None = None
 
 
 class RayBackend(abc.ABC):
@@ -25,9 +51,10 @@ class RayBackend(abc.ABC):
     - `preferred_on`: the platforms ("cpu", "cuda", ...) where "auto" chooses it when it can run;
     - `scalar_bounds`: whether `query` takes `tmin`/`tmax` as scalars (else one per ray);
     - `unavailable(platform)`: None where it runs for `platform`, else why not (one phrase);
-    - `query(...)`: (t, prim) of the rays, or (t, prim, u, v) where the backend reports its own
-      distance and barycentrics (t = inf, prim = -1 on a miss; for `any_hit`, prim >= 0 marks an
-      occluded ray and t, u, v mean nothing); it runs inside a jitted program, on JAX arrays;
+    - `query(bvh, rays, options)`: (t, prim) of the `RayBatch`, or (t, prim, u, v) where the
+      backend reports its own distance and barycentrics (t = inf, prim = -1 on a miss; for
+      `options.any_hit`, prim >= 0 marks an occluded ray and t, u, v mean nothing); it runs
+      inside a jitted program, on JAX arrays;
     - `describe(platform)`: one line naming what runs.
     """
 
@@ -41,27 +68,8 @@ class RayBackend(abc.ABC):
         return None
 
     @abc.abstractmethod
-    def query(
-        self,
-        bvh,
-        o,
-        d,
-        tmin,
-        tmax,
-        level,
-        *,
-        any_hit: bool,
-        packet_size: int | None,
-        traversal,
-        split: bool,
-        tile: tuple[int, int] | None,
-        batch: tuple[int, ...] | None,
-    ) -> tuple:
-        """The hits of flat rays `o`, `d` (n, 3) within (`tmin`, `tmax`) (n,) (scalars where
-        `scalar_bounds`), on the trees `level` (n,) of a merged BVH (None: tree 0). `packet_size`
-        rays a packet (None: one by one); `traversal`: the JAX traversal's tuning; `split`: the
-        rays may be split over host devices; `tile`, `batch`: the rays are an image of `batch`
-        to trace in tile-sized packets (None otherwise)."""
+    def query(self, bvh, rays: RayBatch, options: QueryOptions) -> tuple:
+        """The hits of `rays` in `bvh` as `options` ask (see the class docstring)."""
 
     def describe(self, platform: str) -> str:
         del platform
@@ -160,10 +168,10 @@ class JaxBackend(RayBackend):
     name = "jax"
     scalar_bounds = True
 
-    def query(self, bvh, o, d, tmin, tmax, level, **kw):
+    def query(self, bvh, rays, options):
         from ._query import jax_traversal
 
-        return jax_traversal(bvh, o, d, tmin, tmax, level, **kw)
+        return jax_traversal(bvh, rays, options)
 
     def describe(self, platform):
         return "jax (the JAX traversal)"
@@ -182,13 +190,15 @@ class EmbreeBackend(RayBackend):
         plan = plan_native()
         return None if plan.cpu else f"Embree FFI unavailable: {plan.reason}"
 
-    def query(self, bvh, o, d, tmin, tmax, level, *, any_hit, packet_size, **kw):
+    def query(self, bvh, rays, options):
         from ._embree import embree_ffi_query, embree_query
 
+        o, d, tmin, tmax, level = rays
+        any_hit = options.any_hit
         if plan_native().cpu:
             # A packet request: packets of the CPU's native width throughout; one by one:
             # packets only where consecutive rays are coherent (the same hits either way).
-            mode = 1 if packet_size is not None else -1
+            mode = 1 if options.packet_size is not None else -1
             return embree_ffi_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit, packets=mode)
         if level is not None:
             raise ValueError(
@@ -215,10 +225,10 @@ class WarpBackend(RayBackend):
             return "Warp is not installed: pip install 'fovjax[gpu]'"
         return None
 
-    def query(self, bvh, o, d, tmin, tmax, level, *, any_hit, **kw):
+    def query(self, bvh, rays, options):
         from ._warp import warp_query
 
-        return warp_query(bvh, o, d, tmin, tmax, level, any_hit=any_hit)
+        return warp_query(bvh, *rays, any_hit=options.any_hit)
 
     def describe(self, platform):
         return "warp (NVIDIA Warp mesh queries through XLA's FFI)"

@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..native.internal import on_platforms
-from ._backends import get_backend, resolve_backend
+from ._backends import QueryOptions, RayBatch, get_backend, resolve_backend
 from ._bvh import BVH, FacesLike, VerticesLike
 from ._order import inverse_order, spatial_order
 from ._packet import traverse_packets
@@ -303,20 +303,8 @@ def _run_backend(
     n = o.shape[0]
     if not chosen.scalar_bounds:
         tmin, tmax = _per_ray(tmin, n), _per_ray(tmax, n)
-    hits = chosen.query(
-        bvh,
-        o,
-        d,
-        tmin,
-        tmax,
-        level,
-        any_hit=any_hit,
-        packet_size=packet_size,
-        traversal=traversal,
-        split=split,
-        tile=tile,
-        batch=batch,
-    )
+    options = QueryOptions(any_hit, packet_size, traversal, split, tile, batch)
+    hits = chosen.query(bvh, RayBatch(o, d, tmin, tmax, level), options)
     if len(hits) == 4:
         return tuple(hits)
     t, prim = hits
@@ -324,22 +312,10 @@ def _run_backend(
     return t, prim, u, v
 
 
-def jax_traversal(
-    bvh,
-    o,
-    d,
-    tmin,
-    tmax,
-    level,
-    *,
-    split,
-    any_hit,
-    packet_size,
-    traversal,
-    tile=None,
-    batch=None,
-):
+def jax_traversal(bvh, rays: RayBatch, options: QueryOptions):
     """(t, prim) of the rays on the JAX traversal (`JaxBackend.query`)."""
+    o, d, tmin, tmax, level = rays
+    any_hit, packet_size, traversal, split, tile, batch = options
     n = o.shape[0]
     if tile is not None:
         return _tiled_jax(
@@ -411,7 +387,8 @@ def _tiled_jax(bvh, o, d, tmin, tmax, level, *, split, tile, batch, **kw):
     tmin_t = regroup(tmin)
     tmax_t = jnp.where(pad, tmin_t, regroup(tmax))  # padding is never live (nor mixes levels)
     level_t = None if level is None else level[src]
-    t, prim = jax_traversal(bvh, o_t, d_t, tmin_t, tmax_t, level_t, split=split, **kw)
+    options = QueryOptions(kw["any_hit"], kw["packet_size"], kw["traversal"], split)
+    t, prim = jax_traversal(bvh, RayBatch(o_t, d_t, tmin_t, tmax_t, level_t), options)
     return t[inverse], prim[inverse]
 
 
