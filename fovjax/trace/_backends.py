@@ -16,6 +16,7 @@ from typing import ClassVar, NamedTuple
 import jax
 
 from ..native.internal import plan_native
+from ._traverse import Traversal
 
 
 class RayBatch(NamedTuple):
@@ -38,7 +39,7 @@ class QueryOptions(NamedTuple):
 
     any_hit: bool
     packet_size: int | None = None
-    traversal: object = None
+    traversal: Traversal = Traversal()
     split: bool = False
     tile: tuple[int, int] | None = None
     batch: tuple[int, ...] | None = None

@@ -341,6 +341,7 @@ def jax_traversal(bvh, rays: RayBatch, options: QueryOptions):
         return traverse(nodes, o, d, tmin, tmax, any_hit=any_hit, traversal=traversal, root=root)
 
     def packets_of(table, num_nodes, o, d, tmin, tmax, root=None):
+        assert packet_size is not None  # only called for packets
         return traverse_packets(
             Nodes(table, num_nodes, stack_size),
             o,
