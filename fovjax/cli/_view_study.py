@@ -22,7 +22,6 @@ import asyncio
 import hashlib
 import json
 import math
-import signal
 import threading
 import time
 from pathlib import Path
@@ -411,19 +410,17 @@ def run(args, load_scene) -> int:
 
 
 async def _serve(server, args, log, interrupted: threading.Event) -> None:
+    from ._view import _first_interrupt
+
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
-    previous = None
 
     def on_ctrl_c(signum, frame):
         interrupted.set()
-        signal.signal(signal.SIGINT, previous)
+        restore()
         loop.call_soon_threadsafe(stop.set)
 
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.getsignal(signal.SIGINT)
-        if previous is not signal.SIG_IGN:
-            signal.signal(signal.SIGINT, on_ctrl_c)
+    restore = _first_interrupt(on_ctrl_c)
     try:
         try:
             url = await server.start()
@@ -453,5 +450,4 @@ async def _serve(server, args, log, interrupted: threading.Event) -> None:
         finally:
             await server.stop()
     finally:
-        if previous is not None and signal.getsignal(signal.SIGINT) is on_ctrl_c:
-            signal.signal(signal.SIGINT, previous)
+        restore()
