@@ -121,14 +121,21 @@ def _measured(segments, frame_ms=1000 / 60, start=100.0):
 
 
 def test_the_record_is_appended_synced_and_resumed(tmp_path):
-    log = fe.StudyLog.open(tmp_path, "p01", "ramp", seed=None)
-    assert log.next_index == 0 and log.form is None and log.settings_path.is_file()
-    with pytest.raises(fe.StudyLogError, match="consent is required"):
+    log = fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=None)
+    # Nothing is written on opening (an interrupted start leaves no trace): the first form does.
+    assert log.next_index == 0 and log.form is None and not (tmp_path / "study").exists()
+    with pytest.raises(fe.StudyLogError, match="Please tick the box to say you agree to take part"):
         log.save_form({**{k: v[0] for k, v in fe.PARTICIPANT_FORM.items()}, "consent": "no"})
+    with pytest.raises(fe.StudyLogError, match=r"^Please choose an answer for: age range, eye colour \("):
+        log.save_form(
+            {**{k: v[0] for k, v in fe.PARTICIPANT_FORM.items()}, "age_range": "", "eye_colour": ""}
+        )
+    assert not (tmp_path / "study").exists()
     with pytest.raises(fe.StudyLogError, match=r"unknown fields \['name'\]"):
         log.save_form({**{k: v[0] for k, v in fe.PARTICIPANT_FORM.items()}, "name": "Jane"})
     stored = log.save_form({k: v[-1] for k, v in fe.PARTICIPANT_FORM.items()})
     assert stored["consent"] == "yes" and "name" not in json.loads(log.form_path.read_text())
+    assert log.settings_path.is_file()
     for index in range(2):
         row = log.record(index, "same", _measured(log.presentation_of(index, resumed=False)), resumed=False)
         assert row["timing_ok"] and row["time_s"] == pytest.approx(0.8)
@@ -139,11 +146,20 @@ def test_the_record_is_appended_synced_and_resumed(tmp_path):
     # A crash inside the third write: the cut-off line is dropped and that trial asked again.
     with log.path.open("a") as fh:
         fh.write(lines[1][:40])
-    again = fe.StudyLog.open(tmp_path, "p01", "ramp", seed=None)
-    assert again.dropped_tail and again.next_index == 2 and len(again.path.read_text().splitlines()) == 2
+    cut = log.path.read_bytes()
+    again = fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=None)
+    assert again.dropped_tail and again.next_index == 2
+    assert log.path.read_bytes() == cut  # cut back only when the session begins
+    again.begin()
+    assert len(again.path.read_text().splitlines()) == 2 and again.path.read_text().endswith("\n")
     assert again.session != log.session
     with pytest.raises(fe.StudyLogError, match=r"started with seed None, not 3"):
-        fe.StudyLog.open(tmp_path, "p01", "ramp", seed=3)
+        fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=3)
+    # A last line whole but for its newline is asked again too.
+    with log.path.open("a") as fh:
+        fh.write(lines[1])
+    resumed = fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=None)
+    assert resumed.dropped_tail and resumed.next_index == 2
 
 
 def test_clips_are_rendered_once_and_reused(tmp_path, monkeypatch, capsys):
@@ -241,7 +257,7 @@ def test_bad_study_arguments_are_one_line_errors(args, message, tmp_path, monkey
 
 def test_a_resumed_session_with_other_settings_is_refused(tmp_path, capsys):
     _extras.require("aiohttp")
-    fe.StudyLog.open(tmp_path, "p01", "pair", seed=None, time_scale=TIME_SCALE)
+    fe.StudyLog.open(tmp_path, "p01", "pair", seed=None, time_scale=TIME_SCALE).begin()
     args = [
         "view",
         "--port",

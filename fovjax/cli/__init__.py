@@ -227,8 +227,10 @@ _WRITTEN: list[str] = []
 
 
 def wrote(*paths) -> None:
-    """Note files (or folders) a command has finished writing."""
-    _WRITTEN.extend(str(p) for p in paths if p is not None)
+    """Note files (or folders) a command has finished writing (each once)."""
+    for p in paths:
+        if p is not None and str(p) not in _WRITTEN:
+            _WRITTEN.append(str(p))
 
 
 def _written_text() -> str:
@@ -468,9 +470,7 @@ def frame_size(
         return
     from ..render import FrameTooLargeError, RenderConfig, check_frame_memory
 
-    config = RenderConfig(
-        max_depth=getattr(args, "max_depth", 5), backend=getattr(args, "backend", "auto")
-    )
+    config = RenderConfig(max_depth=getattr(args, "max_depth", 5), backend=getattr(args, "backend", "auto"))
     for kind in kinds:
         try:
             check_frame_memory(
@@ -505,7 +505,8 @@ def output_folder(path, option: str, patterns, *, overwrite: bool = False) -> Pa
     p = output(path, option, directory=True)
     found = sorted({f for pattern in patterns for f in p.glob(pattern) if f.is_file()}) if p.is_dir() else []
     if found and not overwrite:
-        shown = ", ".join(f.name for f in found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
+        more = f" and {len(found) - 3} more" if len(found) > 3 else ""
+        shown = ", ".join(f.name for f in found[:3]) + more
         raise UsageError(
             f"{option} {path}: holds another run's files ({shown}); choose a new folder, or --overwrite "
             "to replace them"
