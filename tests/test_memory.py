@@ -79,8 +79,8 @@ def test_a_frame_over_the_limit_is_refused_naming_size_estimate_and_limit(monkey
         check_frame_memory(64, 48, 16, foveated=True, integrator="native", where="test")
     assert str(err.value) == (
         f"test: a foveated frame of 2 x 64x48 pixels at SPP 16 needs about {estimate / 1e6:.0f} MB, "
-        "more than the 1 MB available here; make it smaller, or set FOVJAX_SIZE_CHECK=0 (--no-size-check) on a "
-        "machine that has the memory"
+        "more than the 1 MB available here; make it smaller, or set FOVJAX_SIZE_CHECK=0 "
+        "(--no-size-check) on a machine that has the memory"
     )
     assert check_frame_memory(8, 8, 1, integrator="native") == frame_memory(8, 8, 1, integrator="native")
     monkeypatch.setenv("FOVJAX_SIZE_CHECK", "0")
