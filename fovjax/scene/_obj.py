@@ -42,9 +42,7 @@ _RE_MTLLIB = re.compile(r"\nmtllib[ \t]+([^\n]*)")
 _RE_NEEDS_CLEANUP = re.compile(r"\n[ \t]+(?:v|vt|vn|f|usemtl|mtllib)\s|\n(?:v|vt|vn|f|usemtl|mtllib)\t")
 # A `v` or `vn` line with fewer than 3 numbers, or a `vt` line with none (trimesh would shape
 # the whole array by them, or shift every later vertex, without a word).
-_RE_SHORT_VERTEX = re.compile(
-    r"\n(?:(?:v|vn) +[^ \n#]+(?: +[^ \n#]+)?|vt) *(?:#[^\n]*)?(?=\n|$)"
-)
+_RE_SHORT_VERTEX = re.compile(r"\n(?:(?:v|vn) +[^ \n#]+(?: +[^ \n#]+)?|vt) *(?:#[^\n]*)?(?=\n|$)")
 _SYNTHETIC_MTL = "__fovjax_materials__.mtl"
 _WIDTH = {"v": 3, "vt": 1, "vn": 3}
 
