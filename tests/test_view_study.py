@@ -297,6 +297,36 @@ def test_a_malformed_responses_file_is_file_line(line, message, tmp_path, capsys
     assert err.count("\n") == 1 and "Traceback" not in err
 
 
+def test_ctrl_c_while_the_clips_render_writes_nothing(tmp_path):
+    """Interrupted before the page is served (the clips compiling and rendering): status 130,
+    "nothing was written", and no file left in the study folder (no session file that says a
+    session began)."""
+    _extras.require("aiohttp")
+    out = tmp_path / "study"
+    argv = ["view", "--study", "pair", "--participant", "p02", "-o", str(out), "--port", "0"]
+    argv += ["--scene", "cornell", "--width", "8", "--height", "8", "--frames", "2", "--max-depth", "1"]
+    log = tmp_path / "log.txt"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    with log.open("w") as fh:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "fovjax", *argv], stdout=fh, stderr=subprocess.STDOUT, env=env
+        )
+    try:
+        deadline = time.monotonic() + 120
+        while "compiling the frame programs" not in log.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert proc.returncode == 130, text
+    assert "fovjax view: interrupted; nothing was written" in text and "Traceback" not in text
+    assert not out.exists() or not [p for p in out.rglob("*") if p.is_file()], list(out.rglob("*"))
+
+
 # ---- a scripted participant in headless Chromium -----------------------------------------------------
 
 
@@ -465,11 +495,19 @@ class Participant:
 
         self.driver.find_element(By.ID, element_id).click()
 
-    def fill_form(self):
+    def fill_form(self, empty_first: bool = False):
         from selenium.webdriver.common.by import By
         from selenium.webdriver.support.ui import Select
 
         assert self.phase("form", "instructions") == "form"
+        # No empty image area above the form (it shows once the clips are loaded).
+        assert self.driver.execute_script("return document.getElementById('stage').offsetHeight") == 0
+        if empty_first:  # sent empty: the page says, in plain words, what is missing
+            self.click("form-submit")
+            text = self.wait("const e = window.fovjaxStudy.error; return e && e.length && e")
+            assert text.startswith("Please choose an answer for: age range, gender, eye colour"), text
+            assert "'" not in text and "[" not in text  # no field names or lists in code form
+            assert self.phase("form") == "form"
         for select in self.driver.find_elements(By.CSS_SELECTOR, "#form-fields select"):
             Select(select).select_by_index(len(Select(select).options) - 1)  # "prefer not to say"
         self.click("consent")
@@ -477,6 +515,10 @@ class Participant:
 
     def start(self):
         assert self.phase("instructions") == "instructions"
+        text = self.driver.execute_script("return document.getElementById('instructions-text').textContent")
+        text = " ".join(text.split())
+        assert "In a headset" in text and "On a monitor" in text and "left half" in text, text
+        assert self.driver.execute_script("return document.getElementById('stage').offsetHeight") > 0
         self.click("start")
 
     def answer(self, value, recorded_before):
@@ -519,7 +561,7 @@ def pair_session(browser, folder, clips):
     view = StudyProcess("pair", "p01", folder, clips)
     try:
         page = Participant(browser, view.url)
-        page.fill_form()
+        page.fill_form(empty_first=True)
         page.start()
         for k, answer in enumerate(PAIR_ANSWERS):
             page.answer(answer, k)
