@@ -78,7 +78,8 @@ def validate_failures(args) -> None:
     cli.output_folder(args.output, "-o", failure_files(), overwrite=args.overwrite)
     cli.frame_size(args, args.width, args.height, 1)
     if "high_spp" in args.cases:
-        cli.frame_size(args, *args.small, max(args.spp), option="--small")
+        width, height = args.small
+        cli.frame_size(args, width, height, max(args.spp), option="--small")
 
 
 def failure_files() -> tuple[str, ...]:
