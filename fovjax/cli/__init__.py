@@ -468,6 +468,10 @@ def frame_size(
     with `--no-size-check` (or FOVJAX_SIZE_CHECK=0)."""
     if getattr(args, "no_size_check", False):
         return
+    if getattr(args, "distributed", None) is not None:
+        # Asking JAX for its platform would start its backends before jax.distributed may; the
+        # renderer's own check (`FoveatedRenderer`) runs once it has started.
+        return
     from ..render import FrameTooLargeError, RenderConfig, check_frame_memory
 
     config = RenderConfig(max_depth=getattr(args, "max_depth", 5), backend=getattr(args, "backend", "auto"))
