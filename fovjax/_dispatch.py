@@ -55,7 +55,10 @@ def render_stereo(
         stats, per-region counts, sample mask, regions, eccentricity, debug view).
 
     Raises:
-        ValueError: `spp` disagrees with `foveation.spp`, or a bad gaze, SPP or threshold.
+        TypeError: `scene` is not a `fovjax.Scene` or `SceneArrays` (a scene's name, say).
+        ValueError: `spp` disagrees with `foveation.spp`, or a bad gaze, SPP or threshold;
+            `fovjax.render.FrameTooLargeError` for a frame larger than the machine's free memory
+            (`fovjax.render.frame_memory`; `FOVJAX_SIZE_CHECK=0` skips the check).
 
     Example:
         ```python
@@ -66,6 +69,11 @@ def render_stereo(
                                    foveation=Foveation(fovea_deg=5, periphery_deg=10))
         ```
     """
+    if not isinstance(scene, Scene | SceneArrays):
+        raise TypeError(
+            f"render_stereo: scene {scene!r} is not a fovjax.Scene (nor its SceneArrays); make one "
+            "first, e.g. fovjax.scenes.cornell_box() or fovjax.load_scene(path)"
+        )
     config = RenderConfig() if config is None else config
     if foveation is None and gaze is None:
         return _render_full(

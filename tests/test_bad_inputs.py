@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -116,6 +117,25 @@ def files(tmp_path):
     bad_hdr.write_text("not an image")
     not_recording = tmp_path / "table.csv"
     not_recording.write_text("a,b\n1,2\n")
+    short_vertex = tmp_path / "short.obj"
+    short_vertex.write_text("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n")
+    garbage = tmp_path / "garbage.csv"
+    garbage.write_text("garbage line here\nmore garbage\n")
+    repeated = tmp_path / "repeated.csv"
+    repeated.write_text("eccentricity_deg,acuity,acuity\n0,1,1\n")
+    old_session = tmp_path / "old_session"  # another run's session folder
+    old_session.mkdir()
+    for name in ("frame_00000.png", "frame_00001.png", "frame_00002.png", "session.csv"):
+        (old_session / name).write_bytes(b"")
+    old_compare = tmp_path / "old_compare"
+    old_compare.mkdir()
+    (old_compare / "cost_accuracy_ms_spp16.png").write_bytes(b"")
+    old_study = tmp_path / "old_study"
+    old_study.mkdir()
+    (old_study / "timing.csv").write_text("file\n")
+    old_failures = tmp_path / "old_failures"
+    old_failures.mkdir()
+    (old_failures / "findings.csv").write_text("case\n")
     return {
         "curve": str(CURVE),
         "scanpath": str(SCANPATH),
@@ -140,7 +160,18 @@ def files(tmp_path):
         "fit_five": str(fit_five),
         "responses_five": str(responses_five),
         "recording_five": str(recording_five),
+        "short_vertex": str(short_vertex),
+        "garbage": str(garbage),
+        "repeated": str(repeated),
+        "old_session": str(old_session),
+        "old_compare": str(old_compare),
+        "old_study": str(old_study),
+        "old_failures": str(old_failures),
     }
+
+
+# A frame no machine has the memory for (2 x 10^12 pixels): refused by the size check.
+HUGE = "--width 1000000 --height 1000000"
 
 
 # (command line, exit status, a piece of the message); {name} is a file of the `files` fixture.
@@ -180,6 +211,11 @@ ROWS = [
     ("render --seed -1", 2, "--seed -1"),
     ("render --seed 99999999999999999999", 2, "--seed 99999999999999999999"),
     ("bogus-command", 2, "invalid choice: 'bogus-command'"),
+    (f"render {HUGE}", 2, "--width/--height 1000000x1000000: a foveated frame of 2 x 1000000x1000000"),
+    (f"render --full {HUGE}", 2, "a full frame of 2 x 1000000x1000000 pixels at SPP 1 needs about"),
+    (f"render --mono {HUGE}", 2, "a full frame of 1000000x1000000 pixels at SPP 1 needs about"),
+    ("render --scene cornell --width 8192 --height 8192 --spp 10000", 2, "8192x8192: a foveated frame"),
+    ("render --scene {short_vertex} --mono", 2, "short.obj:2: 'v' line needs at least 3 numbers: 'v 1 0'"),
     # -- inspect -----------------------------------------------------------------------------
     ("inspect nowhere", 2, "SCENE 'nowhere': not a built-in scene"),
     ("inspect {scene_txt}", 2, "scene.txt"),
@@ -193,6 +229,7 @@ ROWS = [
     ("inspect cornell --head 0,inf,0", 2, "--head pitch inf"),
     ("inspect cornell --triangles 0", 2, "--triangles 0"),
     ("inspect", 2, "the following arguments are required: scene"),
+    (f"inspect cornell {HUGE}", 2, "--width/--height 1000000x1000000: a full frame"),
     # -- session -----------------------------------------------------------------------------
     ("session --gaze bogus:thing --frames 2 -o {tmp}/s", 2, "unknown scheme 'bogus'"),
     ("session --gaze synthetic:spiral --frames 2 -o {tmp}/s", 2, "'spiral'"),
@@ -221,6 +258,13 @@ ROWS = [
     ("session --gaze synthetic:scanpath --frames 2 -o {a_file}", 2, "not a folder"),
     ("session --gaze synthetic:scanpath --frames 2 -o {unwritable_dir}", 2, "is a file, not a folder"),
     ("session --gaze synthetic:scanpath --frames 2 --seconds 1 -o {tmp}/s", 2, "not allowed with"),
+    (f"session --gaze synthetic:fixed --frames 2 {HUGE} -o {{tmp}}/s", 2, "1000000x1000000: a foveated"),
+    (
+        "session --gaze synthetic:fixed --frames 2 -o {old_session}",
+        2,
+        "-o {old_session}: holds another run's files (frame_00000.png, frame_00001.png, frame_00002.png "
+        "and 1 more); choose a new folder, or --overwrite to replace them",
+    ),
     # -- record ------------------------------------------------------------------------------
     ("record --gaze serial:/dev/ttyNOPE --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "/dev/ttyNOPE"),
     ("record --gaze pupil:127.0.0.1:9 --seconds 2 --wait 0.3 -o {tmp}/r.jsonl", 1, "127.0.0.1:9"),
@@ -270,11 +314,16 @@ ROWS = [
     ("fit {curve} --condition scotopic -o {tmp}/f", 2, "--condition 'scotopic'"),
     ("fit {curve} -o {unwritable_dir}", 2, "is a file, not a folder"),
     ("fit-stability -o {a_file}", 2, "not a folder"),
+    ("fit {garbage} -o {tmp}/f", 2, "{garbage}:1: missing column(s) ['eccentricity_deg', 'acuity']"),
+    ("fit {repeated} -o {tmp}/f", 2, "{repeated}:1: repeated column(s) ['acuity']"),
     # -- compare -----------------------------------------------------------------------------
     ("compare --criterion bogus -o {tmp}/c", 2, "--criterion 'bogus'"),
     ("compare --thresholds 10,5 -o {tmp}/c", 2, "--thresholds 10,5"),
     ("compare --thresholds 5,10 nan,20 -o {tmp}/c", 2, "fovea nan"),
     ("compare --thresholds 5 -o {tmp}/c", 2, "FOVEA,PERIPHERY"),
+    ("compare --gazes 0.5 -o {tmp}/c", 2, "a gaze point is X,Y in normalised display coordinates"),
+    (f"compare {HUGE} -o {{tmp}}/c", 2, "--width/--height 1000000x1000000: a"),
+    ("compare -o {old_compare}", 2, "holds another run's files (cost_accuracy_ms_spp16.png)"),
     ("compare --spp 3 -o {tmp}/c", 2, "--spp 3"),
     ("compare --spp 1 8 -o {tmp}/c", 2, "--spp 8"),
     ("compare --gazes 0.5,1.2 -o {tmp}/c", 2, "1.2"),
@@ -313,6 +362,11 @@ ROWS = [
     ("study --comparison {table} -o {a_file}", 2, "not a folder"),
     ("study --responses {binary} -o {tmp}/st", 2, "binary.csv:3: not a text file"),
     ("study --responses {scene_txt} -o {tmp}/st", 2, "'.txt'"),
+    ("study --comparison {scanpath} -o {tmp}/st", 2, "a '.jsonl' file; expected comparison.csv"),
+    ("study --comparison {old_failures} -o {tmp}/st", 2, "a folder without comparison.csv"),
+    ("study --responses {garbage} -o {tmp}/st", 2, "{garbage}:1: missing columns ['participant'"),
+    ("study --comparison {good_table} -o {old_study}", 2, "holds another run's files (timing.csv)"),
+    (f"study --video {HUGE} -o {{tmp}}/st", 2, "1000000x1000000: a"),
     # every cell of a comparison table the study reads, FILE:LINE (issue 28: "five" was accepted)
     ("study --comparison {fovea_five} -o {tmp}/st", 2, "{fovea_five}:4: fovea_deg is 'five', not a number"),
     (
@@ -350,9 +404,14 @@ ROWS = [
     ("stability --scene nowhere -o {tmp}/sb", 2, "'nowhere'"),
     ("stability --max-depth -1 -o {tmp}/sb", 2, "--max-depth -1"),
     ("stability --seed -1 -o {tmp}/sb", 2, "--seed -1"),
+    (f"failures {HUGE} -o {{tmp}}/fl", 2, "1000000x1000000: a foveated frame"),
+    ("failures --small 100000x100000 --spp 1 10000 -o {tmp}/fl", 2, "--small 100000x100000: a"),
+    ("failures -o {old_failures}", 2, "holds another run's files (findings.csv)"),
+    (f"stability {HUGE} -o {{tmp}}/sb", 2, "1000000x1000000: a"),
     # -- view --------------------------------------------------------------------------------
     ("view --width 0", 2, "--width 0"),
     ("view --height 100000", 2, "--height 100000"),
+    ("view --width 8192 --height 8192 --spp 10000", 2, "--width/--height 8192x8192: a foveated frame"),
     ("view --spp 3", 2, "--spp 3: expected a perfect square"),
     ("view --fovea nan", 2, "--fovea nan"),
     ("view --fovea 0", 2, "--fovea 0"),
@@ -408,6 +467,51 @@ def test_every_command_has_rows():
     assert commands - {"bogus-command"} <= covered, commands - covered
 
 
+def test_a_frame_too_large_names_the_size_the_estimate_and_the_limit(capsys):
+    assert main(["render", *HUGE.split()]) == 2
+    err = capsys.readouterr().err
+    assert re.fullmatch(
+        r"fovjax render: error: --width/--height 1000000x1000000: a foveated frame of 2 x 1000000x1000000 "
+        r"pixels at SPP 1 needs about [\d.]+ TB, more than the [\d.]+ [GMT]B (available on this machine|free "
+        r"under this process's memory limit \(cgroup\)|free on the .*); make it smaller, or set "
+        r"FOVJAX_SIZE_CHECK=0 \(--no-size-check\) on a machine that has the memory\n",
+        err,
+    ), err
+
+
+def test_the_size_check_can_be_turned_off(files, monkeypatch):
+    """--no-size-check lets the frame through the command's check and the library's (StereoRig,
+    FoveatedRenderer): the command goes on to build the BVH (the trap here)."""
+    monkeypatch.delenv("FOVJAX_SIZE_CHECK", raising=False)
+    argv = ["session", "--gaze", "synthetic:fixed", "--frames", "2", "--scene", "cornell", *HUGE.split()]
+    with pytest.raises(ExpensiveWork):
+        main([*argv, "-o", f"{files['tmp']}/s", "--no-size-check"])
+    assert "FOVJAX_SIZE_CHECK" not in os.environ  # for the command only
+    assert not Path(files["tmp"], "s").exists()
+
+
+def test_overwrite_lets_a_run_into_a_folder_of_another(files):
+    """With --overwrite the old session's folder is accepted, and its files are gone by the
+    time the session starts (the trap here)."""
+    folder = Path(files["old_session"])
+    (folder / "notes.txt").write_text("mine")
+    argv = ["session", "--gaze", "synthetic:fixed", "--frames", "2", "--scene", "cornell"]
+    with pytest.raises(ExpensiveWork):
+        main([*argv, "-o", str(folder), "--overwrite"])
+    assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+
+
+def test_clear_outputs_removes_only_the_commands_files(tmp_path):
+    from fovjax.cli import clear_outputs
+    from fovjax.cli._session import SESSION_FILES
+
+    for name in ("frame_00000.png", "debug_00003.png", "session.json", "notes.txt", "frame_x.jpg"):
+        (tmp_path / name).write_text("")
+    removed = clear_outputs(tmp_path, SESSION_FILES)
+    assert [p.name for p in removed] == ["debug_00003.png", "frame_00000.png", "session.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_x.jpg", "notes.txt"]
+
+
 @pytest.mark.parametrize("where", [0, -1])
 def test_debug_shows_the_traceback(where):
     argv = ["render", "--exposure", "nan"]
@@ -441,8 +545,9 @@ def test_program_exits_with_status_and_one_line(argv, status, message, tmp_path)
 
 
 # -- Ctrl-C ----------------------------------------------------------------------------------
-def _interrupt(cmd, ready, tmp_path, timeout=120.0):
-    """Start `cmd`, wait until `ready()` (or its stderr says so), send SIGINT, return the result."""
+def _interrupt(cmd, ready, tmp_path, timeout=120.0, signum=signal.SIGINT):
+    """Start `cmd`, wait until `ready()` (or its stderr says so), send `signum` (SIGINT: a
+    Ctrl-C), return the result."""
     log = tmp_path / "stderr.txt"
     with open(log, "w") as err:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=_env())
@@ -451,7 +556,7 @@ def _interrupt(cmd, ready, tmp_path, timeout=120.0):
             while not ready(log.read_text()) and proc.poll() is None and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert proc.poll() is None, f"finished before the interrupt: {log.read_text()}"
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(signum)
             out, _ = proc.communicate(timeout=60)
         finally:
             if proc.poll() is None:
@@ -470,12 +575,15 @@ def test_ctrl_c_while_render_compiles_exits_130_without_a_crash(tmp_path):
     assert not out.exists() and not list(tmp_path.glob(".*part*"))
 
 
-def test_ctrl_c_during_a_session_exits_130_and_keeps_a_complete_log(tmp_path):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_ctrl_c_during_a_session_exits_130_and_keeps_a_complete_log(tmp_path, signum):
+    """Ctrl-C, or SIGTERM (`kill`'s signal, taken as a Ctrl-C): the frames so far and the log."""
     out = tmp_path / "session"
     cmd = [sys.executable, "-m", "fovjax", "session", "--gaze", "synthetic:fixed", "--frames", "100000"]
     cmd += [*TINY, "--max-depth", "1", "--no-progress", "-o", str(out)]
     # Interrupted after the first frame, while the next one (tracking now ok) compiles.
-    status, stdout, stderr = _interrupt(cmd, lambda text: (out / "frame_00000.png").exists(), tmp_path)
+    ready = lambda text: (out / "frame_00000.png").exists()  # noqa: E731
+    status, stdout, stderr = _interrupt(cmd, ready, tmp_path, signum=signum)
     assert status == 130, stderr
     assert "fovjax session: interrupted; wrote" in stderr and "Traceback" not in stderr
     log = json.loads((out / "session.json").read_text())
@@ -493,17 +601,20 @@ def default_sigint():
     signal.signal(signal.SIGINT, previous)
 
 
-def test_a_write_is_not_cut_by_ctrl_c(default_sigint):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_write_is_not_cut_by_ctrl_c(default_sigint, signum):
     from fovjax.cli import deferred_interrupt
 
+    term = signal.getsignal(signal.SIGTERM)
     finished = []
     with pytest.raises(KeyboardInterrupt):
         with deferred_interrupt():
-            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signum)
             time.sleep(0.05)  # the signal is taken here and held
             finished.append(True)
     assert finished == [True]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    assert signal.getsignal(signal.SIGTERM) is term
 
 
 def test_interrupt_flag_is_set_even_when_the_exception_is_lost(default_sigint):

@@ -240,6 +240,54 @@ def test_cli_responses_reproduces_the_report(tmp_path, capsys):
         assert (again / "fig66_pair_test.png").is_file() and not (again / "responses.csv").exists()
 
 
+def test_a_folder_whose_log_ends_in_a_cut_line_is_read_without_it(tmp_path, capsys):
+    """A crash inside the write of the last answer leaves a cut line (`fovjax view --study`
+    drops it when it resumes): `--responses FOLDER` reads the rest and says which line it left
+    out, in one warning line."""
+    csv_path = write_table(tmp_path, make_table("jod"))
+    assert main(["study", "--comparison", str(csv_path), "--observers", "2", "-o", str(tmp_path / "a")]) == 0
+    responses = fe.read_responses(tmp_path / "a" / "responses.csv")
+    folder = tmp_path / "answers"
+    folder.mkdir()
+    log = fe.write_responses(responses, folder / "p01_pair.jsonl")
+    lines = log.read_text().count("\n")
+    with log.open("a") as fh:
+        fh.write('{"participant": "p01", "test": "pa')  # the process died here
+    capsys.readouterr()
+    assert main(["study", "--responses", str(folder), "-o", str(tmp_path / "b")]) == 0
+    out, err = capsys.readouterr()
+    assert f"read {len(responses)} answers" in out
+    warning = [line for line in err.splitlines() if "warning" in line]
+    assert warning == [
+        f"fovjax study: warning: {log}:{lines + 1}: the last line is cut off (the writer stopped inside it); "
+        "left out"
+    ]
+    # A line that is not JSON anywhere else is still an error naming it.
+    log.write_text(log.read_text() + "\n" + '{"participant": "p01"}\n')
+    with pytest.raises(fe.ResultsFileError, match=rf"p01_pair\.jsonl:{lines + 1}: not JSON"):
+        fe.read_responses(log)
+
+
+def test_an_output_folder_of_another_run_is_refused_unless_overwritten(tmp_path, capsys):
+    """Old and new results are never mixed: a folder holding another run's files is refused,
+    before anything is read or written; --overwrite replaces them (other files stay)."""
+    csv_path = write_table(tmp_path, make_table("jod"))
+    out = tmp_path / "study"
+    argv = ["study", "--comparison", str(csv_path), "--observers", "2", "-o", str(out)]
+    assert main(argv) == 0
+    (out / "observers_responses.csv").write_text("a stale file of another kind of run\n")
+    (out / "notes.txt").write_text("mine")
+    before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    capsys.readouterr()
+    assert_refused(
+        argv, r"-o .*study: holds another run's files \(.*\); choose a new folder, or --overwrite", capsys
+    )
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
+    assert main([*argv, "--overwrite"]) == 0
+    assert not (out / "observers_responses.csv").exists()  # the old run's, gone
+    assert (out / "notes.txt").read_text() == "mine" and (out / "responses.csv").is_file()
+
+
 # --- errors ---------------------------------------------------------------------------------
 
 
@@ -298,11 +346,6 @@ def test_model_errors_name_the_models():
     [
         ([], "one of the arguments --comparison --responses --video is required"),
         (["--comparison", "c.csv", "--responses", "r.csv"], "not allowed with argument"),
-        (
-            ["--responses", "r.csv", "--metric", "jod", "--seed", "3"],
-            "--metric, --seed: only with --comparison",
-        ),
-        (["--comparison", "nowhere"], "--comparison nowhere: no such file"),
         (["--comparison", "c.csv", "--observers", "0"], "argument --observers: must be >= 1"),
         (["--comparison", "c.csv", "--noise-sd", "-1"], "argument --noise-sd: must be a finite number >= 0"),
     ],
@@ -325,15 +368,27 @@ def test_argument_errors(tmp_path, monkeypatch, capsys, argv, message):
             ["--comparison", "c.csv", "--beside", "c.csv"],
             "--beside: only with --responses (the observers are drawn beside people's answers)",
         ),
+        (
+            ["--responses", "r.csv", "--metric", "jod", "--seed", "3"],
+            "--metric, --seed: only with --comparison (--responses files already hold the answers)",
+        ),
+        (["--comparison", "nowhere"], "--comparison nowhere: no such file or folder"),
+        (
+            ["--comparison", "empty"],
+            "--comparison empty: a folder without comparison.csv (`fovjax compare -o`)",
+        ),
+        (["--responses", "r.csv", "--beside", "/missing"], "--beside /missing: no such file or folder"),
     ],
 )
 def test_bad_responses_are_one_line_errors(tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "c.csv").write_text("fovea_deg,periphery_deg,spp,flip\n")
+    (tmp_path / "r.csv").write_text(",".join(fe.RESULT_FIELDS) + "\n")
     (tmp_path / "empty").mkdir()
     assert main(["study", *argv, "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err == f"fovjax study: error: {message}\n"
+    assert not (tmp_path / "out").exists()  # nothing written before every argument is checked
 
 
 @pytest.mark.parametrize("regions", [None, "angle", "thesis"])

@@ -414,6 +414,13 @@ def test_unknown_format(tmp_path):
         ("v 0 0 0\nf -1 -2 -3\nv 1 0 0\nv 0 1 0\n", r"bad\.obj:2: relative v index -2 reaches before"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", r"bad\.obj:4: a face needs at least 3 vertices"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", r"bad\.obj:4: face index 'x' is not an integer"),
+        # A short vertex line: trimesh would shape the whole array by it (or shift the vertices
+        # after it, when another line's extra number makes up the count) without a word.
+        ("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", r"bad\.obj:2: 'v' line needs at least 3 numbers: 'v 1 0'"),
+        ("v 0 0 0\nv 1 0\nv 0 1 0 1\nf 1 2 3\n", r"bad\.obj:2: 'v' line needs at least 3 numbers"),
+        ("v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n", r"bad\.obj:1: 'v' line needs at least 3 numbers"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 1\nf 1//1 2//1 3//1\n", r"bad\.obj:4: 'vn' line needs at least 3"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt\nf 1 2 3\n", r"bad\.obj:4: 'vt' line needs at least 1 number:"),
     ],
 )
 def test_obj_bad_input_names_the_line(tmp_path, body, message):
@@ -436,17 +443,29 @@ def test_mtl_bad_number_names_the_line(tmp_path):
         fovjax.load_scene(path)
 
 
-def test_missing_mtl_warns_and_uses_defaults(tmp_path):
+def test_missing_mtl_warns_once_naming_the_line_and_uses_defaults(tmp_path):
     path = write_obj(tmp_path, mtl=None, texture=False)
     with pytest.warns(UserWarning) as record:
         scene = fovjax.load_scene(path)
-    messages = " ".join(str(w.message) for w in record)
-    assert re.search(r"scene\.obj: material library 'scene\.mtl' not found", messages)
+    assert len(record) == 1, [str(w.message) for w in record]
     assert re.search(
-        r"materials \['red', 'blue'\] are used \(usemtl\) but no MTL file defines them", messages
+        r"scene\.obj:2: material library 'scene\.mtl' not found .*materials \['red', 'blue'\] render "
+        r"in the default grey",
+        str(record[0].message),
     )
     assert scene.materials.names == ("default",)
     assert scene.num_triangles == 3
+
+
+def test_materials_no_library_defines_warn_once(tmp_path):
+    """An MTL file that is there but defines none of the materials used: said once."""
+    path = write_obj(tmp_path, mtl="newmtl other\nKd 1 1 1\n", texture=False)
+    with pytest.warns(UserWarning) as record:
+        fovjax.load_scene(path)
+    assert len(record) == 1
+    assert re.search(
+        r"materials \['red', 'blue'\] are used \(usemtl\) but no MTL file", str(record[0].message)
+    )
 
 
 def test_missing_texture_warns_and_falls_back_to_kd(tmp_path):

@@ -121,14 +121,21 @@ def _measured(segments, frame_ms=1000 / 60, start=100.0):
 
 
 def test_the_record_is_appended_synced_and_resumed(tmp_path):
-    log = fe.StudyLog.open(tmp_path, "p01", "ramp", seed=None)
-    assert log.next_index == 0 and log.form is None and log.settings_path.is_file()
-    with pytest.raises(fe.StudyLogError, match="consent is required"):
+    log = fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=None)
+    # Nothing is written on opening (an interrupted start leaves no trace): the first form does.
+    assert log.next_index == 0 and log.form is None and not (tmp_path / "study").exists()
+    with pytest.raises(fe.StudyLogError, match="Please tick the box to say you agree to take part"):
         log.save_form({**{k: v[0] for k, v in fe.PARTICIPANT_FORM.items()}, "consent": "no"})
+    with pytest.raises(fe.StudyLogError, match=r"^Please choose an answer for: age range, eye colour \("):
+        log.save_form(
+            {**{k: v[0] for k, v in fe.PARTICIPANT_FORM.items()}, "age_range": "", "eye_colour": ""}
+        )
+    assert not (tmp_path / "study").exists()
     with pytest.raises(fe.StudyLogError, match=r"unknown fields \['name'\]"):
         log.save_form({**{k: v[0] for k, v in fe.PARTICIPANT_FORM.items()}, "name": "Jane"})
     stored = log.save_form({k: v[-1] for k, v in fe.PARTICIPANT_FORM.items()})
     assert stored["consent"] == "yes" and "name" not in json.loads(log.form_path.read_text())
+    assert log.settings_path.is_file()
     for index in range(2):
         row = log.record(index, "same", _measured(log.presentation_of(index, resumed=False)), resumed=False)
         assert row["timing_ok"] and row["time_s"] == pytest.approx(0.8)
@@ -139,11 +146,20 @@ def test_the_record_is_appended_synced_and_resumed(tmp_path):
     # A crash inside the third write: the cut-off line is dropped and that trial asked again.
     with log.path.open("a") as fh:
         fh.write(lines[1][:40])
-    again = fe.StudyLog.open(tmp_path, "p01", "ramp", seed=None)
-    assert again.dropped_tail and again.next_index == 2 and len(again.path.read_text().splitlines()) == 2
+    cut = log.path.read_bytes()
+    again = fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=None)
+    assert again.dropped_tail and again.next_index == 2
+    assert log.path.read_bytes() == cut  # cut back only when the session begins
+    again.begin()
+    assert len(again.path.read_text().splitlines()) == 2 and again.path.read_text().endswith("\n")
     assert again.session != log.session
     with pytest.raises(fe.StudyLogError, match=r"started with seed None, not 3"):
-        fe.StudyLog.open(tmp_path, "p01", "ramp", seed=3)
+        fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=3)
+    # A last line whole but for its newline is asked again too.
+    with log.path.open("a") as fh:
+        fh.write(lines[1])
+    resumed = fe.StudyLog.open(tmp_path / "study", "p01", "ramp", seed=None)
+    assert resumed.dropped_tail and resumed.next_index == 2
 
 
 def test_clips_are_rendered_once_and_reused(tmp_path, monkeypatch, capsys):
@@ -241,7 +257,7 @@ def test_bad_study_arguments_are_one_line_errors(args, message, tmp_path, monkey
 
 def test_a_resumed_session_with_other_settings_is_refused(tmp_path, capsys):
     _extras.require("aiohttp")
-    fe.StudyLog.open(tmp_path, "p01", "pair", seed=None, time_scale=TIME_SCALE)
+    fe.StudyLog.open(tmp_path, "p01", "pair", seed=None, time_scale=TIME_SCALE).begin()
     args = [
         "view",
         "--port",
@@ -279,6 +295,36 @@ def test_a_malformed_responses_file_is_file_line(line, message, tmp_path, capsys
     err = capsys.readouterr().err
     assert err.startswith(f"fovjax study: error: {log.path}:2:") and re.search(message, err), err
     assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_ctrl_c_while_the_clips_render_writes_nothing(tmp_path):
+    """Interrupted before the page is served (the clips compiling and rendering): status 130,
+    "nothing was written", and no file left in the study folder (no session file that says a
+    session began)."""
+    _extras.require("aiohttp")
+    out = tmp_path / "study"
+    argv = ["view", "--study", "pair", "--participant", "p02", "-o", str(out), "--port", "0"]
+    argv += ["--scene", "cornell", "--width", "8", "--height", "8", "--frames", "2", "--max-depth", "1"]
+    log = tmp_path / "log.txt"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    with log.open("w") as fh:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "fovjax", *argv], stdout=fh, stderr=subprocess.STDOUT, env=env
+        )
+    try:
+        deadline = time.monotonic() + 120
+        while "compiling the frame programs" not in log.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert proc.returncode == 130, text
+    assert "fovjax view: interrupted; nothing was written" in text and "Traceback" not in text
+    assert not out.exists() or not [p for p in out.rglob("*") if p.is_file()], list(out.rglob("*"))
 
 
 # ---- a scripted participant in headless Chromium -----------------------------------------------------
@@ -449,11 +495,19 @@ class Participant:
 
         self.driver.find_element(By.ID, element_id).click()
 
-    def fill_form(self):
+    def fill_form(self, empty_first: bool = False):
         from selenium.webdriver.common.by import By
         from selenium.webdriver.support.ui import Select
 
         assert self.phase("form", "instructions") == "form"
+        # No empty image area above the form (it shows once the clips are loaded).
+        assert self.driver.execute_script("return document.getElementById('stage').offsetHeight") == 0
+        if empty_first:  # sent empty: the page says, in plain words, what is missing
+            self.click("form-submit")
+            text = self.wait("const e = window.fovjaxStudy.error; return e && e.length && e")
+            assert text.startswith("Please choose an answer for: age range, gender, eye colour"), text
+            assert "'" not in text and "[" not in text  # no field names or lists in code form
+            assert self.phase("form") == "form"
         for select in self.driver.find_elements(By.CSS_SELECTOR, "#form-fields select"):
             Select(select).select_by_index(len(Select(select).options) - 1)  # "prefer not to say"
         self.click("consent")
@@ -461,6 +515,10 @@ class Participant:
 
     def start(self):
         assert self.phase("instructions") == "instructions"
+        text = self.driver.execute_script("return document.getElementById('instructions-text').textContent")
+        text = " ".join(text.split())
+        assert "In a headset" in text and "On a monitor" in text and "left half" in text, text
+        assert self.driver.execute_script("return document.getElementById('stage').offsetHeight") > 0
         self.click("start")
 
     def answer(self, value, recorded_before):
@@ -503,7 +561,7 @@ def pair_session(browser, folder, clips):
     view = StudyProcess("pair", "p01", folder, clips)
     try:
         page = Participant(browser, view.url)
-        page.fill_form()
+        page.fill_form(empty_first=True)
         page.start()
         for k, answer in enumerate(PAIR_ANSWERS):
             page.answer(answer, k)

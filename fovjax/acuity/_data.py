@@ -15,6 +15,9 @@ The schema (one row per eccentricity and condition; lines starting with `#` are 
   sd/√n.
 - `condition`: free text (e.g. "photopic"); a fit uses one condition at a time.
 - `source`: citation of the figure or table the row was read from.
+
+`eccentricity_deg` and `acuity` (or `mar_arcmin`) are required; `sd`, `n`, `condition` and
+`source` may be left out (as blank cells: no sd, n = 1, one unnamed condition, no source).
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ import numpy as np
 
 SCHEMA = ("eccentricity_deg", "acuity", "sd", "n", "condition", "source")
 MAR_SCHEMA = ("eccentricity_deg", "mar_arcmin", "sd", "n", "condition", "source")
+# Columns a file may leave out (each then blank on every row).
+OPTIONAL_COLUMNS = ("sd", "n", "condition", "source")
 
 
 class AcuityDataError(ValueError):
@@ -200,20 +205,27 @@ def load_csv(path: str | Path, *, mar_reference_arcmin: float | str = 1.0) -> Ac
     header_line, header = rows[0]
     is_mar = "mar_arcmin" in header
     expected = MAR_SCHEMA if is_mar else SCHEMA
-    missing = [c for c in expected if c not in header]
+    missing = [c for c in expected if c not in header and c not in OPTIONAL_COLUMNS]
     unknown = [c for c in header if c not in expected]
-    if missing or unknown or len(header) != len(expected):
+    repeated = sorted({c for c in header if header.count(c) > 1})
+    if missing or unknown or repeated:
         parts = []
         if missing:
             parts.append(f"missing column(s) {missing}")
         if unknown:
-            parts.append(f"unknown column(s) {unknown}")
-        if not parts:
-            parts.append("repeated column")
+            shown = unknown[:6] + ([f"... {len(unknown) - 6} more"] if len(unknown) > 6 else [])
+            parts.append(f"unknown column(s) {shown}")
+        if repeated:
+            parts.append(f"repeated column(s) {repeated}")
         raise AcuityDataError(
-            f"{path}:{header_line}: {'; '.join(parts)}; expected exactly {', '.join(SCHEMA)}"
+            f"{path}:{header_line}: {'; '.join(parts)}; expected eccentricity_deg and acuity (or "
+            f"mar_arcmin), optionally {', '.join(OPTIONAL_COLUMNS)}"
         )
-    col = {name: header.index(name) for name in expected}
+    col = {name: header.index(name) for name in expected if name in header}
+
+    def cell(cells: list[str], name: str) -> str:
+        return cells[col[name]] if name in col else ""
+
     data_rows = rows[1:]
     if not data_rows:
         raise AcuityDataError(f"{path}: header only, no data rows")
@@ -226,11 +238,11 @@ def load_csv(path: str | Path, *, mar_reference_arcmin: float | str = 1.0) -> Ac
             raise AcuityDataError(f"{where}: {len(cells)} fields, header has {len(header)}")
         omega.append(_parse_float(cells[col["eccentricity_deg"]], where, "eccentricity_deg"))
         value.append(_parse_float(cells[col[value_col]], where, value_col))
-        sd_text, n_text = cells[col["sd"]], cells[col["n"]]
+        sd_text, n_text = cell(cells, "sd"), cell(cells, "n")
         sds.append(_parse_float(sd_text, where, "sd") if sd_text else None)
         ns.append(_parse_float(n_text, where, "n") if n_text else 1.0)
-        conds.append(cells[col["condition"]])
-        srcs.append(cells[col["source"]])
+        conds.append(cell(cells, "condition"))
+        srcs.append(cell(cells, "source"))
         lines.append(lineno)
 
     given = [i for i, s in enumerate(sds) if s is not None]

@@ -1,4 +1,4 @@
-"""`fovjax` command line. Each subcommand has its own module in this package (`_render`,
+"""The `fovjax` command line. Each subcommand has its own module in this package (`_render`,
 `_record`, `_session`, `_compare`, `_failures`, `_stability`, `_study`, `_fit`, `_fit_stability`,
 `_view`, `_inspect`) and registers itself through a `register(subparsers)` function listed in
 `_SUBCOMMAND_MODULES`. This package is the top layer: it may import every other package of
@@ -8,26 +8,32 @@ Errors: every command checks its arguments first, in one `validate(args)` step, 
 below, which raise `UsageError`. `main` turns any error into one line on stderr naming the
 command and a non-zero exit status (2: a bad argument or input file; 1: a device, a missing
 extra, or anything else); `fovjax --debug COMMAND ...` shows the Python traceback instead.
-Ctrl-C ends any command with status 130 after saying which files it wrote (commands note them
-with `wrote`).
+Ctrl-C, or SIGTERM (`kill`), ends any command with status 130 after saying which files it
+wrote (commands note them with `wrote`). Warnings are one line each, `fovjax COMMAND: warning:
+...`. Commands that render check the frame's memory against the machine's first
+(`frame_size`, `fovjax.render.check_frame_memory`; `--no-size-check` turns it off for the
+command, as `FOVJAX_SIZE_CHECK=0` does everywhere). Commands that write a folder of numbered
+files refuse one holding another run's (`output_folder`; `--overwrite` replaces them).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import math
 import os
 import signal
 import sys
+import warnings
 from pathlib import Path
 
 from .. import _environment
+from ..files import INTERRUPT_SIGNALS as INTERRUPT_SIGNALS
 from ..files import atomic_path as atomic_path
 from ..files import deferred_interrupt as deferred_interrupt
 
-# Modules that define `register(subparsers)`. The first one's command is the default
-# when `fovjax` is run with no arguments.
+# Modules that define `register(subparsers)`, in the order `fovjax --help` lists them.
 _SUBCOMMAND_MODULES = [
     "fovjax.cli._render",
     "fovjax.cli._record",
@@ -46,8 +52,34 @@ _SUBCOMMAND_MODULES = [
 INTERRUPTED = 130
 
 
+DESCRIPTION = (
+    "fovjax: foveated ray tracing for eye-tracked stereo head-mounted displays (a JAX "
+    "reimplementation of the 2020 thesis 'Real-Time Foveated Rendering in Virtual Reality for "
+    "Ray-tracing'), and the visual-acuity models that drive it."
+)
+EPILOG = """first steps:
+  fovjax render                      the thesis's stereo frame of the atrium, foveated and in full,
+                                     into out/ (two 1280x1024 eyes; the first run compiles for a while)
+  fovjax render --scene cornell --width 320 --height 256    a small frame, quickly
+  fovjax COMMAND --help              a command's options
+
+documentation: docs/getting-started.md in the repository (or the built site)"""
+
+
+def _version() -> str:
+    from fovjax import __version__
+
+    return f"fovjax {__version__}"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fovjax", description=(__doc__ or "fovjax").splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="fovjax",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=_version())
     parser.add_argument(
         "--debug", action="store_true", help="show the Python traceback of an error (for bug reports)"
     )
@@ -55,14 +87,6 @@ def build_parser() -> argparse.ArgumentParser:
     for name in _SUBCOMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser
-
-
-def _first_command(parser: argparse.ArgumentParser) -> str:
-    """The first registered subcommand: what `fovjax` alone runs."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return next(iter(action.choices))
-    raise RuntimeError("fovjax: no subcommand is registered")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,20 +103,19 @@ def main(argv: list[str] | None = None) -> int:
     # --debug is taken anywhere on the line (`fovjax render --debug ...` too).
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
-    if not argv and _SUBCOMMAND_MODULES:
-        argv.append(_first_command(parser))
     args = parser.parse_args(argv)
     args.debug = debug
-    if getattr(args, "func", None) is None:
+    if getattr(args, "func", None) is None:  # `fovjax` alone: what there is to run
         parser.print_help()
-        return 2
+        return 0
     name = f"fovjax {args.command}"
     _WRITTEN.clear()
     if program:
         _on_interrupt_exit(name)
     try:
         _compile_cache(name)  # inside: a FOVJAX_COMPILE_CACHE it cannot use is a user's mistake
-        return int(args.func(args) or 0)
+        with _one_line_warnings(name), _size_check(not getattr(args, "no_size_check", False)):
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         if program:
             _exit_interrupted(name)
@@ -119,6 +142,44 @@ def _compile_cache(name: str) -> None:
         print(f"{name}: note: {compile_cache_problem()}", file=sys.stderr, flush=True)
 
 
+@contextlib.contextmanager
+def _size_check(enabled: bool):
+    """`--no-size-check`: `FOVJAX_SIZE_CHECK=0` while the command runs, so that the library's
+    own checks (`StereoRig`, `FoveatedRenderer`, `render_stereo`) let the frame through too."""
+    from fovjax.render import SIZE_CHECK_VARIABLE
+
+    if enabled:
+        yield
+        return
+    before = os.environ.get(SIZE_CHECK_VARIABLE)
+    os.environ[SIZE_CHECK_VARIABLE] = "0"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(SIZE_CHECK_VARIABLE, None)
+        else:
+            os.environ[SIZE_CHECK_VARIABLE] = before
+
+
+@contextlib.contextmanager
+def _one_line_warnings(name: str):
+    """A warning the library raises while a command runs is one line on stderr, `fovjax
+    COMMAND: warning: ...`, not Python's two (the file and line of the code that warned, and
+    that line's source)."""
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        kind = "" if category in (UserWarning, RuntimeWarning) else f" ({category.__name__})"
+        print(f"{name}: warning{kind}: {message}", file=sys.stderr, flush=True)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous
+
+
 def _exit_interrupted(name: str) -> None:
     """Say what was written and end the process now, without Python's finalisation."""
     try:
@@ -129,15 +190,17 @@ def _exit_interrupted(name: str) -> None:
 
 
 def _on_interrupt_exit(name: str) -> None:
-    """Ctrl-C ends the program at once with `_exit_interrupted`, wherever the main thread is.
+    """Ctrl-C (and SIGTERM, `kill`'s signal, taken as Ctrl-C) ends the program at once with
+    `_exit_interrupted`, wherever the main thread is.
 
     Raising KeyboardInterrupt instead is not enough: raised inside a garbage-collection callback
     it is printed and ignored, and after one raised inside an XLA compile the interpreter's
     exit can crash. Blocks that must finish (writing a file, a session's frame, a recording)
     install their own handler for their duration (`fovjax.files`, `fovjax.devices.record`)
     and end with KeyboardInterrupt, which `main` answers the same way."""
-    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
-        signal.signal(signal.SIGINT, lambda signum, frame: _exit_interrupted(name))
+    for signum in INTERRUPT_SIGNALS:
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            signal.signal(signum, lambda signum, frame: _exit_interrupted(name))
 
 
 def _explain(err: Exception) -> tuple[int, str]:
@@ -165,8 +228,10 @@ _WRITTEN: list[str] = []
 
 
 def wrote(*paths) -> None:
-    """Note files (or folders) a command has finished writing."""
-    _WRITTEN.extend(str(p) for p in paths if p is not None)
+    """Note files (or folders) a command has finished writing (each once)."""
+    for p in paths:
+        if p is not None and str(p) not in _WRITTEN:
+            _WRITTEN.append(str(p))
 
 
 def _written_text() -> str:
@@ -374,6 +439,99 @@ def input_file(path, option: str, *, suffixes=None, text: bool = False) -> Path:
     return p
 
 
+def add_size_check(parser: argparse.ArgumentParser) -> None:
+    """`--no-size-check`: the option of every command that renders, to skip `frame_size`."""
+    parser.add_argument(
+        "--no-size-check",
+        action="store_true",
+        help="render even when the frame's estimated memory is more than this machine has free "
+        "(the check refuses such a frame before any work; FOVJAX_SIZE_CHECK=0 does the same)",
+    )
+
+
+FRAME_KINDS = ("foveated", "full")
+
+
+def frame_size(
+    args,
+    width: int,
+    height: int,
+    spp: int,
+    *,
+    kinds=FRAME_KINDS,
+    eyes: int = 2,
+    kept_images: int = 0,
+    option: str = "--width/--height",
+) -> None:
+    """The frames a command renders (`kinds`: "foveated" and/or "full", `eyes` of
+    `width` x `height` at `spp`, `kept_images` held besides) fit in the machine's free memory
+    (`fovjax.render.check_frame_memory`), or a UsageError naming `option`'s value, the estimate
+    and the limit. Call it last in `validate`, after the values themselves are checked; skipped
+    with `--no-size-check` (or FOVJAX_SIZE_CHECK=0)."""
+    if getattr(args, "no_size_check", False):
+        return
+    if getattr(args, "distributed", None) is not None:
+        # Asking JAX for its platform would start its backends before jax.distributed may; the
+        # renderer's own check (`FoveatedRenderer`) runs once it has started.
+        return
+    from ..render import FrameTooLargeError, RenderConfig, check_frame_memory
+
+    config = RenderConfig(max_depth=getattr(args, "max_depth", 5), backend=getattr(args, "backend", "auto"))
+    for kind in kinds:
+        try:
+            check_frame_memory(
+                width,
+                height,
+                spp,
+                foveated=kind == "foveated",
+                eyes=eyes,
+                config=config,
+                kept_images=kept_images,
+                where=f"{option} {width}x{height}",
+            )
+        except FrameTooLargeError as err:
+            raise UsageError(str(err)) from None
+
+
+def add_overwrite(parser: argparse.ArgumentParser) -> None:
+    """`--overwrite`: replace another run's files in the output folder (`output_folder`)."""
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the files of an earlier run in the output folder (without it, a folder holding "
+        "them is refused, so that old and new files are never mixed)",
+    )
+
+
+def output_folder(path, option: str, patterns, *, overwrite: bool = False) -> Path:
+    """An output folder (`output(directory=True)`) that holds no earlier run's files: those
+    matching `patterns` (globs such as "frame_*.png"). With `overwrite` they are listed for
+    `clear_outputs` to remove once every argument is checked; without it a UsageError names the
+    folder, a few of the files and `--overwrite`. Other files in the folder are left alone."""
+    p = output(path, option, directory=True)
+    found = sorted({f for pattern in patterns for f in p.glob(pattern) if f.is_file()}) if p.is_dir() else []
+    if found and not overwrite:
+        more = f" and {len(found) - 3} more" if len(found) > 3 else ""
+        shown = ", ".join(f.name for f in found[:3]) + more
+        raise UsageError(
+            f"{option} {path}: holds another run's files ({shown}); choose a new folder, or --overwrite "
+            "to replace them"
+        )
+    return p
+
+
+def clear_outputs(folder, patterns) -> list[Path]:
+    """Remove an earlier run's files (those matching `patterns`) from `folder` before a command
+    writes its own (`--overwrite`); returns what was removed."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = sorted({f for pattern in patterns for f in folder.glob(pattern) if f.is_file()})
+    for f in removed:
+        f.unlink()
+    return removed
+
+
 def scene(name: str, option: str = "--scene") -> list[Path]:
     """A built-in scene name (or alias), or existing scene files of supported formats: a file, a
     folder or a glob pattern (`fovjax.scene.scene_files`). Returns the files ([] for a built-in)."""
@@ -407,6 +565,7 @@ def source_spec(spec: str, kind: str, option: str) -> None:
 
 
 __all__ = [
+    "INTERRUPT_SIGNALS",
     "atomic_path",
     "deferred_interrupt",
     "INTERRUPTED",
@@ -428,6 +587,12 @@ __all__ = [
     "regions",
     "head_gaze_fovea",
     "output",
+    "add_size_check",
+    "FRAME_KINDS",
+    "frame_size",
+    "add_overwrite",
+    "output_folder",
+    "clear_outputs",
     "input_file",
     "scene",
     "source_spec",

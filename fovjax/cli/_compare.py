@@ -7,14 +7,21 @@ import argparse
 from fovjax import cli
 
 
-def _pair(text: str) -> tuple[float, float]:
-    try:
-        fovea, periphery = (float(x) for x in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"a threshold pair is FOVEA,PERIPHERY in degrees, got {text!r}"
-        ) from None
-    return fovea, periphery
+def _two_numbers(what: str):
+    """An argparse type for "A,B" whose error says what the pair is (`what`)."""
+
+    def parse(text: str) -> tuple[float, float]:
+        try:
+            a, b = (float(x) for x in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}, got {text!r}") from None
+        return a, b
+
+    return parse
+
+
+_pair = _two_numbers("a threshold pair is FOVEA,PERIPHERY in degrees")
+_gaze_point = _two_numbers("a gaze point is X,Y in normalised display coordinates (0..1 each)")
 
 
 def _distributed(text: str) -> tuple[str, int, int]:
@@ -51,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=640, help="pixels per eye (the HMD has 1280)")
     p.add_argument("--height", type=int, default=512)
     p.add_argument(
-        "--gazes", type=_pair, nargs="+", default=[(0.5, 0.5), (0.3, 0.4)], help="X,Y per gaze point"
+        "--gazes", type=_gaze_point, nargs="+", default=[(0.5, 0.5), (0.3, 0.4)], help="X,Y per gaze point"
     )
     p.add_argument("--keys", type=int, nargs="+", default=[0])
     p.add_argument("--criterion", default="flip", help="metric that must stay below --threshold")
@@ -119,8 +126,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(default 4; 0: no interval)",
     )
     p.add_argument("-o", "--output", default="out/compare")
+    cli.add_overwrite(p)
+    cli.add_size_check(p)
     cli.add_regions(p)
     p.set_defaults(func=run)
+
+
+# What `fovjax compare` writes into its folder: another run's are refused (--overwrite).
+COMPARE_FILES = (
+    "comparison.csv",
+    "cost_accuracy_*_spp*.png",
+    "bars_spp*.png",
+    "rings.png",
+    "video_comparison.csv",
+    "video_comparison.png",
+)
 
 
 # Metrics a criterion can name, and the range of each one's values.
@@ -194,8 +214,12 @@ def validate(args) -> None:
         raise cli.UsageError(
             f"--methods {' '.join(refusing)}: --shard, --distributed and --fidelity are the thesis's method's"
         )
-    cli.output(args.output, "-o", directory=True)
+    cli.output_folder(args.output, "-o", COMPARE_FILES, overwrite=args.overwrite)
     _validate_video(args)
+    # Every configuration's foveated frame and the full one, at the largest SPP; along a
+    # recording, the full frames at every SPP and one configuration's are kept (and stacked).
+    kept = args.frames * (len(args.spp) + 2) if args.video is not None else 0
+    cli.frame_size(args, args.width, args.height, max(args.spp), kept_images=kept)
     if args.video is not None:
         return
     # Installed extras last: every row of tests/test_bad_inputs.py answers the same without them.
@@ -256,6 +280,8 @@ def run(args) -> int:
     if jax.process_index() != 0:  # every process holds the same results; one writes them
         return 0
     with cli.deferred_interrupt():
+        if args.overwrite:
+            cli.clear_outputs(args.output, COMPARE_FILES)
         paths = result.write(args.output)
         cli.wrote(*paths.values())
     cols = ["config", "rays_per_frame", "new_rays_per_frame", "ms_per_frame", "speedup"]
@@ -301,6 +327,8 @@ def _run_video(args, renderer) -> int:
         perceptual=not args.no_perceptual,
     )
     with cli.deferred_interrupt():
+        if args.overwrite:
+            cli.clear_outputs(args.output, COMPARE_FILES)
         paths = result.write(args.output)
         cli.wrote(*paths.values())
     metric = result.metric

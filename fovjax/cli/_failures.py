@@ -29,6 +29,7 @@ def _common(p: argparse.ArgumentParser, output: str) -> None:
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("-o", "--output", default=output)
     cli.add_regions(p)
+    cli.add_size_check(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "into the output folder; print one finding per case.",
     )
     _common(p, "out/failures")
+    cli.add_overwrite(p)
     p.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     p.add_argument("--small", type=_resolution, default=(128, 96), help="per-eye resolution of high_spp")
     p.add_argument("--spp", type=int, nargs="+", default=[1, 16], help="samples per pixel for high_spp")
@@ -73,6 +75,19 @@ def validate_failures(args) -> None:
     cli.squares(args.spp, "--spp")
     fit = FITTED_MAR if args.acuity_fit is None else args.acuity_fit
     cli.input_file(fit, "--acuity-fit", suffixes=(".json",), text=True)
+    cli.output_folder(args.output, "-o", failure_files(), overwrite=args.overwrite)
+    cli.frame_size(args, args.width, args.height, 1)
+    if "high_spp" in args.cases:
+        width, height = args.small
+        cli.frame_size(args, width, height, max(args.spp), option="--small")
+
+
+def failure_files() -> tuple[str, ...]:
+    """What `fovjax failures` writes into its folder: findings.csv, and NAME.csv and NAME.png
+    per case; another run's are refused (--overwrite)."""
+    from fovjax.eval import FAILURE_CASES
+
+    return ("findings.csv", *(f"{case}.{ext}" for case in FAILURE_CASES for ext in ("csv", "png")))
 
 
 def _setup(args):
@@ -108,6 +123,8 @@ def run_failures(args) -> int:
         progress=not args.no_progress,
     )
     with cli.deferred_interrupt():
+        if args.overwrite:
+            cli.clear_outputs(args.output, failure_files())
         paths = report.write(args.output)
         cli.wrote(*paths.values())
     for case in report.cases.values():

@@ -41,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ring", type=float, default=5.0, help="eccentricity ring width in degrees (default 5)")
     p.add_argument("--spp", type=int, default=1, help="samples per pixel: 1, 4, 9, ... (default 1)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of tables")
+    cli.add_size_check(p)
     p.set_defaults(func=run)
 
 
@@ -54,6 +55,9 @@ def validate(args) -> None:
     cli.number(args.max_depth, "--max-depth", ge=0)
     cli.number(args.ring, "--ring", gt=0)
     cli.squares(args.spp, "--spp")
+    # Full frames at max depth 0..k and per light, kept to be differenced (the lights are
+    # not known before the scene is built: at least the depths' frames).
+    cli.frame_size(args, args.width, args.height, args.spp, kinds=("full",), kept_images=args.max_depth + 2)
 
 
 def run(args) -> int:

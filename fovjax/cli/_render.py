@@ -146,6 +146,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "-o", "--output", default=None, help="output image (.png, .exr, .hdr); default out/SCENE.png"
     )
+    cli.add_size_check(p)
     p.set_defaults(func=run)
 
 
@@ -206,6 +207,12 @@ def validate(args) -> Path:
         except (ValueError, OSError) as err:
             raise cli.UsageError(f"--envmap {args.envmap}: {err}") from None
     suffixes = (".png", *HDR_SUFFIXES)
+    if not args.stereo or args.preview:
+        cli.frame_size(args, args.width, args.height, args.spp, kinds=("full",), eyes=1)
+    else:
+        foveated = not args.full
+        kinds = ("foveated",) * foveated + ("full",) * (not foveated or not args.no_reference)
+        cli.frame_size(args, args.width, args.height, args.spp, kinds=kinds)
     if args.preview:
         out = Path(args.output or f"out/{_scene_name(args)}_preview.png")
         return cli.output(out, "-o", suffixes=(".png",))
@@ -340,8 +347,9 @@ def _run(args, out: Path) -> int:
             f"{out.resolve()}"
         )
         print(
-            f"  primary rays by region (fovea, periphery, outside) {f.primary_by_region}, "
-            f"budget {f.budget:,} (padding {f.padding:,}, dropped {f.dropped})"
+            f"  primary rays by region (fovea, periphery, outside) {f.primary_by_region}; "
+            f"ray budget {f.budget:,} samples, {f.padding:,} of them not needed this frame"
+            + (f", {f.dropped:,} samples dropped (over the budget)" if f.dropped else "")
         )
         if args.show_samples:
             samples = out.with_name(out.stem + "_samples.png")
@@ -356,15 +364,30 @@ def _run(args, out: Path) -> int:
                 cli.wrote(full_out)
             r, s = reference.stats, frame.stats
             print(f"full     {r.summary()} -> {full_out.resolve()}")
-            print(
-                f"foveated / full: rays {s.rays / r.rays:.3f} ({s.rays:,} vs {r.rays:,}), "
-                f"time {s.render_seconds / r.render_seconds:.3f} "
-                f"({s.render_seconds:.2f} s vs {r.render_seconds:.2f} s): "
-                f"{r.render_seconds / s.render_seconds:.1f}x faster"
-            )
+            print(f"foveated / full: {_speed_text(s, r)}")
     else:
         print(f"{scene.name} {frame.stats.summary()} on {platform} -> {out.resolve()}")
     return 0
+
+
+def _speed_text(foveated, full) -> str:
+    """The foveated frame against the full one, saying what is compared: the rays traced and
+    the compiled programs' run time of one frame each (compiling not counted)."""
+    ratio = full.render_seconds / foveated.render_seconds if foveated.render_seconds > 0 else float("inf")
+    if ratio >= 1:
+        verdict = f"the foveated frame {ratio:.1f}x faster"
+    else:
+        verdict = (
+            f"the foveated frame {1 / ratio:.1f}x slower (its passes over the whole screen, selecting "
+            "samples and filling and blurring the gaps, can cost more than the rays it saves, as on "
+            "small frames)"
+        )
+    return (
+        f"rays {foveated.rays / full.rays:.3f} ({foveated.rays:,} vs {full.rays:,}), time of one frame "
+        f"each, compiling not counted, {foveated.render_seconds:.2f} s vs {full.render_seconds:.2f} s: "
+        f"{verdict}; one run of each on this machine (benchmarks/mitsuba_frame.py times a loop of "
+        "frames for the figures in docs/performance.md)"
+    )
 
 
 def _run_preview(args, out: Path) -> int:

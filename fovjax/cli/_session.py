@@ -68,7 +68,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="how long a live device may take to connect before the session fails (default 3)",
     )
     p.add_argument("-o", "--output", required=True, help="output directory")
+    cli.add_overwrite(p)
+    cli.add_size_check(p)
     p.set_defaults(func=run)
+
+
+# What a session writes into its folder (`fovjax.SessionOutput`): another run's are refused.
+SESSION_FILES = ("frame_*.png", "debug_*.png", "session.csv", "session.json", "session.mp4")
 
 
 def validate(args) -> None:
@@ -104,7 +110,8 @@ def validate(args) -> None:
         cli.number(args.wait, "--wait", gt=0)
     if args.video and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise cli.UsageError("--video: needs imageio-ffmpeg (pip install 'fovjax[video]')")
-    cli.output(args.output, "-o", directory=True)
+    cli.output_folder(args.output, "-o", SESSION_FILES, overwrite=args.overwrite)
+    cli.frame_size(args, args.width, args.height, args.spp, kinds=("foveated",))
 
 
 def run(args) -> int:
@@ -151,6 +158,8 @@ def run(args) -> int:
         fresh_key_per_frame=not args.fixed_key,
         wait=DEFAULT_CONNECT_TIMEOUT if args.wait is None else args.wait,
     )
+    if args.overwrite:  # the earlier run's files go just before this one's are written
+        cli.clear_outputs(args.output, SESSION_FILES)
     try:
         result = fovjax.run_session(
             renderer,

@@ -32,6 +32,8 @@ def validate_stability(args) -> None:
     cli.number(args.frames, "--frames", ge=2)
     cli.seed(args.seed)
     cli.number(args.fps, "--fps", gt=0)
+    # The full and the foveated sequence are kept to be compared frame to frame.
+    cli.frame_size(args, args.width, args.height, 1, kept_images=2 * args.frames)
 
 
 def run_stability(args) -> int:

@@ -129,23 +129,49 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="each observer its own trial order (from --seed) instead of the appendix's",
     )
     p.add_argument("-o", "--output", default="out/study")
+    from fovjax import cli
+
+    cli.add_overwrite(p)
+    cli.add_size_check(p)
     _video.add_arguments(p)
-    p.set_defaults(func=run, _parser=p)
+    p.set_defaults(func=run)
 
 
-def _comparison_csv(text: str, parser: argparse.ArgumentParser, option: str = "--comparison") -> Path:
+# What `fovjax study` writes into its folder: another run's are refused (--overwrite).
+STUDY_FILES = (
+    "responses.csv",
+    "observers_responses.csv",
+    "timing.csv",
+    "majority.csv",
+    "*_test.csv",
+    "*_test_observers.csv",
+    "fig6?_*_test.png",
+    "video_study.csv",
+)
+
+
+def _comparison_csv(text: str, option: str = "--comparison") -> Path:
+    """A comparison table `fovjax compare` wrote: comparison.csv, or the folder holding it."""
     from fovjax import cli
 
     path = Path(text)
     if path.is_dir():
         path = path / "comparison.csv"
-    if not path.is_file():
-        parser.error(f"{option} {text}: no such file ({path})")
+        if not path.is_file():
+            raise cli.UsageError(f"{option} {text}: a folder without comparison.csv (`fovjax compare -o`)")
+    elif not path.exists():
+        raise cli.UsageError(f"{option} {text}: no such file or folder")
+    elif path.suffix.lower() != ".csv":
+        raise cli.UsageError(
+            f"{option} {text}: a {path.suffix or 'file without a suffix'!r} file; expected comparison.csv "
+            "as `fovjax compare` writes it (or its folder)"
+        )
     return cli.input_file(path, option, text=True)
 
 
 def validate(args) -> None:
-    """The arguments of `fovjax study` that argparse does not check, before anything is read."""
+    """Every argument of `fovjax study` and the files it names, before anything is read or
+    written."""
     from fovjax import cli
 
     cli.seed(args.seed)
@@ -158,6 +184,10 @@ def validate(args) -> None:
         raise cli.UsageError(
             "--beside: only with --responses (the observers are drawn beside people's answers)"
         )
+    given = [k for k in _COMPARISON_DEFAULTS if getattr(args, k) is not None]
+    if args.responses is not None and given and args.beside is None:
+        names = ", ".join("--" + k.replace("_", "-") for k in given)
+        raise cli.UsageError(f"{names}: only with --comparison (--responses files already hold the answers)")
     _video.validate(args)
     for name in args.responses or ():
         if not Path(name).exists():
@@ -166,7 +196,18 @@ def validate(args) -> None:
             cli.input_file(name, "--responses", suffixes=(".csv", ".jsonl"), text=True)
         elif not response_files(name):
             raise cli.UsageError(f"--responses {name}: a folder without results files (.jsonl/.csv)")
-    cli.output(args.output, "-o", directory=True)
+        else:
+            for path in response_files(name):
+                cli.input_file(path, "--responses", text=True)
+    if args.comparison is not None:
+        _comparison_csv(args.comparison)
+    if args.beside is not None:
+        _comparison_csv(args.beside, "--beside")
+    cli.output_folder(args.output, "-o", STUDY_FILES, overwrite=args.overwrite)
+    if args.video:
+        # Every level's sequence and the reference's are kept for FovVideoVDP.
+        spp = 4 if args.spp is None else args.spp
+        cli.frame_size(args, args.width, args.height, spp, kept_images=args.frames * 6)
 
 
 def response_files(name) -> list[Path]:
@@ -177,7 +218,7 @@ def response_files(name) -> list[Path]:
     return study_files(path) if path.is_dir() else [path]
 
 
-def _observers(args, parser, levels):
+def _observers(args, levels):
     """The automatic observers of `--comparison` (or `--beside`) with the table's summary
     printed; returns them."""
     from fovjax.eval import (
@@ -189,7 +230,7 @@ def _observers(args, parser, levels):
     )
 
     option = "--comparison" if args.comparison is not None else "--beside"
-    csv_path = _comparison_csv(args.comparison or args.beside, parser, option)
+    csv_path = _comparison_csv(args.comparison or args.beside, option)
     table, lines = read_comparison(csv_path)
     metric = args.metric
     if metric is None:
@@ -243,15 +284,14 @@ def _observers(args, parser, levels):
     return observers
 
 
-def _timing(files, out: Path) -> Path | None:
-    """Say which recorded trials were shown off the protocol by more than a frame; write
-    timing.csv (one row per answer with measured timings). None when no file has any."""
-    from fovjax import cli
-    from fovjax.eval import read_timing, write_csv
+def _timing(files) -> list[dict]:
+    """The recorded answers' timings (`fovjax.eval.read_timing`), and say which trials were shown
+    off the protocol by more than a frame; timing.csv is written from them later (`run`)."""
+    from fovjax.eval import read_timing
 
     rows = [row for path in files for row in read_timing(path)]
     if not rows:
-        return None
+        return rows
     flagged = [r for r in rows if r["flagged"]]
     scales = sorted({r["time_scale"] for r in rows if r["time_scale"] is not None})
     print(
@@ -266,10 +306,7 @@ def _timing(files, out: Path) -> Path | None:
         print(
             f"note: time scale(s) {', '.join(f'{x:g}' for x in scales)}: not the thesis's timings (testing)"
         )
-    with cli.deferred_interrupt():
-        path = write_csv(rows, out / "timing.csv")
-        cli.wrote(path)
-    return path
+    return rows
 
 
 def _level_text(fovea: float | None, levels) -> str:
@@ -295,20 +332,18 @@ def run(args) -> int:
 
     validate(args)
     if args.video:
+        if args.overwrite:
+            cli.clear_outputs(args.output, STUDY_FILES)
         return _video.run(args)
-    parser = args._parser
     levels = APPENDIX_LEVELS
     out = Path(args.output)
-    given = [k for k in _COMPARISON_DEFAULTS if getattr(args, k) is not None]
     for k, default in _COMPARISON_DEFAULTS.items():
         if getattr(args, k) is None:
             setattr(args, k, default)
-    paths = {}
+    # Everything is read and checked first; nothing is written until all of it is.
+    timing: list[dict] = []
     observers_beside = None
     if args.responses is not None:
-        if given and args.beside is None:
-            names = ", ".join("--" + k.replace("_", "-") for k in given)
-            parser.error(f"{names}: only with --comparison (--responses files already hold the answers)")
         files = [f for name in args.responses for f in response_files(name)]
         responses = []
         for path in files:
@@ -317,25 +352,29 @@ def run(args) -> int:
             raise cli.UsageError(f"--responses {' '.join(args.responses)}: no answers in the file(s)")
         participants = len({r.participant for r in responses})
         print(f"read {len(responses)} answers from {participants} participant(s) in {len(files)} file(s)")
-        timing = _timing(files, out)
-        if timing is not None:
-            paths["timing"] = timing
+        timing = _timing(files)
         if args.beside is not None:
-            observers = _observers(args, parser, levels)
+            observers = _observers(args, levels)
             observers_beside = run_study(observers, levels, seed=args.seed if args.shuffle else None)
-            with cli.deferred_interrupt():
-                paths["observers"] = write_responses(observers_beside, out / "observers_responses.csv")
-                cli.wrote(paths["observers"])
     else:
-        observers = _observers(args, parser, levels)
+        observers = _observers(args, levels)
         responses = run_study(observers, levels, seed=args.seed if args.shuffle else None)
-        with cli.deferred_interrupt():
-            paths["responses"] = write_responses(responses, out / "responses.csv")
-            cli.wrote(paths["responses"])
 
     majorities = study_majorities(responses, levels)
     beside_majorities = None if observers_beside is None else study_majorities(observers_beside, levels)
+    paths = {}
     with cli.deferred_interrupt():
+        if args.overwrite:
+            cli.clear_outputs(out, STUDY_FILES)
+        if timing:
+            paths["timing"] = write_csv(timing, out / "timing.csv")
+            cli.wrote(paths["timing"])
+        if observers_beside is not None:
+            paths["observers"] = write_responses(observers_beside, out / "observers_responses.csv")
+            cli.wrote(paths["observers"])
+        if args.responses is None:
+            paths["responses"] = write_responses(responses, out / "responses.csv")
+            cli.wrote(paths["responses"])
         written = report(responses, out, levels=levels, beside=observers_beside)
         paths.update(written)
         cli.wrote(*written.values())

@@ -19,6 +19,9 @@ from fovjax import cli
 from . import _view_study
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
+# The viewer's own limit per eye (a live frame, drawn on one canvas twice as wide); larger
+# frames are `fovjax render`'s. Below it the frame's memory is checked against the machine's, as
+# every command's is (`cli.frame_size`).
 MAX_EYE_PIXELS = 8192
 
 
@@ -63,6 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--open", action="store_true", help="open the page in a browser")
     p.add_argument("--verbose", action="store_true", help="log every client and ignored message")
     _view_study.add_arguments(p)
+    cli.add_size_check(p)
     p.set_defaults(func=run)
 
 
@@ -105,6 +109,10 @@ def validate(args) -> None:
     cli.number(args.port, "--port", ge=0, le=65535, integer=True)
     _check_listen(args.host, args.port)
     cli.backend(args.backend)
+    # The page's full/foveated toggle renders both; a study's clips (the reference and five
+    # levels) are kept whole until they are encoded.
+    kept = 6 * args.frames if args.study is not None and args.clips is None else 0
+    cli.frame_size(args, args.width, args.height, args.spp, kept_images=kept)
     if importlib.util.find_spec("aiohttp") is None:
         raise ImportError("fovjax view needs aiohttp: pip install 'fovjax[view]'")
 
@@ -200,19 +208,16 @@ async def _serve(viewer, open_browser: bool, interrupted: threading.Event) -> No
 
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
-    previous = None
 
     def on_ctrl_c(signum, frame):
-        # The first Ctrl-C stops serving cleanly (clients told, sources closed, a save in
-        # progress finished); the handler before (`fovjax.cli`'s: leave at once) takes the next.
+        # The first Ctrl-C (or SIGTERM) stops serving cleanly (clients told, sources closed, a
+        # save in progress finished); the handlers before (`fovjax.cli`'s: leave at once) take
+        # the next.
         interrupted.set()
-        signal.signal(signal.SIGINT, previous)
+        restore()
         loop.call_soon_threadsafe(stop.set)
 
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.getsignal(signal.SIGINT)
-        if previous is not signal.SIG_IGN:
-            signal.signal(signal.SIGINT, on_ctrl_c)
+    restore = _first_interrupt(on_ctrl_c)
     try:
         try:
             url = await viewer.start()
@@ -249,5 +254,24 @@ async def _serve(viewer, open_browser: bool, interrupted: threading.Event) -> No
         finally:
             await viewer.stop()
     finally:
-        if previous is not None and signal.getsignal(signal.SIGINT) is on_ctrl_c:
-            signal.signal(signal.SIGINT, previous)
+        restore()
+
+
+def _first_interrupt(handler):
+    """`handler` for the next Ctrl-C or SIGTERM (`cli.INTERRUPT_SIGNALS`, those not ignored; in
+    the main thread only); returns a function that puts the handlers before back (where
+    `handler` is still in place)."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in cli.INTERRUPT_SIGNALS:
+            before = signal.getsignal(signum)
+            if before is not signal.SIG_IGN:
+                previous[signum] = before
+                signal.signal(signum, handler)
+
+    def restore():
+        for signum, before in previous.items():
+            if signal.getsignal(signum) is handler:
+                signal.signal(signum, before)
+
+    return restore

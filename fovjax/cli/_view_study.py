@@ -22,7 +22,6 @@ import asyncio
 import hashlib
 import json
 import math
-import signal
 import threading
 import time
 from pathlib import Path
@@ -240,10 +239,16 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
         gaze="fixed",
         regions=args.regions,
     )
+    print(
+        "fovjax view: building the scene and compiling the frame programs (the first frame takes a "
+        "while); the page's address follows once the clips are ready",
+        flush=True,
+    )
     sequence = study_sequence(
         load_scene(args),
         animation,
         config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
+        progress=_clip_progress(args.frames),
     )
     wall = time.perf_counter() - t0
     images = [sequence.reference, *(sequence.foveated[level] for level in sequence.levels)]
@@ -253,18 +258,20 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
     ]
     rendered = sequence.frames * len(clips)
     live_fps = rendered / sequence.render_seconds if sequence.render_seconds > 0 else None
-    write_clips(
-        folder,
-        settings,
-        clips,
-        render_seconds=sequence.render_seconds,
-        compile_seconds=sequence.compile_seconds,
-        live_fps=live_fps,
-        primary_rays={
-            ("reference" if k is None else f"{k[0]:g}/{k[1]:g}"): v for k, v in sequence.primary_rays.items()
-        },
-    )
-    cli.wrote(folder)
+    with cli.deferred_interrupt():  # the clip folder whole (its manifest last), or not at all
+        write_clips(
+            folder,
+            settings,
+            clips,
+            render_seconds=sequence.render_seconds,
+            compile_seconds=sequence.compile_seconds,
+            live_fps=live_fps,
+            primary_rays={
+                ("reference" if k is None else f"{k[0]:g}/{k[1]:g}"): v
+                for k, v in sequence.primary_rays.items()
+            },
+        )
+        cli.wrote(folder)
     rate = "" if live_fps is None else f"{live_fps:.1f} frames/s rendering, against "
     print(
         f"fovjax view: rendered {rendered} frames in {wall:.1f} s "
@@ -273,6 +280,32 @@ def clips_for(args, load_scene) -> tuple[list, dict]:
         flush=True,
     )
     return read_clips(folder, "-o")
+
+
+def _clip_progress(frames: int):
+    """`study_sequence`'s progress: where the rendering is and about how long is left (from the
+    frames after the first, which compiles), on one line rewritten in place on a terminal, else
+    every tenth of the way."""
+    import sys
+
+    started = time.perf_counter()
+    times: list[float] = []  # when each frame was done
+    every = max(1, frames // 10)
+    live = sys.stderr.isatty()
+
+    def tick(text: str) -> None:
+        now = time.perf_counter()
+        times.append(now)
+        done = len(times)
+        left = "" if done < 2 else f", about {(now - times[0]) / (done - 1) * (frames - done):.0f} s left"
+        line = f"fovjax view: rendering the clips: {text} ({now - started:.0f} s{left})"
+        if live:
+            end = "\n" if done == frames else ""
+            print(f"\r{line}\033[K", end=end, file=sys.stderr, flush=True)
+        elif done == 1 or done % every == 0 or done == frames:
+            print(line, file=sys.stderr, flush=True)
+
+    return tick
 
 
 # ---- the study between the page and the record ------------------------------------------------
@@ -351,7 +384,9 @@ class StudyHost:
         return payload
 
     def save_form(self, form: dict) -> dict:
-        return self.log.save_form(form)
+        stored = self.log.save_form(form)
+        cli.wrote(self.log.form_path)
+        return stored
 
     def record(self, payload: dict) -> dict:
         if self.log.form is None:
@@ -366,6 +401,7 @@ class StudyHost:
         if answer not in self.log.trials[index].choices:
             raise ValueError(f"answer {answer!r} is not one of {self.log.trials[index].choices}")
         row = self.log.record(index, answer, payload.get("measured") or {}, resumed=self._resumed(index))
+        cli.wrote(self.log.path)
         timing = "within a frame" if row["timing_ok"] else f"OFF by up to {row['timing_worst_ms']:.1f} ms"
         print(
             f"fovjax view: {self.log.participant} {self.log.test} trial {index + 1}/{len(self.log.trials)} "
@@ -398,7 +434,9 @@ def run(args, load_scene) -> int:
         print(f"fovjax view: {args.participant} has answered every {args.study} trial already ({log.path})")
         return 0
     clips, manifest = clips_for(args, load_scene)
-    cli.wrote(log.path)
+    with cli.deferred_interrupt():  # the session file whole, and only now the clips are ready
+        log.begin()
+        cli.wrote(log.settings_path)
     host = StudyHost(log, [name for name, _ in clips], args.time_scale)
     clip_fps = float(manifest["settings"]["fps"])
     server = StudyServer(host, clips, clip_fps=clip_fps, host=args.host, port=args.port)
@@ -411,19 +449,17 @@ def run(args, load_scene) -> int:
 
 
 async def _serve(server, args, log, interrupted: threading.Event) -> None:
+    from ._view import _first_interrupt
+
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
-    previous = None
 
     def on_ctrl_c(signum, frame):
         interrupted.set()
-        signal.signal(signal.SIGINT, previous)
+        restore()
         loop.call_soon_threadsafe(stop.set)
 
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.getsignal(signal.SIGINT)
-        if previous is not signal.SIG_IGN:
-            signal.signal(signal.SIGINT, on_ctrl_c)
+    restore = _first_interrupt(on_ctrl_c)
     try:
         try:
             url = await server.start()
@@ -453,5 +489,4 @@ async def _serve(server, args, log, interrupted: threading.Event) -> None:
         finally:
             await server.stop()
     finally:
-        if previous is not None and signal.getsignal(signal.SIGINT) is on_ctrl_c:
-            signal.signal(signal.SIGINT, previous)
+        restore()

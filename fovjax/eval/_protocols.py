@@ -41,6 +41,7 @@ import csv
 import dataclasses
 import json
 import math
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -384,28 +385,54 @@ def _parse_row(row: dict, where: str, levels) -> Response:
         raise ResultsFileError(f"{where}: {err}") from None
 
 
+def jsonl_rows(path) -> list[tuple[int, dict]]:
+    """(line number, object) per line of a JSON-lines results file, blank lines skipped. A last
+    line that is cut off (no newline at its end, not JSON: the writer stopped inside it, as a
+    crash mid-answer leaves it) is dropped with a warning naming it, as `fovjax view --study`
+    does when it resumes; any other line that is not a JSON object is a ResultsFileError."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    lines = text.split("\n")
+    rows = []
+    for line_no, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError as err:
+            if line_no == len(lines) and not text.endswith("\n"):
+                warnings.warn(
+                    f"{path}:{line_no}: the last line is cut off (the writer stopped inside it); left out",
+                    stacklevel=2,
+                )
+                break
+            raise ResultsFileError(f"{path}:{line_no}: not JSON ({err})") from None
+        if not isinstance(row, dict):
+            raise ResultsFileError(f"{path}:{line_no}: expected a JSON object per line")
+        rows.append((line_no, row))
+    return rows
+
+
 def read_responses(path, *, levels=APPENDIX_LEVELS) -> list[Response]:
     """Read a results file written by `write_responses` (or by hand, or by a study UI), checking
-    every row. `levels` gives the slider's range (its answers must be one of these foveas)."""
+    every row (a cut-off last line of a .jsonl is left out with a warning, `jsonl_rows`).
+    `levels` gives the slider's range (its answers must be one of these foveas)."""
     path = Path(path)
     levels = _check_levels(levels, "read_responses")
     out = []
     if path.suffix == ".jsonl":
-        with path.open() as fh:
-            for line_no, line in enumerate(fh, 1):
-                if not line.strip():
-                    continue
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError as err:
-                    raise ResultsFileError(f"{path}:{line_no}: not JSON ({err})") from None
-                if not isinstance(row, dict):
-                    raise ResultsFileError(f"{path}:{line_no}: expected a JSON object per line")
-                row = {k: ("" if v is None else v) for k, v in row.items()}
-                out.append(_parse_row(row, f"{path}:{line_no}", levels))
+        for line_no, row in jsonl_rows(path):
+            row = {k: ("" if v is None else v) for k, v in row.items()}
+            out.append(_parse_row(row, f"{path}:{line_no}", levels))
     elif path.suffix == ".csv":
         with path.open(newline="") as fh:
             reader = csv.DictReader(fh)
+            missing = [k for k in RESULT_FIELDS if k not in (reader.fieldnames or ())]
+            if missing:  # the header's fault, said at the header
+                raise ResultsFileError(
+                    f"{path}:1: missing columns {missing}; expected a results file with the columns "
+                    f"{', '.join(RESULT_FIELDS)}"
+                )
             for line_no, row in enumerate(reader, 2):
                 out.append(_parse_row(row, f"{path}:{line_no}", levels))
     else:

@@ -225,6 +225,13 @@ def _cell_number(text: str, where: str, column: str, expected: str, *, whole: bo
     return value
 
 
+def _shown(header, most: int = 8) -> str:
+    """A header's first columns, for a message (a file that is not a table has any number)."""
+    names = [repr(c if len(c) <= 30 else c[:27] + "...") for c in header[:most]]
+    more = f", ... {len(header) - most} more" if len(header) > most else ""
+    return f"[{', '.join(names)}{more}]"
+
+
 def read_comparison(path) -> tuple[list[dict], list[int]]:
     """Read a `fovjax compare` table (comparison.csv) for the study, checking every cell the
     study reads before any is used: the columns `COMPARISON_COLUMNS` and a metric column ("jod"
@@ -239,14 +246,18 @@ def read_comparison(path) -> tuple[list[dict], list[int]]:
         header = reader.fieldnames
         if not header:
             raise ValueError(f"{path}:1: empty file; expected a comparison table (`fovjax compare`)")
+        if header[0].lstrip().startswith(("{", "[")):
+            raise ValueError(
+                f"{path}:1: JSON, not a comparison table (the CSV `fovjax compare` writes, comparison.csv)"
+            )
         missing = [c for c in COMPARISON_COLUMNS if c not in header]
         if missing:
             raise ValueError(
-                f"{path}:1: no column {', '.join(map(repr, missing))} (columns: {list(header)}); "
+                f"{path}:1: no column {', '.join(map(repr, missing))} (columns: {_shown(header)}); "
                 "expected a comparison table written by `fovjax compare`"
             )
         if not any(m in header for m in METRIC_SCALES):
-            raise ValueError(f"{path}:1: neither a 'jod' nor a 'flip' column (columns: {list(header)})")
+            raise ValueError(f"{path}:1: neither a 'jod' nor a 'flip' column (columns: {_shown(header)})")
         records, lines = [], []
         for row in reader:
             line = reader.line_num  # where the row ends: its line, for a row without quoted newlines

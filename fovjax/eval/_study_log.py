@@ -28,6 +28,7 @@ import json
 import math
 import os
 import re
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -38,6 +39,7 @@ from ._protocols import (
     ResultsFileError,
     Trial,
     _check_levels,
+    jsonl_rows,
     pair_trials,
     presentation,
     ramp_trials,
@@ -137,10 +139,18 @@ def check_form(form) -> dict:
     unknown = sorted(set(form) - set(PARTICIPANT_FORM))
     if unknown:
         raise StudyLogError(f"participant form: unknown fields {unknown} (no name or free text is stored)")
+    unanswered = [name for name in PARTICIPANT_FORM if name != "consent" and form.get(name) in (None, "")]
+    if unanswered:
+        fields = ", ".join(name.replace("_", " ") for name in unanswered)
+        raise StudyLogError(
+            f"Please choose an answer for: {fields} (“prefer not to say” is one of the choices)."
+        )
     for name, choices in PARTICIPANT_FORM.items():
         value = form.get(name)
         if name == "consent" and value != "yes":
-            raise StudyLogError("participant form: consent is required to take part")
+            raise StudyLogError(
+                "Please tick the box to say you agree to take part (the study cannot start without it)."
+            )
         if value not in choices:
             raise StudyLogError(f"participant form: {name} {value!r} is not one of {list(choices)}")
     return {name: form[name] for name in PARTICIPANT_FORM}
@@ -234,8 +244,9 @@ def worst_timing_ms(presented: Sequence[dict]) -> float | None:
 @dataclasses.dataclass
 class StudyLog:
     """One participant's session of one test, in `directory` (see the module docstring).
-    `open` it (making the folder, checking a resumed session's settings, reading the answers
-    so far), then `record` each answer as it is given."""
+    `open` it (checking a resumed session's settings, reading the answers so far; nothing is
+    written yet), `begin` it (the folder, the session file, a cut-off last answer dropped: done
+    by the first `save_form` or `record` too), then `record` each answer as it is given."""
 
     directory: Path
     participant: str
@@ -245,6 +256,8 @@ class StudyLog:
     answered: list[Response]
     session: str
     dropped_tail: bool = False  # a line cut off by a crash was dropped on opening
+    _kept_bytes: int | None = None  # where the file is cut back to by `begin` (a dropped tail)
+    _begun: bool = False
 
     @property
     def path(self) -> Path:
@@ -272,14 +285,14 @@ class StudyLog:
     ) -> StudyLog:
         """Open (or resume) `participant`'s session of `test` in `directory`. `stimulus`
         describes the clips (scene, size, spp, ...): a resumed session must show the same ones,
-        with the same `seed` and `time_scale`, or it is a StudyLogError naming the difference."""
+        with the same `seed` and `time_scale`, or it is a StudyLogError naming the difference.
+        Nothing is written until `begin` (an interrupted start leaves the folder as it was)."""
         check_participant(participant)
         levels = _check_levels(levels, "StudyLog")
         if not (isinstance(time_scale, int | float) and math.isfinite(time_scale) and time_scale > 0):
             raise StudyLogError(f"time_scale must be a number > 0, got {time_scale!r}")
         trials = study_sequence_of(test, seed=seed, levels=levels)
         directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
         settings = {
             "participant": participant,
             "test": test,
@@ -304,21 +317,20 @@ class StudyLog:
                     f"{before.get(k)!r}, not {settings[k]!r}; resume with the same settings or use "
                     "another folder"
                 )
-        else:
-            _write_json(log.settings_path, settings)
         if log.path.exists():
             raw = log.path.read_bytes()
+            complete = None
             if raw and not raw.endswith(b"\n"):
                 # The process died inside the write of the last answer: that line is incomplete
-                # and its trial is asked again.
+                # and its trial is asked again (`begin` cuts the file back to the lines before).
                 keep = raw[: raw.rfind(b"\n") + 1]
-                with log.path.open("r+b") as fh:
-                    fh.truncate(len(keep))
-                    fh.flush()
-                    os.fsync(fh.fileno())
+                log._kept_bytes = len(keep)
                 log.dropped_tail = True
+                complete = sum(1 for line in keep.split(b"\n") if line.strip())
             try:
-                log.answered = read_responses(log.path, levels=levels)
+                with warnings.catch_warnings():  # the cut line: `dropped_tail` says so
+                    warnings.simplefilter("ignore")
+                    log.answered = read_responses(log.path, levels=levels)[:complete]
             except ResultsFileError as err:
                 raise StudyLogError(str(err)) from None
             for line, (response, trial) in enumerate(zip(log.answered, trials, strict=False), 1):
@@ -331,6 +343,22 @@ class StudyLog:
             if len(log.answered) > len(trials):
                 raise StudyLogError(f"{log.path}: {len(log.answered)} answers for {len(trials)} trials")
         return log
+
+    def begin(self) -> None:
+        """Start writing (once; `save_form` and `record` call it): the folder, the session file
+        of a new session, and a cut-off last answer cut away."""
+        if self._begun:
+            return
+        self.directory.mkdir(parents=True, exist_ok=True)
+        if not self.settings_path.exists():
+            _write_json(self.settings_path, self.settings)
+        if self._kept_bytes is not None:
+            with self.path.open("r+b") as fh:
+                fh.truncate(self._kept_bytes)
+                fh.flush()
+                os.fsync(fh.fileno())
+            self._kept_bytes = None
+        self._begun = True
 
     @property
     def next_index(self) -> int | None:
@@ -350,6 +378,7 @@ class StudyLog:
     def save_form(self, form) -> dict:
         """Check and store the participant form (`check_form`); returns what was stored."""
         answers = check_form(form)
+        self.begin()
         _write_json(self.form_path, {"participant": self.participant, **answers})
         return answers
 
@@ -428,6 +457,7 @@ class StudyLog:
             "slider_actions": actions,
             "clips": self.settings["stimulus"],
         }
+        self.begin()
         _fsync_write(self.path, json.dumps(row, allow_nan=False) + "\n", "a")
         self.answered.append(response)
         return row
@@ -451,41 +481,37 @@ def read_timing(path) -> list[dict]:
     if path.suffix != ".jsonl":
         return []
     out = []
-    with path.open(encoding="utf-8") as fh:
-        for line_no, line in enumerate(fh, 1):
-            if not line.strip():
-                continue
-            where = f"{path}:{line_no}"
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError as err:
-                raise ResultsFileError(f"{where}: not JSON ({err})") from None
-            if not isinstance(row, dict) or "presented" not in row:
-                continue
-            try:
-                presented = row["presented"]
-                if not isinstance(presented, list) or not all(isinstance(s, dict) for s in presented):
-                    raise ValueError("presented must be a list of segments")
-                frame_ms = _number(row.get("frame_interval_ms"), "frame_interval_ms", where)
-                problems = timing_problems(presented, frame_ms)
-                worst = worst_timing_ms(presented)
-            except (KeyError, TypeError, ValueError) as err:
-                raise ResultsFileError(f"{where}: bad timing fields ({err})") from None
-            out.append(
-                {
-                    "file": str(path),
-                    "line": line_no,
-                    "participant": row.get("participant"),
-                    "test": row.get("test"),
-                    "trial": row.get("trial"),
-                    "condition": row.get("condition"),
-                    "time_scale": row.get("time_scale"),
-                    "frame_interval_ms": frame_ms,
-                    "worst_ms": worst,
-                    "flagged": bool(problems),
-                    "problems": "; ".join(
-                        f"segment {p['segment']} ({p['kind']}) off by {p['off_ms']:+.1f} ms" for p in problems
-                    ),
-                }
-            )
+    with warnings.catch_warnings():  # a cut-off last line: `read_responses` says so once
+        warnings.simplefilter("ignore")
+        rows = jsonl_rows(path)
+    for line_no, row in rows:
+        where = f"{path}:{line_no}"
+        if "presented" not in row:
+            continue
+        try:
+            presented = row["presented"]
+            if not isinstance(presented, list) or not all(isinstance(s, dict) for s in presented):
+                raise ValueError("presented must be a list of segments")
+            frame_ms = _number(row.get("frame_interval_ms"), "frame_interval_ms", where)
+            problems = timing_problems(presented, frame_ms)
+            worst = worst_timing_ms(presented)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ResultsFileError(f"{where}: bad timing fields ({err})") from None
+        out.append(
+            {
+                "file": str(path),
+                "line": line_no,
+                "participant": row.get("participant"),
+                "test": row.get("test"),
+                "trial": row.get("trial"),
+                "condition": row.get("condition"),
+                "time_scale": row.get("time_scale"),
+                "frame_interval_ms": frame_ms,
+                "worst_ms": worst,
+                "flagged": bool(problems),
+                "problems": "; ".join(
+                    f"segment {p['segment']} ({p['kind']}) off by {p['off_ms']:+.1f} ms" for p in problems
+                ),
+            }
+        )
     return out

@@ -4,12 +4,14 @@
   (linear) by suffix (`HDR_SUFFIXES`); `tonemap`, `linear_to_srgb`, `srgb_to_linear`.
 - `atomic_path(path)`: a context manager that yields a temporary path beside `path` and renames
   it into place only when the block succeeds.
-- `deferred_interrupt()`, `interrupt_flag()`: Ctrl-C held back (or only recorded) while a file
-  is being written, so an interrupted program never leaves a torn output.
+- `deferred_interrupt()`, `interrupt_flag()`: Ctrl-C (and SIGTERM, `INTERRUPT_SIGNALS`) held
+  back (or only recorded) while a file is being written, so an interrupted program never leaves
+  a torn output.
 
 This package imports nothing else from fovjax.
 """
 
+from ._atomic import INTERRUPT_SIGNALS as INTERRUPT_SIGNALS
 from ._atomic import atomic_path as atomic_path
 from ._atomic import deferred_interrupt as deferred_interrupt
 from ._atomic import interrupt_flag as interrupt_flag
@@ -22,6 +24,7 @@ from ._image import srgb_to_linear as srgb_to_linear
 from ._image import tonemap as tonemap
 
 __all__ = [
+    "INTERRUPT_SIGNALS",
     "atomic_path",
     "deferred_interrupt",
     "interrupt_flag",

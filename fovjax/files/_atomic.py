@@ -7,7 +7,8 @@ user looking at the folder after an interrupt or a crash, never sees a half-writ
 
 `deferred_interrupt()` holds a Ctrl-C (SIGINT) that arrives inside the block until the block
 ends, then raises KeyboardInterrupt; outside the main thread it does nothing (Python delivers
-signals to the main thread only).
+signals to the main thread only). SIGTERM (`kill`'s default signal) is taken as a Ctrl-C by
+both (`INTERRUPT_SIGNALS`), so a process asked to stop still finishes its files.
 
 `interrupt_flag()` is for loops that stop cleanly on Ctrl-C: it yields a `threading.Event` that
 a Ctrl-C sets (as well as raising KeyboardInterrupt as usual). A KeyboardInterrupt can be lost
@@ -37,50 +38,55 @@ def atomic_path(path):
             tmp.unlink()
 
 
+# The signals taken as a Ctrl-C: SIGINT itself, and SIGTERM (what `kill` and service managers
+# send to ask a process to stop).
+INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def _handling(handler):
+    """`handler` for each of `INTERRUPT_SIGNALS` not ignored, while the block runs (nothing
+    outside the main interpreter's main thread); the previous handlers restored after."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in INTERRUPT_SIGNALS:
+            if signal.getsignal(signum) is signal.SIG_IGN:  # a background job: left alone
+                continue
+            try:
+                previous[signum] = signal.signal(signum, handler)
+            except ValueError:  # not the main interpreter's main thread
+                break
+    try:
+        yield
+    finally:
+        for signum, before in previous.items():
+            signal.signal(signum, before)
+
+
 @contextlib.contextmanager
 def interrupt_flag():
-    """Yield an Event that Ctrl-C sets while the block runs (and KeyboardInterrupt raised)."""
+    """Yield an Event that Ctrl-C (or SIGTERM) sets while the block runs (and KeyboardInterrupt
+    raised)."""
     flag = threading.Event()
-    if (
-        threading.current_thread() is not threading.main_thread()
-        or signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-    ):
-        yield flag
-        return
 
-    def on_sigint(signum, frame):
+    def on_interrupt(signum, frame):
         flag.set()
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGINT, on_sigint)
-    try:
+    with _handling(on_interrupt):
         yield flag
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 @contextlib.contextmanager
 def deferred_interrupt():
-    """Run the block to its end even when Ctrl-C arrives; raise KeyboardInterrupt after it."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    """Run the block to its end even when Ctrl-C (or SIGTERM) arrives; raise KeyboardInterrupt
+    after it."""
     pending = []
 
     def hold(signum, frame):
         pending.append(signum)
 
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # Ctrl-C is ignored anyway
+    with _handling(hold):
         yield
-        return
-    try:
-        previous = signal.signal(signal.SIGINT, hold)
-    except ValueError:  # not the main interpreter's main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
     if pending:
         raise KeyboardInterrupt

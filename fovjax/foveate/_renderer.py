@@ -242,7 +242,8 @@ class FoveatedRenderer:
         TypeError: `foveation` is not a `Foveation`, `config` not a `RenderConfig`, `rig` not a
             `StereoRig`.
         ValueError: a bad level of detail, per-region fidelity or diagnostics name (before any
-            compile).
+            compile); `fovjax.render.FrameTooLargeError`, a frame larger than the machine's
+            free memory (`fovjax.render.frame_memory`; `FOVJAX_SIZE_CHECK=0` skips the check).
 
     Example:
         ```python
@@ -283,6 +284,16 @@ class FoveatedRenderer:
             rig = StereoRig.from_pose(default_camera(scene))
         elif not isinstance(rig, StereoRig):
             raise TypeError(f"FoveatedRenderer: rig must be a StereoRig, got {type(rig).__name__}")
+        from ..render import check_frame_memory
+
+        check_frame_memory(
+            rig.eye_width,
+            rig.eye_height,
+            max_region_spp(foveation),
+            foveated=True,
+            config=config,
+            where="FoveatedRenderer",
+        )
         self.scene = scene
         # The full render's inputs (the scene without mips or merged levels, on the device once).
         self.bvh = bvh_for(scene, bvh)

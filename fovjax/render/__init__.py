@@ -85,6 +85,11 @@ from ._integrator import Radiance as Radiance
 from ._integrator import RayCounts as RayCounts
 from ._integrator import describe_integrator as describe_integrator
 from ._integrator import radiance as radiance
+from ._memory import SIZE_CHECK_VARIABLE as SIZE_CHECK_VARIABLE
+from ._memory import FrameTooLargeError as FrameTooLargeError
+from ._memory import check_frame_memory as check_frame_memory
+from ._memory import frame_memory as frame_memory
+from ._memory import memory_limit as memory_limit
 from ._stereo import HeadPoseLike as HeadPoseLike
 from ._stereo import SampleRays as SampleRays
 from ._stereo import StereoRig as StereoRig
@@ -156,6 +161,11 @@ __all__ = [
     "RayCounts",
     "radiance",
     "describe_integrator",
+    "SIZE_CHECK_VARIABLE",
+    "FrameTooLargeError",
+    "check_frame_memory",
+    "frame_memory",
+    "memory_limit",
     "HeadPoseLike",
     "SampleRays",
     "StereoRig",

@@ -30,6 +30,7 @@ from ._arrays import SceneArrays, scene_arrays
 from ._config import DEFAULT_CONFIG, RenderConfig
 from ._envmap import ColorLike, EnvmapLike
 from ._integrator import radiance
+from ._memory import check_frame_memory
 from ._stereo import HeadPoseLike, StereoRig, head_pose_angles, stereo_sample_rays
 
 
@@ -313,6 +314,11 @@ _BVH_MEMO: collections.OrderedDict = collections.OrderedDict()
 
 def bvh_for(scene: Scene | SceneArrays, bvh: BVH | None) -> BVH:
     """`bvh` checked against the scene, or the scene's BVH (built once, memoised by content)."""
+    if not isinstance(scene, Scene | SceneArrays):
+        raise TypeError(
+            f"render: scene {scene!r} is not a fovjax.Scene (nor its SceneArrays); make one first, "
+            "e.g. fovjax.scenes.cornell_box() or fovjax.load_scene(path)"
+        )
     if bvh is None:
         if not isinstance(scene, Scene) or not scene.content_hash:
             raise ValueError("render: pass bvh= when the scene is not a fovjax.Scene with a content hash")
@@ -392,6 +398,7 @@ def render(
     lat-long image path or array seen by missing rays (else `config.background`). `bvh`:
     reused if given, else built (and cached) from the scene.
     """
+    check_frame_memory(camera.width, camera.height, int(spp), eyes=1, config=config, where="render")
     bvh = bvh_for(scene, bvh)
     arrays = (
         scene
@@ -427,6 +434,7 @@ def render_stereo(
         if not isinstance(scene, Scene):
             raise ValueError("render_stereo: pass a rig when the scene is not a fovjax.Scene")
         rig = StereoRig.from_pose(default_camera(scene))
+    check_frame_memory(rig.eye_width, rig.eye_height, int(spp), config=config, where="render_stereo")
     bvh = bvh_for(scene, bvh)
     arrays = (
         scene

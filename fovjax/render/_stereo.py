@@ -138,6 +138,13 @@ class StereoRig(eqx.Module):
     eye_height: int = eqx.field(static=True, default=EYE_HEIGHT)
     fov_axis: str = eqx.field(static=True, default="horizontal")
 
+    def __check_init__(self):
+        # The smallest frame this rig makes (full, SPP 1, the leaner integrator) must fit the
+        # machine's memory: a rig that cannot render is refused where it is made.
+        from ._memory import check_frame_memory
+
+        check_frame_memory(self.eye_width, self.eye_height, 1, integrator="native", where="StereoRig")
+
     @classmethod
     def look_at(
         cls,

@@ -40,6 +40,9 @@ _MTL_MAP_OPTIONS = {
 _RE_USEMTL = re.compile(r"\nusemtl[ \t]+([^\n]*)")
 _RE_MTLLIB = re.compile(r"\nmtllib[ \t]+([^\n]*)")
 _RE_NEEDS_CLEANUP = re.compile(r"\n[ \t]+(?:v|vt|vn|f|usemtl|mtllib)\s|\n(?:v|vt|vn|f|usemtl|mtllib)\t")
+# A `v` or `vn` line with fewer than 3 numbers, or a `vt` line with none (trimesh would shape
+# the whole array by them, or shift every later vertex, without a word).
+_RE_SHORT_VERTEX = re.compile(r"\n(?:(?:v|vn) +[^ \n#]+(?: +[^ \n#]+)?|vt) *(?:#[^\n]*)?(?=\n|$)")
 _SYNTHETIC_MTL = "__fovjax_materials__.mtl"
 _WIDTH = {"v": 3, "vt": 1, "vn": 3}
 
@@ -53,6 +56,8 @@ def _load_obj(path: Path, data: bytes, textures: _TextureTable):
         # trimesh expects keywords at the start of a line followed by one space
         text = re.sub(r"^[ \t]*(v|vt|vn|f|usemtl|mtllib)[ \t]+", r"\1 ", text, flags=re.M)
     text, _ = _prescan_obj(text, path)
+    if _RE_SHORT_VERTEX.search(text):
+        _walk_lines(text, path)  # raises, naming the first short line
 
     material_names = []
     for raw in _RE_USEMTL.findall(text):
@@ -60,14 +65,12 @@ def _load_obj(path: Path, data: bytes, textures: _TextureTable):
         if material_name and material_name not in material_names:
             material_names.append(material_name)
     mtl_specs = {}
-    for raw in _RE_MTLLIB.findall(text):
-        for mtl_path in _mtllib_paths(path.parent, raw.split("#", 1)[0].strip()):
+    not_found = []  # (line of the mtllib, the library's path)
+    for match in _RE_MTLLIB.finditer(text):
+        line = text.count("\n", 0, match.start() + 1)  # the text starts with a newline we added
+        for mtl_path in _mtllib_paths(path.parent, match.group(1).split("#", 1)[0].strip()):
             if not mtl_path.is_file():
-                warnings.warn(
-                    f"{path}: material library {mtl_path.name!r} not found (looked for {mtl_path}); "
-                    "its materials get the default grey",
-                    stacklevel=3,
-                )
+                not_found.append((line, mtl_path))
                 continue
             for material_name, spec in _parse_mtl(mtl_path, textures).items():
                 mtl_specs.setdefault(material_name, spec)
@@ -127,7 +130,13 @@ def _load_obj(path: Path, data: bytes, textures: _TextureTable):
             )
         )
     parts.sort(key=lambda p: p.material)
-    if missing:
+    for line, mtl_path in not_found:
+        used = f"; materials {missing} render in the default grey" if missing else ""
+        warnings.warn(
+            f"{path}:{line}: material library {mtl_path.name!r} not found (looked for {mtl_path}){used}",
+            stacklevel=3,
+        )
+    if missing and not not_found:
         warnings.warn(
             f"{path}: materials {missing} are used (usemtl) but no MTL file defines them; "
             "they get the default grey",
@@ -250,7 +259,8 @@ def _check_numbers(tokens, key, line, where):
             f"{where}: {key!r} line has a value that is not a number: {line.strip()!r}"
         ) from None
     if len(values) < _WIDTH[key]:
-        raise ValueError(f"{where}: {key!r} line needs at least {_WIDTH[key]} numbers: {line.strip()!r}")
+        count = f"{_WIDTH[key]} numbers" if _WIDTH[key] > 1 else "1 number"
+        raise ValueError(f"{where}: {key!r} line needs at least {count}: {line.strip()!r}")
     if not np.isfinite(values).all():
         raise ValueError(f"{where}: {key!r} line has a NaN or infinite value: {line.strip()!r}")
 

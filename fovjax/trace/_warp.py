@@ -45,8 +45,12 @@ cache is unaffected, but a persistent-compilation-cache hit needs the same trace
 
 import functools
 import logging
+import os
+import sys
+import tempfile
 import threading
 import typing
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -72,11 +76,47 @@ def _require_warp():
         import warp
     except ImportError as exc:
         raise ImportError("the Warp backend needs warp-lang: pip install 'fovjax[gpu]'") from exc
-    # No start-up banner in a command's output (Warp reads this when it initialises; Warp 1.19's
-    # native "CUDA driver not found" line on a CPU machine is printed regardless).
+    # No start-up banner in a command's output (Warp reads this when it initialises).
     if warp.config.log_level < logging.WARNING:
         warp.config.log_level = logging.WARNING
+    _init_quietly(warp)
     return warp
+
+
+# What Warp's native library prints (to the process's stderr, not Python's) when it finds no
+# CUDA driver; on a machine without an NVIDIA device that is expected, not news.
+_NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+
+
+def _nvidia_device_present() -> bool:
+    return Path("/proc/driver/nvidia").exists() or any(Path("/dev").glob("nvidia[0-9]*"))
+
+
+def _init_quietly(warp) -> None:
+    """`warp.init()`, leaving out Warp's "no CUDA driver" line on a machine with no NVIDIA
+    device (every program that lowers the "auto" backend initialises Warp for its CUDA branch).
+    Anything else it prints is passed on, and the line too where an NVIDIA device is present
+    (a driver that does not load there is a real problem)."""
+    if not sys.platform.startswith("linux") or _nvidia_device_present():
+        warp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as captured:
+            os.dup2(captured.fileno(), 2)
+            try:
+                warp.init()
+            finally:
+                os.dup2(saved, 2)
+                captured.seek(0)
+                text = captured.read().decode(errors="replace")
+            kept = [line for line in text.splitlines(keepends=True) if _NO_DRIVER not in line]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
+    finally:
+        os.close(saved)
 
 
 def warp_available() -> bool:

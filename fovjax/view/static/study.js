@@ -271,21 +271,29 @@ async function sliderTrial(trial, frameMs) {
   return { answer, measured };
 }
 
+// Where to look: the image holds both eyes' views side by side, each with its own cross.
+const FIXATION = `<p class="fixation"><b>Where to look.</b> In a headset each eye sees its own
+  half of the image, and the two crosses appear as one: <b>keep your eyes on that red cross</b>.
+  On a monitor both halves are side by side: <b>keep your eyes on the red cross of the left
+  half</b> (the left eye's view; the right half is the right eye's, leave it be). Keep looking at
+  the cross the whole time, even during the black.</p>`;
+
 const INSTRUCTIONS = {
   pair: (t, n) => `<p>You will see ${n} pairs of short animated sequences, the two of a pair separated by
-    ${t.gap_s} s of black. <b>Keep your eyes on the red cross</b> in the middle of each eye's image the whole
-    time, even during the black.</p><p>After each pair, answer whether the <b>first</b> was better, the
+    ${t.gap_s} s of black.</p>${FIXATION}<p>After each pair, answer whether the <b>first</b> was better, the
     <b>second</b> was better, or both looked the <b>same</b> (buttons, or keys 1, 2, 3).</p>`,
   ramp: (t, n) => `<p>First a reference sequence, then the same sequence at other quality levels, one after
     another (${n} in all, in two runs that each start from the reference), each shown for ${t.step_s} s and
-    separated by black. <b>Keep your eyes on the red cross</b> the
-    whole time.</p><p>After each one, answer whether the quality <b>increased</b>, <b>decreased</b> or
-    stayed the <b>same</b> compared with the sequence just before it (buttons, or keys 1, 2, 3).</p>`,
+    separated by black.</p>${FIXATION}<p>After each one, answer whether the quality <b>increased</b>,
+    <b>decreased</b> or stayed the <b>same</b> compared with the sequence just before it (buttons, or keys
+    1, 2, 3).</p>`,
   slider: (t) => `<p>First the reference sequence (${t.step_s} s), then the same sequence at a low
-    quality level. <b>Keep your eyes on the red cross</b> the whole time.</p><p>Lower (↓) or raise (↑)
-    the level, or see the reference again (R), until the sequence looks the <b>same as the reference</b>;
-    then choose it (Enter). Take your time.</p>`,
+    quality level.</p>${FIXATION}<p>Lower (↓) or raise (↑) the level, or see the reference again (R), until
+    the sequence looks the <b>same as the reference</b>; then choose it (Enter). Take your time.</p>`,
 };
+
+// A form field's name as the participant reads it ("age_range" -> "age range").
+const fieldLabel = (name) => name.replace(/_/g, " ");
 
 async function main() {
   try {
@@ -299,6 +307,7 @@ async function main() {
     };
     progress();
     if (state.next === null) { study.phase = "done"; message(""); show("done", true); return; }
+    message("");
     if (state.form_needed) {
       study.phase = "form";
       message("");
@@ -306,7 +315,7 @@ async function main() {
       for (const [name, choices] of Object.entries(state.form)) {
         if (name === "consent") continue;
         const label = document.createElement("label");
-        label.textContent = name.replace(/_/g, " ") + ":";
+        label.textContent = fieldLabel(name) + ":";
         const select = document.createElement("select");
         select.id = "form-" + name;
         select.innerHTML = `<option value="">choose…</option>` +
@@ -322,6 +331,20 @@ async function main() {
           for (const name of Object.keys(state.form)) {
             form[name] = name === "consent" ? ($("consent").checked ? "yes" : "no") : $("form-" + name).value;
           }
+          // Said here, in plain words, before anything is sent: which questions are unanswered.
+          const unanswered = Object.keys(state.form).filter((name) => name !== "consent" && !form[name]);
+          for (const name of Object.keys(state.form)) {
+            if (name !== "consent") $("form-" + name).classList.toggle("missing", unanswered.includes(name));
+          }
+          if (unanswered.length) {
+            message(`Please choose an answer for: ${unanswered.map(fieldLabel).join(", ")} ` +
+              "(“prefer not to say” is one of the choices).", true);
+            return;
+          }
+          if (form.consent !== "yes") {
+            message("Please tick the box to say you agree to take part (the study cannot start without it).", true);
+            return;
+          }
           try {
             await postJSON("api/form", form);
             show("form", false);
@@ -334,6 +357,7 @@ async function main() {
     }
     study.phase = "loading";
     await loadClips(state.clips);
+    show("stage", true);  // the image area only from here: no empty black band above the form
     const frameMs = await measureFrames(30);
     study.frameMs = frameMs;
     message(`display: ${(1000 / frameMs).toFixed(1)} Hz`);
