@@ -72,6 +72,13 @@ VARIABLES: dict[str, Variable] = {
             "0 leaves malloc alone",
         ),
         Variable(
+            "FOVJAX_SIZE_CHECK",
+            SWITCH,
+            "1",
+            "frames are refused before any work when their estimated memory exceeds what the "
+            "machine has free (`fovjax.render.frame_memory`); 0 turns the check off",
+        ),
+        Variable(
             "FOVJAX_COMPILE_CACHE",
             SWITCH,
             "1",

@@ -166,7 +166,9 @@ def memory_limit(platform: str | None = None) -> tuple[int | None, str]:
 
 def size_check_enabled() -> bool:
     """False where `FOVJAX_SIZE_CHECK=0`: frames are not checked against the machine's memory."""
-    return os.environ.get(SIZE_CHECK_VARIABLE, "1").strip() != "0"
+    from .. import _environment
+
+    return _environment.switch(SIZE_CHECK_VARIABLE)
 
 
 def _bytes(n: int) -> str:
