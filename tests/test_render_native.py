@@ -9,8 +9,9 @@ way. Two scenes:
   point light and a directional light, a curved mirror (compared at depth 3).
 - `corridor`: a tiny scene built here for what the spheres cannot show: two facing mirrors
   (every reflection depth up to 5 changes the image, asserted of the oracle), an occluder
-  beyond a point light (a shadow ray that is not bounded at the light would stop at it), a
-  textured and untextured materials, two point lights and a directional one.
+  beyond a point light (a shadow ray that is not bounded at the light would stop at it),
+  textured and untextured materials, two point lights and a directional one; compared at
+  depth 4 in the full frame and at every depth 0..5 in the foveated frame's slots.
 
 Both the full frame (`radiance`, the handler's image tiles) and the foveated frame's slots
 (`traced_sums`: rays made, traced and summed in one native call) are compared. The renderer's
