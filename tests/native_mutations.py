@@ -9,10 +9,11 @@ a copy of the package, must make tests/test_render_native.py fail.
 
 For each mutation: the package (fovjax/) is copied to a temporary directory; the mutation's
 snippet must occur exactly once in all of the copy's C++ sources (every *.cc and *.h under
-fovjax/: the build compiles the sources it ships, wherever they lie) and is replaced there; the
-Embree FFI handler is built from the copy into a directory of its own (FOVJAX_NATIVE_DIR and
-FOVJAX_CACHE_DIR point into the temporary directory, so the real cache and sources are never
-touched) and a probe checks that the copy is the package imported and that its handler loads;
+fovjax/, wherever they lie: `fovjax.native.sources()`, what the build compiles) and is replaced
+there; the native library is built from the copy into a directory of its own (FOVJAX_NATIVE_DIR
+and FOVJAX_CACHE_DIR point into the temporary directory, so the real cache and sources are never
+touched) and a probe checks that the copy is the package imported, that its library loads and
+that the mutated file is among the sources it was built from;
 then the test files run (pytest -x, one process) with the copy imported in place of the
 checkout's package. The mutation is caught when they fail. The unmutated copy runs first, the
 same way, and must pass without a skip: otherwise a failure would mean nothing.
@@ -23,7 +24,7 @@ bad command line.
 
 To mutation-test a change of the native code: add the mistakes it could hide to MUTATIONS (a
 name, what it means, an exact snippet of the source and its replacement; one line each is best)
-and run the script. Each mutation takes a build of the handler (about a minute on two cores) and
+and run the script. Each mutation takes a build of the library (about a minute on two cores) and
 the test files up to their first failure.
 """
 
@@ -98,7 +99,8 @@ class CheckError(Exception):
 
 
 def sources(package: Path) -> list[Path]:
-    """The C++ sources under `package` (every *.cc and *.h), sorted."""
+    """The C++ sources under `package` (every *.cc and *.h, the rule of `fovjax.native.sources`,
+    which the build compiles), sorted."""
     return sorted(p for p in package.rglob("*") if p.suffix in SOURCE_SUFFIXES and p.is_file())
 
 
@@ -122,13 +124,13 @@ def locate(package: Path, snippet: str) -> Path:
     return places[0][0]
 
 
-def apply(package: Path, mutation: Mutation) -> str:
-    """Make `mutation` in the sources under `package`; returns where (file:line)."""
+def apply(package: Path, mutation: Mutation) -> tuple[Path, str]:
+    """Make `mutation` in the sources under `package`; returns the file and where (file:line)."""
     path = locate(package, mutation.snippet)
     text = path.read_text()
     line = text.count("\n", 0, text.index(mutation.snippet)) + 1
     path.write_text(text.replace(mutation.snippet, mutation.replacement))
-    return f"{path.relative_to(package.parent)}:{line}"
+    return path, f"{path.relative_to(package.parent)}:{line}"
 
 
 def _environment(work: Path) -> dict[str, str]:
@@ -155,17 +157,17 @@ def _tail(done: subprocess.CompletedProcess, lines: int) -> str:
 
 
 PROBE = (
-    "import json, fovjax\n"
-    "from fovjax.trace.internal import embree_status\n"
-    "s = embree_status()\n"
+    "import json, fovjax, fovjax.native as native\n"
+    "s = native.status()\n"
     "print(json.dumps({'package': fovjax.__file__, 'available': bool(s), 'reason': s.reason,"
-    " 'library': s.library}))\n"
+    " 'library': s.library, 'sources': [str(p) for p in native.sources()]}))\n"
 )
 
 
-def _probe(work: Path, env: dict[str, str]) -> None:
-    """Build and load the copy's handler (the test run then finds it built) and check that the
-    copy is the package imported from the work directory."""
+def _probe(work: Path, env: dict[str, str], mutated: Path | None) -> None:
+    """Build and load the copy's handlers (the test run then finds them built) and check that
+    the copy is the package imported from the work directory, that its library was built in
+    the work directory, and that the mutated file is one of the sources the build compiles."""
     import json
 
     done = _run([sys.executable, "-c", PROBE], work, env, 900.0)
@@ -175,9 +177,12 @@ def _probe(work: Path, env: dict[str, str]) -> None:
     if not Path(status["package"]).resolve().is_relative_to((work / "src").resolve()):
         raise CheckError(f"the copy was not the package imported ({status['package']})")
     if not status["available"]:
-        raise CheckError(f"the handler did not build or load: {status['reason']}")
+        raise CheckError(f"the handlers did not build or load: {status['reason']}")
     if not Path(status["library"]).resolve().is_relative_to((work / "native").resolve()):
-        raise CheckError(f"the handler was not built in the work directory ({status['library']})")
+        raise CheckError(f"the library was not built in the work directory ({status['library']})")
+    compiled = {Path(p).resolve() for p in status["sources"]}
+    if mutated is not None and mutated.resolve() not in compiled:
+        raise CheckError(f"{mutated.name} is not among the sources the build compiles")
 
 
 class Outcome(NamedTuple):
@@ -234,9 +239,9 @@ def check(mutation: Mutation | None, tests: list[Path], args: argparse.Namespace
         shutil.copytree(
             ROOT / PACKAGE, work / "src" / PACKAGE, ignore=shutil.ignore_patterns("__pycache__", "*.so")
         )
-        where = apply(work / "src" / PACKAGE, mutation) if mutation else ""
+        mutated, where = apply(work / "src" / PACKAGE, mutation) if mutation else (None, "")
         env = _environment(work)
-        _probe(work, env)
+        _probe(work, env, mutated)
         return where, run_tests(work, env, tests, args.timeout, args.k)
     finally:
         if args.keep:

@@ -35,7 +35,7 @@ def test_a_snippet_is_found_once_among_every_cc_and_h(tmp_path):
     (package / "c.py").write_text("w = w * kr;\nnot_cpp = True\n")  # not a C++ source
     mutation = nm.Mutation("m", "a mistake", "w = w * kr;", "w = kr;")
     assert nm.locate(package, "int y = 2;") == package / "sub" / "b.h"
-    assert nm.apply(package, mutation) == "pkg/a.cc:2"
+    assert nm.apply(package, mutation) == (package / "a.cc", "pkg/a.cc:2")
     assert (package / "a.cc").read_text() == "int x = 1;\nw = kr;\n"
     assert (package / "c.py").read_text().startswith("w = w * kr;")  # untouched
     with pytest.raises(nm.CheckError, match=r"found 2 times \(pkg/a.cc:1, pkg/sub/b.h:3\)"):
