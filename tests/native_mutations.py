@@ -57,9 +57,9 @@ class Mutation(NamedTuple):
 MUTATIONS = (
     Mutation(
         "specular-exponent",
-        "Blinn-Phong's exponent one more than the material's Ns",
-        "std::exp2(shininess * std::log2(ndh))",
-        "std::exp2((shininess + 1.0f) * std::log2(ndh))",
+        "the specular exponent one more than the material's Ns",
+        "std::exp2(shininess * std::log2(cosine))",
+        "std::exp2((shininess + 1.0f) * std::log2(cosine))",
     ),
     Mutation(
         "shadow-ignored",
@@ -81,8 +81,8 @@ MUTATIONS = (
     ),
     Mutation(
         "unbounded-shadow",
-        "a point light's shadow ray not bounded at the light (tfar = infinity)",
-        "b.stmax[j] = point_light ? distance : INFINITY;",
+        "a positional light's shadow ray not bounded at the light (tfar = infinity)",
+        "b.stmax[j] = at.positional ? distance : INFINITY;",
         "b.stmax[j] = INFINITY;",
     ),
     Mutation(
