@@ -57,20 +57,24 @@ commit and machine.
 
 Needs Mitsuba 3 (`pip install 'fovjax[bench]'`) and, for its LLVM backend, the system's LLVM
 shared library, version 16 or later (Dr.Jit 1.5 needs it for `dr.maximum`/`dr.atan2`; Debian
-package libllvm19, or DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so). Without either the script
-prints why in one line and exits 0.
+package libllvm19, or DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so; where Dr.Jit loads an older libLLVM
+than one the system has, the message names the newer one). Without either the script prints why
+in one line and exits 0.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import importlib.util
 import json
 import math
 import os
 import platform
+import re
 import resource
 import shlex
+import shutil
 import statistics
 import subprocess
 import sys
@@ -87,27 +91,83 @@ PSNR_EXPECTED = 40.0
 
 
 class Unavailable(Exception):
-    """Mitsuba cannot run here (the message says why, in one line)."""
+    """Mitsuba cannot run here (the message says why, in one line): `NotInstalled` or
+    `CannotStart`."""
+
+
+class NotInstalled(Unavailable):
+    """The mitsuba package (or Dr.Jit, which it imports) is not installed."""
+
+
+class CannotStart(Unavailable):
+    """Mitsuba is installed but did not start: Dr.Jit found no libLLVM, or too old a one, or the
+    package failed to import or to set its variant."""
+
+
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ValueError:  # in sys.modules as None: imports of it are blocked
+        return False
+
+
+def _last_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[-1] if text else type(exc).__name__
+
+
+def _system_llvms() -> list[tuple[int, str]]:
+    """(major version, path) of each libLLVM shared library the dynamic linker knows
+    (`ldconfig -p`), oldest first; empty where that cannot be read."""
+    ldconfig = shutil.which("ldconfig") or next(
+        (p for p in ("/sbin/ldconfig", "/usr/sbin/ldconfig") if os.path.exists(p)), None
+    )
+    if ldconfig is None:
+        return []
+    try:
+        listing = subprocess.run([ldconfig, "-p"], capture_output=True, text=True, timeout=10).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    found = set()
+    for line in listing.splitlines():
+        match = re.match(r"\s*libLLVM[-.](?:so\.)?(\d+)\S*\s.*=>\s*(\S+)", line)
+        if match:
+            found.add((int(match.group(1)), match.group(2)))
+    return sorted(found)
+
+
+def llvm_hint() -> str:
+    """What to do about Dr.Jit's libLLVM: point it at a new enough one the system already has
+    (Dr.Jit may pick an older one first), else install one."""
+    newer = [path for version, path in _system_llvms() if version >= MIN_LLVM]
+    if newer and not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return f"this system has {newer[-1]}: set DRJIT_LIBLLVM_PATH={newer[-1]}"
+    return LLVM_HINT
 
 
 def load_mitsuba():
-    """(mitsuba, drjit) with the LLVM variant set, or `Unavailable`."""
+    """(mitsuba, drjit) with the LLVM variant set; `NotInstalled` where the packages are not
+    installed, `CannotStart` where they are but Mitsuba does not start (each naming why)."""
     try:
         import drjit as dr
         import mitsuba as mi
     except ImportError as exc:
-        raise Unavailable(f"mitsuba is not installed (pip install 'fovjax[bench]'): {exc}") from exc
+        missing = [m for m in ("mitsuba", "drjit") if not _installed(m)]
+        if missing:
+            raise NotInstalled(
+                f"{' and '.join(missing)} not installed (pip install 'fovjax[bench]'): {_last_line(exc)}"
+            ) from exc
+        raise CannotStart(f"mitsuba is installed but did not import ({_last_line(exc)})") from exc
     try:
         mi.set_variant(MITSUBA_VARIANT)
         ok = dr.has_backend(dr.JitBackend.LLVM)
     except Exception as exc:  # Dr.Jit found no libLLVM: set_variant raises (ImportError, RuntimeError)
-        last = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        raise Unavailable(f"Dr.Jit's LLVM backend did not load ({last}): {LLVM_HINT}") from exc
+        raise CannotStart(f"Dr.Jit's LLVM backend did not load ({_last_line(exc)}): {llvm_hint()}") from exc
     if not ok:
-        raise Unavailable(f"Dr.Jit found no libLLVM: {LLVM_HINT}")
+        raise CannotStart(f"Dr.Jit found no libLLVM: {llvm_hint()}")
     version = tuple(dr.detail.llvm_version())
     if version[0] < MIN_LLVM:
-        raise Unavailable(f"Dr.Jit loaded libLLVM {'.'.join(map(str, version))}, too old: {LLVM_HINT}")
+        raise CannotStart(f"Dr.Jit loaded libLLVM {'.'.join(map(str, version))}, too old: {llvm_hint()}")
     return mi, dr
 
 

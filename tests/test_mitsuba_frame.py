@@ -2,11 +2,15 @@
 fovjax's full frame (PSNR, ray counts by kind) and its JSON record holds the figures.
 
 Mitsuba is in the `[bench]` extra (`.ci/run` installs it, and Debian's libllvm19 for Dr.Jit).
-Where mitsuba is installed but Dr.Jit finds no libLLVM >= 16 (a system library, not an extra),
-it skips with the script's own reason."""
+Where mitsuba is installed but does not start (Dr.Jit finds no libLLVM >= 16, a system library
+rather than an extra, or the package fails to import), its tests skip with the script's own
+reason, and fail with it under FOVJAX_REQUIRE_EXTRAS=1: CI installs what Mitsuba needs, so a
+Mitsuba that cannot start there is a broken install, not a machine without the extra."""
 
 import importlib.util
 import json
+import sys
+import types
 from pathlib import Path
 
 import _extras
@@ -24,12 +28,23 @@ def _script():
     return module
 
 
+def _started(bench):
+    """`bench.load_mitsuba()`; where Mitsuba is installed but cannot start, a skip with the
+    reason, or a failure with it under FOVJAX_REQUIRE_EXTRAS=1. (Not installed: the module's
+    `_extras.require` skipped or failed first.)"""
+    try:
+        return bench.load_mitsuba()
+    except bench.Unavailable as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+    # Outside the handler: the failure or skip shows the reason alone, not the chain behind it.
+    if _extras.required():
+        pytest.fail(f"{reason}; {_extras.REQUIRE_VARIABLE}=1 requires every extra to run", pytrace=False)
+    pytest.skip(reason)
+
+
 def test_mitsuba_frame_matches_fovjax(tmp_path, capsys):
     bench = _script()
-    try:
-        bench.load_mitsuba()
-    except bench.Unavailable as exc:
-        pytest.skip(str(exc))
+    _started(bench)
     out = tmp_path / "record.json"
     argv = ["--width", "32", "--height", "24", "--max-depth", "2", "--repeats", "1", "--no-foveated"]
     record = bench.main([*argv, "--json", str(out)])
@@ -66,10 +81,7 @@ def test_mitsuba_integrator_textures_environment_lights():
     from fovjax.trace import build_bvh
 
     bench = _script()
-    try:
-        bench.load_mitsuba()
-    except bench.Unavailable as exc:
-        pytest.skip(str(exc))
+    _started(bench)
     rng = np.random.default_rng(3)
     floor = [(-4, 0, -4), (4, 0, -4), (4, 0, 4), (-4, 0, 4)]
     mirror = [(-3, 0, -3), (3, 0, -3), (3, 3, -3.5), (-3, 3, -3.5)]
@@ -114,3 +126,54 @@ def test_mitsuba_integrator_textures_environment_lights():
 
     assert psnr(image, reference.image).value >= bench.PSNR_EXPECTED
     assert np.abs(image - reference.image).max() < 1e-3
+
+
+def _fake_mitsuba(monkeypatch, set_variant):
+    """Mitsuba and Dr.Jit as modules whose start-up is `set_variant` (imported in their place)."""
+    mi = types.SimpleNamespace(set_variant=set_variant)
+    dr = types.SimpleNamespace(
+        has_backend=lambda backend: True, JitBackend=types.SimpleNamespace(LLVM="llvm")
+    )
+    monkeypatch.setitem(sys.modules, "mitsuba", mi)
+    monkeypatch.setitem(sys.modules, "drjit", dr)
+
+
+def test_an_installed_mitsuba_that_cannot_start_is_told_from_a_missing_one(monkeypatch):
+    """A start-up failure (set_variant raising, as without a libLLVM) is `CannotStart` with its
+    reason and what to do; packages that cannot be imported and are not installed are
+    `NotInstalled`; installed ones that fail to import are `CannotStart`."""
+    bench = _script()
+
+    def no_llvm(variant):
+        raise RuntimeError(f"variant {variant}: jit_llvm_init(): could not find libLLVM")
+
+    _fake_mitsuba(monkeypatch, no_llvm)
+    with pytest.raises(bench.CannotStart, match="could not find libLLVM.*(DRJIT_LIBLLVM_PATH|libllvm19)"):
+        bench.load_mitsuba()
+
+    monkeypatch.setitem(sys.modules, "mitsuba", None)  # an import of it raises ImportError
+    monkeypatch.setitem(sys.modules, "drjit", None)
+    with pytest.raises(bench.NotInstalled, match=r"mitsuba and drjit not installed \(pip install"):
+        bench.load_mitsuba()
+    monkeypatch.setattr(bench, "_installed", lambda module: True)
+    with pytest.raises(bench.CannotStart, match="installed but did not import"):
+        bench.load_mitsuba()
+    assert issubclass(bench.NotInstalled, bench.Unavailable) and issubclass(
+        bench.CannotStart, bench.Unavailable
+    )
+
+
+@pytest.mark.parametrize("required", [True, False])
+def test_a_mitsuba_that_cannot_start_fails_under_require_extras(monkeypatch, required):
+    """The tests' start-up: under FOVJAX_REQUIRE_EXTRAS=1 a failure naming the reason, else a
+    skip naming it."""
+    bench = _script()
+
+    def cannot_start():
+        raise bench.CannotStart("Dr.Jit loaded libLLVM 15.0.6, too old")
+
+    monkeypatch.setattr(bench, "load_mitsuba", cannot_start)
+    monkeypatch.setenv(_extras.REQUIRE_VARIABLE, "1" if required else "0")
+    outcome = pytest.fail.Exception if required else pytest.skip.Exception
+    with pytest.raises(outcome, match="CannotStart: Dr.Jit loaded libLLVM 15.0.6, too old"):
+        _started(bench)

@@ -1,18 +1,30 @@
 """The native integrator (`RenderConfig.integrator`) against the JAX integrator, its oracle.
 
-The native integrator is the native handlers' Whitted loop per ray (fovjax/render/
-_whitted.cc): the same arithmetic as fovjax/render/_integrator.py, rounded its own way. The
-scene here uses every shading feature the loop implements: vertex normals, a texture read
-through per-vertex UVs (bilinear, wrapping), a lat-long environment map, a point light and a
-directional light, a mirror (reflections to depth 3). The renderer's hand-computed oracles
-(tests/test_render.py) run through whichever integrator "auto" picks, the native one here.
+The native integrator is the native handlers' Whitted loop per ray (fovjax/render/_whitted.cc):
+the same arithmetic as fovjax/render/_integrator.py, written per ray in C++, rounded its own
+way. Two scenes:
 
-Where the two may differ: a ray within float rounding of a triangle edge or of a light's
-horizon (n·l = 0) can take the other side in either integrator, and then its sample differs by
-a whole shading term. Those are rare (rays must land within ~1e-7 of an edge), so the checks
-are: the ray counts agree to within a fraction of a percent, at least 99% of the samples agree
-to 1e-4 (float32 rounding through a few dozen operations, far below one 8-bit step), and the
-mean difference is far below one 8-bit step.
+- `featured`: the spheres scene with every shading feature the loop implements: vertex normals,
+  a texture read through per-vertex UVs (bilinear, wrapping), a lat-long environment map, a
+  point light and a directional light, a curved mirror (compared at depth 3).
+- `corridor`: a tiny scene built here for what the spheres cannot show: two facing mirrors
+  (every reflection depth up to 5 changes the image, asserted of the oracle), an occluder
+  beyond a point light (a shadow ray that is not bounded at the light would stop at it),
+  textured and untextured materials, two point lights and a directional one; compared at
+  depth 4 in the full frame and at every depth 0..5 in the foveated frame's slots.
+
+Both the full frame (`radiance`, the handler's image tiles) and the foveated frame's slots
+(`traced_sums`: rays made, traced and summed in one native call) are compared. The renderer's
+hand-computed oracles (tests/test_render.py) run through whichever integrator "auto" picks,
+the native one here.
+
+Agreement: the ray counts are equal, kind by kind, and every sample is the same to float
+rounding between two programs (`assert_native_radiance`: tests/_frames.py's SAME_RADIANCE,
+widened where a specular exponent multiplies a rounding difference). A ray within float
+rounding of a triangle's edge or of a light's horizon could take the other side in one
+integrator only; no ray of these fixed sets does, and such a ray would fail this file rather
+than pass as a fraction of samples allowed off. `python tests/native_mutations.py` checks that
+this file fails for each of a set of one-line mistakes in the native integrator.
 """
 
 from __future__ import annotations
@@ -25,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _frames import SAME_RADIANCE
 
 import fovjax
 import fovjax.scenes
@@ -41,6 +54,232 @@ if not embree_status():  # embreex is here but the handler did not build (e.g. n
     pytest.skip(
         f"the Embree FFI handler is unavailable here: {embree_status().reason}", allow_module_level=True
     )
+
+# Blinn-Phong's specular term (n·h)^ns turns a relative difference e of n·h between the two
+# programs into ns·e of the term, which is part of the sample (every term is non-negative):
+# n and h are unit vectors normalised apart (1/sqrt in C++, XLA's rsqrt estimate refined once)
+# from hit points that round apart, a few ulp each, and their dot product adds two more. A
+# bound of 8 ulp for e.
+N_DOT_H_ULPS = 8
+
+
+def native_rtol(arrays) -> float:
+    """The relative tolerance of a native sample against the JAX one: SAME_RADIANCE (two
+    programs' rounding, tests/_frames.py) plus the specular exponent's amplification at the
+    scene's largest exponent. Its absolute floor is SAME_RADIANCE."""
+    return SAME_RADIANCE + N_DOT_H_ULPS * 2.0**-24 * float(np.max(np.asarray(arrays.ns)))
+
+
+def assert_native_radiance(native, reference, arrays) -> None:
+    """Every sample (or pixel: a mean of samples keeps the bound) of `native` is `reference`'s
+    to float rounding (`native_rtol`)."""
+    np.testing.assert_allclose(
+        np.asarray(native), np.asarray(reference), rtol=native_rtol(arrays), atol=SAME_RADIANCE
+    )
+
+
+def assert_same_counts(native, reference) -> None:
+    """The same rays traced, kind by kind (`RayCounts`, or sequences in one order)."""
+    a = [int(x) for x in native]
+    b = [int(x) for x in reference]
+    assert a == b, (a, b)
+
+
+# ---- the corridor: inter-reflection, an occluder beyond a light, several lights --------------
+
+CORRIDOR_W = CORRIDOR_H = 32
+# Compared at depth 4, so that one bounce fewer (3) and one more (5) both change the image: the
+# oracle's images at depths 0..5 are each asserted to differ from the one before.
+CORRIDOR_DEPTH = 4
+CORRIDOR_DEPTHS = range(6)
+# A change of the image "far above rounding": 100x the tolerance of a sample of radiance ~1.
+CHANGE = 1e-2
+HALF_WIDTH, LENGTH = 1.3, (-14.0, 3.0)  # mirrors at x = ±HALF_WIDTH, from z = LENGTH[0] to LENGTH[1]
+LIGHT = (0.3, 2.4, -4.0)  # the point light the occluder lies beyond
+OCCLUDER_Y = 2.9
+
+
+def _quad(corners, material, uvs=None):
+    """Two triangles of a planar quad (corners in order), its material and per-corner UVs."""
+    return np.asarray(corners, np.float32), [material, material], np.asarray(uvs or [(0.0, 0.0)] * 4)
+
+
+def corridor_scene():
+    """Two facing mirrors (Kr 0.8/0.75/0.7 and 0.7/0.8/0.75, one textured) along a textured
+    floor, an untextured glossy box between them, a point light under a panel (the occluder
+    beyond it: every floor point below the panel sees the light, and the line past the light
+    meets the panel), a second point light and a directional light. 26 triangles."""
+    x, (back, front), top = HALF_WIDTH, LENGTH, 3.0
+    quads = [
+        # floor: its texture repeats about twice across and eight times along
+        _quad(
+            [(-x, 0, front), (x, 0, front), (x, 0, back), (-x, 0, back)],
+            0,
+            [(-0.9, 1.35), (0.9, 1.35), (0.9, -6.3), (-0.9, -6.3)],
+        ),
+        _quad([(-x, 0, front), (-x, 0, back), (-x, top, back), (-x, top, front)], 1),  # mirror, untextured
+        _quad(
+            [(x, 0, front), (x, top, front), (x, top, back), (x, 0, back)],
+            2,
+            [(0, 0), (0, 1.3), (5.1, 1.3), (5.1, 0)],
+        ),
+        _quad(
+            [
+                (-1.2, OCCLUDER_Y, -1.5),
+                (1.2, OCCLUDER_Y, -1.5),
+                (1.2, OCCLUDER_Y, -6.5),
+                (-1.2, OCCLUDER_Y, -6.5),
+            ],
+            4,
+        ),
+    ]
+    (x0, y0, z0), (x1, y1, z1) = (-0.45, 0.0, -3.3), (0.15, 0.7, -2.55)  # the box, open below
+    for face in (
+        [(x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)],
+        [(x1, y0, z0), (x0, y0, z0), (x0, y1, z0), (x1, y1, z0)],
+        [(x0, y0, z0), (x0, y0, z1), (x0, y1, z1), (x0, y1, z0)],
+        [(x1, y0, z1), (x1, y0, z0), (x1, y1, z0), (x1, y1, z1)],
+        [(x0, y1, z1), (x1, y1, z1), (x1, y1, z0), (x0, y1, z0)],
+    ):
+        quads.append(_quad(face, 3))
+    vertices = np.concatenate([q[0] for q in quads])
+    faces = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * i for i in range(len(quads))])
+    materials = fovjax.make_materials(
+        [
+            {"kd": (0.8, 0.8, 0.8), "ka": (0.3, 0.3, 0.3), "ks": (0.2,) * 3, "ns": 12.0, "texture": 0},
+            {"kd": (0.1, 0.1, 0.12), "ka": (0.1,) * 3, "ks": (0.4,) * 3, "ns": 60.0, "kr": (0.8, 0.75, 0.7)},
+            {
+                "kd": (0.12, 0.1, 0.1),
+                "ka": (0.1,) * 3,
+                "ks": (0.3,) * 3,
+                "ns": 40.0,
+                "kr": (0.7, 0.8, 0.75),
+                "texture": 1,
+            },
+            {"kd": (0.7, 0.3, 0.2), "ka": (0.5, 0.2, 0.1), "ks": (0.5,) * 3, "ns": 24.0},
+            {"kd": (0.3, 0.5, 0.3), "ka": (0.2, 0.3, 0.2)},
+        ]
+    )
+    lights = fovjax.make_lights(
+        [LIGHT, (-0.5, 1.8, 1.0), (0.35, 1.0, 0.25)],
+        [(0.9, 0.85, 0.8), (0.4, 0.45, 0.5), (0.3, 0.3, 0.25)],
+        [POINT_LIGHT, POINT_LIGHT, DIRECTIONAL_LIGHT],
+    )
+    rng = np.random.default_rng(0)
+    return fovjax.make_scene(
+        vertices,
+        faces,
+        face_material=np.concatenate([q[1] for q in quads]),
+        materials=materials,
+        lights=lights,
+        uvs=np.concatenate([q[2] for q in quads]).astype(np.float32),
+        textures=(rng.random((5, 7, 3)).astype(np.float32), rng.random((4, 3, 3)).astype(np.float32)),
+        name="corridor",
+    )
+
+
+@pytest.fixture(scope="module")
+def corridor():
+    """The corridor's arrays, BVH and a stereo rig looking obliquely across the mirrors (its
+    rays bounce from one mirror to the other along the corridor)."""
+    scene = corridor_scene()
+    rig = StereoRig.look_at((0.0, 1.5, 2.5), (-1.3, 1.2, 0.8), eye_width=CORRIDOR_W, eye_height=CORRIDOR_H)
+    return scene_arrays(scene), build_bvh(scene, cache=False), rig
+
+
+def test_the_occluder_lies_beyond_the_light(corridor):
+    """What the corridor is for: from the floor below the panel, the shadow ray bounded at the
+    light is unblocked, and the same ray unbounded meets the panel."""
+    from fovjax.trace import occluded
+
+    _, bvh, _ = corridor
+    xs, zs = np.meshgrid(np.linspace(-1.0, 1.0, 5), np.linspace(-6.0, -2.0, 6))
+    points = np.stack([xs.ravel(), np.full(xs.size, 1e-3), zs.ravel()], -1).astype(np.float32)
+    to_light = np.asarray(LIGHT, np.float32) - points
+    distance = np.linalg.norm(to_light, axis=-1)
+    directions = to_light / distance[:, None]
+    bounded = np.asarray(occluded(bvh, points, directions, distance))
+    unbounded = np.asarray(occluded(bvh, points, directions))
+    lit = ~bounded
+    assert lit.sum() >= 0.8 * len(points)  # the box shades a few
+    assert unbounded[lit].all()
+
+
+def test_corridor_full_frame_native_agrees(corridor):
+    """`radiance` through the native integrator and through the JAX one, on the corridor at
+    CORRIDOR_DEPTH: equal counts, every sample to float rounding."""
+    arrays, bvh, rig = corridor
+    rays = stereo_sample_rays(rig, None, 1, jax.random.key(7))
+    out = {}
+    for integrator in ("native", "jax"):
+        config = RenderConfig(max_depth=CORRIDOR_DEPTH, integrator=integrator)
+        fn = jax.jit(lambda a, o, d, c=config: radiance(a, bvh, o, d, config=c))
+        out[integrator] = fn(arrays, rays.origins, rays.directions)
+    native, reference = out["native"], out["jax"]
+    assert_native_radiance(native.rgb, reference.rgb, arrays)
+    assert_same_counts(native.counts, reference.counts)
+    counts = reference.counts
+    assert int(counts.primary) == 2 * CORRIDOR_W * CORRIDOR_H
+    assert int(counts.reflection) > int(counts.primary) // 2  # most rays meet a mirror
+    assert int(counts.shadow) > 2 * int(counts.primary)  # three lights
+    assert int(counts.bad) == 0 and np.asarray(reference.rgb).std() > 0.05
+
+
+def test_corridor_slots_native_agree_at_every_depth(corridor):
+    """The foveated frame's slots (`traced_sums`) through the native handler and through the
+    JAX integrator, at every depth 0..5: equal counts, every pixel to float rounding; and each
+    depth changes the oracle's image (far above rounding) and adds reflection rays, so a wrong
+    number of bounces cannot pass.
+
+    One compiled JAX program serves every depth: per-class depth limits (`ShadingClasses`, the
+    per-region fidelity's tables, traced values) cap its reflections below `max_depth` 5, as
+    `RenderConfig.max_depth` does (tests/test_fidelity.py: the class path at full tables is the
+    plain one). The native programs are one handler call each."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.render.internal import SHADOWS_ALL, ShadingClasses
+
+    arrays, bvh, rig = corridor
+    fov = Foveation(20.0, 40.0, spp=1)
+    cameras = rig.eye_cameras(None)
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
+    budget = 2 * CORRIDOR_W * CORRIDOR_H
+    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
+    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    traced = np.asarray(n).reshape(-1) > 0
+    key = jax.random.key(8)
+
+    def sums(a, sel, config, classes=None):
+        out = traced_sums(a, bvh, cameras, key, sel, config=config, budget=budget, classes=classes)
+        (rgb, bad, n_bad) = out.consumed
+        return rgb, jnp.stack([out.primary, out.shadow, out.reflection, n_bad])
+
+    oracle = jax.jit(
+        lambda a, sel, depth: sums(
+            a,
+            sel,
+            RenderConfig(max_depth=max(CORRIDOR_DEPTHS), integrator="jax"),
+            ShadingClasses(depth, jnp.full(3, SHADOWS_ALL, jnp.int32)),
+        )
+    )
+    previous = None
+    for depth in CORRIDOR_DEPTHS:
+        config = RenderConfig(max_depth=depth, integrator="native")
+        native = jax.jit(lambda a, sel, c=config: sums(a, sel, c))(arrays, sel)
+        reference = oracle(arrays, sel, jnp.full(3, depth, jnp.int32))
+        assert_native_radiance(native[0], reference[0], arrays)
+        assert_same_counts(native[1], reference[1])
+        rgb, counts = np.asarray(reference[0]), np.asarray(reference[1])
+        assert counts[0] == int(sel.n_traced) and counts[3] == 0
+        assert (rgb[~traced] == 0).all()
+        if previous is not None:
+            assert np.abs(rgb - previous[0]).max() > CHANGE, depth  # this depth's bounces show
+            assert counts[2] > previous[1][2], depth
+        previous = rgb, counts
+    assert traced.sum() > 0.25 * budget
+    assert previous[1][1] > 2 * previous[1][0]  # three lights' shadow rays
+
+
+# ---- the featured spheres ---------------------------------------------------------------------
 
 EYE_W, EYE_H = 40, 32
 DEPTH = 3
@@ -83,15 +322,10 @@ def _radiance(arrays, bvh, rig, integrator, *, hits="recomputed"):
     return jax.block_until_ready(fn(arrays, rays.origins, rays.directions))
 
 
-def _agree(native, reference):
-    a, b = np.asarray(native.rgb), np.asarray(reference.rgb)
-    assert a.shape == b.shape
-    diff = np.abs(a - b).max(-1)
-    assert np.mean(diff <= 1e-4) >= 0.99, np.sort(diff.ravel())[-20:]
-    assert diff.mean() < 1e-3
-    for name in ("primary", "shadow", "reflection", "bad"):
-        x, y = int(getattr(native.counts, name)), int(getattr(reference.counts, name))
-        assert abs(x - y) <= max(2, 0.005 * y), (name, x, y)
+def _agree(native, reference, arrays):
+    assert np.shape(native.rgb) == np.shape(reference.rgb)
+    assert_native_radiance(native.rgb, reference.rgb, arrays)
+    assert_same_counts(native.counts, reference.counts)
 
 
 @pytest.mark.parametrize("hits", ["recomputed", "backend"])
@@ -99,7 +333,7 @@ def test_native_radiance_agrees_with_the_jax_integrator(featured, hits):
     _, arrays, bvh, rig = featured
     native = _radiance(arrays, bvh, rig, "native", hits=hits)
     reference = _radiance(arrays, bvh, rig, "jax", hits=hits)
-    _agree(native, reference)
+    _agree(native, reference, arrays)
     # the scene exercises what it is meant to: reflections, shadow rays to both lights, misses
     assert int(reference.counts.reflection) > 100
     assert int(reference.counts.shadow) > int(reference.counts.primary)
@@ -166,10 +400,14 @@ def test_foveated_frame_through_the_native_integrator_agrees(featured):
     }
     a, b = frames["native"], frames["jax"]
     np.testing.assert_array_equal(a.sample_mask, b.sample_mask)
-    assert a.stats.primary_rays == b.stats.primary_rays > 0
-    assert abs(a.stats.shadow_rays - b.stats.shadow_rays) <= max(2, 0.005 * b.stats.shadow_rays)
-    diff = np.abs(a.image - b.image).max(-1)
-    assert np.mean(diff <= 1e-4) >= 0.99 and diff.mean() < 1e-3
+    assert a.stats.primary_rays > 0
+    assert_same_counts(_stats_counts(a), _stats_counts(b))
+    assert_native_radiance(a.image, b.image, featured[1])
+
+
+def _stats_counts(frame):
+    s = frame.stats
+    return (s.primary_rays, s.shadow_rays, s.reflection_rays, s.bad_samples)
 
 
 def test_full_frame_entry_point_uses_it(featured):
@@ -179,9 +417,9 @@ def test_full_frame_entry_point_uses_it(featured):
         render_stereo(scene, rig, spp=1, key=jax.random.key(0), bvh=bvh, config=RenderConfig(integrator=name))
         for name in ("native", "jax")
     ]
-    diff = np.abs(frames[0].image - frames[1].image).max(-1)
-    assert np.mean(diff <= 1e-4) >= 0.99
-    assert frames[0].stats.primary_rays == frames[1].stats.primary_rays == 2 * EYE_W * EYE_H
+    assert_native_radiance(frames[0].image, frames[1].image, featured[1])
+    assert_same_counts(_stats_counts(frames[0]), _stats_counts(frames[1]))
+    assert frames[0].stats.primary_rays == 2 * EYE_W * EYE_H
 
 
 def test_integrator_setting_is_checked():
@@ -242,9 +480,10 @@ def test_image_rays_in_4x4_tiles_cover_every_ray(featured):
     b = jax.jit(lambda a, o, d: radiance(a, bvh, o, d, config=flat))(arrays, o, d)
     rgb_a, rgb_b = np.asarray(a.rgb).reshape(-1, 3), np.asarray(b.rgb)
     assert np.isfinite(rgb_a).all() and rgb_a.std() > 0.05
-    diff = np.abs(rgb_a - rgb_b).max(-1)
-    assert np.mean(diff <= 1e-4) >= 0.99
-    assert int(a.counts.primary) == int(b.counts.primary) == 2 * 300 * 8
+    # One handler's arithmetic either way; only the traversal (packets or single rays) differs.
+    assert_native_radiance(rgb_a, rgb_b, arrays)
+    assert_same_counts(a.counts, b.counts)
+    assert int(a.counts.primary) == 2 * 300 * 8
 
 
 SELECTION_CASES = [
@@ -432,14 +671,13 @@ def test_slots_in_one_native_call_are_the_chunked_path(featured, case):
     (sums_n, bad_n, n_bad_n), (sums_j, bad_j, n_bad_j) = native, chunked
     traced = np.asarray(n).reshape(-1) > 0
     assert traced.sum() > 0 and np.asarray(sums_j)[traced].std() > 0.05
-    diff = np.abs(np.asarray(sums_n) - np.asarray(sums_j)).max(-1) / np.maximum(np.asarray(n).reshape(-1), 1)
-    assert np.mean(diff <= 1e-4) >= 0.99 and diff.mean() < 1e-3, np.sort(diff)[-10:]
-    assert (diff[~traced] == 0).all()  # untraced pixels hold no sum
+    per_pixel = np.maximum(np.asarray(n).reshape(-1, 1), 1)  # pixel means: a sample's bound holds
+    assert_native_radiance(np.asarray(sums_n) / per_pixel, np.asarray(sums_j) / per_pixel, arrays)
+    assert (np.asarray(sums_n)[~traced] == 0).all()  # untraced pixels hold no sum
     np.testing.assert_array_equal(bad_n, bad_j)
     assert int(n_bad_n) == int(n_bad_j)
-    assert int(counts_native[0]) == int(counts_jax[0]) == int(sel.n_traced)
-    for x, y in zip(np.asarray(counts_native)[1:], np.asarray(counts_jax)[1:], strict=True):
-        assert abs(int(x) - int(y)) <= max(2, 0.005 * int(y)), (counts_native, counts_jax)
+    assert int(counts_native[0]) == int(sel.n_traced)
+    assert_same_counts(counts_native, counts_jax)
     if not derivative:
         return
     # Both derivatives are the chunked JAX path's, compiled in two places of one program.

@@ -1,0 +1,333 @@
+"""Mutation check of the native Whitted integrator: each of a table of one-line mistakes, made in
+a copy of the package, must make tests/test_render_native.py fail.
+
+    python tests/native_mutations.py                       # the unmutated copy, then every mutation
+    python tests/native_mutations.py --list                # the table
+    python tests/native_mutations.py shadow-ignored one-bounce-more
+    python tests/native_mutations.py --tests tests/test_render_native.py tests/test_render.py
+    python tests/native_mutations.py -k slots              # only the tests pytest -k selects
+
+For each mutation: the package (fovjax/) is copied to a temporary directory; the mutation's
+snippet must occur exactly once in all of the copy's C++ sources (every *.cc and *.h under
+fovjax/, wherever they lie: `fovjax.native.sources()`, what the build compiles) and is replaced
+there; the native library is built from the copy into a directory of its own (FOVJAX_NATIVE_DIR
+and FOVJAX_CACHE_DIR point into the temporary directory, so the real cache and sources are never
+touched) and a probe checks that the copy is the package imported, that its library loads and
+that the mutated file is among the sources it was built from;
+then the test files run (pytest -x, one process) with the copy imported in place of the
+checkout's package. The mutation is caught when they fail. The unmutated copy runs first, the
+same way, and must pass without a skip: otherwise a failure would mean nothing.
+
+Exit status 0 when every mutation chosen is caught; 1 when one survives, a snippet is missing or
+found more than once, a mutated copy does not build, or the unmutated copy does not pass; 2 for a
+bad command line.
+
+To mutation-test a change of the native code: add the mistakes it could hide to MUTATIONS (a
+name, what it means, an exact snippet of the source and its replacement; one line each is best)
+and run the script. Each mutation takes a build of the library (about a minute on two cores) and
+the test files up to their first failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import NamedTuple
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = "fovjax"
+DEFAULT_TESTS = ("tests/test_render_native.py",)
+SOURCE_SUFFIXES = (".cc", ".h")
+
+
+class Mutation(NamedTuple):
+    name: str
+    description: str
+    snippet: str  # exact text of the source, found exactly once among the package's C++ sources
+    replacement: str
+
+
+MUTATIONS = (
+    Mutation(
+        "specular-exponent",
+        "the specular exponent one more than the material's Ns",
+        "std::exp2(shininess * std::log2(cosine))",
+        "std::exp2((shininess + 1.0f) * std::log2(cosine))",
+    ),
+    Mutation(
+        "shadow-ignored",
+        "a blocked shadow ray does not darken its light",
+        "if (b.sprim[j] >= 0) continue;",
+        "if (false && b.sprim[j] >= 0) continue;",
+    ),
+    Mutation(
+        "one-bounce-fewer",
+        "reflections stop one level before max_depth",
+        "const bool spawn = depth < s.max_depth;",
+        "const bool spawn = depth + 1 < s.max_depth;",
+    ),
+    Mutation(
+        "one-bounce-more",
+        "reflections go one level past max_depth",
+        "const bool spawn = depth < s.max_depth;",
+        "const bool spawn = depth <= s.max_depth;",
+    ),
+    Mutation(
+        "unbounded-shadow",
+        "a positional light's shadow ray not bounded at the light (tfar = infinity)",
+        "b.stmax[j] = at.positional ? distance : INFINITY;",
+        "b.stmax[j] = INFINITY;",
+    ),
+    Mutation(
+        "uncompounded-reflection",
+        "a reflection's weight is the last mirror's Kr, not the product along the path",
+        "w = w * kr;",
+        "w = kr;",
+    ),
+)
+
+
+class CheckError(Exception):
+    """A mutation that cannot be checked (its snippet, its build); the message says why."""
+
+
+def sources(package: Path) -> list[Path]:
+    """The C++ sources under `package` (every *.cc and *.h, the rule of `fovjax.native.sources`,
+    which the build compiles), sorted."""
+    return sorted(p for p in package.rglob("*") if p.suffix in SOURCE_SUFFIXES and p.is_file())
+
+
+def locate(package: Path, snippet: str) -> Path:
+    """The one source under `package` that holds `snippet`, which must occur exactly once in all
+    of them; `CheckError` naming the places otherwise."""
+    if not snippet:
+        raise CheckError("an empty snippet")
+    places = []
+    for path in sources(package):
+        text = path.read_text()
+        start = 0
+        while (at := text.find(snippet, start)) >= 0:
+            places.append((path, text.count("\n", 0, at) + 1))
+            start = at + 1
+    if len(places) != 1:
+        names = [f"{p.relative_to(package.parent)}:{line}" for p, line in places]
+        found = "not found" if not places else f"found {len(places)} times ({', '.join(names)})"
+        where = f"{len(sources(package))} C++ sources under {package.name}/"
+        raise CheckError(f"snippet {snippet!r} {found} in the {where}")
+    return places[0][0]
+
+
+def apply(package: Path, mutation: Mutation) -> tuple[Path, str]:
+    """Make `mutation` in the sources under `package`; returns the file and where (file:line)."""
+    path = locate(package, mutation.snippet)
+    text = path.read_text()
+    line = text.count("\n", 0, text.index(mutation.snippet)) + 1
+    path.write_text(text.replace(mutation.snippet, mutation.replacement))
+    return path, f"{path.relative_to(package.parent)}:{line}"
+
+
+def _environment(work: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env["FOVJAX_NATIVE_DIR"] = str(work / "native")
+    env["FOVJAX_CACHE_DIR"] = str(work / "cache")
+    env.pop("FOVJAX_TEST_COMPILE_DIR", None)  # each run compiles its own programs (conftest)
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
+
+
+def _run(command: list[str], work: Path, env: dict[str, str], timeout: float):
+    """`command` run in the copy's directory (its package first on sys.path)."""
+    try:
+        return subprocess.run(
+            command, cwd=work / "src", env=env, capture_output=True, text=True, timeout=timeout
+        )
+    except subprocess.TimeoutExpired as exc:
+        raise CheckError(f"{' '.join(command[:4])} ran past {timeout:.0f} s") from exc
+
+
+def _tail(done: subprocess.CompletedProcess, lines: int) -> str:
+    return " | ".join((done.stdout + done.stderr).strip().splitlines()[-lines:])
+
+
+PROBE = (
+    "import json, fovjax, fovjax.native as native\n"
+    "s = native.status()\n"
+    "print(json.dumps({'package': fovjax.__file__, 'available': bool(s), 'reason': s.reason,"
+    " 'library': s.library, 'sources': [str(p) for p in native.sources()]}))\n"
+)
+
+
+def _probe(work: Path, env: dict[str, str], mutated: Path | None) -> None:
+    """Build and load the copy's handlers (the test run then finds them built) and check that
+    the copy is the package imported from the work directory, that its library was built in
+    the work directory, and that the mutated file is one of the sources the build compiles."""
+    import json
+
+    done = _run([sys.executable, "-c", PROBE], work, env, 900.0)
+    if done.returncode != 0:
+        raise CheckError(f"the probe failed: {_tail(done, 1)}")
+    status = json.loads(done.stdout.strip().splitlines()[-1])
+    if not Path(status["package"]).resolve().is_relative_to((work / "src").resolve()):
+        raise CheckError(f"the copy was not the package imported ({status['package']})")
+    if not status["available"]:
+        raise CheckError(f"the handlers did not build or load: {status['reason']}")
+    if not Path(status["library"]).resolve().is_relative_to((work / "native").resolve()):
+        raise CheckError(f"the library was not built in the work directory ({status['library']})")
+    compiled = {Path(p).resolve() for p in status["sources"]}
+    if mutated is not None and mutated.resolve() not in compiled:
+        raise CheckError(f"{mutated.name} is not among the sources the build compiles")
+
+
+class Outcome(NamedTuple):
+    failed: bool
+    tests: int
+    skipped: int
+    first_failure: str
+    seconds: float
+
+
+def run_tests(
+    work: Path, env: dict[str, str], tests: list[Path], timeout: float, select: str | None
+) -> Outcome:
+    """The test files (absolute paths in the checkout, so its conftest and pyproject apply) run
+    from the copy's directory, the copy first on sys.path; stops at the first failure."""
+    report = work / "report.xml"
+    command = [
+        sys.executable,
+        "-m",
+        "pytest",
+        "-q",
+        "-x",
+        "-n",
+        "0",
+        "-p",
+        "no:cacheprovider",
+        f"--junitxml={report}",
+        *(["-k", select] if select else []),
+        *map(str, tests),
+    ]
+    t0 = time.perf_counter()
+    done = _run(command, work, env, timeout)
+    seconds = time.perf_counter() - t0
+    if not report.exists():
+        raise CheckError(f"pytest wrote no report (exit {done.returncode}): {_tail(done, 5)}")
+    cases = ET.parse(report).getroot().iter("testcase")
+    tests_run, skipped, first = 0, 0, ""
+    for case in cases:
+        tests_run += 1
+        if case.find("skipped") is not None:
+            skipped += 1
+        if not first and (case.find("failure") is not None or case.find("error") is not None):
+            first = f"{case.get('classname', '').rsplit('.', 1)[-1]}::{case.get('name')}"
+    failed = done.returncode != 0
+    if failed and not first:  # e.g. a collection error
+        first = f"(exit {done.returncode}) {_tail(done, 1)}"
+    return Outcome(failed, tests_run, skipped, first, seconds)
+
+
+def check(mutation: Mutation | None, tests: list[Path], args: argparse.Namespace) -> tuple[str, Outcome]:
+    """Copy the package, make `mutation` (None: none), build, run the tests; (where, outcome)."""
+    work = Path(tempfile.mkdtemp(prefix=f"fovjax-mutation-{mutation.name if mutation else 'none'}-"))
+    try:
+        shutil.copytree(
+            ROOT / PACKAGE, work / "src" / PACKAGE, ignore=shutil.ignore_patterns("__pycache__", "*.so")
+        )
+        mutated, where = apply(work / "src" / PACKAGE, mutation) if mutation else (None, "")
+        env = _environment(work)
+        _probe(work, env, mutated)
+        return where, run_tests(work, env, tests, args.timeout, args.k)
+    finally:
+        if args.keep:
+            print(f"  kept {work}", flush=True)
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", help="mutations to check (default: all; --list names them)")
+    parser.add_argument("--list", action="store_true", help="print the table and exit")
+    parser.add_argument(
+        "--tests",
+        nargs="+",
+        default=list(DEFAULT_TESTS),
+        help=f"test files (default {' '.join(DEFAULT_TESTS)})",
+    )
+    parser.add_argument("-k", default=None, metavar="EXPR", help="only the tests pytest -k EXPR selects")
+    parser.add_argument("--timeout", type=float, default=1800.0, help="seconds per test run (default 1800)")
+    parser.add_argument("--keep", action="store_true", help="keep each work directory (its path is printed)")
+    args = parser.parse_args(argv)
+    by_name = {m.name: m for m in MUTATIONS}
+    if args.list:
+        for m in MUTATIONS:
+            print(f"{m.name}: {m.description}\n    {m.snippet}\n -> {m.replacement}")
+        return 0
+    unknown = [n for n in args.names if n not in by_name]
+    if unknown:
+        parser.error(f"unknown mutation {', '.join(unknown)}; expected some of {', '.join(by_name)}")
+    tests = [(ROOT / t).resolve() if not Path(t).is_absolute() else Path(t) for t in args.tests]
+    missing = [str(t) for t in tests if not t.is_file()]
+    if missing:
+        parser.error(f"--tests: no such file {', '.join(missing)}")
+    if os.environ.get("FOVJAX_NATIVE", "1") == "0":
+        parser.error("FOVJAX_NATIVE=0 turns the native integrator off: nothing to check")
+    chosen = [by_name[n] for n in args.names] if args.names else list(MUTATIONS)
+    # Every snippet is checked against the checkout's sources before any slow work.
+    problems = []
+    for m in chosen:
+        try:
+            locate(ROOT / PACKAGE, m.snippet)
+        except CheckError as exc:
+            problems.append(f"{m.name}: {exc}")
+    if problems:
+        print("native_mutations: " + "\n".join(problems), file=sys.stderr)
+        return 1
+    names = ", ".join(str(t.relative_to(ROOT)) if t.is_relative_to(ROOT) else str(t) for t in tests)
+    print(f"native_mutations: {len(chosen)} mutation(s) against {names}", flush=True)
+
+    print("unmutated copy ...", flush=True)
+    try:
+        _, base = check(None, tests, args)
+    except CheckError as exc:
+        print(f"native_mutations: the unmutated copy cannot be checked: {exc}", file=sys.stderr)
+        return 1
+    if base.failed or base.skipped or base.tests == 0:
+        why = base.first_failure or f"{base.skipped} of {base.tests} tests skipped"
+        print(f"native_mutations: the unmutated copy does not pass: {why}", file=sys.stderr)
+        return 1
+    print(f"  passes: {base.tests} tests in {base.seconds:.0f} s", flush=True)
+
+    rows = []
+    for m in chosen:
+        print(f"{m.name} ...", flush=True)
+        try:
+            where, out = check(m, tests, args)
+        except CheckError as exc:
+            rows.append((m.name, "ERROR", str(exc), ""))
+        else:
+            result = "caught" if out.failed else "SURVIVED"
+            detail = out.first_failure if out.failed else f"{out.tests} tests passed"
+            rows.append((m.name, result, f"{where}: {detail}", f"{out.seconds:.0f} s"))
+        print(f"  {rows[-1][1]}: {rows[-1][2]}", flush=True)
+
+    width = max(len(r[0]) for r in rows)
+    print("\n" + "mutation".ljust(width + 2) + "result    where: first failing test  (seconds)")
+    for name, result, detail, seconds in rows:
+        print(f"{name.ljust(width + 2)}{result.ljust(10)}{detail}  {seconds}")
+    bad = [r for r in rows if r[1] != "caught"]
+    if bad:
+        print(f"native_mutations: {len(bad)} of {len(rows)} not caught", file=sys.stderr)
+        return 1
+    print(f"native_mutations: all {len(rows)} caught")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
