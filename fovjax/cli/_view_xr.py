@@ -44,7 +44,9 @@ def validate(args) -> None:
         raise cli.UsageError(
             f"--xr with --study {args.study}: the study plays pre-rendered clips on the 2D page; choose one"
         )
-    given = [name for name, value in (("--width", args.width), ("--height", args.height)) if value is not None]
+    given = [
+        name for name, value in (("--width", args.width), ("--height", args.height)) if value is not None
+    ]
     if given:
         raise cli.UsageError(
             f"{'/'.join(given)} with --xr: the size per eye is the headset's own times --xr-scale"

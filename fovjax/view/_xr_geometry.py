@@ -354,10 +354,7 @@ def xr_stereo(pose: XRPose, origin: CameraPose, scale: float = 1.0) -> XRStereo:
         ]
     )
     tangents = np.array(
-        [
-            [(-1 + ox) * half_w, (1 + ox) * half_w, (-1 + oy) * half_h, (1 + oy) * half_h]
-            for ox, oy in offsets
-        ]
+        [[(-1 + ox) * half_w, (1 + ox) * half_w, (-1 + oy) * half_h, (1 + oy) * half_h] for ox, oy in offsets]
     )
     world_r, world_o = level_frame(origin)
     head_world = world_r @ head_r

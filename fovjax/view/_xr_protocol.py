@@ -83,7 +83,9 @@ def _pose(msg: dict) -> XRPose:
         except (TypeError, ValueError) as err:
             raise MessageError(f"xr_pose: {err}") from None
     try:
-        return XRPose(t=msg["t"], position=head["position"], orientation=head["orientation"], views=tuple(made))
+        return XRPose(
+            t=msg["t"], position=head["position"], orientation=head["orientation"], views=tuple(made)
+        )
     except (TypeError, ValueError) as err:
         raise MessageError(f"xr_pose: {err}") from None
 
@@ -122,7 +124,9 @@ def parse_xr_message(data) -> dict:
         if state not in XR_STATES:
             raise MessageError(f"xr_state message: state must be one of {XR_STATES}, got {state!r}")
         if not isinstance(reason, str) or len(reason) > MAX_REASON_CHARS:
-            raise MessageError(f"xr_state message: reason must be text of at most {MAX_REASON_CHARS} characters")
+            raise MessageError(
+                f"xr_state message: reason must be text of at most {MAX_REASON_CHARS} characters"
+            )
         return {"type": "xr_state", "state": state, "reason": " ".join(reason.split())}
     frame = msg["frame"]
     if isinstance(frame, bool) or not isinstance(frame, int) or frame < 0:

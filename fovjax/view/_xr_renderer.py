@@ -45,7 +45,9 @@ class XRRenderer(LiveRenderer):
         seed: the PRNG seed of the sampling.
     """
 
-    def __init__(self, scene, foveation, *, origin=None, scale=1.0, config=None, gaze=None, tracker=None, seed=0):
+    def __init__(
+        self, scene, foveation, *, origin=None, scale=1.0, config=None, gaze=None, tracker=None, seed=0
+    ):
         from ..render import StereoRig
         from ..scene import default_camera
 
@@ -193,7 +195,9 @@ class XRRenderer(LiveRenderer):
         }
         if foveated is not None:
             fs = foveated.foveation
-            stats["rays_by_region"] = dict(zip(("fovea", "periphery", "outside"), fs.primary_by_region, strict=True))
+            stats["rays_by_region"] = dict(
+                zip(("fovea", "periphery", "outside"), fs.primary_by_region, strict=True)
+            )
             stats["budget"] = fs.budget
             stats["dropped_samples"] = fs.dropped
             if foveated.regions is not None:

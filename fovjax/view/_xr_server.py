@@ -66,7 +66,8 @@ class XRViewer(Viewer):
         await super()._announce()
         for client in self.clients:
             await self._send_json(
-                client, {"type": "xr_info", "gaze": self.renderer.gaze_description, "scale": self.renderer.scale}
+                client,
+                {"type": "xr_info", "gaze": self.renderer.gaze_description, "scale": self.renderer.scale},
             )
 
     async def _on_message(self, client, data) -> None:
@@ -92,7 +93,9 @@ class XRViewer(Viewer):
 
     async def _on_state(self, client, state: str, reason: str) -> None:
         if state == "entered":
-            log.info("client %s entered VR (%s); gaze: %s", client.peer, reason, self.renderer.gaze_description)
+            log.info(
+                "client %s entered VR (%s); gaze: %s", client.peer, reason, self.renderer.gaze_description
+            )
         elif state == "ended":
             log.info("client %s left VR: back to the 2D page", client.peer)
             self._pose_client = None

@@ -509,6 +509,7 @@ async function enterVR() {
     displayTimes.length = 0;
     shownTimes.length = 0;
     current = null;
+    document.body.classList.add("in-vr");
     enterButton.textContent = "in VR";
     setStatus("in VR: waiting for the first frame");
     sendState("entered", `immersive-vr, framebuffer ${layer.framebufferWidth}x${layer.framebufferHeight}`);
@@ -528,6 +529,7 @@ function onSessionEnd() {
   current = null;
   if (heldBack) { heldBack.bitmap.close(); acknowledge(heldBack.stats, false); heldBack = null; }
   sendState("ended", "");
+  document.body.classList.remove("in-vr");
   enterButton.textContent = "Enter VR";
   enterButton.disabled = !xr.supported;
   setStatus("left VR: back to the 2D page");
