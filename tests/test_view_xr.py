@@ -604,10 +604,10 @@ def _shift(image, reference, most=80) -> int:
     return min(range(-most, most + 1), key=cost)
 
 
-def _turn_head(driver, yaw_deg: float) -> None:
-    """The emulated headset turned right by yaw_deg (about -y)."""
-    half = math.radians(yaw_deg) / 2
-    driver.execute_script(f"window.fovjaxHeadset.quaternion.set(0, {-math.sin(half)}, 0, {math.cos(half)});")
+def _turn_head(driver, yaw_deg: float, pitch_deg: float = 0.0) -> None:
+    """The emulated headset turned right by yaw_deg (about -y), then up by pitch_deg."""
+    q = _compose(_quaternion((0, 1, 0), -yaw_deg), _quaternion((1, 0, 0), pitch_deg))
+    driver.execute_script(f"window.fovjaxHeadset.quaternion.set({q[0]}, {q[1]}, {q[2]}, {q[3]});")
 
 
 def _displayed_after(driver, frames: int) -> None:
@@ -769,16 +769,15 @@ def test_a_browser_without_webxr_is_told_in_one_line(xr_server, browser, injecte
 
 
 def capture(path: Path, scale: float = 0.5, window=(1280, 560)) -> None:
-    """An emulated session's view in the headset (both eyes, the text panel) saved as `path`."""
-    server = XRProcess(["--scene", "spheres", "--xr-scale", str(scale)])
+    """An emulated session's view in the headset (both eyes, the text panel) saved as `path`:
+    the head turned to the spheres, the thesis's 10°/20° pair."""
+    server = XRProcess(["--scene", "spheres", "--xr-scale", str(scale), "--fovea", "10", "--periphery", "20"])
     driver = _chromium(window)
     try:
         _inject(driver, _emulator_script(_iwer_bundle()))
         _enter_vr(driver, server)
-        _turn_head(driver, 10.0)
-        _wait(
-            driver, "const s = window.fovjaxXR.shownStats; return Math.abs(s.head_pose[0] - 10) < 0.01", 120
-        )
+        _turn_head(driver, 6.0, -13.0)
+        _wait(driver, "const s = window.fovjaxXR.shownStats; return Math.abs(s.head_pose[1] + 13) < 0.01", 120)
         _displayed_after(driver, 8)
         driver.save_screenshot(str(path))
     finally:
