@@ -777,7 +777,8 @@ def capture(path: Path, scale: float = 0.5, window=(1280, 560)) -> None:
         _inject(driver, _emulator_script(_iwer_bundle()))
         _enter_vr(driver, server)
         _turn_head(driver, 6.0, -13.0)
-        _wait(driver, "const s = window.fovjaxXR.shownStats; return Math.abs(s.head_pose[1] + 13) < 0.01", 120)
+        turned = "const s = window.fovjaxXR.shownStats; return Math.abs(s.head_pose[1] + 13) < 0.01"
+        _wait(driver, turned, 120, what="a frame rendered at the turned head")
         _displayed_after(driver, 8)
         driver.save_screenshot(str(path))
     finally:
