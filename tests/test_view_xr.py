@@ -419,8 +419,13 @@ def test_renderer_follows_the_headset_and_maps_the_trackers_gaze(tmp_path):
             live.render_next()
         first = _pose([0, 0, 0, 1], viewport=(1200, 1200), head_p=(0, 0, 0))
         assert live.set_pose(first) is True  # a new shape: its first frame compiles
-        frame = live.render_next()
+        frame = live.render_next()  # compiles
         assert live.in_session and live.set_pose(first) is False
+        deadline = time.monotonic() + 30
+        while frame.stats["tracking_state"] != "ok" and time.monotonic() < deadline:
+            time.sleep(0.02)  # the source's first samples
+            frame = live.render_next()
+        assert frame.stats["tracking_state"] == "ok", frame.stats["tracking_state"]
         stats = frame.stats
         stereo = xr_stereo(first, live.origin, 0.02)
         assert stats["size"] == [live.rig.eye_width, live.rig.eye_height] == [26, 24]

@@ -96,7 +96,11 @@ def _unit_quaternion(value, name: str) -> np.ndarray:
     return q / norm
 
 
-@dataclasses.dataclass(frozen=True)
+Vec3Like = Real[ArrayLike, " 3"] | Sequence[float]
+QuaternionLike = Real[ArrayLike, " 4"] | Sequence[float]
+
+
+@dataclasses.dataclass(frozen=True, init=False)
 class XRView:
     """One eye's view of a WebXR frame (`XRView`), in the session's `local` reference space.
 
@@ -107,22 +111,29 @@ class XRView:
         projection: (16,) the projection matrix, column-major as WebXR gives it: a perspective
             frustum (asymmetric allowed, no skew).
         viewport: (width, height) of the eye's viewport in the headset's framebuffer, pixels.
+
+    Raises:
+        ValueError: a value that is not what its attribute says, named.
     """
 
     eye: str
-    position: Real[ArrayLike, " 3"] | Sequence[float]
-    orientation: Real[ArrayLike, " 4"] | Sequence[float]
-    projection: Real[ArrayLike, " 16"] | Sequence[float]
-    viewport: Sequence[int]
+    position: np.ndarray
+    orientation: np.ndarray
+    projection: np.ndarray
+    viewport: tuple[int, int]
 
-    def __post_init__(self):
-        if self.eye not in EYES:
-            raise ValueError(f"view eye must be 'left' or 'right', got {self.eye!r}")
-        name = f"{self.eye} view"
-        object.__setattr__(self, "position", _vector(self.position, 3, f"{name} position", MAX_POSITION_M))
-        object.__setattr__(self, "orientation", _unit_quaternion(self.orientation, f"{name} orientation"))
-        p = _vector(self.projection, 16, f"{name} projection")
-        object.__setattr__(self, "projection", p)
+    def __init__(
+        self,
+        eye: str,
+        position: Vec3Like,
+        orientation: QuaternionLike,
+        projection: Real[ArrayLike, " 16"] | Sequence[float],
+        viewport: Sequence[int],
+    ):
+        if eye not in EYES:
+            raise ValueError(f"view eye must be 'left' or 'right', got {eye!r}")
+        name = f"{eye} view"
+        p = _vector(projection, 16, f"{name} projection")
         # Column-major: p[0] = m00, p[5] = m11, p[8] = m02, p[9] = m12, p[11] = m32, p[15] = m33.
         if not (p[0] > 0 and p[5] > 0 and p[11] == -1.0 and p[15] == 0.0):
             raise ValueError(
@@ -131,14 +142,19 @@ class XRView:
             )
         if p[4] != 0.0 or p[1] != 0.0:
             raise ValueError(f"{name} projection has a skew (m01 = {p[4]:g}, m10 = {p[1]:g}): not supported")
-        width, height = self.viewport
-        for value in (width, height):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or not 1 <= value <= 65536:
-                raise ValueError(
-                    f"{name} viewport must be (width, height) in pixels, 1 to 65536 each, got "
-                    f"{tuple(self.viewport)!r} (a zero viewport: a mono device, not a headset)"
-                )
-        object.__setattr__(self, "viewport", (int(width), int(height)))
+        size = tuple(viewport)
+        if len(size) != 2 or not all(
+            isinstance(v, int | np.integer) and not isinstance(v, bool) and 1 <= v <= 65536 for v in size
+        ):
+            raise ValueError(
+                f"{name} viewport must be (width, height) in pixels, 1 to 65536 each, got {size!r} "
+                "(a zero viewport: a mono device, not a headset)"
+            )
+        object.__setattr__(self, "eye", eye)
+        object.__setattr__(self, "position", _vector(position, 3, f"{name} position", MAX_POSITION_M))
+        object.__setattr__(self, "orientation", _unit_quaternion(orientation, f"{name} orientation"))
+        object.__setattr__(self, "projection", p)
+        object.__setattr__(self, "viewport", (int(size[0]), int(size[1])))
 
     def rotation(self) -> np.ndarray:
         """(3, 3) local-from-eye rotation (columns: right, up, backward)."""
@@ -156,7 +172,7 @@ class XRView:
         )
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, init=False)
 class XRPose:
     """The headset's pose and both eyes' views in one WebXR frame.
 
@@ -165,25 +181,27 @@ class XRPose:
         position: (3,) the head (WebXR viewer pose) position, metres, `local` space.
         orientation: (4,) the head orientation, a unit quaternion (x, y, z, w).
         views: (left, right) `XRView`s (given in either order, kept left first).
+
+    Raises:
+        ValueError: a value that is not what its attribute says, named.
     """
 
     t: float
-    position: Real[ArrayLike, " 3"] | Sequence[float]
-    orientation: Real[ArrayLike, " 4"] | Sequence[float]
-    views: Sequence[XRView]
+    position: np.ndarray
+    orientation: np.ndarray
+    views: tuple[XRView, XRView]
 
-    def __post_init__(self):
-        if isinstance(self.t, bool) or not isinstance(self.t, int | float) or not 0 <= self.t < 1e12:
-            raise ValueError(f"pose t must be a time in ms, 0 to 1e12, got {self.t!r}")
-        object.__setattr__(self, "t", float(self.t))
-        object.__setattr__(self, "position", _vector(self.position, 3, "head position", MAX_POSITION_M))
-        object.__setattr__(self, "orientation", _unit_quaternion(self.orientation, "head orientation"))
-        views = tuple(self.views)
-        eyes = sorted(v.eye for v in views) if all(isinstance(v, XRView) for v in views) else None
+    def __init__(self, t: float, position: Vec3Like, orientation: QuaternionLike, views: Sequence[XRView]):
+        if isinstance(t, bool) or not isinstance(t, int | float) or not 0 <= t < 1e12:
+            raise ValueError(f"pose t must be a time in ms, 0 to 1e12, got {t!r}")
+        eyes = sorted(v.eye for v in views)
         if eyes != ["left", "right"]:
-            got = [getattr(v, "eye", type(v).__name__) for v in views]
-            raise ValueError(f"a headset pose needs two views, left and right; got {got}")
-        object.__setattr__(self, "views", tuple(sorted(views, key=lambda v: EYES.index(v.eye))))
+            raise ValueError(f"a headset pose needs two views, left and right; got {[v.eye for v in views]}")
+        left, right = sorted(views, key=lambda v: EYES.index(v.eye))
+        object.__setattr__(self, "t", float(t))
+        object.__setattr__(self, "position", _vector(position, 3, "head position", MAX_POSITION_M))
+        object.__setattr__(self, "orientation", _unit_quaternion(orientation, "head orientation"))
+        object.__setattr__(self, "views", (left, right))
 
     def rotation(self) -> np.ndarray:
         """(3, 3) local-from-head rotation."""
