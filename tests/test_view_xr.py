@@ -491,9 +491,9 @@ def _chromium(window=WINDOW):
     binary = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
     driver_path = shutil.which("chromedriver")
     if binary is None or driver_path is None:
-        pytest.skip(
-            "no chromium/chromedriver on PATH (.ci/run installs Debian's chromium and chromium-driver)"
-        )
+        # A system package, as for tests/test_view.py's browser test: a skip that says why.
+        why = "no chromium/chromedriver on PATH (.ci/run puts Debian's chromium and chromium-driver there)"
+        pytest.skip(why)
     options = webdriver.ChromeOptions()
     options.binary_location = binary
     profile = tempfile.mkdtemp(prefix="fovjax-view-xr-chromium-")
