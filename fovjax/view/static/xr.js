@@ -35,7 +35,7 @@ const xr = {
   shownStats: null,      // the statistics of the frame in the headset now
   sessions: 0,
   ended: 0,
-  displayFrames: 0,      // display frames drawn in this session
+  displayFrames: 0,      // display frames drawn since Enter VR
   framesShown: 0,        // new frames drawn into the headset, all sessions
   posesSent: 0,
   lastPose: null,        // the newest pose message sent
