@@ -469,8 +469,11 @@ def _iwer_bundle() -> Path:
         timeout=600,
     )
     if proc.returncode != 0 or not IWER_BUNDLE.exists():
-        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-        _need(f"npm could not fetch the WebXR emulator iwer@{IWER_VERSION} into {IWER_DIR}: {last}")
+        lines = [line for line in proc.stderr.splitlines() if line.strip() and "complete log" not in line]
+        _need(
+            f"npm could not fetch the WebXR emulator iwer@{IWER_VERSION} into {IWER_DIR}: "
+            + "; ".join(lines[:2] or ["no output"])
+        )
     return IWER_BUNDLE
 
 
