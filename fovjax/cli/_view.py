@@ -16,13 +16,14 @@ import threading
 
 from fovjax import cli
 
-from . import _view_study
+from . import _view_study, _view_xr
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
 # The viewer's own limit per eye (a live frame, drawn on one canvas twice as wide); larger
 # frames are `fovjax render`'s. Below it the frame's memory is checked against the machine's, as
 # every command's is (`cli.frame_size`).
 MAX_EYE_PIXELS = 8192
+DEFAULT_WIDTH, DEFAULT_HEIGHT = 320, 256
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,14 +38,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "foveated, v regions/samples view, p save the frame and its statistics. With --study "
         "pair|ramp|slider --participant ID -o DIR the page runs that test of the thesis's user study "
         "with a participant instead, recording the answers in DIR (see 'Running the study' in the "
-        "documentation). Needs the 'view' extra.",
+        "documentation). With --xr the page shows the frames in a WebXR headset instead ('In a headset' in "
+        "the documentation). Needs the 'view' extra.",
     )
     p.add_argument("--scene", default="spheres", help="atrium, cornell, spheres, or a scene file (spheres)")
     p.add_argument("--triangles", type=int, default=262_000, help="atrium size (triangles)")
     p.add_argument("--gaze", default="mouse", help="'mouse' (default) or a gaze source spec")
     p.add_argument("--head", default="keys", help="'keys' (default) or a head source spec")
-    p.add_argument("--width", type=int, default=320, help="pixels per eye (default 320)")
-    p.add_argument("--height", type=int, default=256, help="pixels per eye (default 256)")
+    p.add_argument("--width", type=int, help=f"pixels per eye (default {DEFAULT_WIDTH})")
+    p.add_argument("--height", type=int, help=f"pixels per eye (default {DEFAULT_HEIGHT})")
     p.add_argument("--fovea", type=float, default=5.0, help="fovea eccentricity in degrees (default 5)")
 
     cli.add_regions(p)
@@ -66,6 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--open", action="store_true", help="open the page in a browser")
     p.add_argument("--verbose", action="store_true", help="log every client and ignored message")
     _view_study.add_arguments(p)
+    _view_xr.add_arguments(p)
     cli.add_size_check(p)
     p.set_defaults(func=run)
 
@@ -80,8 +83,11 @@ def validate(args) -> None:
     given = [name for name, value in study_only.items() if value is not None]
     if args.study is None and given:
         raise cli.UsageError(f"{', '.join(given)}: only with --study pair|ramp|slider")
+    _view_xr.validate(args)
     if args.spp is None:
         args.spp = _view_study.STUDY_SPP if args.study is not None else 1
+    args.width = DEFAULT_WIDTH if args.width is None else args.width
+    args.height = DEFAULT_HEIGHT if args.height is None else args.height
     cli.number(args.width, "--width", ge=1, le=MAX_EYE_PIXELS, integer=True)
     cli.number(args.height, "--height", ge=1, le=MAX_EYE_PIXELS, integer=True)
     cli.squares(args.spp, "--spp")
@@ -162,29 +168,29 @@ def _run(args) -> int:
     logging.basicConfig(level=logging.WARNING, format="fovjax view: %(levelname)s: %(message)s")
     logging.getLogger("fovjax.view").setLevel(logging.INFO if args.verbose else logging.WARNING)
     scene = _load_scene(args)
-    rig = StereoRig.from_pose(
-        fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
+    foveation = cli.regions(
+        Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
     )
-    renderer = LiveRenderer(
-        scene,
-        rig,
-        cli.regions(
-            Foveation(fovea_deg=args.fovea, periphery_deg=args.periphery, spp=args.spp), args, args.height
-        ),
-        config=RenderConfig(max_depth=args.max_depth, backend=args.backend),
-        gaze=None if args.gaze == "mouse" else args.gaze,
-        head=None if args.head == "keys" else args.head,
-        seed=0 if args.seed is None else args.seed,
-    )
-    # Devices first: an unreachable tracker is an error now, before anything is served.
-    renderer.open()
-    viewer = Viewer(
-        renderer,
-        host=args.host,
-        port=args.port,
-        save_dir=args.save_dir,
-        on_save=lambda paths: cli.wrote(*paths),  # for the message on Ctrl-C
-    )
+    config = RenderConfig(max_depth=args.max_depth, backend=args.backend)
+    on_save = lambda paths: cli.wrote(*paths)  # noqa: E731 (for the message on Ctrl-C)
+    if args.xr:
+        renderer, viewer = _view_xr.make(args, scene, foveation, config, on_save)
+    else:
+        rig = StereoRig.from_pose(
+            fovjax.scenes.default_camera(scene), eye_width=args.width, eye_height=args.height
+        )
+        renderer = LiveRenderer(
+            scene,
+            rig,
+            foveation,
+            config=config,
+            gaze=None if args.gaze == "mouse" else args.gaze,
+            head=None if args.head == "keys" else args.head,
+            seed=0 if args.seed is None else args.seed,
+        )
+        # Devices first: an unreachable tracker is an error now, before anything is served.
+        renderer.open()
+        viewer = Viewer(renderer, host=args.host, port=args.port, save_dir=args.save_dir, on_save=on_save)
     interrupted = threading.Event()
     try:
         asyncio.run(_serve(viewer, args.open, interrupted))

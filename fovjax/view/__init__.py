@@ -8,6 +8,10 @@ gaze-to-display latency. Needs the 'view' extra (aiohttp).
 - `Viewer`: the aiohttp server around it (`start`, `stop`, `url`);
 - `StudyServer`: the user-study player's server (`fovjax view --study`): pre-rendered clips,
   the trials' sequences timed on the page, answers handed to the study as they are given;
+- `XRViewer`, `XRRenderer`: the headset's server and renderer (`fovjax view --xr`): a WebXR
+  page sends the headset pose and both eyes' views, frames are rendered for them and drawn
+  reprojected to the newest pose; `XRPose`, `XRView`, `xr_stereo`, `XRStereo`: from a WebXR
+  frame's views to the rig that renders them; `parse_xr_message`: that page's protocol;
 - `binocular_gaze`: both eyes' gaze from one eye's, through the rig's geometry;
 - `parse_message`, `MessageError`, `ACTIONS`: the page protocol and its validation.
 """
@@ -24,6 +28,13 @@ from ._renderer import encode_jpeg as encode_jpeg
 from ._server import Viewer as Viewer
 from ._server import is_loopback as is_loopback
 from ._study import StudyServer as StudyServer
+from ._xr_geometry import XRPose as XRPose
+from ._xr_geometry import XRStereo as XRStereo
+from ._xr_geometry import XRView as XRView
+from ._xr_geometry import xr_stereo as xr_stereo
+from ._xr_protocol import parse_xr_message as parse_xr_message
+from ._xr_renderer import XRRenderer as XRRenderer
+from ._xr_server import XRViewer as XRViewer
 
 __all__ = [
     "binocular_gaze",
@@ -38,4 +49,11 @@ __all__ = [
     "Viewer",
     "is_loopback",
     "StudyServer",
+    "XRPose",
+    "XRStereo",
+    "XRView",
+    "xr_stereo",
+    "parse_xr_message",
+    "XRRenderer",
+    "XRViewer",
 ]

@@ -121,6 +121,9 @@ class Viewer:
     writes; `on_save`: called with the paths of each completed save (on the render thread).
     `saved`: the paths saved so far. `stop` lets a save in progress finish."""
 
+    PAGE = "index.html"  # the page at /, and the files under /static/ (name -> content type)
+    STATIC_FILES = STATIC_FILES
+
     def __init__(
         self, renderer, *, host="127.0.0.1", port=8000, token="auto", save_dir="fovjax-view", on_save=None
     ):
@@ -160,16 +163,16 @@ class Viewer:
 
         if not self._authorised(request):
             return web.Response(status=403, text="fovjax view: a valid ?token= is required\n")
-        html = _static("index.html").decode()
+        html = _static(self.PAGE).decode()
         return web.Response(text=html, content_type="text/html", headers={"Cache-Control": "no-store"})
 
     async def _static_file(self, request):
         from aiohttp import web
 
         name = request.match_info["name"]
-        if name not in STATIC_FILES:
+        if name not in self.STATIC_FILES:
             raise web.HTTPNotFound()
-        return web.Response(body=_static(name), content_type=STATIC_FILES[name])
+        return web.Response(body=_static(name), content_type=self.STATIC_FILES[name])
 
     def _same_origin(self, request) -> bool:
         origin = request.headers.get("Origin")
@@ -312,6 +315,15 @@ class Viewer:
 
     # ---- the frame loop ------------------------------------------------------------------------
 
+    def _has_work(self) -> bool:
+        """Whether the active client has a frame to render (the 2D page always has; a subclass
+        may wait for its input, setting `_wake` when it comes)."""
+        return True
+
+    def _ack_grace(self, frame) -> float:
+        """How long a rendered frame waits for the page to show the previous one (seconds)."""
+        return min(ACK_TIMEOUT_S, frame.stats["ms"]["frame"] / 1e3)
+
     async def _frame_loop(self) -> None:
         loop = asyncio.get_running_loop()
         self.state = "compiling"
@@ -329,7 +341,7 @@ class Viewer:
         self.state = "running"
         await self._announce()
         while True:
-            if not self.clients:
+            if not self.clients or not self._has_work():
                 self._wake.clear()
                 await self._wake.wait()
                 continue
@@ -354,7 +366,7 @@ class Viewer:
                 # The page has not shown the previous frame yet. If it does within one frame's
                 # time, this frame is still fresher than a new one would be; otherwise it is
                 # dropped (never queued) and the next one rendered for the newest gaze.
-                grace = min(ACK_TIMEOUT_S, frame.stats["ms"]["frame"] / 1e3)
+                grace = self._ack_grace(frame)
                 try:
                     await asyncio.wait_for(client.acked.wait(), grace)
                 except TimeoutError:
