@@ -175,6 +175,13 @@ VARIABLES: dict[str, Variable] = {
             scope=TESTS,
         ),
         Variable(
+            "FOVJAX_IWER_DIR",
+            PATH,
+            "`~/.cache/fovjax/iwer-<version>`",
+            "where the WebXR emulator (the npm package `iwer`) for `tests/test_view_xr.py` is installed",
+            scope=TESTS,
+        ),
+        Variable(
             "FOVJAX_FVVDP_MEDIA",
             PATH,
             "unset: that check skips",

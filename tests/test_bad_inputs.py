@@ -117,6 +117,8 @@ def files(tmp_path):
     bad_hdr.write_text("not an image")
     not_recording = tmp_path / "table.csv"
     not_recording.write_text("a,b\n1,2\n")
+    empty_dir = tmp_path / "empty_dir"
+    empty_dir.mkdir()
     short_vertex = tmp_path / "short.obj"
     short_vertex.write_text("v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n")
     garbage = tmp_path / "garbage.csv"
@@ -151,6 +153,7 @@ def files(tmp_path):
         "bad_hdr": str(bad_hdr),
         "not_recording": str(not_recording),
         "tmp": str(tmp_path),
+        "empty_dir": str(empty_dir),
         **bad_tables,
         "good_table": str(good_table),
         "short_row": str(short_row),
@@ -197,7 +200,7 @@ ROWS = [
     ("render --scene nowhere", 2, "'nowhere'"),
     ("render --scene nowhere.obj", 2, "'nowhere.obj': not a built-in scene"),
     ("render --scene {scene_txt}", 2, "scene.txt"),
-    ("render --scene {tmp}", 2, "not a built-in scene"),
+    ("render --scene {empty_dir}", 2, "the folder holds no scene file"),
     ("render --envmap /no/such/sky.hdr", 2, "/no/such/sky.hdr: no such file"),
     ("render --envmap {bad_hdr}", 2, "--envmap {bad_hdr}: load_image"),
     ("render -o out.jpg", 2, "unknown output type '.jpg'"),

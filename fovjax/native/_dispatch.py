@@ -81,14 +81,17 @@ def on_platforms(
     cuda: Callable | None = None,
     cpu_only: bool = False,
     derivatives: bool = True,
+    cpu_jvp: Callable | None = None,
 ) -> Callable:
     """One stage as a function of its operands: `cpu` on a CPU, `cuda` on an NVIDIA GPU,
     `reference` (the JAX implementation) wherever neither is given, chosen per platform inside
     the program. `cpu_only`: `cpu` alone (a program for the CPU, or a caller already inside the
     CPU's branch). `derivatives`: the stage's derivatives are `reference`'s (a custom JVP), so
     they do not depend on where the primal ran; False where the outputs are not differentiable
-    (integers, masks) or the caller differentiates elsewhere. All three take the same operands
-    and return the same structure."""
+    (integers, masks) or the caller differentiates elsewhere. `cpu_jvp(primals, tangents)`:
+    the JVP rule on a CPU instead (it returns the primal outputs, the native side's, and their
+    tangents: e.g. the JVP of a replay of what the native forward stored), `reference`'s
+    elsewhere. All take the same operands and return the same structure."""
     if cpu_only:
         if cpu is None:
             raise ValueError("on_platforms: cpu_only needs a cpu function")
@@ -107,8 +110,17 @@ def on_platforms(
         return primal
     stage = jax.custom_jvp(primal)
 
-    @stage.defjvp
-    def _from_reference(primals, tangents):
+    def reference_jvp(primals, tangents):
         return jax.jvp(reference, primals, tangents)
 
+    if cpu_jvp is None:
+        rule = reference_jvp
+    elif cpu_only:
+        rule = cpu_jvp
+    else:
+
+        def rule(primals, tangents):
+            return jax.lax.platform_dependent(primals, tangents, cpu=cpu_jvp, default=reference_jvp)
+
+    stage.defjvp(rule)
     return stage

@@ -19,6 +19,8 @@ SPECULARS = {"blinn-phong": 0, "phong": 1}
 REGIONS = {"fovea": 0, "periphery": 1, "outside": 2}
 CLASSES = {"mandatory": 0, "optional": 1, "skipped": 2}
 RULES = {"either": 0, "strict": 1, "thesis-measured": 2}
+# A stored path's face where no ray was traced at that level (`render/_replay.py`); -1 is a miss.
+PATH_NOT_TRACED = -2
 # The Whitted handlers' scene operands, in the order the handlers bind them.
 SCENE_OPERANDS = (
     "bvh_host_id",
@@ -58,6 +60,7 @@ def expected_layout() -> dict[str, str]:
         "light_stride": str(LIGHT_STRIDE),
         "camera_stride": str(CAMERA_STRIDE),
         "scene_operands": ",".join(SCENE_OPERANDS),
+        "path_not_traced": str(PATH_NOT_TRACED),
     }
     groups = (
         ("light", LIGHT_KINDS),

@@ -57,6 +57,7 @@ from ._config import DEFAULT_CONFIG, LUMINANCE, RenderConfig
 from ._envmap import envmap_lookup
 from ._mips import lod_uv, mip_level, mip_lookup
 from ._native import integrator_plan, native_whitted, shading_attributes, whitted_operands
+from ._replay import StoredPaths, replay_radiance
 from ._vec import all3, any3, cross, dot, interpolate, norm, normalize
 
 
@@ -711,7 +712,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
     batch = active.shape
 
     def native(scene, o, d, active, offset):
-        total, traced = native_whitted(
+        total, traced, _, _ = native_whitted(
             whitted_operands(scene, bvh) if operands is None else operands,
             o.reshape(-1, 3),
             d.reshape(-1, 3),
@@ -724,12 +725,52 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             robust=bvh.watertight,
             shading=shading_attributes(config),
         )
-        n_shadow = jnp.sum(jnp.right_shift(traced, 8), dtype=jnp.int32)
-        n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)
-        return total.reshape(batch + (3,)), n_shadow, n_reflection
+        return (total.reshape(batch + (3,)), *_traced_counts(traced))
 
-    stage = on_platforms(in_jax, cpu=native, cpu_only=plan.cpu_only or cpu_only)
+    def native_jvp(primals, tangents):
+        # The forward stores each ray's path; the derivatives are those of its replay.
+        scene, o, d, active, offset = primals
+        total, traced, prim, visible = native_whitted(
+            whitted_operands(scene, bvh) if operands is None else operands,
+            o.reshape(-1, 3),
+            d.reshape(-1, 3),
+            active.reshape(-1),
+            offset,
+            max_depth=config.max_depth,
+            recompute=config.hits == "recomputed",
+            packets=config.packet is not None,
+            tile_width=_tile_width(batch, config),
+            robust=bvh.watertight,
+            shading=shading_attributes(config),
+            store_paths=True,
+        )
+        counts = _traced_counts(traced)
+        paths = StoredPaths(prim, visible)
+
+        def replayed(scene, o, d, active, offset):
+            del active  # the paths say which rays were traced
+            rgb = replay_radiance(scene, bvh, o.reshape(-1, 3), d.reshape(-1, 3), offset, paths, shading)
+            return (rgb.reshape(batch + (3,)), *counts)
+
+        _, tangents_out = jax.jvp(replayed, primals, tangents)
+        return (total.reshape(batch + (3,)), *counts), tangents_out
+
+    shading = shading_of(config)
+    replays = scene.num_lights <= 32  # the paths' visibility bits
+    stage = on_platforms(
+        in_jax,
+        cpu=native,
+        cpu_only=plan.cpu_only or cpu_only,
+        cpu_jvp=native_jvp if replays else None,
+    )
     return stage(scene, o, d, active, offset)
+
+
+def _traced_counts(traced):
+    """(shadow rays, reflection rays) from the native integrator's per-ray counts."""
+    n_shadow = jnp.sum(jnp.right_shift(traced, 8), dtype=jnp.int32)
+    n_reflection = jnp.sum(jnp.bitwise_and(traced, 255), dtype=jnp.int32)
+    return n_shadow, n_reflection
 
 
 def _finish_radiance(total, active, valid, config, n_shadow, n_reflection):

@@ -107,11 +107,17 @@ def native_whitted(
     tile_width: int = 0,
     robust: bool = True,
     shading: dict | None = None,
+    store_paths: bool = False,
 ):
     """The Whitted integrator's primal through the native handler, on flat rays: (radiance
     (N, 3) with NaN/inf kept, rays traced per ray: shadow rays in bits 8 and up, reflection rays
-    in bits 0-7). `operands`: the scene's (`whitted_operands`); `d` unit directions; `offset`
-    the ray offset in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
+    in bits 0-7), and each ray's path, with `store_paths` (else empty): (max_depth + 1, N) the face hit at
+    each level (-1 a miss, `layout.PATH_NOT_TRACED` no ray there) and (max_depth + 1, N) uint32
+    the lights whose shadow rays were unblocked there (bit l: light l; at most 32 lights), what
+    `_replay.replay_radiance` differentiates.
+
+    `operands`: the scene's (`whitted_operands`); `d` unit directions; `offset` the ray offset
+    in scene units; `recompute`: u, v by Möller-Trumbore on the scene's vertices
     (`RenderConfig.hits` "recomputed"), else Embree's; `packets`: packets of the CPU's width
     where a run of rays is coherent; `tile_width`: the rays are images this wide (rows of it,
     one after another), traced in blocks of four rows, each packet a 4×4 tile of neighbouring
@@ -131,13 +137,19 @@ def native_whitted(
     )
     rays = jax.tree.map(jax.lax.stop_gradient, rays)
     offset = jax.lax.stop_gradient(jnp.asarray(offset, f32).reshape(1))
-    out = (jax.ShapeDtypeStruct((n, 3), f32), jax.ShapeDtypeStruct((n,), jnp.int32))
+    stored = (max_depth + 1) * n if store_paths else 0
+    out = (
+        jax.ShapeDtypeStruct((n, 3), f32),
+        jax.ShapeDtypeStruct((n,), jnp.int32),
+        jax.ShapeDtypeStruct((stored,), jnp.int32),
+        jax.ShapeDtypeStruct((stored,), jnp.uint32),
+    )
     call = handler(WHITTED_TARGET, out, what="the native integrator", vmap_method="sequential")
     if shading is None:
         from ._config import DEFAULT_CONFIG
 
         shading = shading_attributes(DEFAULT_CONFIG)
-    return call(
+    total, traced, prim, visible = call(
         *rays,
         *operands,
         offset,
@@ -148,3 +160,6 @@ def native_whitted(
         robust=np.int32(robust),
         **shading,
     )
+    if not store_paths:
+        return total, traced, prim, visible  # the paths empty
+    return total, traced, prim.reshape(max_depth + 1, n), visible.reshape(max_depth + 1, n)

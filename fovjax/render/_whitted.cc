@@ -186,12 +186,23 @@ struct BlockRays {
   }
 };
 
+// Where a block writes each ray's path (`paths` non-null): per depth level k and ray g of the
+// call, at k·n + g, the face its ray hit (-1: a miss, kPathNotTraced: no ray at that level) and
+// the lights its shadow rays reached (bit l set: light l was wanted there and unblocked). What
+// the derivatives replay (fovjax/render/_replay.py) without tracing a ray.
+struct PathsOut {
+  int32_t* prim;
+  uint32_t* visible;
+  int64_t n;       // rays of the call
+  int64_t levels;  // max_depth + 1
+};
+
 // `sparse`: the rays are samples scattered over the screen (a foveated frame's), whose hits'
 // faces and vertices are seldom in the cache from a neighbour's: they are prefetched a few rays
 // ahead of the shading (a full frame's neighbouring rays share their faces: it gains nothing).
 void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
                   const bool* active, const BlockRays& block, float* total, int32_t* traced,
-                  bool packets, bool sparse) {
+                  bool packets, bool sparse, const PathsOut* paths = nullptr) {
   thread_local WhittedBuffers b;
   const int64_t n = block.n;
   const int nl = s.num_lights;
@@ -201,6 +212,12 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
     const int64_t g = block.Index(i);
     total[3 * g] = total[3 * g + 1] = total[3 * g + 2] = 0.0f;
     traced[g] = 0;
+    if (paths != nullptr) {
+      for (int64_t k = 0; k < paths->levels; ++k) {
+        paths->prim[k * paths->n + g] = kPathNotTraced;
+        paths->visible[k * paths->n + g] = 0u;
+      }
+    }
     if (!active[g]) continue;
     b.pixel[m] = static_cast<int32_t>(g);
     for (int c = 0; c < 3; ++c) {
@@ -219,6 +236,11 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
     Rays rays{b.o.data(), b.d.data(), b.tmin.data(), b.tmax.data(), nullptr,
               b.t.data(), b.prim.data(), b.u.data(), b.v.data()};
     TraceList(tree, rays, m, false, packets);
+    if (paths != nullptr) {
+      for (int64_t k = 0; k < m; ++k) {
+        paths->prim[depth * paths->n + b.pixel[k]] = b.prim[k] < 0 ? -1 : b.prim[k];
+      }
+    }
     // Surfaces and their shadow rays.
     int64_t ns = 0;
     for (int64_t k = 0; k < m; ++k) {
@@ -353,6 +375,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
           const int64_t j = js++;
           traced[px] += 1 << 8;
           if (b.sprim[j] >= 0) continue;  // blocked
+          if (paths != nullptr) paths->visible[depth * paths->n + px] |= 1u << l;
           // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
           float cosine;
           if (s.shading.specular == kSpecularPhong) {
@@ -474,7 +497,8 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, 
 
 ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
                    ffi::Buffer<ffi::PRED> active, FOVJAX_SCENE_PARAMS, ffi::ResultBuffer<ffi::F32> total,
-                   ffi::ResultBuffer<ffi::S32> traced, int32_t max_depth, int32_t recompute,
+                   ffi::ResultBuffer<ffi::S32> traced, ffi::ResultBuffer<ffi::S32> path_prim,
+                   ffi::ResultBuffer<ffi::U32> path_visible, int32_t max_depth, int32_t recompute,
                    int32_t packets, int32_t tile_width, int32_t robust, int32_t specular,
                    int32_t specular_payload, float min_contribution) {
   if (g_device == nullptr) return ffi::Error::Internal("fovjax Embree backend used before init");
@@ -485,6 +509,18 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
       traced->element_count() != static_cast<size_t>(n)) {
     return ffi::Error::InvalidArgument("fovjax Whitted: ray arrays of different lengths");
   }
+  // The paths (`PathsOut`): written where their buffers are not empty.
+  const int64_t levels = static_cast<int64_t>(max_depth) + 1;
+  const bool store = path_prim->element_count() != 0;
+  if ((store && (path_prim->element_count() != static_cast<size_t>(levels * n) ||
+                 path_visible->element_count() != static_cast<size_t>(levels * n) ||
+                 light_kind.element_count() > 32)) ||
+      (!store && path_visible->element_count() != 0)) {
+    return ffi::Error::InvalidArgument(
+        "fovjax Whitted: paths are (max_depth + 1) x rays, for at most 32 lights");
+  }
+  const PathsOut paths_out{path_prim->typed_data(), path_visible->typed_data(), n, levels};
+  const PathsOut* paths = store ? &paths_out : nullptr;
   std::atomic<int> out_of_range{0};
   ShadeScene s;
   std::shared_ptr<NativeScene> tree;
@@ -509,14 +545,14 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
       block.row0 = 4 * (blk / segments);
       block.col0 = 256 * (blk % segments);
       block.n = 4 * std::min<int64_t>(256, width - block.col0);
-      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false);
+      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false, paths);
     });
   } else {
     ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
       BlockRays block;
       block.begin = blk * per_block;
       block.n = std::min(n, (blk + 1) * per_block) - block.begin;
-      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false);
+      WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false, paths);
     });
   }
   if (out_of_range.load() != 0) {
@@ -560,6 +596,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxEmbreeWhitted, Whitted,
                                                 .Arg<ffi::Buffer<ffi::PRED>>())  // active (N)
                                   .Ret<ffi::Buffer<ffi::F32>>()   // radiance (N, 3)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // rays traced (see WhittedBlock)
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // paths' faces ((max_depth + 1) x N) or empty
+                                  .Ret<ffi::Buffer<ffi::U32>>()   // paths' unblocked lights, bits, or empty
                                   .Attr<int32_t>("max_depth")
                                   .Attr<int32_t>("recompute")
                                   .Attr<int32_t>("packets")
