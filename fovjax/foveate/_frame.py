@@ -491,7 +491,10 @@ def traced_sums(
         )
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
-    def in_one_call(scene, cameras, order, n_traced, store_paths=False):
+    def in_one_call(scene, cameras, order, n_traced):
+        return native_slots(scene, cameras, order, n_traced, store_paths=False)
+
+    def native_slots(scene, cameras, order, n_traced, *, store_paths):
         from ..render.internal import shading_attributes, whitted_operands
         from ..scene import stratified_offsets
 
@@ -556,7 +559,7 @@ def traced_sums(
         from ..render.internal import StoredPaths, replay_radiance, shading_of
 
         scene, cameras, order, n_traced = primals
-        out, paths = in_one_call(scene, cameras, order, n_traced, store_paths=True)
+        out, paths = native_slots(scene, cameras, order, n_traced, store_paths=True)
         paths = StoredPaths(*paths)
         offset = config.ray_offset * scene_scale(scene)
 

@@ -39,6 +39,7 @@ def replay_radiance(
     `o`, `d` (not in `paths`)."""
     from ._integrator import _finish_shading, _surface_and_shadow_rays
 
+    scene = jax.tree.map(jnp.asarray, scene)  # host NumPy leaves cannot be indexed by traced faces
     prims = jax.lax.stop_gradient(paths.prim)
     visible = jax.lax.stop_gradient(paths.visible)
     n = o.shape[0]
