@@ -35,7 +35,16 @@ POSE_NAMES = ("head_pose",)
 PARAMETER_NAMES: tuple[str, ...] = (
     MATERIAL_NAMES + LIGHT_NAMES + VERTEX_NAMES + WHOLE_SCENE_NAMES + VIEW_NAMES + POSE_NAMES
 )
+"""Every name `differentiable` takes: the materials' `ka`, `kd`, `ks`, `ke`, `kr`, `ns`, the
+lights' `light_position` and `light_color`, `vertices`, `ambient`, `environment`, the view's
+`camera_position` and the `head_pose`."""
 _SCENE_NAMES = MATERIAL_NAMES + LIGHT_NAMES + VERTEX_NAMES + WHOLE_SCENE_NAMES
+
+
+def _float32_values(values: dict) -> dict:
+    if not isinstance(values, dict):
+        raise TypeError(f"Parameters: values must be a dict of name -> array, got {type(values).__name__}")
+    return {name: jnp.asarray(value, jnp.float32) for name, value in values.items()}
 
 
 class Parameters(eqx.Module):
@@ -49,12 +58,13 @@ class Parameters(eqx.Module):
     `jax.tree.map`.
 
     Attributes:
-        values: name → array.
+        values: name → array, each made a float32 JAX array (not weakly typed: a Python
+            number's array and the values a step computes from it then compile as one program).
     """
 
-    values: dict[str, Float[Array, "..."] | Float[np.ndarray, "..."]]
+    values: dict[str, Float[Array, "..."]] = eqx.field(converter=_float32_values)
 
-    def __getitem__(self, name: str) -> Float[Array, "..."] | Float[np.ndarray, "..."]:
+    def __getitem__(self, name: str) -> Float[Array, "..."]:
         if name not in self.values:
             raise KeyError(f"Parameters: no parameter {name!r}; these are {', '.join(self.values)}")
         return self.values[name]
