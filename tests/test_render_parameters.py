@@ -353,6 +353,8 @@ def test_a_dict_is_not_parameters(box):
     frame = differentiable(_render, box, "kd")
     with pytest.raises(TypeError, match="expected a Parameters \\(this frame's: kd\\), got dict"):
         frame({"kd": frame.parameters["kd"]})
+    with pytest.raises(TypeError, match="Parameters: values must be a dict of name -> array, got list"):
+        Parameters([frame.parameters["kd"]])
 
 
 def test_every_name_is_documented_and_put_back(box):
