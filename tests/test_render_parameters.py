@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import re
 
 import jax
 import jax.numpy as jnp
@@ -230,6 +231,31 @@ def test_compiles_once_and_forward_mode_agrees_with_reverse_mode(frames):
     products = sum(float(jnp.sum(jnp.abs(g * t))) for g, t in pairs)
     assert directional != 0.0
     assert abs(derivative - directional) <= 1e-5 * products
+
+
+def _vertex_cotangents(jaxpr, n_vertices: int) -> int:
+    """How many scatter-adds of the program build a (V, 3) array: the transposes of the vertex
+    gathers, i.e. a gradient with respect to the vertices (or normals)."""
+    return len(re.findall(rf"\w+:f32\[{n_vertices},3\] = scatter-add", str(jaxpr)))
+
+
+@pytest.mark.no_typecheck  # tracing only: the annotation checks would take most of its time
+def test_the_gradient_leaves_out_what_was_not_chosen(frames):
+    """With colours chosen, the reverse pass builds no vertex or normal gradient; with the
+    vertices chosen too it builds one (so the count can fail). Primary rays only: the shading
+    of one level shows it."""
+    frame, bvh = frames["sphere"], frames["bvh"]
+    n_vertices = int(np.shape(frame.arrays.vertices)[0])
+
+    def primary(arrays, *, view):
+        return render_image(arrays, bvh, view, config=dataclasses.replace(CONFIG, max_depth=0))
+
+    counts = []
+    for names in (("kd", "light_color"), ("kd", "light_color", "vertices")):
+        colours = differentiable(primary, frame.arrays, names, view=frame.view)
+        jaxpr = jax.make_jaxpr(jax.grad(lambda p, f=colours: jnp.sum(WEIGHTS * f(p))))(colours.parameters)
+        counts.append(_vertex_cotangents(jaxpr, n_vertices))
+    assert counts[0] == 0 and counts[1] >= 1, counts
 
 
 @pytest.fixture(scope="module")

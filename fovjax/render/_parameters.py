@@ -5,7 +5,8 @@ some or all materials, lights, vertices, the camera's position, the head pose) a
 `Differentiable`: called with a `Parameters` pytree holding only those values, it puts them back
 into the scene arrays (and the view, and the head pose) and calls `render_fn`. `jax.grad`,
 `jax.value_and_grad` and `jax.jvp` of a loss of it then carry only the chosen values: the
-reverse pass computes no cotangent for the rest of the scene. `render_fn` is any function of the
+scene arrays not chosen (the vertices and normals, when only colours are) are constants to them,
+and no gradient is computed for them. `render_fn` is any function of the
 scene arrays (the full stereo frame, one camera's image, a frame built on them), so a frame
 that becomes differentiable is used the same way.
 """
@@ -226,10 +227,10 @@ def differentiable(
     The returned `Differentiable` is called with a `Parameters` holding only those values
     (`frame.parameters` gives the scene's own); it puts them back into the scene arrays (with
     `eqx.tree_at`), the view and the head pose, and calls `render_fn`. A gradient of a loss of
-    it is a `Parameters` of the same names: the reverse pass computes nothing for the values
-    not chosen (vertices and normals when only colours are), and no `eqx.tree_at` is written
-    by hand. It works under `jax.jit` (compiling once for every value of the parameters),
-    `jax.grad`, `jax.value_and_grad`, `jax.jvp` and `jax.vmap`.
+    it is a `Parameters` of the same names: no gradient is computed for the scene arrays not
+    chosen (vertices and normals when only colours are), and no `eqx.tree_at` is written by
+    hand. It works under `jax.jit` (compiling once for every value of the parameters),
+    `jax.grad`, `jax.value_and_grad` and `jax.jvp`.
 
     Names (`PARAMETER_NAMES`):
 
