@@ -82,25 +82,25 @@ def replay_radiance(
 
     weight = jnp.ones_like(o)
     total = jnp.zeros_like(o)
+    chunks = jnp.arange(count)
     for k in range(prims.shape[0]):
         n_live, order = _live_first(prims[k] != layout.PATH_NOT_TRACED)
-        ins = (o[order], d[order], weight[order], prims[k][order], visible[k][order])
+        # The level's rays, live ones first, as the scan's per-chunk inputs and outputs (no
+        # carry: a carried array would be copied whole every chunk of the reverse pass).
+        ins = tuple(
+            x[order].reshape((count, size) + x.shape[1:]) for x in (o, d, weight, prims[k], visible[k])
+        )
 
-        def body(carry, c, ins=ins, n_live=n_live):
-            first = c * size
+        def body(_, chunk, n_live=n_live):
+            c, taken = chunk[0], chunk[1:]
 
-            def work(carry):
-                taken = [jax.lax.dynamic_slice_in_dim(x, first, size) for x in ins]
-                out = shade(scene, *taken)
-                return tuple(
-                    jax.lax.dynamic_update_slice_in_dim(x, y, first, 0)
-                    for x, y in zip(carry, out, strict=True)
-                )
+            def skip(taken):
+                return tuple(jnp.zeros((size, 3), jnp.float32) for _ in range(4))
 
-            return jax.lax.cond(first < n_live, work, lambda carry: carry, carry), None
+            return None, jax.lax.cond(c * size < n_live, lambda t: shade(scene, *t), skip, taken)
 
-        init = (jnp.zeros_like(o), ins[0], ins[1], ins[2])
-        (contribution, o_next, d_next, w_next), _ = jax.lax.scan(body, init, jnp.arange(count))
+        _, outs = jax.lax.scan(body, None, (chunks, *ins))
+        contribution, o_next, d_next, w_next = (x.reshape(count * size, 3) for x in outs)
         back = jnp.zeros_like(order).at[order].set(jnp.arange(order.shape[0], dtype=order.dtype))
         total = total + contribution[back]
         o, d, weight = o_next[back], d_next[back], w_next[back]
