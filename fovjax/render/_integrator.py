@@ -51,14 +51,21 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from ..native.internal import on_platforms
 from ..scene import POINT_LIGHT, SPOT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
-from ..trace.internal import backend_geometry
+from ..trace.internal import backend_geometry, lowering_platform
 from ._arrays import SceneArrays, light_columns
 from ._config import DEFAULT_CONFIG, LUMINANCE, RenderConfig
 from ._envmap import envmap_lookup
 from ._mips import lod_uv, mip_level, mip_lookup
-from ._native import integrator_plan, native_whitted, shading_attributes, whitted_operands
+from ._native import (
+    integrator_plan,
+    native_whitted,
+    shading_attributes,
+    warp_integrator_plan,
+    whitted_operands,
+)
 from ._replay import StoredPaths, replay_radiance
 from ._vec import all3, any3, cross, dot, interpolate, norm, normalize
+from ._warp_whitted import warp_integrate
 
 
 class RayCounts(NamedTuple):
@@ -672,7 +679,12 @@ def native_integrator(config: RenderConfig) -> bool:
 
 def describe_integrator(config: RenderConfig, platform: str) -> str:
     """One line naming the integrator `config` runs on `platform` and, where it is the JAX one
-    on a CPU, why."""
+    on a CPU or an NVIDIA GPU, why."""
+    if lowering_platform(platform) == "cuda":
+        gpu = warp_integrator_plan(config)
+        if gpu.cuda:
+            return f"warp ({gpu.reason})"
+        return f"jax ({gpu.reason})"
     if platform != "cpu":
         return f"jax (no native integrator for {platform})"
     try:
@@ -701,13 +713,22 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
     native integrator (`integrator_plan`) the primal runs in the native handler on a CPU and in
     JAX elsewhere (`on_platforms`; `cpu_only`: inside a CPU-only branch already; `operands`: the
     handler's scene operands made once by the caller, `whitted_operands`); its derivatives are
-    always the JAX integrator's, so gradients do not depend on where the primal ran."""
+    always the JAX integrator's, so gradients do not depend on where the primal ran. On an
+    NVIDIA GPU the primal is the Warp kernel's (`warp_integrator_plan`), with the same
+    derivatives."""
     plan = integrator_plan(config)
 
     def in_jax(scene, o, d, active, offset):
         return _jax_integrate(scene, bvh, o, d, active, offset, config)
 
+    def on_cuda(scene, o, d, active, offset):
+        return warp_integrate(scene, bvh, o, d, active, offset, config)
+
+    on_gpu = warp_integrator_plan(config).cuda and not (plan.cpu_only or cpu_only)
+    cuda = on_cuda if on_gpu else None
     if not plan.cpu:
+        if cuda is not None:
+            return on_platforms(in_jax, cuda=cuda)(scene, o, d, active, offset)
         return in_jax(scene, o, d, active, offset)
     batch = active.shape
 
@@ -760,6 +781,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
     stage = on_platforms(
         in_jax,
         cpu=native,
+        cuda=cuda,
         cpu_only=plan.cpu_only or cpu_only,
         cpu_jvp=native_jvp if replays else None,
     )

@@ -1,11 +1,13 @@
-"""The Whitted integrator's native side: the handler `render/_whitted.cc` (the primal of
-`radiance` on a CPU), the scene operands in the handler's layout, and the plan that says
-whether a configuration runs it. Its oracle and its derivatives are the JAX integrator
-(`_integrator.py`)."""
+"""The Whitted integrator's native sides: the handler `render/_whitted.cc` (the primal of
+`radiance` on a CPU) and the Warp kernel `render/_warp_whitted.py` (on an NVIDIA GPU), the scene
+operands in the handlers' layout, and the plans that say whether a configuration runs them. Their
+oracle and their derivatives are the JAX integrator (`_integrator.py`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import importlib.util
 
 import jax
 import jax.numpy as jnp
@@ -32,6 +34,33 @@ def integrator_plan(config) -> NativePlan:
         why_not = f"max_depth {config.max_depth} is above the native integrator's {MAX_NATIVE_DEPTH}"
     what = f"RenderConfig.integrator {config.integrator!r}"
     return plan_native(config.integrator, allowed=not why_not, why_not=why_not, what=what)
+
+
+@dataclasses.dataclass(frozen=True)
+class WarpPlan:
+    """Whether a configuration's integrator runs in Warp on an NVIDIA GPU (`warp_integrator_plan`):
+    `cuda`, and `reason`: what runs there, or why the JAX integrator does."""
+
+    cuda: bool
+    reason: str
+
+
+@functools.cache
+def warp_integrator_plan(config) -> WarpPlan:
+    """Whether `config` runs its integrator's primal in the Warp kernel on CUDA
+    (`RenderConfig.integrator` "auto", where Warp is installed and the ray backend is "auto" or
+    "warp"), resolved once per configuration. Elsewhere the CUDA side is the JAX integrator:
+    "jax" asks for it, "native" builds a program for the CPU alone, another ray backend
+    (the JAX traversal, a registered one) keeps the JAX integrator on it."""
+    if config.integrator == "jax":
+        return WarpPlan(False, "RenderConfig.integrator 'jax'")
+    if config.integrator == "native":
+        return WarpPlan(False, "RenderConfig.integrator 'native' builds a program for the CPU alone")
+    if config.backend not in ("auto", "warp"):
+        return WarpPlan(False, f"the ray backend is {config.backend!r} (the Warp integrator traces with Warp)")
+    if importlib.util.find_spec("warp") is None:
+        return WarpPlan(False, "Warp is not installed: pip install 'fovjax[gpu]'")
+    return WarpPlan(True, "the Whitted loop in one Warp kernel launch per call; derivatives in JAX")
 
 
 def whitted_operands(scene, bvh: BVH) -> tuple:

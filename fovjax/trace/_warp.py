@@ -295,6 +295,54 @@ def _callables():
     return make(_closest_kernel, "fovjax_warp_closest"), make(_anyhit_kernel, "fovjax_warp_anyhit")
 
 
+@functools.cache
+@typing.no_type_check
+def _mesh_id_callable():
+    """The FFI callable that hands a kernel its mesh (`warp_mesh_words`), made once per process."""
+    wp = _require_warp()
+    from warp import JaxCallableGraphMode, jax_callable
+
+    @wp.kernel(enable_backward=False)
+    def _words_kernel(
+        meshes: wp.array(dtype=wp.uint64),
+        host_id: wp.array(dtype=wp.int32),
+        words: wp.array(dtype=wp.int32),
+    ):
+        h = host_id[0]
+        mesh = wp.uint64(0)
+        if h >= 0 and h < meshes.shape[0]:
+            mesh = meshes[h]
+        words[0] = wp.int32(wp.uint32(mesh & wp.uint64(0xFFFFFFFF)))
+        words[1] = wp.int32(wp.uint32(mesh >> wp.uint64(32)))
+
+    def fovjax_warp_mesh(host_id: wp.array(dtype=wp.int32), words: wp.array(dtype=wp.int32)):
+        device = host_id.device
+        # As the queries' (`_callables`): on CPU read the one id, on CUDA leave it on the device.
+        h = int(host_id.numpy()[0]) if device.is_cpu else None
+        meshes = _id_table(wp, device, h)
+        wp.launch(_words_kernel, dim=1, inputs=[meshes, host_id], outputs=[words], device=device)
+
+    # NONE: the Python side must run on every call (it may build the mesh and upload the table).
+    return jax_callable(fovjax_warp_mesh, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential")
+
+
+def mesh_id_target() -> str:
+    """The XLA FFI target name of `warp_mesh_words`'s call (registered for "cpu" and "CUDA")."""
+    return _mesh_id_callable().name
+
+
+def warp_mesh_words(bvh: BVH):
+    """The id of `bvh`'s Warp mesh (its build-time geometry) on the device of the platform being
+    lowered, as int32 (2,): its low and high 32-bit words (JAX without x64 has no uint64), 0 where
+    the BVH's host geometry is unknown. One FFI call whose Python side runs every time (the mesh
+    is built there on first use and cached, as for the queries); a kernel that takes the words
+    as an operand (`fovjax.render`'s Warp integrator) needs no Python of its own to find the
+    mesh, so it can be a plain kernel launch."""
+    host_id = jnp.reshape(jnp.asarray(bvh.host_id, jnp.int32), (1,))
+    (words,) = _mesh_id_callable()(host_id, output_dims=(2,))
+    return words
+
+
 def ffi_target_names() -> tuple[str, str]:
     """The XLA FFI target names of the closest-hit and any-hit calls (registered for "cpu" and
     "CUDA" on first use), e.g. for `jax.export`'s `DisabledSafetyChecks.custom_call`."""
