@@ -63,7 +63,8 @@ def _quad(corners, material, uvs=None, bend=0.0):
 
 def hall_scene():
     """Two facing mirrors along a textured floor (one mirror textured), a panel over a point
-    light, a glossy box with bent vertex normals, and a point, a spot and a directional light.
+    light, a glossy box with bent vertex normals (a faint mirror too: its reflections follow
+    the bent normals), and two point lights, a spot and a directional light.
     18 triangles."""
     x, (back, front) = HALF_WIDTH, LENGTH
     quads = [
@@ -79,7 +80,7 @@ def hall_scene():
             [(0, 0), (0, 1.3), (5.1, 1.3), (5.1, 0)],
         ),
         _quad(
-            [(-1.2, OCCLUDER_Y, -1.5), (1.2, OCCLUDER_Y, -1.5), (1.2, OCCLUDER_Y, -6.5), (-1.2, OCCLUDER_Y, -6.5)],
+            [(x, OCCLUDER_Y, z) for x, z in ((-1.2, -1.5), (1.2, -1.5), (1.2, -6.5), (-1.2, -6.5))],
             4,
         ),
     ]
@@ -104,7 +105,13 @@ def hall_scene():
                 "kr": (0.7, 0.8, 0.75),
                 "texture": 1,
             },
-            {"kd": (0.7, 0.3, 0.2), "ka": (0.5, 0.2, 0.1), "ks": (0.5,) * 3, "ns": 24.0},
+            {
+                "kd": (0.7, 0.3, 0.2),
+                "ka": (0.5, 0.2, 0.1),
+                "ks": (0.5,) * 3,
+                "ns": 24.0,
+                "kr": (0.3, 0.25, 0.2),
+            },
             {"kd": (0.3, 0.5, 0.3), "ka": (0.2, 0.3, 0.2)},
         ]
     )
@@ -262,7 +269,8 @@ def test_a_face_out_of_range_makes_bad_samples(hall):
         dataclasses.replace(arrays, faces=faces), *rays
     )
     assert int(out.counts.bad) > 0.5 * int(rays[2].sum())
-    np.testing.assert_array_equal(np.asarray(out.rgb)[np.asarray(out.bad)], [(1.0, 0.0, 1.0)] * int(out.counts.bad))
+    painted = np.asarray(out.rgb)[np.asarray(out.bad)]
+    np.testing.assert_array_equal(painted, [(1.0, 0.0, 1.0)] * int(out.counts.bad))
 
 
 def test_the_plan_names_what_runs_on_a_gpu():
@@ -292,5 +300,50 @@ def test_radiance_runs_the_kernel_on_cuda_only(hall):
     cuda = jax.export.export(fn, platforms=("cuda",), disabled_checks=checks)(arrays, o, d).mlir_module()
     assert all(t in cuda for t in warp_targets())
     assert "fovjax_embree" not in cuda and "callback" not in cuda
-    cpu = fn.lower(arrays, o, d).as_text()
+    cpu = fn.trace(arrays, o, d).lower(lowering_platforms=("cpu",)).as_text()
     assert warp_targets()[1] not in cpu
+
+
+def test_the_foveated_frames_slots_in_one_launch(hall):
+    """The foveated frame's slots on a GPU (`warp_slot_sums`: every slot's ray made at once, the
+    live ones traced in one launch, summed into their pixels) against the CPU's one native call
+    (`traced_sums` through the native integrator, which tests/test_render_native.py holds to the
+    chunked JAX path at every depth): the same samples traced, kind by kind, and every pixel's
+    sum to float rounding, with the slots beyond the live count left out."""
+    _extras.require("embreex")
+    from fovjax.foveate import Foveation
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums, warp_slot_sums
+    from fovjax.native import status
+
+    if not status():
+        pytest.fail(f"the native handlers are unavailable: {status().reason}", pytrace=False)
+    arrays, bvh, _ = hall
+    rig = StereoRig.look_at((0.0, 1.5, 2.5), (-1.3, 1.2, 0.8), eye_width=EYE_W, eye_height=EYE_H)
+    fov = Foveation(20.0, 40.0, spp=1)
+    cameras = rig.eye_cameras(None)
+    budget = 2 * EYE_W * EYE_H
+
+    def select(gaze, key):
+        ecc = eccentricities(cameras, gaze, fov)
+        return selection_with_mask(ecc, key, foveation=fov, budget=budget, native=False)[0]
+
+    sel = jax.jit(select)(jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), jax.random.key(3))
+    key = jax.random.key(8)
+
+    def native(a, sel):
+        config = RenderConfig(max_depth=DEPTH, integrator="native")
+        out = traced_sums(a, bvh, cameras, key, sel, config=config, budget=budget)
+        return out.consumed, (out.primary, out.shadow, out.reflection)
+
+    config = RenderConfig(max_depth=DEPTH, backend="warp")
+    warp = jax.jit(lambda a, sel: warp_slot_sums(a, bvh, cameras, key, sel, config=config, budget=budget))(
+        arrays, sel
+    )
+    (sums, bad_pixel, n_bad), counts = warp
+    (ref_sums, ref_bad_pixel, ref_n_bad), ref_counts = jax.jit(native)(arrays, sel)
+    assert [int(c) for c in (*counts, n_bad)] == [int(c) for c in (*ref_counts, ref_n_bad)]
+    assert int(counts[0]) == int(sel.n_traced) < budget  # some slots are not live
+    np.testing.assert_array_equal(np.asarray(bad_pixel), np.asarray(ref_bad_pixel))
+    rtol = SAME_RADIANCE + N_DOT_H_ULPS * 2.0**-24 * float(np.max(np.asarray(arrays.ns)))
+    np.testing.assert_allclose(np.asarray(sums), np.asarray(ref_sums), rtol=rtol, atol=SAME_RADIANCE)
+    assert int(counts[2]) > int(counts[0]) // 2 and np.asarray(ref_sums).std() > 0.05

@@ -272,19 +272,27 @@ def test_not_watertight_scenes():
 def test_every_frame_program_lowers_for_cuda():
     """Each frame program (full, foveated, an eval batch) exported for CUDA, on this CPU: the
     backend is chosen per platform inside the program, so the CUDA lowering carries no CPU-only
-    op (no Embree FFI call, no host callback)."""
+    op (no Embree FFI call, no host callback); where Warp is installed, each runs the Warp
+    integrator there (its mesh id and its kernel, `fovjax/render/_warp_whitted.py`)."""
     from fovjax.eval import render_foveated_batch
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
+    from fovjax.render._native import warp_integrator_plan
     from fovjax.render.internal import LOWERING_HOOKS
 
     exported = {}
+    config = RenderConfig(max_depth=1)
+    integrator = []  # the Warp integrator's FFI targets, where it runs on CUDA
+    if warp_integrator_plan(config).cuda:
+        from fovjax.render._warp_whitted import warp_targets
+
+        integrator += warp_targets()
 
     class Exported(Exception):
         pass
 
     def export_for_cuda(entry, jitted, args):
-        targets = ["fovjax_embree_query"]
+        targets = ["fovjax_embree_query", *integrator]
         if fovjax.trace.resolve_backend("auto", "cuda") == "warp":
             from fovjax.trace._warp import ffi_target_names
 
@@ -298,7 +306,6 @@ def test_every_frame_program_lowers_for_cuda():
     try:
         scene = fovjax.scenes.cornell_box()
         rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=16, eye_height=16)
-        config = RenderConfig(max_depth=1)
         for call in (
             lambda: fovjax.render_stereo(scene, rig, config=config),
             lambda: fovjax.render_stereo(scene, rig, foveation=Foveation(), config=config),
@@ -315,6 +322,8 @@ def test_every_frame_program_lowers_for_cuda():
     for entry, module in exported.items():
         assert "fovjax_embree_query" not in module, f"{entry}: the Embree call is on the CUDA path"
         assert "callback" not in module, f"{entry}: a host callback is on the CUDA path"
+        for target in integrator:
+            assert target in module, f"{entry}: the Warp integrator's {target} is not on the CUDA path"
 
 
 def test_auto_traces_the_jax_traversal_only_where_another_platform_is_seen(monkeypatch):

@@ -451,6 +451,39 @@ def slots_in_one_call(config, jitter_key, classes, scale, h: int, w: int, spp: i
     return jitter_key is None or _per_sample_uniform(jitter_key)
 
 
+def slots_in_one_warp_call(config, classes, scale) -> bool:
+    """Whether `traced_sums` can run its slots through the Warp integrator on CUDA in one launch
+    (`warp_slot_sums`): the Warp integrator on there (`warp_integrator_plan`) at full fidelity (no
+    shading classes, no levels of detail)."""
+    from ..render.internal import warp_integrator_plan
+
+    return warp_integrator_plan(config).cuda and classes is None and scale is None
+
+
+def warp_slot_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int):
+    """Stages 3 and 4a of `traced_sums` on a GPU: every slot's ray made at once, the live ones
+    (the first `sel.n_traced`, a device value: no host round trip) traced and shaded in one
+    launch of the Warp integrator, each sample added to its pixel in one scatter. Returns
+    ((sums, bad pixel, bad samples), (primary, shadow, reflection rays)), as `traced_sums`'s
+    branches."""
+    from ..render.internal import chunk_rays, scene_scale, warp_integrate
+
+    _, spp, h, w = sel.classes.shape
+    positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
+
+    def rays_at(first, size):
+        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
+        return slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
+
+    o, d, valid = chunk_rays(rays_at, 0, budget)
+    active = jnp.arange(budget, dtype=jnp.int32) < sel.n_traced
+    offset = config.ray_offset * scene_scale(scene)
+    rgb, n_shadow, n_reflection = warp_integrate(scene, bvh, o, d, active, offset, config)
+    add = sample_adder(sel, spp=spp, h=h, w=w, size=budget)
+    sums = add(empty_sums(h, w, jnp.minimum(sel.n_traced, 0)), 0, rgb)
+    return sums, (jnp.sum(active & valid, dtype=jnp.int32), n_shadow, n_reflection)
+
+
 def traced_sums(
     scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int, classes=None, scale=None
 ):
@@ -460,10 +493,12 @@ def traced_sums(
     to their pixels as it is traced (`sample_adder`: no array of every slot's radiance). Where
     `slots_in_one_call` holds and the program runs on a CPU, one call of the native handler
     (`native_whitted_slots`) makes every live slot's ray, traces it and adds it to its pixel:
-    the chunk loop's per-chunk operations are not run. Its derivatives there are those of a
-    replay of the paths it stored (`fovjax.render.internal.replay_radiance` over the slots: no
-    ray traced again), and elsewhere those of the JAX integrator over every slot (`dense`), so
-    that forward and reverse mode both go through the frame."""
+    the chunk loop's per-chunk operations are not run; on an NVIDIA GPU, where
+    `slots_in_one_warp_call` holds, one launch of the Warp integrator does (`warp_slot_sums`).
+    Its derivatives on a CPU are those of a replay of the paths it stored
+    (`fovjax.render.internal.replay_radiance` over the slots: no ray traced again), and elsewhere
+    those of the JAX integrator over every slot (`dense`), so that forward and reverse mode both
+    go through the frame."""
     from ..render.internal import ChunkedRadiance, scene_scale
 
     _, spp, h, w = sel.classes.shape
@@ -572,18 +607,25 @@ def traced_sums(
         _, tangents_out = jax.jvp(replayed, primals, tangents)
         return out, tangents_out
 
-    if not slots_in_one_call(config, jitter_key, classes, scale, h, w, spp):
+    def in_one_warp_call(scene, cameras, order, n_traced):
+        s = sel._replace(order=order, n_traced=n_traced)
+        return warp_slot_sums(scene, bvh, cameras, jitter_key, s, config=config, budget=budget)
+
+    on_cpu = slots_in_one_call(config, jitter_key, classes, scale, h, w, spp)
+    on_gpu = slots_in_one_warp_call(config, classes, scale)
+    if not (on_cpu or on_gpu):
         (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
     else:
         from ..render.internal import integrator_plan
 
-        cpu_only = integrator_plan(config).cpu_only
+        cpu_only = on_cpu and integrator_plan(config).cpu_only
         replays = scene.num_lights <= 32  # the paths' visibility bits
         run = on_platforms(
             chunked,
-            cpu=in_one_call,
+            cpu=in_one_call if on_cpu else None,
+            cuda=in_one_warp_call if on_gpu else None,
             cpu_only=cpu_only,
-            cpu_jvp=replay_jvp if replays else None,
+            cpu_jvp=replay_jvp if on_cpu and replays else None,
             differentiate=dense,
         )
         consumed, (primary, shadow, reflection) = run(scene, cameras, sel.order, sel.n_traced)

@@ -57,7 +57,8 @@ def warp_integrator_plan(config) -> WarpPlan:
     if config.integrator == "native":
         return WarpPlan(False, "RenderConfig.integrator 'native' builds a program for the CPU alone")
     if config.backend not in ("auto", "warp"):
-        return WarpPlan(False, f"the ray backend is {config.backend!r} (the Warp integrator traces with Warp)")
+        why = f"the ray backend is {config.backend!r} (the Warp integrator traces with Warp)"
+        return WarpPlan(False, why)
     if importlib.util.find_spec("warp") is None:
         return WarpPlan(False, "Warp is not installed: pip install 'fovjax[gpu]'")
     return WarpPlan(True, "the Whitted loop in one Warp kernel launch per call; derivatives in JAX")

@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..native.internal import layout
-from ..trace.internal import mesh_id_target, warp_mesh_words
+from ..trace.internal import mesh_id_target, require_warp, warp_mesh_words
 from ._config import LUMINANCE
 from ._native import whitted_operands
 
@@ -46,18 +46,12 @@ from ._native import whitted_operands
 WARP_MODULE = __name__
 
 
-def _require_warp():
-    from ..trace._warp import _require_warp as require  # noqa: PLC0415 (one quiet init for both)
-
-    return require()
-
-
 # Not type-checked by the tests' jaxtyping/beartype import hook (see fovjax/trace/_warp.py).
 @functools.cache
 @typing.no_type_check
 def _kernel():
     """The Whitted kernel as an FFI call (`jax_kernel`), made once per process on first use."""
-    wp = _require_warp()
+    wp = require_warp()
     # Codes and weights the kernel reads as constants (Warp captures them from this scope).
     layout_point = layout.LIGHT_KINDS["point"]
     layout_spot = layout.LIGHT_KINDS["spot"]
@@ -68,7 +62,7 @@ def _kernel():
     def unit(v: wp.vec3):
         # `_vec.normalize`: v / |v|, and 0 where v = 0
         n2 = wp.dot(v, v)
-        s = float(0.0)
+        s = 0.0
         if n2 > 0.0:
             s = 1.0 / wp.sqrt(n2)
         return v * s
@@ -129,7 +123,7 @@ def _kernel():
         if not wp.isfinite(d):
             return bad
         n2 = wp.dot(d, d)
-        inv = float(0.0)
+        inv = 0.0
         if n2 > 0.0:
             inv = 1.0 / wp.sqrt(n2)
         dx = d[0] * inv
@@ -166,8 +160,7 @@ def _kernel():
     def row3(table: wp.array2d(dtype=wp.float32), r: int, c: int):
         return wp.vec3(table[r, c], table[r, c + 1], table[r, c + 2])
 
-    @wp.kernel(enable_backward=False)
-    def whitted(
+    def fovjax_warp_whitted(
         mesh_words: wp.array(dtype=wp.int32),
         root_group: int,
         origins: wp.array(dtype=wp.vec3),
@@ -204,7 +197,7 @@ def _kernel():
         if not active[i]:
             return
         mesh = wp.uint64(wp.uint32(mesh_words[0])) | (wp.uint64(wp.uint32(mesh_words[1])) << wp.uint64(32))
-        root = int(-1)
+        root = -1
         if mesh != wp.uint64(0) and root_group >= 0:
             root = wp.mesh_get_group_root(mesh, root_group)
         offset = offset_in[0]
@@ -221,11 +214,12 @@ def _kernel():
         d = directions[i]
         weight = wp.vec3(1.0)
         radiance = wp.vec3(0.0)
-        n_shadow = int(0)
-        n_reflection = int(0)
+        # Counters the depth loop carries: Warp needs them declared as variables, not constants.
+        n_shadow = int(0)  # noqa: UP018
+        n_reflection = int(0)  # noqa: UP018
         for depth in range(max_depth + 1):
             # The closest hit (a ray with a NaN/inf component or a zero direction misses).
-            face = int(-1)
+            face = -1
             if mesh != wp.uint64(0) and wp.isfinite(o) and wp.isfinite(d) and wp.length_sq(d) > 0.0:
                 query = wp.mesh_query_ray(mesh, o, d, 1.0e37, root)
                 if query.result:
@@ -253,8 +247,8 @@ def _kernel():
             e2 = hit_vertices[hit_corners[2]] - p0
             pvec = wp.cross(d, e2)
             det = wp.dot(e1, pvec)
-            u = float(0.0)
-            v = float(0.0)
+            u = 0.0
+            v = 0.0
             if det != 0.0:
                 inv_det = 1.0 / det
                 tvec = o - p0
@@ -268,7 +262,7 @@ def _kernel():
             c2 = vertices[corners[2]]
             p = c0 * b0 + c1 * u + c2 * v
             n_geo = unit(wp.cross(c1 - c0, c2 - c0))
-            sign = float(1.0)
+            sign = 1.0
             if wp.dot(n_geo, d) > 0.0:
                 sign = -1.0
             n_geo = n_geo * sign
@@ -300,7 +294,7 @@ def _kernel():
                     to_light = position - p
                 l_dir = unit(to_light)
                 n_dot_l = wp.dot(n, l_dir)
-                spot = float(1.0)
+                spot = 1.0
                 if kind == layout_spot:
                     c = -wp.dot(row3(lights, l, 6), l_dir)
                     cos_inner = lights[l, 9]
@@ -316,18 +310,18 @@ def _kernel():
                 if not (n_dot_l > 0.0 and wp.dot(n_geo, l_dir) > 0.0 and spot > 0.0):
                     continue
                 n_shadow += 1
-                far = float(1.0e37)
+                far = 1.0e37
                 if positional:
                     far = wp.min(wp.length(to_light), 1.0e37)
                 if wp.mesh_query_ray_anyhit(mesh, start, l_dir, far, root):
                     continue
-                cosine = float(0.0)
+                cosine = 0.0
                 if specular == layout_phong:  # eq. 1: the light mirrored about n, v = -d
                     mirrored = (2.0 * n_dot_l) * n - l_dir
                     cosine = -wp.dot(mirrored, d)
                 else:
                     cosine = wp.dot(n, unit(l_dir - d))
-                spec = float(0.0)
+                spec = 0.0
                 if cosine > 0.0:
                     spec = wp.pow(2.0, shininess * wp.log2(cosine))
                 if payload != 0:  # §4.4.3: the specular times the shadow ray's payload, n·l
@@ -354,13 +348,13 @@ def _kernel():
         shadow_rays[i] = n_shadow
         reflection_rays[i] = n_reflection
 
-    return wp.jax_kernel(whitted, num_outputs=3, vmap_method="sequential", module_preload_mode=_no_preload(wp))
-
-
-def _no_preload(wp):
-    # The module is compiled where it first runs (not while a program is traced: a program traced
-    # on a CPU machine for a GPU would otherwise compile Warp's CPU module for nothing).
-    return wp.JaxModulePreloadMode.NONE
+    # The FFI target is named after the function (Warp appends "_0").
+    fovjax_warp_whitted.__qualname__ = fovjax_warp_whitted.__name__
+    kernel = wp.kernel(fovjax_warp_whitted, enable_backward=False)
+    # Compiled where it first runs, not while a program is traced (a program traced on a CPU
+    # machine for a GPU would otherwise compile Warp's CPU module for nothing).
+    preload = wp.JaxModulePreloadMode.NONE
+    return wp.jax_kernel(kernel, num_outputs=3, vmap_method="sequential", module_preload_mode=preload)
 
 
 def warp_integrator_target() -> str:
@@ -413,10 +407,12 @@ def warp_integrate(scene, bvh, o, d, active, offset, config):
         ambient,
         environment,
     ) = whitted_operands(scene, bvh)
-    rays = jax.tree.map(
-        jax.lax.stop_gradient,
-        (jnp.asarray(o, f32).reshape(n, 3), jnp.asarray(d, f32).reshape(n, 3), jnp.asarray(active, bool).reshape(n)),
+    rays = (
+        jnp.asarray(o, f32).reshape(n, 3),
+        jnp.asarray(d, f32).reshape(n, 3),
+        jnp.asarray(active, bool).reshape(n),
     )
+    rays = jax.tree.map(jax.lax.stop_gradient, rays)
     hit_vertices = vertices if config.hits == "recomputed" else bvh_vertices
     call = _kernel()
     total, shadow, reflection = call(
@@ -455,6 +451,6 @@ def compile_ahead(arch: int | list[int], module_dir: str | None = None) -> list:
     """Compile the kernel's Warp module for the CUDA architectures `arch` (e.g. 90: H100, H200)
     into Warp's kernel cache (or `module_dir`), on any machine: the GPU then loads it instead of
     compiling it on the first frame. Returns the paths Warp wrote."""
-    wp = _require_warp()
+    wp = require_warp()
     _kernel()
     return wp.compile_aot_module(WARP_MODULE, arch=arch, module_dir=module_dir)

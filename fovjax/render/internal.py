@@ -24,6 +24,7 @@ from ._integrator import ChunkedRadiance as ChunkedRadiance
 from ._integrator import ImageTile as ImageTile
 from ._integrator import ShadingClasses as ShadingClasses
 from ._integrator import Surface as Surface
+from ._integrator import _chunk_rays as chunk_rays
 from ._integrator import bilinear_wrap as bilinear_wrap
 from ._integrator import chunk_loop as chunk_loop
 from ._integrator import native_integrator as native_integrator
@@ -39,9 +40,11 @@ from ._mips import with_texture_mips as with_texture_mips
 from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
 from ._native import integrator_plan as integrator_plan
 from ._native import shading_attributes as shading_attributes
+from ._native import warp_integrator_plan as warp_integrator_plan
 from ._native import whitted_operands as whitted_operands
 from ._replay import StoredPaths as StoredPaths
 from ._replay import replay_radiance as replay_radiance
+from ._warp_whitted import warp_integrate as warp_integrate
 
 __all__ = [
     "LOOP_EMITTERS",
@@ -59,8 +62,11 @@ __all__ = [
     "Surface",
     "bilinear_wrap",
     "chunk_loop",
+    "chunk_rays",
     "native_integrator",
     "integrator_plan",
+    "warp_integrator_plan",
+    "warp_integrate",
     "MAX_NATIVE_DEPTH",
     "whitted_operands",
     "StoredPaths",

@@ -322,6 +322,8 @@ def _mesh_id_callable():
         meshes = _id_table(wp, device, h)
         wp.launch(_words_kernel, dim=1, inputs=[meshes, host_id], outputs=[words], device=device)
 
+    # The FFI target is named after this (Warp appends "_0").
+    fovjax_warp_mesh.__qualname__ = fovjax_warp_mesh.__name__
     # NONE: the Python side must run on every call (it may build the mesh and upload the table).
     return jax_callable(fovjax_warp_mesh, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential")
 
