@@ -7,7 +7,8 @@ The atrium at 2 x 1280x1024 (`--size`), depth 5, the default `RenderConfig` (int
 on CUDA the Whitted loop in one Warp kernel launch per frame, fovjax/render/_warp_whitted.py):
 the full frame at SPP 1 and 4 and the foveated 5°/10° frame at SPP 1 and 4 at an off-centre
 gaze, each compiled and run once (warm-up), then `--repeats` frames of each kind in turn (so
-that the machine's load falls on all alike), medians, each frame with a fresh key. Beside them
+that the machine's load falls on all alike), medians, each frame with a fresh key; through a
+`FoveatedRenderer` made once per SPP (`render` and `render_full`), as a frame loop runs them. Beside them
 in the same run, on the same device: the full SPP 1 frame with the JAX integrator
 (`integrator="jax"`, what ran on CUDA before) as the baseline, and the thesis's RTX 2060 figures
 (Table 4: full SPP 1 9.6 ms, SPP 4 38.3 ms; foveated 5°/10° SPP 4 17.3 ms; its goal 120 fps).
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import gzip
 import json
 import re
@@ -44,8 +46,8 @@ import jax
 
 import fovjax
 import fovjax.scenes
-from fovjax.foveate import Foveation, render_foveated
-from fovjax.render import RenderConfig, StereoRig, describe_integrator, render_stereo
+from fovjax.foveate import FoveatedRenderer, Foveation
+from fovjax.render import RenderConfig, StereoRig, describe_integrator
 from fovjax.trace import build_bvh, describe_backend
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -115,15 +117,20 @@ def _events(trace_dir: Path) -> tuple[list[dict], dict]:
 
 def summarise_trace(trace_dir: Path, frames: int, callbacks: int, top: int = 12) -> dict:
     """Per frame: device events (kernels, copies each way, their time), host events that wait for
-    the device or launch work, Python callbacks, and the most frequent event names on each side."""
+    the device or launch work, Python callbacks, the Python tracer's function calls, and the most
+    frequent other event names on each side."""
     events, processes = _events(trace_dir)
     device_kernels, dtoh, htod, syncs, launches = [], [], [], [], []
     by_name = {"device": collections.Counter(), "host": collections.Counter()}
+    python_events = 0
     for e in events:
         name = str(e.get("name", ""))
         # XLA names a device's planes "/device:GPU:0" (its streams are threads there), the host's
         # "/host:CPU".
         on_device = processes.get(e.get("pid"), "").startswith("/device:")
+        if not on_device and name.startswith("$"):  # the Python tracer's function calls
+            python_events += 1
+            continue
         by_name["device" if on_device else "host"][name] += 1
         if on_device:
             if MEMCPY_DTOH.search(name):
@@ -150,6 +157,7 @@ def summarise_trace(trace_dir: Path, frames: int, callbacks: int, top: int = 12)
         "host_syncs": per_frame(len(syncs)),
         "host_launch_calls": per_frame(len(launches)),
         "python_callbacks": per_frame(callbacks),
+        "python_function_events": per_frame(python_events),
         "top_device_events": by_name["device"].most_common(top),
         "top_host_events": by_name["host"].most_common(top),
         "host_syncs_by_name": collections.Counter(e["name"] for e in syncs).most_common(top),
@@ -202,14 +210,18 @@ def main(argv=None) -> int:
         flush=True,
     )
 
+    # One renderer per SPP, made once, as a frame loop holds it (the scene on the device once;
+    # `render_foveated` and `render_stereo` copy it there on every call).
+    @functools.cache
+    def renderer(spp, cfg=config):
+        foveation = Foveation.thesis(PAIR, spp=spp)
+        return FoveatedRenderer(scene, rig, foveation, cfg, bvh=bvh, diagnostics=())
+
     def full(spp, cfg=config):
-        return lambda k: render_stereo(scene, rig, spp=spp, key=k, config=cfg, bvh=bvh)
+        return lambda k: renderer(spp, cfg).render_full(key=k)
 
     def foveated(spp):
-        foveation = Foveation.thesis(PAIR, spp=spp)
-        return lambda k: render_foveated(
-            scene, rig, gaze=OFF_CENTRE, foveation=foveation, key=k, config=config, bvh=bvh, diagnostics=()
-        )
+        return lambda k: renderer(spp).render(OFF_CENTRE, key=k)
 
     renders = {}
     for spp in args.spp:

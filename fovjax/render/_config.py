@@ -83,9 +83,12 @@ class RenderConfig:
     - `integrator`: who runs the per-ray work (tracing, shading, shadow rays, reflections).
       "auto": on a CPU where the native handlers built and `backend` is "auto" or "embree", the
       native integrator (`fovjax/render/_whitted.cc`: the same arithmetic as the JAX integrator,
-      written per ray); elsewhere (a GPU, another backend, shading classes of a per-region
-      fidelity, image tiles of rays) the JAX integrator, chosen per platform inside the
-      program. "native": the native integrator or an error saying why not; "jax": always JAX.
+      written per ray); on an NVIDIA GPU where Warp is installed and `backend` is "auto" or
+      "warp", the Warp integrator (`fovjax/render/_warp_whitted.py`: the same loop, one kernel
+      launch per frame); elsewhere (another backend, shading classes of a per-region fidelity,
+      image tiles of rays) the JAX integrator, chosen per platform inside the program.
+      "native": the native integrator (a program for the CPU alone) or an error saying why not;
+      "jax": always JAX.
       Derivatives are the JAX integrator's whichever ran the primal (a custom JVP); the two
       agree to float rounding except where a ray passes within rounding of an edge or a light's
       horizon (`tests/test_render_native.py` holds their agreement).

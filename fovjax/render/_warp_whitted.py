@@ -38,12 +38,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..native.internal import layout
-from ..trace.internal import mesh_id_target, require_warp, warp_mesh_words
+from ..trace.internal import compile_warp_ahead, mesh_id_target, require_warp, warp_mesh_words
 from ._config import LUMINANCE
 from ._native import whitted_operands
-
-# The Warp module of the kernel (Warp names a module after the Python module that defines it).
-WARP_MODULE = __name__
 
 
 # Not type-checked by the tests' jaxtyping/beartype import hook (see fovjax/trace/_warp.py).
@@ -447,10 +444,17 @@ def warp_integrate(scene, bvh, o, d, active, offset, config):
     return total.reshape(batch + (3,)), n_shadow, n_reflection
 
 
-def compile_ahead(arch: int | list[int], module_dir: str | None = None) -> list:
-    """Compile the kernel's Warp module for the CUDA architectures `arch` (e.g. 90: H100, H200)
-    into Warp's kernel cache (or `module_dir`), on any machine: the GPU then loads it instead of
-    compiling it on the first frame. Returns the paths Warp wrote."""
+def compile_ahead(arch: int, module_dir: str | None = None) -> list:
+    """Compile the kernel's Warp module, and those of the mesh id and the ray queries
+    (fovjax.trace), for the CUDA architecture `arch` (90: H100, H200), as PTX and as CUBIN (Warp
+    picks one by the driver's version), into Warp's kernel cache (`WARP_CACHE_PATH`) or
+    `module_dir`, on any machine (Warp's compiler for CUDA needs no GPU): a GPU with that cache
+    loads them instead of compiling them on its first frame. Returns the paths Warp wrote."""
     wp = require_warp()
-    _kernel()
-    return wp.compile_aot_module(WARP_MODULE, arch=arch, module_dir=module_dir)
+    module = _kernel().kernel.module
+    paths = [
+        path
+        for use_ptx in (True, False)
+        for path in wp.compile_aot_module(module, arch=arch, module_dir=module_dir, use_ptx=use_ptx)
+    ]
+    return paths + compile_warp_ahead(arch, module_dir)

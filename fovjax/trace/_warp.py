@@ -302,7 +302,9 @@ def _mesh_id_callable():
     wp = _require_warp()
     from warp import JaxCallableGraphMode, jax_callable
 
-    @wp.kernel(enable_backward=False)
+    # A module of its own: its hash (the name of its compiled file) does not depend on which
+    # other kernels of this file were made first (`compile_ahead`).
+    @wp.kernel(enable_backward=False, module="unique")
     def _words_kernel(
         meshes: wp.array(dtype=wp.uint64),
         host_id: wp.array(dtype=wp.int32),
@@ -325,12 +327,29 @@ def _mesh_id_callable():
     # The FFI target is named after this (Warp appends "_0").
     fovjax_warp_mesh.__qualname__ = fovjax_warp_mesh.__name__
     # NONE: the Python side must run on every call (it may build the mesh and upload the table).
-    return jax_callable(fovjax_warp_mesh, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential")
+    call = jax_callable(fovjax_warp_mesh, graph_mode=JaxCallableGraphMode.NONE, vmap_method="sequential")
+    return call, _words_kernel.module
+
+
+def compile_ahead(arch: int, module_dir: str | None = None) -> list:
+    """Compile this file's Warp modules (the queries, the mesh id's) for the CUDA architecture
+    `arch` (90: H100, H200), as PTX and as CUBIN (Warp picks one by the driver's version), into
+    Warp's kernel cache (`WARP_CACHE_PATH`) or `module_dir`, on any machine: a GPU with that cache
+    then loads them instead of compiling them on first use. Returns the paths Warp wrote."""
+    wp = _require_warp()
+    _callables()
+    modules = (__name__, _mesh_id_callable()[1])  # the queries' module is named after this file
+    return [
+        path
+        for module in modules
+        for use_ptx in (True, False)
+        for path in wp.compile_aot_module(module, arch=arch, module_dir=module_dir, use_ptx=use_ptx)
+    ]
 
 
 def mesh_id_target() -> str:
     """The XLA FFI target name of `warp_mesh_words`'s call (registered for "cpu" and "CUDA")."""
-    return _mesh_id_callable().name
+    return _mesh_id_callable()[0].name
 
 
 def warp_mesh_words(bvh: BVH):
@@ -341,7 +360,7 @@ def warp_mesh_words(bvh: BVH):
     as an operand (`fovjax.render`'s Warp integrator) needs no Python of its own to find the
     mesh, so it can be a plain kernel launch."""
     host_id = jnp.reshape(jnp.asarray(bvh.host_id, jnp.int32), (1,))
-    (words,) = _mesh_id_callable()(host_id, output_dims=(2,))
+    (words,) = _mesh_id_callable()[0](host_id, output_dims=(2,))
     return words
 
 
