@@ -43,7 +43,6 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python}
 WHEELS=benchmarks/wheels
 TINY=0
-DRY_RUN=0
 INSTALL=1
 WARP_ONLY=0
 ALL=0
@@ -86,7 +85,7 @@ while [[ $# -gt 0 ]]; do
         --warp-cache) MAKE_CACHE=1 ;;
         --arch) ARCH=$2; shift ;;
         --total) TOTAL=$2; shift ;;
-        --dry-run) DRY_RUN=1; TINY=1; INSTALL=0 ;;
+        --dry-run) TINY=1; INSTALL=0 ;;  # --tiny --no-install
         --tiny) TINY=1 ;;
         --all) ALL=1 ;;
         --limit) LIMIT=$2; shift ;;

@@ -348,10 +348,9 @@ def _kernel():
     # The FFI target is named after the function (Warp appends "_0").
     fovjax_warp_whitted.__qualname__ = fovjax_warp_whitted.__name__
     kernel = wp.kernel(fovjax_warp_whitted, enable_backward=False)
-    # Compiled where it first runs, not while a program is traced (a program traced on a CPU
-    # machine for a GPU would otherwise compile Warp's CPU module for nothing).
-    preload = wp.JaxModulePreloadMode.NONE
-    return wp.jax_kernel(kernel, num_outputs=3, vmap_method="sequential", module_preload_mode=preload)
+    # Warp loads the kernel's module on the current JAX device while a program is traced (its
+    # default), so that on a GPU the load never falls inside a CUDA graph XLA is capturing.
+    return wp.jax_kernel(kernel, num_outputs=3, vmap_method="sequential")
 
 
 def warp_integrator_target() -> str:
