@@ -714,8 +714,8 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
     JAX elsewhere (`on_platforms`; `cpu_only`: inside a CPU-only branch already; `operands`: the
     handler's scene operands made once by the caller, `whitted_operands`); its derivatives are
     always the JAX integrator's, so gradients do not depend on where the primal ran. On an
-    NVIDIA GPU the primal is the Warp kernel's (`warp_integrator_plan`), with the same
-    derivatives."""
+    NVIDIA GPU the primal is the Warp kernel's (`warp_integrator_plan`), its derivatives the
+    JAX integrator's."""
     plan = integrator_plan(config)
 
     def in_jax(scene, o, d, active, offset):

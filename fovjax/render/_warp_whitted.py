@@ -28,7 +28,7 @@ a GPU architecture on a machine without one.
 # `wp.array(dtype=...)` calls and their values are Warp's types, which the type checker reads as
 # Python. No `from __future__ import annotations` here: Warp evaluates the annotations.
 # pyright: reportInvalidTypeForm=false, reportArgumentType=false, reportAttributeAccessIssue=false
-# pyright: reportOperatorIssue=false, reportCallIssue=false, reportIndexIssue=false
+# pyright: reportCallIssue=false, reportOperatorIssue=false
 
 import functools
 import typing

@@ -42,6 +42,7 @@ cache is unaffected, but a persistent-compilation-cache hit needs the same trace
 # `wp.array(dtype=...)` calls and their values are Warp's types, which the type checker reads as
 # Python (`wp.tid()` as any of its overloads, a mesh query's fields as unknown).
 # pyright: reportInvalidTypeForm=false, reportArgumentType=false, reportAttributeAccessIssue=false
+# pyright: reportOperatorIssue=false
 
 import functools
 import logging
