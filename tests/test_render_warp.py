@@ -347,3 +347,30 @@ def test_the_foveated_frames_slots_in_one_launch(hall):
     rtol = SAME_RADIANCE + N_DOT_H_ULPS * 2.0**-24 * float(np.max(np.asarray(arrays.ns)))
     np.testing.assert_allclose(np.asarray(sums), np.asarray(ref_sums), rtol=rtol, atol=SAME_RADIANCE)
     assert int(counts[2]) > int(counts[0]) // 2 and np.asarray(ref_sums).std() > 0.05
+
+
+def test_a_bare_scene_is_ambient_emission_and_background():
+    """No lights, textures, UVs or vertex normals, a constant background (the kernel's empty
+    operands): a hit is Ka·ambient + Ke, a miss the background, a mirror adds Kr times what it
+    reflects (here the background: it faces away from everything)."""
+    quad = np.array([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], np.float32)
+    scene = fovjax.make_scene(
+        np.concatenate([quad, quad + (0, 0, -1)]),
+        np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]),
+        face_material=np.array([0, 0, 1, 1]),
+        materials=fovjax.make_materials(
+            [{"ka": (0.5, 0.25, 1.0), "ke": (0.1, 0.2, 0.3), "kr": (0.5, 0.5, 0.5)}, {"ka": 1.0}]
+        ),
+        lights=fovjax.make_lights(np.zeros((0, 3)), np.zeros((0, 3))),
+        ambient=(0.4, 0.4, 0.4),
+    )
+    background = (0.2, 0.3, 0.4)
+    arrays = scene_arrays(scene, background=background)
+    assert arrays.num_lights == 0 and arrays.normals is None and not arrays.textures
+    o = np.array([[0.2, 0.1, 2.0], [3.0, 0.0, 2.0]], np.float32)  # onto the quad, past it
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]], np.float32)
+    config = RenderConfig(max_depth=2, backend="warp")
+    out = _program(warp_integrate, config, build_bvh(scene, cache=False))(arrays, o, d, np.ones(2, bool))
+    hit = 0.4 * np.array([0.5, 0.25, 1.0]) + np.array([0.1, 0.2, 0.3]) + 0.5 * np.array(background)
+    np.testing.assert_allclose(np.asarray(out.rgb), [hit, background], rtol=1e-6)
+    assert [int(c) for c in out.counts] == [2, 0, 1, 0]
