@@ -20,6 +20,9 @@ from fovjax import cli
 from fovjax._startup import describe_malloc
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
+# How long a first run's build and compiles usually take (benchmarks/first_render.py, its record
+# in benchmarks/results/).
+FIRST_RUN_TEXT = "usually about N s on a 2-core CPU"
 
 
 def _head(text: str) -> tuple[float, float, float]:
@@ -169,6 +172,7 @@ def validate(args) -> Path:
     """Every argument of `fovjax render`, before anything is built or compiled; returns the
     output path."""
     from fovjax.files import HDR_SUFFIXES
+    from fovjax.native import start_build
 
     files = cli.scene(args.scene)
     cli.number(args.scene_scale, "--scene-scale", gt=0)
@@ -207,20 +211,26 @@ def validate(args) -> Path:
         except (ValueError, OSError) as err:
             raise cli.UsageError(f"--envmap {args.envmap}: {err}") from None
     suffixes = (".png", *HDR_SUFFIXES)
+    if args.preview:
+        out = cli.output(
+            Path(args.output or f"out/{_scene_name(args)}_preview.png"), "-o", suffixes=(".png",)
+        )
+    else:
+        out = cli.output(args.output or f"out/{_scene_name(args)}.png", "-o", suffixes=suffixes)
+        if args.stereo and not args.full and not args.no_reference:
+            cli.output(out.with_name(out.stem + "_full" + out.suffix), "-o (the full render beside it)")
+        if args.show_samples:
+            cli.output(out.with_name(out.stem + "_samples.png"), "--show-samples")
+    # Every value is checked: the native handlers (first run only) compile from here on, in the
+    # background, while the size check (which estimates for the integrator they will run) and
+    # the scene and its BVH go on.
+    args.native_build = start_build()
     if not args.stereo or args.preview:
         cli.frame_size(args, args.width, args.height, args.spp, kinds=("full",), eyes=1)
     else:
         foveated = not args.full
         kinds = ("foveated",) * foveated + ("full",) * (not foveated or not args.no_reference)
         cli.frame_size(args, args.width, args.height, args.spp, kinds=kinds)
-    if args.preview:
-        out = Path(args.output or f"out/{_scene_name(args)}_preview.png")
-        return cli.output(out, "-o", suffixes=(".png",))
-    out = cli.output(args.output or f"out/{_scene_name(args)}.png", "-o", suffixes=suffixes)
-    if args.stereo and not args.full and not args.no_reference:
-        cli.output(out.with_name(out.stem + "_full" + out.suffix), "-o (the full render beside it)")
-    if args.show_samples:
-        cli.output(out.with_name(out.stem + "_samples.png"), "--show-samples")
     return out
 
 
@@ -250,6 +260,7 @@ def _run(args, out: Path) -> int:
     from fovjax.render import (
         RenderConfig,
         StereoRig,
+        compile_cache_entries,
         describe_integrator,
         head_rotation,
         render,
@@ -267,7 +278,12 @@ def _run(args, out: Path) -> int:
         )
         # the thesis's depth (5) is --max-depth's default; another given there is kept
         config = dataclasses.replace(preset.config, max_depth=args.max_depth)
-    steps = 4
+    building = args.native_build
+    programs = compile_cache_entries()  # None: the cache is off, every run compiles
+    _first_run_note(building, programs == 0)
+    foveated = args.stereo and not args.full
+    with_reference = foveated and not args.no_reference
+    steps = 6 if with_reference else 4
     t0 = time.perf_counter()
     _progress(1, steps, f"building scene {args.scene}")
     scene = _load_scene(args)
@@ -278,8 +294,13 @@ def _run(args, out: Path) -> int:
     arrays = scene_arrays(scene, envmap=args.envmap_image, background=config.background)
     pose = fovjax.scenes.default_camera(scene)
     key = None if args.seed is None else jax.random.key(args.seed)
-    _progress(3, steps, "compiling and rendering (compiling takes a while the first time)")
-    foveated = args.stereo and not args.full
+    compiling = {
+        None: "compiling its program and rendering",
+        0: "compiling its program (first run only) and rendering",
+    }.get(programs, "compiling its program or loading it from the cache, and rendering")
+    _progress(3, steps, f"{'foveated frame' if foveated else 'frame'}: {compiling}")
+    if building is not None:
+        _wait_for_native_build()
     reference = None
     if args.stereo:
         rig = StereoRig.from_pose(pose, eye_width=args.width, eye_height=args.height)
@@ -301,10 +322,6 @@ def _run(args, out: Path) -> int:
                 config=config,
                 bvh=bvh,
             )
-            if not args.no_reference:
-                reference = render_stereo(
-                    arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
-                )
         else:
             frame = render_stereo(
                 arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
@@ -321,10 +338,21 @@ def _run(args, out: Path) -> int:
                 height=camera.height,
             )
         frame = render(arrays, camera, spp=args.spp, key=key, config=config, bvh=bvh)
+    # Each image is written as soon as it is rendered: the first is there before the next compiles.
     _progress(4, steps, f"writing {out}")
     with cli.deferred_interrupt():
         frame.save(out, exposure=args.exposure, tonemap_curve=args.tonemap)
         cli.wrote(out)
+    full_out = out.with_name(out.stem + "_full" + out.suffix)
+    if with_reference:
+        _progress(5, steps, f"full frame: {compiling}")
+        reference = render_stereo(
+            arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
+        )
+        _progress(6, steps, f"writing {full_out}")
+        with cli.deferred_interrupt():
+            reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
+            cli.wrote(full_out)
     cached = ", BVH from cache" if build["from_cache"] else f", BVH built in {build['seconds']:.2f} s"
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
     platform = jax.devices()[0].platform
@@ -358,16 +386,54 @@ def _run(args, out: Path) -> int:
                 cli.wrote(samples)
             print(f"  regions and samples -> {samples.resolve()}")
         if reference is not None:
-            full_out = out.with_name(out.stem + "_full" + out.suffix)
-            with cli.deferred_interrupt():
-                reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
-                cli.wrote(full_out)
             r, s = reference.stats, frame.stats
             print(f"full     {r.summary()} -> {full_out.resolve()}")
             print(f"foveated / full: {_speed_text(s, r)}")
     else:
         print(f"{scene.name} {frame.stats.summary()} on {platform} -> {out.resolve()}")
     return 0
+
+
+def _first_run_note(building: Path | None, first_compile: bool) -> None:
+    """Say, before the work, what a first run on this machine builds and compiles, how long that
+    usually takes (`FIRST_RUN_TEXT`) and where it is kept for later runs."""
+    import jax
+
+    kept = []
+    if building is not None:
+        kept.append(("builds the native handlers (C++, while the scene loads)", building.parent))
+    if first_compile:
+        # jax.config's options are set at run time (pyright cannot see it).
+        programs = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
+        kept.append(("compiles the frame programs", Path(programs)))
+    if not kept:
+        return
+    folders = {folder for _, folder in kept}
+    parents = {folder.parent for folder in folders}
+    where = (
+        f"{next(iter(parents))} ({', '.join(sorted(f.name + '/' for f in folders))})"
+        if len(parents) == 1
+        else " and ".join(str(f) for f in sorted(folders))
+    )
+    print(
+        f"first run on this machine: fovjax {' and '.join(what for what, _ in kept)}, "
+        f"{FIRST_RUN_TEXT}; kept in {where}, later runs load them",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _wait_for_native_build() -> None:
+    """Wait for the native handlers' background build, saying so and how long it took."""
+    from fovjax.native import status
+
+    print("      waiting for the native handlers' build", file=sys.stderr, flush=True)
+    found = status()
+    if found:
+        seconds = found.info.get("compile_seconds", 0.0)
+        print(f"      native handlers built in {seconds:.1f} s", file=sys.stderr, flush=True)
+    else:
+        print(f"      native handlers unavailable: {found.reason}", file=sys.stderr, flush=True)
 
 
 def _speed_text(foveated, full) -> str:
