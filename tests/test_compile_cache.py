@@ -48,8 +48,12 @@ def test_a_second_run_loads_the_programs_the_first_compiled(tmp_path):
     written = _entries(cache / "xla")
     # The frame program takes well over the 1 s threshold to compile, so it was written.
     assert any(name.startswith("jit_counted") for name in written), written
+    # The first run says what it compiles and where it keeps it; the second has nothing to say.
+    note = "first run on this machine: compiling the frame programs (longer without the native handlers)"
+    assert note in first.stderr and f"kept in {cache / 'xla'} for later runs" in first.stderr
     second = _fovjax([*RENDER, "-o", str(tmp_path / "b.png")], cache, **users)
     assert second.returncode == 0, second.stderr
+    assert "first run" not in second.stderr
     # Every program of the second run came from the cache: nothing new was written.
     assert _entries(cache / "xla") == written
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()

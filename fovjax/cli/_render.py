@@ -20,9 +20,10 @@ from fovjax import cli
 from fovjax._startup import describe_malloc
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
-# How long a first run's build and compiles usually take (benchmarks/first_render.py, its record
-# in benchmarks/results/).
-FIRST_RUN_TEXT = "usually about N s on a 2-core CPU"
+# How long a first run's build and compiles usually take: benchmarks/first_render.py's records
+# (benchmarks/results/first_render-*), the atrium's 2 x 1280x1024 frames on a shared 2-core CPU.
+HANDLERS_TYPICAL = "about 15 s on 2 cores"
+PROGRAMS_TYPICAL = "about 5 s each"
 
 
 def _head(text: str) -> tuple[float, float, float]:
@@ -172,7 +173,7 @@ def validate(args) -> Path:
     """Every argument of `fovjax render`, before anything is built or compiled; returns the
     output path."""
     from fovjax.files import HDR_SUFFIXES
-    from fovjax.native import start_build
+    from fovjax.trace import start_embree_build
 
     files = cli.scene(args.scene)
     cli.number(args.scene_scale, "--scene-scale", gt=0)
@@ -224,7 +225,7 @@ def validate(args) -> Path:
     # Every value is checked: the native handlers (first run only) compile from here on, in the
     # background, while the size check (which estimates for the integrator they will run) and
     # the scene and its BVH go on.
-    args.native_build = start_build()
+    args.native_build = start_embree_build()
     if not args.stereo or args.preview:
         cli.frame_size(args, args.width, args.height, args.spp, kinds=("full",), eyes=1)
     else:
@@ -280,7 +281,13 @@ def _run(args, out: Path) -> int:
         config = dataclasses.replace(preset.config, max_depth=args.max_depth)
     building = args.native_build
     programs = compile_cache_entries()  # None: the cache is off, every run compiles
-    _first_run_note(building, programs == 0)
+    # jax.config's options are set at run time (pyright cannot see it).
+    cache = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
+    if building is not None or programs == 0:
+        # Whether the programs will call the native handlers: being built, or known at once
+        # (loaded from the cache, or unavailable here).
+        native = building is not None or bool(fovjax.trace.embree_status())
+        _first_run_note(building, Path(cache) if programs == 0 else None, native)
     foveated = args.stereo and not args.full
     with_reference = foveated and not args.no_reference
     steps = 6 if with_reference else 4
@@ -394,30 +401,29 @@ def _run(args, out: Path) -> int:
     return 0
 
 
-def _first_run_note(building: Path | None, first_compile: bool) -> None:
-    """Say, before the work, what a first run on this machine builds and compiles, how long that
-    usually takes (`FIRST_RUN_TEXT`) and where it is kept for later runs."""
-    import jax
-
+def _first_run_note(building: Path | None, programs: Path | None, native: bool = True) -> None:
+    """Say, before the work, what a first run on this machine builds (the native handlers, into
+    `building`) and compiles (the frame programs, cached in `programs`; `native`: with the native
+    handlers), how long that usually takes and where it is kept for later runs."""
     kept = []
     if building is not None:
-        kept.append(("builds the native handlers (C++, while the scene loads)", building.parent))
-    if first_compile:
-        # jax.config's options are set at run time (pyright cannot see it).
-        programs = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
-        kept.append(("compiles the frame programs", Path(programs)))
+        doing = f"building the native handlers (C++, {HANDLERS_TYPICAL}, while the scene loads)"
+        kept.append((doing, building.parent))
+    if programs is not None:
+        typical = PROGRAMS_TYPICAL if native else "longer without the native handlers"
+        kept.append((f"compiling the frame programs ({typical})", programs))
     if not kept:
         return
     folders = {folder for _, folder in kept}
     parents = {folder.parent for folder in folders}
     where = (
         f"{next(iter(parents))} ({', '.join(sorted(f.name + '/' for f in folders))})"
-        if len(parents) == 1
+        if len(parents) == 1 and len(folders) > 1
         else " and ".join(str(f) for f in sorted(folders))
     )
+    doing = " and ".join(what for what, _ in kept)
     print(
-        f"first run on this machine: fovjax {' and '.join(what for what, _ in kept)}, "
-        f"{FIRST_RUN_TEXT}; kept in {where}, later runs load them",
+        f"first run on this machine: {doing}; kept in {where} for later runs",
         file=sys.stderr,
         flush=True,
     )
@@ -425,10 +431,10 @@ def _first_run_note(building: Path | None, first_compile: bool) -> None:
 
 def _wait_for_native_build() -> None:
     """Wait for the native handlers' background build, saying so and how long it took."""
-    from fovjax.native import status
+    from fovjax.trace import embree_status
 
     print("      waiting for the native handlers' build", file=sys.stderr, flush=True)
-    found = status()
+    found = embree_status()
     if found:
         seconds = found.info.get("compile_seconds", 0.0)
         print(f"      native handlers built in {seconds:.1f} s", file=sys.stderr, flush=True)

@@ -238,8 +238,9 @@ def start_build() -> Path | None:
             if any(library_path(compiler, choice).exists() for choice in choices):
                 return None
             path = library_path(compiler, choices[0])
+            path.parent.mkdir(parents=True, exist_ok=True)
         except (OSError, ValueError, subprocess.SubprocessError):
-            return None  # status() builds in the foreground and says what went wrong
+            return None  # status() tries in the foreground and says what went wrong
 
         def run() -> None:
             try:
