@@ -302,10 +302,13 @@ def _run(args, out: Path) -> int:
     pose = fovjax.scenes.default_camera(scene)
     key = None if args.seed is None else jax.random.key(args.seed)
     compiling = {
-        None: "compiling its program and rendering",
-        0: "compiling its program (first run only) and rendering",
-    }.get(programs, "compiling its program or loading it from the cache, and rendering")
-    _progress(3, steps, f"{'foveated frame' if foveated else 'frame'}: {compiling}")
+        None: "compiling {} and rendering",
+        0: "compiling {} (first run only) and rendering",
+    }.get(programs, "compiling {} or loading it from the cache, and rendering")
+    if foveated:
+        _progress(3, steps, "foveated frame: " + compiling.format("its program"))
+    else:
+        _progress(3, steps, compiling.format("the frame's program"))
     if building is not None:
         _wait_for_native_build()
     reference = None
@@ -352,7 +355,7 @@ def _run(args, out: Path) -> int:
         cli.wrote(out)
     full_out = out.with_name(out.stem + "_full" + out.suffix)
     if with_reference:
-        _progress(5, steps, f"full frame: {compiling}")
+        _progress(5, steps, "full frame: " + compiling.format("its program"))
         reference = render_stereo(
             arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
         )
