@@ -1,7 +1,7 @@
 """The first `fovjax render` on a fresh machine: end to end and by phase, from an empty cache.
 
     python benchmarks/first_render.py                        # 3 runs of `fovjax render`
-    python benchmarks/first_render.py --repeats 5 --baseline main
+    python benchmarks/first_render.py --repeats 5 --baseline main --prebuilt
     python benchmarks/first_render.py --check-frames         # the handlers' two builds, bit for bit
     python benchmarks/first_render.py --args --width 320 --height 256
 
@@ -12,10 +12,13 @@ timestamped as they arrive, and the phases are the gaps between them: startup (P
 fovjax imported, the arguments checked), the scene, its BVH, the wait for the native handlers'
 build (started in the background when the arguments were checked), the foveated frame (its
 program compiled, then rendered), writing it (the first image), the full frame and writing it.
-The first image's time is when `out.png` was written (its modification time). Printed per
-phase: the median over the runs and each run's figure; with `--baseline REV`, the same command
-of that git revision (exported with `git archive`, run from there) alternates with this tree's,
-for the before and after in one run (its phases are what its own progress lines mark).
+The first image's time is when `out.png` was written (its modification time). After each run
+of this tree, the same command runs again with what it left in the cache ("later run"). Printed
+per phase: the median over the runs and each run's figure; with `--baseline REV`, the same
+command of that git revision (exported with `git archive`, run from there) alternates with this
+tree's, for the before and after in one run (its phases are what its own progress lines mark);
+with `--prebuilt`, this tree also runs with the native handlers already in the otherwise empty
+cache (built once beforehand, as an install that built them would leave them).
 
 `--check-frames` builds the native handlers both ways this machine can (GCC's parallel
 link-time back end, `fovjax.native._library.PARALLEL_FLAGS`, and the plain unity build), each
