@@ -12,9 +12,10 @@ work to do first (the command line loads the scene and builds its BVH) starts th
 background (`start_build`); `status()` waits for it. XLA's FFI headers come from the installed
 jaxlib (`jax.ffi.include_dir()`); Embree is the library inside the `embreex` wheel, opened at
 run time. Anything missing (no compiler, no embreex, a library whose struct or data layout does
-not match) leaves `status()` False with the reason, and every stage runs its JAX implementation. `FOVJAX_NATIVE=0` turns the native handlers off;
-`FOVJAX_NATIVE_SANITIZE=1` builds them with AddressSanitizer and UndefinedBehaviorSanitizer (the
-process must then start with the sanitizer runtime preloaded: `.ci/sanitize`).
+not match) leaves `status()` False with the reason, and every stage runs its JAX implementation.
+`FOVJAX_NATIVE=0` turns the native handlers off; `FOVJAX_NATIVE_SANITIZE=1` builds them with
+AddressSanitizer and UndefinedBehaviorSanitizer (the process must then start with the sanitizer
+runtime preloaded: `.ci/sanitize`).
 """
 
 from __future__ import annotations
