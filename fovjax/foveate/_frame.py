@@ -460,12 +460,15 @@ def traced_sums(
     to their pixels as it is traced (`sample_adder`: no array of every slot's radiance). Where
     `slots_in_one_call` holds and the program runs on a CPU, one call of the native handler
     (`native_whitted_slots`) makes every live slot's ray, traces it and adds it to its pixel:
-    the chunk loop's per-chunk operations are not run. Its derivatives are the chunked JAX
-    path's (a custom JVP)."""
+    the chunk loop's per-chunk operations are not run. Its derivatives there are those of a
+    replay of the paths it stored (`fovjax.render.internal.replay_radiance` over the slots: no
+    ray traced again), and elsewhere those of the JAX integrator over every slot (`dense`), so
+    that forward and reverse mode both go through the frame."""
     from ..render.internal import ChunkedRadiance, scene_scale
 
     _, spp, h, w = sel.classes.shape
     size = min(config.chunk_size, budget)
+    n_pixels = 2 * h * w
 
     def chunked(scene, cameras, order, n_traced):
         s = sel._replace(order=order, n_traced=n_traced)
@@ -489,6 +492,9 @@ def traced_sums(
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
     def in_one_call(scene, cameras, order, n_traced):
+        return native_slots(scene, cameras, order, n_traced, store_paths=False)
+
+    def native_slots(scene, cameras, order, n_traced, *, store_paths):
         from ..render.internal import shading_attributes, whitted_operands
         from ..scene import stratified_offsets
 
@@ -497,7 +503,7 @@ def traced_sums(
         key_data = jnp.zeros(2, jnp.uint32) if jitter_key is None else key_words(jitter_key)
         offset = config.ray_offset * scene_scale(scene)
         offset = jax.lax.stop_gradient(jnp.asarray(offset, jnp.float32).reshape(1))
-        sums, bad_pixel, counts = native_whitted_slots(
+        sums, bad_pixel, counts, prim, visible = native_whitted_slots(
             (*whitted_operands(scene, bvh), offset),
             order,
             n_traced,
@@ -514,8 +520,57 @@ def traced_sums(
             packets=config.packet is not None,
             robust=bvh.watertight,
             shading=shading_attributes(config),
+            store_paths=store_paths,
         )
-        return (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
+        out = (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
+        return (out, (prim, visible)) if store_paths else out
+
+    def slot_rays_of(cameras, order):
+        """Every slot's camera ray (unit direction), as the handler makes it."""
+        positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
+        o, d = slot_rays(cameras, positions, order, spp=spp, h=h, w=w)
+        n2 = jnp.sum(d * d, axis=-1, keepdims=True)
+        return o, d * jnp.where(n2 > 0, jax.lax.rsqrt(jnp.where(n2 > 0, n2, 1.0)), 0.0)
+
+    def slot_sums(rgb, bad, order, n_traced):
+        """Every live slot's radiance added to its pixel (`sample_adder` over every slot)."""
+        live = jnp.arange(order.shape[0], dtype=jnp.int32) < n_traced
+        eye, _, pixel = _slot_samples(order, spp=spp, h=h, w=w)
+        target = jnp.where(live, eye * (h * w) + pixel, n_pixels)
+        bad = live & bad
+        rgb = jnp.where((live & ~bad)[:, None], rgb, 0.0)
+        sums = jnp.zeros((n_pixels, 3), jnp.float32).at[target].add(rgb, mode="drop")
+        bad_pixel = jnp.zeros(n_pixels, bool).at[target].max(bad, mode="drop")
+        return sums, bad_pixel, jnp.sum(bad, dtype=jnp.int32)
+
+    def dense(scene, cameras, order, n_traced):
+        """The slots through the renderer's `radiance`, every slot at once: what `chunked`
+        computes, with fixed shapes (its derivatives go both ways)."""
+        from ..render import radiance
+
+        o, d = slot_rays_of(cameras, order)
+        live = jnp.arange(order.shape[0], dtype=jnp.int32) < n_traced
+        r = radiance(scene, bvh, o, d, active=live, config=config)
+        counts = (r.counts.primary, r.counts.shadow, r.counts.reflection)
+        return slot_sums(r.rgb, r.bad, order, n_traced), counts
+
+    def replay_jvp(primals, tangents):
+        """The handler's sums, with the derivatives of a replay of the paths it stored."""
+        from ..render.internal import StoredPaths, replay_radiance, shading_of
+
+        scene, cameras, order, n_traced = primals
+        out, paths = native_slots(scene, cameras, order, n_traced, store_paths=True)
+        paths = StoredPaths(*paths)
+        offset = config.ray_offset * scene_scale(scene)
+
+        def replayed(scene, cameras, order, n_traced):
+            o, d = slot_rays_of(cameras, order)
+            rgb = replay_radiance(scene, bvh, o, d, offset, paths, shading_of(config))
+            bad = ~jnp.all(jnp.isfinite(rgb), axis=-1)
+            return slot_sums(rgb, bad, order, n_traced), out[1]
+
+        _, tangents_out = jax.jvp(replayed, primals, tangents)
+        return out, tangents_out
 
     if not slots_in_one_call(config, jitter_key, classes, scale, h, w, spp):
         (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
@@ -523,7 +578,14 @@ def traced_sums(
         from ..render.internal import integrator_plan
 
         cpu_only = integrator_plan(config).cpu_only
-        run = on_platforms(chunked, cpu=in_one_call, cpu_only=cpu_only)
+        replays = scene.num_lights <= 32  # the paths' visibility bits
+        run = on_platforms(
+            chunked,
+            cpu=in_one_call,
+            cpu_only=cpu_only,
+            cpu_jvp=replay_jvp if replays else None,
+            differentiate=dense,
+        )
         consumed, (primary, shadow, reflection) = run(scene, cameras, sel.order, sel.n_traced)
     return ChunkedRadiance(None, primary, shadow, reflection, (), consumed)
 

@@ -59,10 +59,14 @@ def native_whitted_slots(
     packets: bool,
     robust: bool = True,
     shading: dict | None = None,
+    store_paths: bool = False,
 ):
     """A foveated frame's live slots made into rays, traced through the Whitted integrator and
     summed into their pixels, in one call of the slots handler (CPU only): (sums (2·H·W, 3), bad
-    pixel (2·H·W), [primary, shadow, reflection rays, bad samples]). `order` the slots in
+    pixel (2·H·W), [primary, shadow, reflection rays, bad samples], and each slot's path with
+    `store_paths` (else empty): (max_depth + 1, P) the face hit at each level and the lights
+    its shadow rays reached, as `fovjax.render.internal.StoredPaths` holds them, a column per
+    slot of `order`). `order` the slots in
     compaction order, the first `n_live` live; `key_data` the frame key's (2,) uint32
     (threefry2x32; unused without `jitter`); `locality` each locality rank's pixel; `grid` the
     sub-samples' cell centres (S, 2); `cameras` (`camera_rows`). `operands`: the scene's
@@ -80,13 +84,17 @@ def native_whitted_slots(
         )
     f32, i32 = jnp.float32, jnp.int32
     n_pixels = 2 * height * width
+    slots = int(np.shape(order)[0])
+    stored = (max_depth + 1) * slots if store_paths else 0
     out = (
         jax.ShapeDtypeStruct((n_pixels, 3), f32),
         jax.ShapeDtypeStruct((n_pixels,), jnp.bool_),
         jax.ShapeDtypeStruct((4,), i32),
+        jax.ShapeDtypeStruct((stored,), i32),
+        jax.ShapeDtypeStruct((stored,), jnp.uint32),
     )
     call = handler(SLOTS_TARGET, out, what="the native slots integrator", vmap_method="sequential")
-    return call(
+    sums, bad, counts, prim, visible = call(
         jnp.asarray(order, i32).reshape(-1),
         jnp.asarray(n_live, i32).reshape(1),
         jnp.asarray(key_data, jnp.uint32).reshape(2),
@@ -104,6 +112,9 @@ def native_whitted_slots(
         robust=np.int32(robust),
         **(shading_attributes(DEFAULT_CONFIG) if shading is None else shading),
     )
+    if store_paths:
+        prim, visible = prim.reshape(max_depth + 1, slots), visible.reshape(max_depth + 1, slots)
+    return sums, bad, counts, prim, visible
 
 
 def native_select_samples(

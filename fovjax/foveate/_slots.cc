@@ -108,7 +108,8 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
                         ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::S32> locality,
                         ffi::Buffer<ffi::F32> grid, ffi::Buffer<ffi::F32> cameras, FOVJAX_SCENE_PARAMS,
                         ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
-                        ffi::ResultBuffer<ffi::S32> counts_out, int32_t spp, int32_t height,
+                        ffi::ResultBuffer<ffi::S32> counts_out, ffi::ResultBuffer<ffi::S32> path_prim,
+                        ffi::ResultBuffer<ffi::U32> path_visible, int32_t spp, int32_t height,
                         int32_t width, int32_t jitter, int32_t max_depth, int32_t recompute,
                         int32_t packets, int32_t robust, int32_t specular, int32_t specular_payload,
                         float min_contribution) {
@@ -134,6 +135,18 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   if (status.failure()) return status;
   const int64_t n = std::max<int64_t>(
       0, std::min<int64_t>(n_live.typed_data()[0], static_cast<int64_t>(order.element_count())));
+  // Each slot's path (`PathsOut`, a column per slot of `order`), where the buffers are not empty.
+  const int64_t levels = static_cast<int64_t>(max_depth) + 1;
+  const int64_t slots = static_cast<int64_t>(order.element_count());
+  const bool store = path_prim->element_count() != 0;
+  if ((store && (path_prim->element_count() != static_cast<size_t>(levels * slots) ||
+                 path_visible->element_count() != static_cast<size_t>(levels * slots) ||
+                 light_kind.element_count() > 32)) ||
+      (!store && path_visible->element_count() != 0)) {
+    return ffi::Error::InvalidArgument("fovjax slots: paths are (max_depth + 1) x slots, for at most 32 lights");
+  }
+  const PathsOut paths{path_prim->typed_data(), path_visible->typed_data(), slots, levels, nullptr};
+  if (store) paths.Clear();
   SlotLayout L{order.typed_data(), locality.typed_data(), grid.typed_data(), cameras.typed_data(),
                {key.typed_data()[0], key.typed_data()[1]}, jitter != 0, spp, height, width, per_eye, cells};
   for (int64_t i = 0; i < n; ++i) {
@@ -183,8 +196,10 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
              target.get() + begin, scratch);
     BlockRays block;
     block.n = m;
+    PathsOut block_paths = paths;
+    block_paths.column = position.get() + begin;  // the slots these rays are
     WhittedBlock(t, s, o.data(), d.data(), active.get(), block, radiance.get() + 3 * begin,
-                 traced.get() + begin, packets != 0, true);
+                 traced.get() + begin, packets != 0, true, store ? &block_paths : nullptr);
   });
   if (out_of_range.load() != 0) {
     return ffi::Error::InvalidArgument(
@@ -239,6 +254,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
                                   .Ret<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
                                   .Ret<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples
+                                  .Ret<ffi::Buffer<ffi::S32>>()   // paths' faces ((max_depth + 1) x P) or empty
+                                  .Ret<ffi::Buffer<ffi::U32>>()   // paths' unblocked lights, bits, or empty
                                   .Attr<int32_t>("spp")
                                   .Attr<int32_t>("height")
                                   .Attr<int32_t>("width")

@@ -82,6 +82,7 @@ def on_platforms(
     cpu_only: bool = False,
     derivatives: bool = True,
     cpu_jvp: Callable | None = None,
+    differentiate: Callable | None = None,
 ) -> Callable:
     """One stage as a function of its operands: `cpu` on a CPU, `cuda` on an NVIDIA GPU,
     `reference` (the JAX implementation) wherever neither is given, chosen per platform inside
@@ -91,7 +92,9 @@ def on_platforms(
     (integers, masks) or the caller differentiates elsewhere. `cpu_jvp(primals, tangents)`:
     the JVP rule on a CPU instead (it returns the primal outputs, the native side's, and their
     tangents: e.g. the JVP of a replay of what the native forward stored), `reference`'s
-    elsewhere. All take the same operands and return the same structure."""
+    elsewhere, or `differentiate`'s where given: a function of the same value whose JVP (and
+    its transpose, for reverse mode) JAX can take where `reference`'s cannot (a loop whose trip
+    count depends on the data). All take the same operands and return the same structure."""
     if cpu_only:
         if cpu is None:
             raise ValueError("on_platforms: cpu_only needs a cpu function")
@@ -111,7 +114,7 @@ def on_platforms(
     stage = jax.custom_jvp(primal)
 
     def reference_jvp(primals, tangents):
-        return jax.jvp(reference, primals, tangents)
+        return jax.jvp(reference if differentiate is None else differentiate, primals, tangents)
 
     if cpu_jvp is None:
         rule = reference_jvp

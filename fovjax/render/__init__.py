@@ -16,10 +16,13 @@ The frame is three steps, each usable on its own (the foveation layer reuses the
   pyramids from `with_texture_mips`, trilinear lookups `mip_lookup`, ray-cone levels).
 
 `render` / `render_stereo` put them together and return a `Frame`; `render_image` /
-`render_stereo_image` are the pure, differentiable versions; `render_stereo_batch` a batch of
-stereo frames in one program sharded over devices (`FrameBatch`). Every host entry point
-compiles through one path (`fovjax.render.internal.run_compiled`): `clear_compile_cache` and
-`compile_cache_info` cover them all. `enable_compile_cache()` keeps compiled programs on disk across processes
+`render_stereo_image` are the pure, differentiable versions; `differentiable(render_fn, scene,
+names)` makes any of them a function of the scene values a user names (`Parameters`: material
+colours, lights, vertices, the camera's position, the head pose) for `jax.grad` and `jax.jvp`;
+`render_stereo_batch` a batch of stereo frames in one program sharded over devices
+(`FrameBatch`). Every host entry point compiles through one path
+(`fovjax.render.internal.run_compiled`): `clear_compile_cache` and `compile_cache_info` cover
+them all. `enable_compile_cache()` keeps compiled programs on disk across processes
 (JAX's persistent compilation cache; the command line turns it on).
 
 For the packages that build frames of their own on this one, `fovjax.render.internal` holds what
@@ -91,6 +94,10 @@ from ._memory import FrameTooLargeError as FrameTooLargeError
 from ._memory import check_frame_memory as check_frame_memory
 from ._memory import frame_memory as frame_memory
 from ._memory import memory_limit as memory_limit
+from ._parameters import PARAMETER_NAMES as PARAMETER_NAMES
+from ._parameters import Differentiable as Differentiable
+from ._parameters import Parameters as Parameters
+from ._parameters import differentiable as differentiable
 from ._stereo import HeadPoseLike as HeadPoseLike
 from ._stereo import SampleRays as SampleRays
 from ._stereo import StereoRig as StereoRig
@@ -168,6 +175,10 @@ __all__ = [
     "check_frame_memory",
     "frame_memory",
     "memory_limit",
+    "PARAMETER_NAMES",
+    "Differentiable",
+    "Parameters",
+    "differentiable",
     "HeadPoseLike",
     "SampleRays",
     "StereoRig",

@@ -7,7 +7,7 @@ Hits are recomputed from the stored face's corners (`hit_geometry`), so gradient
 positions and the rays as in the JAX integrator; which face a ray hit and whether a shadow ray
 was blocked (visibility) are taken as given, as there. The replay shades with the JAX
 integrator's own functions (`_surface_and_shadow_rays`, `_finish_shading`), so the two cannot
-drift apart; each level runs on every ray, its dead rays masked (the shapes are the forward's).
+drift apart; a level shades the rays it holds, chunk by chunk, at the forward's fixed shapes.
 """
 
 from __future__ import annotations
@@ -31,30 +31,77 @@ class StoredPaths(NamedTuple):
     visible: UInt32[Array, "levels n"]
 
 
+# Rays shaded per chunk of a level (the live ones first: a level costs what its rays do).
+CHUNK = 4096
+
+
 def replay_radiance(
-    scene, bvh, o: Float[Array, "n 3"], d: Float[Array, "n 3"], offset, paths: StoredPaths, shading
+    scene,
+    bvh,
+    o: Float[Array, "n 3"],
+    d: Float[Array, "n 3"],
+    offset,
+    paths: StoredPaths,
+    shading,
+    chunk: int = CHUNK,
 ) -> Float[Array, "n 3"]:
     """The radiance of rays `o`, `d` (unit directions) along `paths`: the native integrator's
     arithmetic, written with the JAX integrator's shading. Differentiable in `scene`'s arrays,
-    `o`, `d` (not in `paths`)."""
-    from ._integrator import _finish_shading, _surface_and_shadow_rays
+    `o`, `d` (not in `paths`).
 
+    Each level puts its live rays first and shades them `chunk` at a time (a `lax.cond` skips
+    the chunks past them): the cost follows the rays the forward traced. (Rematerialising each
+    chunk in the reverse pass, `jax.checkpoint`, would keep only its inputs, but made a gradient
+    several times slower.)"""
+    from ._integrator import _finish_shading, _live_first, _surface_and_shadow_rays
+
+    scene = jax.tree.map(jnp.asarray, scene)  # host NumPy leaves cannot be indexed by traced faces
     prims = jax.lax.stop_gradient(paths.prim)
     visible = jax.lax.stop_gradient(paths.visible)
     n = o.shape[0]
+    size = max(1, min(chunk, n))
+    count = -(-n // size)
+    pad = count * size - n
+    if pad:
+        o = jnp.pad(o, ((0, pad), (0, 0)))
+        d = jnp.pad(d, ((0, pad), (0, 0)))
+        prims = jnp.pad(prims, ((0, 0), (0, pad)), constant_values=layout.PATH_NOT_TRACED)
+        visible = jnp.pad(visible, ((0, 0), (0, pad)))
     lights = jnp.arange(scene.num_lights, dtype=jnp.uint32)[:, None]
-    weight = jnp.ones((n, 3), jnp.float32)
-    total = jnp.zeros((n, 3), jnp.float32)
-    for k in range(prims.shape[0]):
-        alive = prims[k] != layout.PATH_NOT_TRACED
-        prim = jnp.where(prims[k] >= 0, prims[k], -1)
+
+    def shade(scene, o, d, weight, prim, visible):
+        alive = prim != layout.PATH_NOT_TRACED
+        prim = jnp.where(prim >= 0, prim, -1)
         t, u, v = hit_geometry(scene.vertices, bvh.faces, prim, o, d)
         surface, rays = _surface_and_shadow_rays(scene, Hit(t, prim, u, v), d, alive, offset)
-        blocked = None
-        if rays is not None:
-            blocked = ((visible[k][None] >> lights) & 1) == 0
+        blocked = None if rays is None else ((visible[None] >> lights) & 1) == 0
         contribution, (o, d, weight, _) = _finish_shading(
             scene, surface, d, alive, weight, rays, blocked, offset=offset, spawn=True, shading=shading
         )
-        total = total + contribution
-    return total
+        return contribution, o, d, weight
+
+    weight = jnp.ones_like(o)
+    total = jnp.zeros_like(o)
+    chunks = jnp.arange(count)
+    for k in range(prims.shape[0]):
+        n_live, order = _live_first(prims[k] != layout.PATH_NOT_TRACED)
+        # The level's rays, live ones first, as the scan's per-chunk inputs and outputs (no
+        # carry: a carried array would be copied whole every chunk of the reverse pass).
+        ins = tuple(
+            x[order].reshape((count, size) + x.shape[1:]) for x in (o, d, weight, prims[k], visible[k])
+        )
+
+        def body(_, chunk, n_live=n_live):
+            c, taken = chunk[0], chunk[1:]
+
+            def skip(taken):
+                return tuple(jnp.zeros((size, 3), jnp.float32) for _ in range(4))
+
+            return None, jax.lax.cond(c * size < n_live, lambda t: shade(scene, *t), skip, taken)
+
+        _, outs = jax.lax.scan(body, None, (chunks, *ins))
+        contribution, o_next, d_next, w_next = (x.reshape(count * size, 3) for x in outs)
+        back = jnp.zeros_like(order).at[order].set(jnp.arange(order.shape[0], dtype=order.dtype))
+        total = total + contribution[back]
+        o, d, weight = o_next[back], d_next[back], w_next[back]
+    return total[:n]

@@ -152,7 +152,7 @@ Vec3 Environment(const Texture& e, Vec3 d) {
 // One block's work buffers, kept per thread across blocks and calls.
 struct WhittedBuffers {
   std::vector<float> o, d, weight, tmin, tmax, t, u, v;
-  std::vector<int32_t> prim, pixel;
+  std::vector<int32_t> prim, pixel, column;
   std::vector<float> point, n_geo, n_shade, kd;
   std::vector<int32_t> material;
   std::vector<float> so, sd, stmin, stmax, st, su, sv, n_dot_l, spot;
@@ -162,6 +162,7 @@ struct WhittedBuffers {
     for (auto* x : {&tmin, &tmax, &t, &u, &v}) x->resize(n);
     prim.resize(n);
     pixel.resize(n);
+    column.resize(n);
     material.resize(n);
     const int64_t ns = n * std::max(lights, 1);
     for (auto* x : {&so, &sd}) x->resize(3 * ns);
@@ -186,15 +187,21 @@ struct BlockRays {
   }
 };
 
-// Where a block writes each ray's path (`paths` non-null): per depth level k and ray g of the
-// call, at k·n + g, the face its ray hit (-1: a miss, kPathNotTraced: no ray at that level) and
-// the lights its shadow rays reached (bit l set: light l was wanted there and unblocked). What
-// the derivatives replay (fovjax/render/_replay.py) without tracing a ray.
+// Where a block writes each ray's path (`paths` non-null): per depth level k and the block's ray
+// i, at k·n + column[i] (column null: i), the face its ray hit (-1: a miss) and the lights its
+// shadow rays reached (bit l set: light l was wanted there and unblocked). The caller fills the
+// arrays with kPathNotTraced and 0 first: levels a ray never reached keep them. What the
+// derivatives replay (fovjax/render/_replay.py) without tracing a ray.
 struct PathsOut {
   int32_t* prim;
   uint32_t* visible;
-  int64_t n;       // rays of the call
-  int64_t levels;  // max_depth + 1
+  int64_t n;               // columns per level
+  int64_t levels;          // max_depth + 1
+  const int32_t* column;   // the block's rays' columns, or null
+  void Clear() const {
+    std::fill(prim, prim + levels * n, kPathNotTraced);
+    std::fill(visible, visible + levels * n, 0u);
+  }
 };
 
 // `sparse`: the rays are samples scattered over the screen (a foveated frame's), whose hits'
@@ -212,14 +219,9 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
     const int64_t g = block.Index(i);
     total[3 * g] = total[3 * g + 1] = total[3 * g + 2] = 0.0f;
     traced[g] = 0;
-    if (paths != nullptr) {
-      for (int64_t k = 0; k < paths->levels; ++k) {
-        paths->prim[k * paths->n + g] = kPathNotTraced;
-        paths->visible[k * paths->n + g] = 0u;
-      }
-    }
     if (!active[g]) continue;
     b.pixel[m] = static_cast<int32_t>(g);
+    b.column[m] = paths == nullptr ? 0 : static_cast<int32_t>(paths->column ? paths->column[i] : g);
     for (int c = 0; c < 3; ++c) {
       b.o[3 * m + c] = o_in[3 * g + c];
       b.d[3 * m + c] = d_in[3 * g + c];
@@ -238,7 +240,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
     TraceList(tree, rays, m, false, packets);
     if (paths != nullptr) {
       for (int64_t k = 0; k < m; ++k) {
-        paths->prim[depth * paths->n + b.pixel[k]] = b.prim[k] < 0 ? -1 : b.prim[k];
+        paths->prim[depth * paths->n + b.column[k]] = b.prim[k] < 0 ? -1 : b.prim[k];
       }
     }
     // Surfaces and their shadow rays.
@@ -375,7 +377,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
           const int64_t j = js++;
           traced[px] += 1 << 8;
           if (b.sprim[j] >= 0) continue;  // blocked
-          if (paths != nullptr) paths->visible[depth * paths->n + px] |= 1u << l;
+          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;
           // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
           float cosine;
           if (s.shading.specular == kSpecularPhong) {
@@ -410,6 +412,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
         b.weight[3 * next + c2] = (&w.x)[c2];
       }
       b.pixel[next] = px;
+      b.column[next] = b.column[k];
       traced[px] += 1;
       ++next;
     }
@@ -519,8 +522,9 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
     return ffi::Error::InvalidArgument(
         "fovjax Whitted: paths are (max_depth + 1) x rays, for at most 32 lights");
   }
-  const PathsOut paths_out{path_prim->typed_data(), path_visible->typed_data(), n, levels};
+  const PathsOut paths_out{path_prim->typed_data(), path_visible->typed_data(), n, levels, nullptr};
   const PathsOut* paths = store ? &paths_out : nullptr;
+  if (paths != nullptr) paths->Clear();
   std::atomic<int> out_of_range{0};
   ShadeScene s;
   std::shared_ptr<NativeScene> tree;

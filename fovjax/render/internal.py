@@ -29,6 +29,7 @@ from ._integrator import chunk_loop as chunk_loop
 from ._integrator import native_integrator as native_integrator
 from ._integrator import radiance_in_chunks as radiance_in_chunks
 from ._integrator import scene_scale as scene_scale
+from ._integrator import shading_of as shading_of
 from ._integrator import surface_at as surface_at
 from ._mips import mip_lookup as mip_lookup
 from ._mips import mip_shapes as mip_shapes
@@ -39,6 +40,8 @@ from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
 from ._native import integrator_plan as integrator_plan
 from ._native import shading_attributes as shading_attributes
 from ._native import whitted_operands as whitted_operands
+from ._replay import StoredPaths as StoredPaths
+from ._replay import replay_radiance as replay_radiance
 
 __all__ = [
     "LOOP_EMITTERS",
@@ -60,6 +63,9 @@ __all__ = [
     "integrator_plan",
     "MAX_NATIVE_DEPTH",
     "whitted_operands",
+    "StoredPaths",
+    "replay_radiance",
+    "shading_of",
     "shading_attributes",
     "radiance_in_chunks",
     "scene_scale",

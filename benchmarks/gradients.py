@@ -1,0 +1,326 @@
+"""Gradients of a frame beside Mitsuba 3's automatic differentiation of the same frame.
+
+    python benchmarks/gradients.py                      # atrium, 2 x 320x256 and 2 x 640x512
+    python benchmarks/gradients.py --sizes 160x128 --repeats 3
+
+The loss: the mean squared difference between the stereo frame (Whitted, depth 5, SPP 1,
+cell-centre samples) and a target frame rendered with one material's Kd raised by 0.1; its
+gradient with respect to every material's Kd and every light's colour. Timed, in one process,
+the two renderers taking turns call by call (medians of --repeats after a warm-up that
+compiles):
+- **fovjax forward**: `jax.jit` of the loss (`render_stereo_image`, the default configuration:
+  on a CPU the native integrator);
+- **fovjax forward + backward**: `jax.jit(jax.value_and_grad(loss))`: the native forward stores
+  each ray's path and the gradient is the reverse pass of its replay
+  (`fovjax/render/_replay.py`);
+- **fovjax, JAX integrator**: the same with `RenderConfig(integrator="jax")`, where the gradient
+  re-runs the forward in the JAX integrator (the way fovjax differentiated before the replay);
+- **Mitsuba forward** and **forward + backward**: `benchmarks/mitsuba_frame.py`'s Dr.Jit
+  wavefront (`llvm_ad_rgb`) with Kd and the light colours as differentiable arrays; its
+  backward (`dr.backward`) walks the graph its forward recorded (hits and shadow answers
+  kept: no ray is traced again), the fast way to write it.
+
+Printed: milliseconds, the ratios fovjax / Mitsuba and gradient / forward, and how the
+gradients agree: fovjax against Mitsuba, and fovjax against central finite differences of its
+own forward on three Kd components (the image is linear in Kd, so the differences are exact up
+to rounding). A record is written (`FOVJAX_BENCH_RECORD=0`: none).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import mitsuba_frame as mf  # noqa: E402
+from _record import write_record  # noqa: E402
+
+STEP = 0.1  # the target's Kd change
+FD_STEP = 1e-2  # the finite differences' step in Kd (linear: any step is exact up to rounding)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: a size is WIDTHxHEIGHT, e.g. 320x256") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: width and height must be positive")
+    return w, h
+
+
+def _median_ms(xs) -> float:
+    return 1e3 * statistics.median(xs)
+
+
+class DifferentiableWhitted(mf.MitsubaWhitted):
+    """`mitsuba_frame.MitsubaWhitted` with Kd and the light colours as arrays Dr.Jit can
+    differentiate."""
+
+    def __init__(self, mi, dr, arrays, config, offset):
+        super().__init__(mi, dr, arrays, config, offset)
+        self.light_colors = [mi.Vector3f(*color) for _, color, _ in self.lights]
+        self.lights = [
+            (position, color, is_point)
+            for (position, _, is_point), color in zip(self.lights, self.light_colors, strict=True)
+        ]
+
+    def parameters(self):
+        return [self.kd, *self.light_colors]
+
+    def set_kd(self, kd):
+        self.kd = self.mi.Float(np.asarray(kd, np.float32).ravel())
+
+    def loss(self, prepared, target):
+        image, _ = self.frame(prepared)
+        diff = image - target
+        return self.dr.mean(self.dr.square(diff.x) + self.dr.square(diff.y) + self.dr.square(diff.z)) / 3
+
+
+def _mitsuba(arrays, rig, config, target_image):
+    """(forward, forward + backward) callables of Mitsuba's loss, and its gradients once."""
+    from fovjax.render import stereo_sample_rays
+    from fovjax.render.internal import scene_scale
+
+    mi, dr = mf.load_mitsuba()
+    integrator = DifferentiableWhitted(mi, dr, arrays, config, config.ray_offset * float(scene_scale(arrays)))
+    rays = stereo_sample_rays(rig, None, 1, None)
+    prepared = integrator.prepare(np.asarray(rays.origins), np.asarray(rays.directions))
+    # The target in the layout of Mitsuba's image (side by side, row by row).
+    target = mi.Vector3f(
+        *(mi.Float(np.ascontiguousarray(c)) for c in np.asarray(target_image).reshape(-1, 3).T)
+    )
+
+    def forward():
+        loss = integrator.loss(prepared, target)
+        dr.eval(loss)
+        dr.sync_thread()
+        return loss
+
+    def forward_backward():
+        params = integrator.parameters()
+        for p in params:
+            dr.enable_grad(p)
+        loss = integrator.loss(prepared, target)
+        dr.backward(loss)
+        grads = [dr.grad(p) for p in params]
+        dr.eval(grads)
+        dr.sync_thread()
+        for p in params:
+            dr.disable_grad(p)
+        return loss, grads
+
+    return forward, forward_backward
+
+
+def run_size(scene, bvh, width, height, args):
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from fovjax.render import RenderConfig, StereoRig, render_stereo_image, scene_arrays
+
+    rig = StereoRig.from_pose(mf_default_camera(scene), eye_width=width, eye_height=height)
+    arrays = scene_arrays(scene)
+    config = RenderConfig(max_depth=args.max_depth)
+    kd0 = jnp.asarray(arrays.kd)
+    light0 = jnp.asarray(arrays.light_color)
+    # The target: the most-seen material's Kd raised by STEP (through fovjax's forward).
+    counts = np.bincount(np.asarray(arrays.face_material), minlength=len(np.asarray(kd0)))
+    changed = int(np.argmax(counts))
+    target = jax.jit(
+        lambda kd: render_stereo_image(eqx.tree_at(lambda s: s.kd, arrays, kd), bvh, rig, config=config)
+    )(kd0.at[changed].add(STEP))
+    target = jax.block_until_ready(target)
+
+    # The scene's arrays go in as operands (closed over, XLA would fold them as constants).
+    scene_in = jax.tree.map(jnp.asarray, arrays)
+
+    def make_loss(cfg):
+        def loss(kd, light_color, scene_in):
+            a = eqx.tree_at(lambda s: (s.kd, s.light_color), scene_in, (kd, light_color))
+            return jnp.mean((render_stereo_image(a, bvh, rig, config=cfg) - target) ** 2)
+
+        return loss
+
+    def bound(fn):
+        jitted = jax.jit(fn)
+        return lambda kd, light: jitted(kd, light, scene_in)
+
+    loss = make_loss(config)
+    fj_forward = bound(loss)
+    fj_grad = bound(jax.value_and_grad(loss, argnums=(0, 1)))
+    jax_loss = make_loss(RenderConfig(max_depth=args.max_depth, integrator="jax"))
+    fj_jax_grad = bound(jax.value_and_grad(jax_loss, argnums=(0, 1)))
+    mi_forward, mi_grad = _mitsuba(arrays, rig, config, target)
+
+    runs = {
+        "fovjax_forward": lambda: jax.block_until_ready(fj_forward(kd0, light0)),
+        "fovjax_forward_backward": lambda: jax.block_until_ready(fj_grad(kd0, light0)),
+        "mitsuba_forward": mi_forward,
+        "mitsuba_forward_backward": mi_grad,
+    }
+    if not args.no_jax_integrator:
+        runs["fovjax_jax_integrator_forward_backward"] = lambda: jax.block_until_ready(
+            fj_jax_grad(kd0, light0)
+        )
+    out = {"width": width, "height": height, "changed_material": changed}
+    for name, fn in runs.items():  # warm-ups: compiles, Dr.Jit's kernels
+        t0 = time.perf_counter()
+        fn()
+        out[f"{name}_first_s"] = time.perf_counter() - t0
+    timed = {name: [] for name in runs}
+    for _ in range(args.repeats):
+        for name, fn in runs.items():
+            t0 = time.perf_counter()
+            fn()
+            timed[name].append(time.perf_counter() - t0)
+    for name, xs in timed.items():
+        out[f"{name}_ms"] = _median_ms(xs)
+
+    # The gradients and how they agree.
+    value, (g_kd, g_light) = fj_grad(kd0, light0)
+    mi_value, (mi_kd, *mi_lights) = mi_grad()
+    g_kd, g_light = np.asarray(g_kd, np.float64), np.asarray(g_light, np.float64)
+    mi_kd = np.asarray(mi_kd, np.float64).reshape(g_kd.shape)
+    mi_light = np.stack([np.asarray(c, np.float64).reshape(3) for c in mi_lights])
+
+    def relative(a, b):
+        return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-30))
+
+    out["loss_fovjax"] = float(value)
+    out["loss_mitsuba"] = float(np.asarray(mi_value).ravel()[0])
+    out["kd_gradient_vs_mitsuba"] = relative(g_kd, mi_kd)
+    out["light_gradient_vs_mitsuba"] = relative(g_light, mi_light)
+    # Central finite differences of fovjax's forward on the three largest Kd components.
+    flat = np.argsort(-np.abs(g_kd).ravel())[:3]
+    fd, an = [], []
+    for index in flat:
+        m, c = np.unravel_index(index, g_kd.shape)
+        up = float(fj_forward(kd0.at[m, c].add(FD_STEP), light0))
+        down = float(fj_forward(kd0.at[m, c].add(-FD_STEP), light0))
+        fd.append((up - down) / (2 * FD_STEP))
+        an.append(g_kd[m, c])
+    out["kd_gradient_vs_finite_differences"] = relative(np.asarray(an), np.asarray(fd))
+    out["ratio_forward_backward"] = out["fovjax_forward_backward_ms"] / out["mitsuba_forward_backward_ms"]
+    out["ratio_forward"] = out["fovjax_forward_ms"] / out["mitsuba_forward_ms"]
+    out["fovjax_gradient_over_forward"] = out["fovjax_forward_backward_ms"] / out["fovjax_forward_ms"]
+    out["mitsuba_gradient_over_forward"] = out["mitsuba_forward_backward_ms"] / out["mitsuba_forward_ms"]
+    return out
+
+
+def _rounded(ms):
+    return None if ms is None else round(ms, 1)
+
+
+def mf_default_camera(scene):
+    import fovjax
+
+    return fovjax.scenes.default_camera(scene)
+
+
+def report(r) -> None:
+    print(f"2 x {r['width']}x{r['height']} (target: material {r['changed_material']}'s Kd + {STEP})")
+    rows = [
+        ("fovjax forward", "fovjax_forward_ms"),
+        ("fovjax forward + backward", "fovjax_forward_backward_ms"),
+        ("fovjax, JAX integrator, forward + backward", "fovjax_jax_integrator_forward_backward_ms"),
+        ("Mitsuba forward", "mitsuba_forward_ms"),
+        ("Mitsuba forward + backward", "mitsuba_forward_backward_ms"),
+    ]
+    for label, key in rows:
+        if key in r:
+            print(f"  {label:44s} {r[key]:9.1f} ms")
+    ratios = (r["ratio_forward"], r["ratio_forward_backward"])
+    print("  fovjax / Mitsuba: forward {:.2f}, forward + backward {:.2f}".format(*ratios))
+    print(
+        f"  gradient / forward: fovjax {r['fovjax_gradient_over_forward']:.2f}, "
+        f"Mitsuba {r['mitsuba_gradient_over_forward']:.2f}"
+    )
+    print(
+        "  gradients, max relative difference: "
+        f"Kd vs Mitsuba {r['kd_gradient_vs_mitsuba']:.2e}, "
+        f"light colour vs Mitsuba {r['light_gradient_vs_mitsuba']:.2e}, "
+        f"Kd vs finite differences {r['kd_gradient_vs_finite_differences']:.2e}"
+    )
+
+
+COLUMNS = [
+    "size (per eye)",
+    "fovjax fwd ms",
+    "fovjax fwd+bwd ms",
+    "fovjax JAX integrator fwd+bwd ms",
+    "Mitsuba fwd ms",
+    "Mitsuba fwd+bwd ms",
+    "fwd+bwd fovjax / Mitsuba",
+    "gradient / forward: fovjax",
+    "gradient / forward: Mitsuba",
+    "Kd gradient vs Mitsuba",
+    "Kd gradient vs finite differences",
+]
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="atrium", help="a built-in scene (fovjax.scenes.BUILTIN)")
+    ap.add_argument("--sizes", type=_size, nargs="+", default=[(320, 256), (640, 512)], metavar="WxH")
+    ap.add_argument("--max-depth", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--no-jax-integrator",
+        action="store_true",
+        help="leave out the JAX integrator's gradient (the slow one)",
+    )
+    args = ap.parse_args(argv)
+    if args.repeats < 1:
+        ap.error(f"--repeats {args.repeats}: at least 1")
+    if args.max_depth < 0:
+        ap.error(f"--max-depth {args.max_depth}: at least 0")
+    import fovjax
+
+    if args.scene not in fovjax.scenes.BUILTIN:
+        ap.error(f"--scene {args.scene!r}: one of {sorted(fovjax.scenes.BUILTIN)}")
+    try:
+        mf.load_mitsuba()
+    except mf.Unavailable as exc:
+        print(f"gradients: Mitsuba 3 cannot run here: {exc}", file=sys.stderr)
+        raise SystemExit(1) from None
+    scene = fovjax.scenes.BUILTIN[args.scene]()
+    bvh = fovjax.trace.build_bvh(scene)
+    rows = []
+    for width, height in args.sizes:
+        r = run_size(scene, bvh, width, height, args)
+        report(r)
+        rows.append(r)
+    table = {
+        "title": f"Gradients of an image loss (Kd, lights), {args.scene}, depth {args.max_depth}, SPP 1",
+        "columns": COLUMNS,
+        "rows": [
+            [
+                f"{r['width']}x{r['height']}",
+                round(r["fovjax_forward_ms"], 1),
+                round(r["fovjax_forward_backward_ms"], 1),
+                _rounded(r.get("fovjax_jax_integrator_forward_backward_ms")),
+                round(r["mitsuba_forward_ms"], 1),
+                round(r["mitsuba_forward_backward_ms"], 1),
+                round(r["ratio_forward_backward"], 2),
+                round(r["fovjax_gradient_over_forward"], 2),
+                round(r["mitsuba_gradient_over_forward"], 2),
+                f"{r['kd_gradient_vs_mitsuba']:.1e}",
+                f"{r['kd_gradient_vs_finite_differences']:.1e}",
+            ]
+            for r in rows
+        ],
+    }
+    figures = {"rows": rows, "tables": [table]}
+    write_record("gradients", figures)
+    return figures
+
+
+if __name__ == "__main__":
+    main()
