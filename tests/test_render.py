@@ -570,6 +570,6 @@ def test_cli_render_stereo_spheres(tmp_path, capsys):
     assert "stereo 48x16 spp 1" in captured.out and "primary" in captured.out
     assert "ray queries: embree (Embree 4." in captured.out
     assert "integrator: native (" in captured.out
-    assert "[3/4]" in captured.err
+    assert "[3/6] foveated frame" in captured.err and "[6/6] writing" in captured.err
     assert main(["render", "--scene", "nowhere.obj", "-o", str(out)]) == 2
     assert "not a built-in scene" in capsys.readouterr().err

@@ -1,11 +1,11 @@
 """`fovjax.render.differentiable`: the frame as a function of the parameters a user names.
 
-Gradients of a weighted image sum with respect to the chosen parameters, against central finite
-differences of the same frame, and against the whole-scene `eqx.filter_grad` of
-tests/test_render_grad.py on the chosen leaves. The scene, views, weights, steps and tolerances
-are test_render_grad.py's (its docstring gives the reason for each tolerance), so the two files
-check one gradient two ways: here through `Parameters` put back into the arrays with
-`eqx.tree_at` and rows picked by material name, there through every leaf of the arrays.
+Gradients of a weighted image sum with respect to the chosen parameters, against the
+whole-scene `eqx.filter_grad` of tests/test_render_grad.py on the chosen leaves, which that file
+checks against central finite differences of the same scene, views and weights (its docstring
+gives the reason for each tolerance): one gradient two ways, here through `Parameters` put back
+into the arrays with `eqx.tree_at` and rows picked by material name, there through every leaf of
+the arrays.
 
 The stereo frame's head pose (yaw, pitch, roll in degrees) is checked on a rig looking at the
 oracle scene's open floor, with no silhouette in view: turning the head slides every sample over
@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import re
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_render_grad import CAMERA, CONFIG, GEOMETRY, GRAD, LINEAR, SMOOTH, WEIGHTS, floor_view, sphere_view
+from test_render_grad import CAMERA, CONFIG, WEIGHTS, floor_view, sphere_view
 from test_render_reference import FLOOR, SPHERE, oracle_scene
 
 import fovjax
@@ -102,8 +101,7 @@ def _gradient(params, arrays, view, bvh, vertex_rows):
     return jax.grad(weighted_sum)(params, make_frame(arrays, view, vertex_rows), bvh)
 
 
-# The image and its derivative along a tangent (`jax.jvp`): with a zero tangent, the forward of
-# the finite differences.
+# The image and its derivative along a tangent (`jax.jvp`).
 @functools.partial(jax.jit, static_argnames="vertex_rows")
 def _image_and_tangent(params, tangent, arrays, view, bvh, vertex_rows):
     frame = make_frame(arrays, view, vertex_rows)
@@ -118,144 +116,10 @@ def jvp_of(params, tangent, frame, bvh):
     return _image_and_tangent(params, tangent, frame.arrays, frame.view, bvh, frame.vertex_rows)
 
 
-def forward(params, frame, bvh) -> float:
-    """The weighted sum, summed on the host in float64 (as test_render_grad.py does)."""
-    image, _ = jvp_of(params, jax.tree.map(jnp.zeros_like, params), frame, bvh)
-    return float(np.sum(WEIGHTS.astype(np.float64) * np.asarray(image)))
-
-
 def with_entry(params: Parameters, name, index, value) -> Parameters:
     leaf = np.array(params[name], copy=True)
     leaf[index] = value
     return Parameters({**params.values, name: jnp.asarray(leaf)})
-
-
-def central_difference(params, frame, bvh, name, index, eps):
-    x0 = np.float32(np.asarray(params[name])[index])
-    plus, minus = np.float32(x0 + np.float32(eps)), np.float32(x0 - np.float32(eps))
-    f_plus = forward(with_entry(params, name, index, plus), frame, bvh)
-    f_minus = forward(with_entry(params, name, index, minus), frame, bvh)
-    return (f_plus - f_minus) / (float(plus) - float(minus))  # the step float32 took
-
-
-def check(params, gradient, frame, bvh, name, index, eps, rtol, richardson=False):
-    fd = central_difference(params, frame, bvh, name, index, eps)
-    if richardson:  # cancel the O(eps²) term: (4·D(eps/2) − D(eps)) / 3
-        fd = (4 * central_difference(params, frame, bvh, name, index, eps / 2) - fd) / 3
-    leaf = np.abs(np.asarray(gradient[name]))
-    g = float(np.asarray(gradient[name])[index])
-    scale = max(abs(fd), 1e-2 * float(leaf.max()))
-    assert abs(g - fd) <= rtol * scale, (name, index, g, fd, abs(g - fd) / scale)
-    return g
-
-
-def test_gradients_of_the_chosen_parameters_match_central_differences(frames):
-    sphere, floor, bvh = frames["sphere"], frames["floor"], frames["bvh"]
-    checked = []
-    params = sphere.parameters
-    gradient = grad_of(params, sphere, bvh)
-    assert isinstance(gradient, Parameters) and set(gradient.names) == set(NAMES)
-    for name in ("kd", "ks", "kr"):
-        for row in range(2):  # the sphere's row, then the floor's
-            for channel in range(3):
-                if name == "kr" and row == 1:
-                    continue  # the floor's mirror term: checked in test_render_grad.py's floor view
-                checked.append(check(params, gradient, sphere, bvh, name, (row, channel), 1e-2, LINEAR))
-    checked.append(check(params, gradient, sphere, bvh, "ns", 0, 0.5, SMOOTH, richardson=True))
-    for channel in range(3):
-        checked.append(check(params, gradient, sphere, bvh, "light_color", (0, channel), 1e-2, LINEAR))
-        # the sphere's front pole: row 0 of the chosen vertices
-        checked.append(check(params, gradient, sphere, bvh, "vertices", (0, channel), 1e-4, GEOMETRY))
-    params = floor.parameters
-    gradient = grad_of(params, floor, bvh)
-    for axis in range(3):
-        checked.append(check(params, gradient, floor, bvh, "camera_position", axis, 5e-3, CAMERA))
-        checked.append(
-            check(params, gradient, floor, bvh, "light_position", (0, axis), 1e-2, SMOOTH, richardson=True)
-        )
-    checked.append(
-        check(params, gradient, floor, bvh, "vertices", (1, 1), 1e-4, GEOMETRY)
-    )  # the floor corner
-    assert np.count_nonzero(np.abs(checked) > 1e-3) >= len(checked) - 2  # not a pile of zeros
-
-
-def test_gradients_are_the_whole_scene_gradients_on_the_chosen_leaves(frames):
-    """`eqx.filter_grad` over every leaf of the arrays and the camera (test_render_grad.py's
-    program) against the chosen parameters' gradients: the same derivatives, in two programs,
-    so they agree to float32 rounding of sums over the image (rtol 1e-5 of each leaf's largest
-    gradient, as tests/test_render_replay.py allows two programs of one closed form). The
-    geometry is compared in the floor view only: the sphere view puts the sphere's front pole and
-    the icosphere's edges on pixel centres (its optical axis is their plane of symmetry), where
-    the derivative with respect to a vertex or the camera is one-sided, and rounding picks the
-    side (there the two programs differ by a few per cent at one pixel)."""
-    bvh, rows = frames["bvh"], list(frames["rows"])
-    for view, names in (("sphere", NAMES[:6]), ("floor", NAMES)):
-        frame = frames[view]
-        mine = grad_of(frame.parameters, frame, bvh)
-        arrays, camera = GRAD((frame.arrays, frame.view), bvh)
-        expected = {
-            **{name: np.asarray(getattr(arrays, name))[[SPHERE, FLOOR]] for name in MATERIAL_NAMES},
-            "light_position": np.asarray(arrays.light_position),
-            "light_color": np.asarray(arrays.light_color),
-            "vertices": np.asarray(arrays.vertices)[rows],
-            "camera_position": np.asarray(camera.position),
-        }
-        for name in names:
-            oracle = expected[name]
-            if name == "kr" and view == "floor":
-                continue  # no mirror term in the floor view
-            assert np.any(oracle), (view, name)
-            scale = float(np.max(np.abs(oracle)))
-            np.testing.assert_allclose(
-                np.asarray(mine[name]), oracle, rtol=0, atol=1e-5 * scale, err_msg=f"{view}: {name}"
-            )
-
-
-def test_compiles_once_and_forward_mode_agrees_with_reverse_mode(frames):
-    """The gradient's program traced once for both views and every value of the parameters
-    (the finite-difference test ran it before), and `jax.jvp` along a tangent gives the
-    gradient's directional derivative (rtol 1e-5: two programs, one closed form; in the floor
-    view, where no derivative is one-sided)."""
-    frame, bvh = frames["floor"], frames["bvh"]
-    params = frame.parameters
-    brighter = jax.tree.map(lambda x: x * 1.01, params)
-    gradient = grad_of(params, frame, bvh)
-    traced = len(TRACES)
-    assert traced >= 1 and grad_of(brighter, frame, bvh) is not None and len(TRACES) == traced
-    assert len(TRACES) == 1  # the sphere's and the floor's views, in this file's earlier tests too
-    tangent = jax.tree.map(lambda x: jnp.full_like(x, 0.01), params)
-    image, derivative = jvp_of(params, tangent, frame, bvh)
-    derivative = float(np.sum(WEIGHTS.astype(np.float64) * np.asarray(derivative)))
-    pairs = list(zip(jax.tree.leaves(gradient), jax.tree.leaves(tangent), strict=True))
-    directional = sum(float(jnp.sum(g * t)) for g, t in pairs)
-    products = sum(float(jnp.sum(jnp.abs(g * t))) for g, t in pairs)
-    assert directional != 0.0
-    assert abs(derivative - directional) <= 1e-5 * products
-
-
-def _vertex_cotangents(jaxpr, n_vertices: int) -> int:
-    """How many scatter-adds of the program build a (V, 3) array: the transposes of the vertex
-    gathers, i.e. a gradient with respect to the vertices (or normals)."""
-    return len(re.findall(rf"\w+:f32\[{n_vertices},3\] = scatter-add", str(jaxpr)))
-
-
-@pytest.mark.no_typecheck  # tracing only: the annotation checks would take most of its time
-def test_the_gradient_leaves_out_what_was_not_chosen(frames):
-    """With colours chosen, the reverse pass builds no vertex or normal gradient; with the
-    vertices chosen too it builds one (so the count can fail). Primary rays only: the shading
-    of one level shows it."""
-    frame, bvh = frames["sphere"], frames["bvh"]
-    n_vertices = int(np.shape(frame.arrays.vertices)[0])
-
-    def primary(arrays, *, view):
-        return render_image(arrays, bvh, view, config=dataclasses.replace(CONFIG, max_depth=0))
-
-    counts = []
-    for names in (("kd", "light_color"), ("kd", "light_color", "vertices")):
-        colours = differentiable(primary, frame.arrays, names, view=frame.view)
-        jaxpr = jax.make_jaxpr(jax.grad(lambda p, f=colours: jnp.sum(WEIGHTS * f(p))))(colours.parameters)
-        counts.append(_vertex_cotangents(jaxpr, n_vertices))
-    assert counts[0] == 0 and counts[1] >= 1, counts
 
 
 @pytest.fixture(scope="module")

@@ -70,7 +70,11 @@ FALLBACK_SCRIPT = textwrap.dedent(
     import numpy as np
     import fovjax
     from fovjax.trace import brute_force_closest_hit, build_bvh, closest_hit
+    print("STARTED", fovjax.native.start_build())  # what `fovjax render` does first
+    print("BUILDING", fovjax.native.building())
     print("STATUS", fovjax.trace.embree_status().reason)
+    print("LIBRARY", fovjax.native.status().library)
+    print("BUILT", fovjax.native.building())
     print("AUTO", fovjax.trace.describe_backend("auto", "cpu"))
     if "{check}" == "trace":
         rng = np.random.default_rng(0)
@@ -103,6 +107,7 @@ def test_a_handler_that_cannot_build_falls_back_to_the_jax_traversal_and_says_wh
     """A compiler that fails: the package still imports and traces (the JAX traversal, correct
     hits), and 'auto' says in one line why it is not Embree."""
     out = _fallback({"CXX": "/bin/false"}, "trace", tmp_path)
+    assert out["STARTED"] != "None" and out["BUILDING"] == "True"  # it failed in the background
     assert out["STATUS"].startswith("could not build the native handlers: false failed to compile")
     assert out["AUTO"].startswith("jax (the JAX traversal; Embree FFI unavailable: could not build")
     assert float(out["AGREE"]) == 1.0
@@ -117,11 +122,15 @@ def test_the_handler_compiles_from_source_in_a_fresh_directory(tmp_path):
     assert out["STATUS"].startswith("Embree 4."), out["STATUS"]
     assert out["AUTO"].startswith("embree (Embree 4.")
     assert float(out["AGREE"]) == 1.0
-    assert len(list((tmp_path / "native").glob("fovjax_native-*.so"))) == 1
+    # Built in the background (`start_build`), and that library is the one loaded.
+    assert out["BUILDING"] == "True" and out["BUILT"] == "False"
+    assert [str(p) for p in (tmp_path / "native").glob("fovjax_native-*.so")] == [out["STARTED"]]
+    assert out["LIBRARY"] == out["STARTED"]
 
 
 def test_the_native_backend_can_be_turned_off(tmp_path):
     out = _fallback({"FOVJAX_NATIVE": "0"}, "status", tmp_path)
+    assert out["STARTED"] == "None" and out["BUILDING"] == "False"
     assert out["STATUS"] == "turned off by FOVJAX_NATIVE=0"
     assert out["AUTO"] == "jax (the JAX traversal; Embree FFI unavailable: turned off by FOVJAX_NATIVE=0)"
 

@@ -20,6 +20,10 @@ from fovjax import cli
 from fovjax._startup import describe_malloc
 
 SCENE_ALIASES = {"cornell": "cornell_box"}
+# How long a first run's build and compiles usually take: benchmarks/first_render.py's records
+# (benchmarks/results/first_render-*), the atrium's 2 x 1280x1024 frames on a shared 2-core CPU.
+HANDLERS_TYPICAL = "about 15 s on 2 cores"
+PROGRAMS_TYPICAL = "about 5 s each"
 
 
 def _head(text: str) -> tuple[float, float, float]:
@@ -169,6 +173,7 @@ def validate(args) -> Path:
     """Every argument of `fovjax render`, before anything is built or compiled; returns the
     output path."""
     from fovjax.files import HDR_SUFFIXES
+    from fovjax.trace import start_embree_build
 
     files = cli.scene(args.scene)
     cli.number(args.scene_scale, "--scene-scale", gt=0)
@@ -207,20 +212,26 @@ def validate(args) -> Path:
         except (ValueError, OSError) as err:
             raise cli.UsageError(f"--envmap {args.envmap}: {err}") from None
     suffixes = (".png", *HDR_SUFFIXES)
+    if args.preview:
+        out = cli.output(
+            Path(args.output or f"out/{_scene_name(args)}_preview.png"), "-o", suffixes=(".png",)
+        )
+    else:
+        out = cli.output(args.output or f"out/{_scene_name(args)}.png", "-o", suffixes=suffixes)
+        if args.stereo and not args.full and not args.no_reference:
+            cli.output(out.with_name(out.stem + "_full" + out.suffix), "-o (the full render beside it)")
+        if args.show_samples:
+            cli.output(out.with_name(out.stem + "_samples.png"), "--show-samples")
+    # Every value is checked: the native handlers (first run only) compile from here on, in the
+    # background, while the size check (which estimates for the integrator they will run) and
+    # the scene and its BVH go on.
+    args.native_build = start_embree_build()
     if not args.stereo or args.preview:
         cli.frame_size(args, args.width, args.height, args.spp, kinds=("full",), eyes=1)
     else:
         foveated = not args.full
         kinds = ("foveated",) * foveated + ("full",) * (not foveated or not args.no_reference)
         cli.frame_size(args, args.width, args.height, args.spp, kinds=kinds)
-    if args.preview:
-        out = Path(args.output or f"out/{_scene_name(args)}_preview.png")
-        return cli.output(out, "-o", suffixes=(".png",))
-    out = cli.output(args.output or f"out/{_scene_name(args)}.png", "-o", suffixes=suffixes)
-    if args.stereo and not args.full and not args.no_reference:
-        cli.output(out.with_name(out.stem + "_full" + out.suffix), "-o (the full render beside it)")
-    if args.show_samples:
-        cli.output(out.with_name(out.stem + "_samples.png"), "--show-samples")
     return out
 
 
@@ -250,6 +261,7 @@ def _run(args, out: Path) -> int:
     from fovjax.render import (
         RenderConfig,
         StereoRig,
+        compile_cache_entries,
         describe_integrator,
         head_rotation,
         render,
@@ -267,7 +279,18 @@ def _run(args, out: Path) -> int:
         )
         # the thesis's depth (5) is --max-depth's default; another given there is kept
         config = dataclasses.replace(preset.config, max_depth=args.max_depth)
-    steps = 4
+    building = args.native_build
+    programs = compile_cache_entries()  # None: the cache is off, every run compiles
+    # jax.config's options are set at run time (pyright cannot see it).
+    cache = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
+    if building is not None or programs == 0:
+        # Whether the programs will call the native handlers: being built, or known at once
+        # (loaded from the cache, or unavailable here).
+        native = building is not None or bool(fovjax.trace.embree_status())
+        _first_run_note(building, Path(cache) if programs == 0 else None, native)
+    foveated = args.stereo and not args.full
+    with_reference = foveated and not args.no_reference
+    steps = 6 if with_reference else 4
     t0 = time.perf_counter()
     _progress(1, steps, f"building scene {args.scene}")
     scene = _load_scene(args)
@@ -278,8 +301,16 @@ def _run(args, out: Path) -> int:
     arrays = scene_arrays(scene, envmap=args.envmap_image, background=config.background)
     pose = fovjax.scenes.default_camera(scene)
     key = None if args.seed is None else jax.random.key(args.seed)
-    _progress(3, steps, "compiling and rendering (compiling takes a while the first time)")
-    foveated = args.stereo and not args.full
+    compiling = {
+        None: "compiling {} and rendering",
+        0: "compiling {} (first run only) and rendering",
+    }.get(programs, "compiling {} or loading it from the cache, and rendering")
+    if foveated:
+        _progress(3, steps, "foveated frame: " + compiling.format("its program"))
+    else:
+        _progress(3, steps, compiling.format("the frame's program"))
+    if building is not None:
+        _wait_for_native_build()
     reference = None
     if args.stereo:
         rig = StereoRig.from_pose(pose, eye_width=args.width, eye_height=args.height)
@@ -301,10 +332,6 @@ def _run(args, out: Path) -> int:
                 config=config,
                 bvh=bvh,
             )
-            if not args.no_reference:
-                reference = render_stereo(
-                    arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
-                )
         else:
             frame = render_stereo(
                 arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
@@ -321,10 +348,21 @@ def _run(args, out: Path) -> int:
                 height=camera.height,
             )
         frame = render(arrays, camera, spp=args.spp, key=key, config=config, bvh=bvh)
+    # Each image is written as soon as it is rendered: the first is there before the next compiles.
     _progress(4, steps, f"writing {out}")
     with cli.deferred_interrupt():
         frame.save(out, exposure=args.exposure, tonemap_curve=args.tonemap)
         cli.wrote(out)
+    full_out = out.with_name(out.stem + "_full" + out.suffix)
+    if with_reference:
+        _progress(5, steps, "full frame: " + compiling.format("its program"))
+        reference = render_stereo(
+            arrays, rig, head_pose=args.head, spp=args.spp, key=key, config=config, bvh=bvh
+        )
+        _progress(6, steps, f"writing {full_out}")
+        with cli.deferred_interrupt():
+            reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
+            cli.wrote(full_out)
     cached = ", BVH from cache" if build["from_cache"] else f", BVH built in {build['seconds']:.2f} s"
     print(f"scene {scene.name}: {scene.num_triangles:,} triangles (scene {t_scene:.2f} s{cached})")
     platform = jax.devices()[0].platform
@@ -358,16 +396,53 @@ def _run(args, out: Path) -> int:
                 cli.wrote(samples)
             print(f"  regions and samples -> {samples.resolve()}")
         if reference is not None:
-            full_out = out.with_name(out.stem + "_full" + out.suffix)
-            with cli.deferred_interrupt():
-                reference.save(full_out, exposure=args.exposure, tonemap_curve=args.tonemap)
-                cli.wrote(full_out)
             r, s = reference.stats, frame.stats
             print(f"full     {r.summary()} -> {full_out.resolve()}")
             print(f"foveated / full: {_speed_text(s, r)}")
     else:
         print(f"{scene.name} {frame.stats.summary()} on {platform} -> {out.resolve()}")
     return 0
+
+
+def _first_run_note(building: Path | None, programs: Path | None, native: bool = True) -> None:
+    """Say, before the work, what a first run on this machine builds (the native handlers, into
+    `building`) and compiles (the frame programs, cached in `programs`; `native`: with the native
+    handlers), how long that usually takes and where it is kept for later runs."""
+    kept = []
+    if building is not None:
+        doing = f"building the native handlers (C++, {HANDLERS_TYPICAL}, while the scene loads)"
+        kept.append((doing, building.parent))
+    if programs is not None:
+        typical = PROGRAMS_TYPICAL if native else "longer without the native handlers"
+        kept.append((f"compiling the frame programs ({typical})", programs))
+    if not kept:
+        return
+    folders = {folder for _, folder in kept}
+    parents = {folder.parent for folder in folders}
+    where = (
+        f"{next(iter(parents))} ({', '.join(sorted(f.name + '/' for f in folders))})"
+        if len(parents) == 1 and len(folders) > 1
+        else " and ".join(str(f) for f in sorted(folders))
+    )
+    doing = " and ".join(what for what, _ in kept)
+    print(
+        f"first run on this machine: {doing}; kept in {where} for later runs",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _wait_for_native_build() -> None:
+    """Wait for the native handlers' background build, saying so and how long it took."""
+    from fovjax.trace import embree_status
+
+    print("      waiting for the native handlers' build", file=sys.stderr, flush=True)
+    found = embree_status()
+    if found:
+        seconds = found.info.get("compile_seconds", 0.0)
+        print(f"      native handlers built in {seconds:.1f} s", file=sys.stderr, flush=True)
+    else:
+        print(f"      native handlers unavailable: {found.reason}", file=sys.stderr, flush=True)
 
 
 def _speed_text(foveated, full) -> str:

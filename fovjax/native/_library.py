@@ -5,18 +5,24 @@ The sources are the `.cc` and `.h` files of the packages that own each stage (`c
 includes them as one translation unit). They are compiled once into the cache directory
 (`$FOVJAX_CACHE_DIR/native`, default `~/.cache/fovjax/native`; `FOVJAX_NATIVE_DIR` overrides),
 under a name that hashes every source, the jaxlib version (its FFI headers), the compiler and the
-flags, so a new fovjax or jaxlib builds afresh and a stale library is never loaded. XLA's FFI
-headers come from the installed jaxlib (`jax.ffi.include_dir()`); Embree is the library inside
-the `embreex` wheel, opened at run time. Anything missing (no compiler, no embreex, a library
-whose struct or data layout does not match) leaves `status()` False with the reason, and every
-stage runs its JAX implementation. `FOVJAX_NATIVE=0` turns the native handlers off;
-`FOVJAX_NATIVE_SANITIZE=1` builds them with AddressSanitizer and UndefinedBehaviorSanitizer (the
-process must then start with the sanitizer runtime preloaded: `.ci/sanitize`).
+flags, so a new fovjax or jaxlib builds afresh and a stale library is never loaded. With GCC the
+build uses link-time optimisation (`PARALLEL_FLAGS`) only to spread the back end's work, most of
+the build, over every core: the frames are bit for bit those of a plain build. A caller with other
+work to do first (the command line loads the scene and builds its BVH) starts the build in the
+background (`start_build`); `status()` waits for it. XLA's FFI headers come from the installed
+jaxlib (`jax.ffi.include_dir()`); Embree is the library inside the `embreex` wheel, opened at
+run time. Anything missing (no compiler, no embreex, a library whose struct or data layout does
+not match) leaves `status()` False with the reason, and every stage runs its JAX implementation.
+`FOVJAX_NATIVE=0` turns the native handlers off; `FOVJAX_NATIVE_SANITIZE=1` builds them with
+AddressSanitizer and UndefinedBehaviorSanitizer (the process must then start with the sanitizer
+runtime preloaded: `.ci/sanitize`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import functools
 import glob
 import hashlib
 import os
@@ -55,6 +61,14 @@ FLAGS = (
     "-Wextra",
     "-Wno-attributes",
 )
+# GCC's link-time optimisation, for its parallel back end: the one translation unit is split into
+# partitions that compile at once, one per core (`auto`), where a plain build compiles them one
+# after another; the partitions, and so the library, do not depend on the number of cores. The
+# sources ask for IEEE arithmetic (no -ffast-math, no contraction), so inlining across the
+# partitions changes no result: the atrium's frames are bit for bit those of a plain build
+# (benchmarks/first_render.py --check-frames). A compiler without it (clang, an old GCC, no LTO
+# plugin) builds plainly.
+PARALLEL_FLAGS = ("-flto=auto",)
 SANITIZE_FLAGS = (
     "-fsanitize=address,undefined",
     "-fno-omit-frame-pointer",
@@ -62,8 +76,11 @@ SANITIZE_FLAGS = (
     "-g",
 )
 
+BUILD_TIMEOUT_S = 600
 _lock = threading.Lock()
 _state: dict = {}
+# The background build (`start_build`): the thread and what it built or raised.
+_background: dict = {}
 
 
 class NativeStatus:
@@ -115,13 +132,18 @@ def embree_library() -> str | None:
     return found[0] if found else None
 
 
-def build(compiler: str, flags: tuple[str, ...] | None = None) -> tuple[Path, float]:
-    """The compiled library's path (compiling it if absent) and the seconds spent compiling."""
+def _gcc(compiler: str, version: str) -> bool:
+    """Whether `compiler` is GCC (its `--version` text), which takes `PARALLEL_FLAGS`."""
+    return "Free Software Foundation" in version and "clang" not in version.lower()
+
+
+def library_path(compiler: str, flags: tuple[str, ...] | None = None) -> Path:
+    """Where the library built by `compiler` with `flags` (default: this machine's) is kept: a name
+    hashing every source, the jaxlib version, the compiler's version and the flags."""
     import jaxlib
 
     flags = _flags() if flags is None else flags
-    include = jax.ffi.include_dir()
-    version = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
+    version = _compiler_version(compiler)
     digest = hashlib.sha256()
     for path in sources():
         digest.update(str(path.relative_to(PACKAGE)).encode())
@@ -130,18 +152,53 @@ def build(compiler: str, flags: tuple[str, ...] | None = None) -> tuple[Path, fl
     digest.update(jaxlib.__version__.encode())  # pyright: ignore[reportPrivateImportUsage]
     digest.update(version.encode())
     digest.update(" ".join(flags).encode())
-    out_dir = _native_dir()
-    path = out_dir / f"fovjax_native-{digest.hexdigest()[:16]}.so"
-    if path.exists():
-        return path, 0.0
-    out_dir.mkdir(parents=True, exist_ok=True)
+    return _native_dir() / f"fovjax_native-{digest.hexdigest()[:16]}.so"
+
+
+@functools.cache
+def _compiler_version(compiler: str) -> str:
+    return subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=30).stdout
+
+
+def _choices(compiler: str) -> list[tuple[str, ...]]:
+    """The flags to build with, in order of preference: with `PARALLEL_FLAGS` first where the
+    compiler is GCC (and no sanitizer is asked for), then plain."""
+    flags = _flags()
+    if flags == FLAGS and _gcc(compiler, _compiler_version(compiler)):
+        return [flags + PARALLEL_FLAGS, flags]
+    return [flags]
+
+
+def build(compiler: str, flags: tuple[str, ...] | None = None) -> tuple[Path, float]:
+    """The compiled library's path (compiling it if absent) and the seconds spent compiling.
+
+    Without `flags`: a library already built with any of this machine's choices (`_choices`) is
+    used; otherwise the first choice is built, and where that fails (a GCC without link-time
+    optimisation) the plain build, whose error is the one raised."""
+    choices = [flags] if flags is not None else _choices(compiler)
+    for choice in choices:
+        path = library_path(compiler, choice)
+        if path.exists():
+            return path, 0.0
     t0 = time.perf_counter()
+    for choice in choices[:-1]:
+        with contextlib.suppress(RuntimeError, subprocess.SubprocessError):
+            return _compile(compiler, choice), time.perf_counter() - t0
+    return _compile(compiler, choices[-1]), time.perf_counter() - t0
+
+
+def _compile(compiler: str, flags: tuple[str, ...]) -> Path:
+    path = library_path(compiler, flags)
+    include = jax.ffi.include_dir()
+    out_dir = path.parent
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _remove_abandoned(out_dir)
     fd, tmp = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp.so", dir=out_dir)
     os.close(fd)
     try:
         # XLA's headers as system headers: their own warnings are not the project's.
         cmd = [compiler, *flags, f"-I{PACKAGE}", "-isystem", include, str(ENTRY), "-o", tmp]
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
         if done.returncode != 0:
             lines = [ln for ln in done.stderr.splitlines() if "error" in ln][:3] or done.stderr.splitlines()[
                 -3:
@@ -151,7 +208,68 @@ def build(compiler: str, flags: tuple[str, ...] | None = None) -> tuple[Path, fl
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return path, time.perf_counter() - t0
+    return path
+
+
+def _remove_abandoned(out_dir: Path) -> None:
+    """Remove the temporary outputs of builds that ended without finishing (a process killed
+    while it compiled): older than a build may take, so none is still being written."""
+    for tmp in out_dir.glob("fovjax_native-*.tmp.so"):
+        with contextlib.suppress(OSError):
+            if time.time() - tmp.stat().st_mtime > 2 * BUILD_TIMEOUT_S:
+                tmp.unlink()
+
+
+def start_build() -> Path | None:
+    """Start building the handler library in a background thread, so that the caller's other
+    work (loading a scene, building its BVH) overlaps the compile; `status()` waits for it and
+    loads what it built. Returns the library being built, or None where there is nothing to
+    build: the handlers are already loaded or built (in the cache), or cannot run here
+    (`status()` then says why)."""
+    with _lock:
+        if "status" in _state or "thread" in _background:
+            return None
+        found = _prerequisites()
+        if isinstance(found, NativeStatus):
+            return None
+        compiler, _ = found
+        try:
+            choices = _choices(compiler)
+            if any(library_path(compiler, choice).exists() for choice in choices):
+                return None
+            path = library_path(compiler, choices[0])
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except (OSError, ValueError, subprocess.SubprocessError):
+            return None  # status() tries in the foreground and says what went wrong
+
+        def run() -> None:
+            try:
+                _background["result"] = build(compiler)
+            except Exception as exc:  # handed to status(), which reports it
+                _background["error"] = exc
+
+        # Not a daemon: a process that ends (an error) while it runs waits for it, so the next
+        # run finds the library built. Ctrl-C reaches the compiler too (the same process group).
+        thread = threading.Thread(target=run, name="fovjax-native-build")
+        _background["thread"] = thread
+        thread.start()
+        return path
+
+
+def building() -> bool:
+    """Whether a build `start_build` began is not loaded yet: `status()` would wait for it."""
+    return "thread" in _background
+
+
+def _built_library(compiler: str) -> tuple[Path, float]:
+    """The library `start_build` built (waiting for it), else one built here and now."""
+    thread = _background.pop("thread", None)
+    if thread is None:
+        return build(compiler)
+    thread.join()
+    if "error" in _background:
+        raise _background.pop("error")
+    return _background.pop("result")
 
 
 def status() -> NativeStatus:
@@ -162,7 +280,9 @@ def status() -> NativeStatus:
         return _state["status"]
 
 
-def _load() -> NativeStatus:
+def _prerequisites() -> tuple[str, str] | NativeStatus:
+    """The compiler and the Embree library to build and run the handlers with, or the reason
+    they cannot run here (an unavailable status)."""
     try:
         if not _environment.switch("FOVJAX_NATIVE"):
             return NativeStatus(False, "turned off by FOVJAX_NATIVE=0")
@@ -176,8 +296,16 @@ def _load() -> NativeStatus:
     compiler = _compiler()
     if compiler is None:
         return NativeStatus(False, "no C++ compiler found (set CXX, or install g++)")
+    return compiler, library
+
+
+def _load() -> NativeStatus:
+    found = _prerequisites()
+    if isinstance(found, NativeStatus):
+        return found
+    compiler, library = found
     try:
-        path, seconds = build(compiler)
+        path, seconds = _built_library(compiler)
     except (OSError, RuntimeError, ValueError, subprocess.SubprocessError) as exc:
         return NativeStatus(False, f"could not build the native handlers: {exc}")
     try:

@@ -62,6 +62,7 @@ from ._batch import KeysLike as KeysLike
 from ._batch import frame_mesh as frame_mesh
 from ._batch import render_stereo_batch as render_stereo_batch
 from ._compile_cache import compile_cache_dir as compile_cache_dir
+from ._compile_cache import compile_cache_entries as compile_cache_entries
 from ._compile_cache import compile_cache_problem as compile_cache_problem
 from ._compile_cache import enable_compile_cache as enable_compile_cache
 from ._config import DEFAULT_CONFIG as DEFAULT_CONFIG
@@ -142,6 +143,7 @@ __all__ = [
     "frame_mesh",
     "render_stereo_batch",
     "compile_cache_dir",
+    "compile_cache_entries",
     "compile_cache_problem",
     "enable_compile_cache",
     "DEFAULT_CONFIG",

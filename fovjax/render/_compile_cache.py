@@ -70,6 +70,20 @@ def enable_compile_cache(directory: str | os.PathLike | None = None) -> Path | N
 _PROBLEM: str | None = None
 
 
+def compile_cache_entries() -> int | None:
+    """How many compiled programs JAX's persistent cache holds in the directory in use, None
+    where the cache is off: 0 on a machine's first run, when every frame program compiles."""
+    # jax.config's options are set at run time (pyright cannot see it).
+    current = jax.config.jax_compilation_cache_dir  # pyright: ignore[reportAttributeAccessIssue]
+    if not current:
+        return None
+    try:
+        # One "<key>-cache" file per program (and its "<key>-atime" beside it, for eviction).
+        return sum(1 for p in Path(current).iterdir() if p.name.endswith("-cache"))
+    except OSError:  # not created yet: nothing written
+        return 0
+
+
 def compile_cache_problem() -> str | None:
     """Why the last `enable_compile_cache()` left the cache off (None if it did not)."""
     return _PROBLEM

@@ -53,7 +53,15 @@ def _integrator(config: RenderConfig, platform: str) -> str:
     """The integrator a frame of `config` runs on `platform`: "native" or "jax"."""
     if platform != "cpu" or config.integrator == "jax":
         return "jax"
+    from ..native import building
     from ._integrator import native_integrator
+    from ._native import native_why_not
+
+    if building():
+        # The handlers still compile in the background (a machine's first run): the estimate
+        # for the integrator they will run, without waiting; a frame checks again when it is
+        # made, once they are loaded.
+        return "jax" if native_why_not(config) else "native"
 
     try:
         return "native" if native_integrator(config) else "jax"

@@ -22,16 +22,22 @@ WHITTED_TARGET = "fovjax_embree_whitted"
 MAX_NATIVE_DEPTH = 255
 
 
+def native_why_not(config) -> str:
+    """Why `config` cannot run the native integrator whatever the handlers' state ("" where it
+    can, once they are loaded)."""
+    if config.backend not in ("auto", "embree"):
+        return f"the ray backend is {config.backend!r} (the native integrator traces with Embree)"
+    if config.max_depth > MAX_NATIVE_DEPTH:
+        return f"max_depth {config.max_depth} is above the native integrator's {MAX_NATIVE_DEPTH}"
+    return ""
+
+
 @functools.cache
 def integrator_plan(config) -> NativePlan:
     """Whether `config` runs its integrator natively on a CPU (`RenderConfig.integrator` "auto":
     where the handlers built and the ray backend is "auto" or "embree"; "native": those or an
     error naming why not; "jax": never), resolved once per configuration."""
-    why_not = ""
-    if config.backend not in ("auto", "embree"):
-        why_not = f"the ray backend is {config.backend!r} (the native integrator traces with Embree)"
-    elif config.max_depth > MAX_NATIVE_DEPTH:
-        why_not = f"max_depth {config.max_depth} is above the native integrator's {MAX_NATIVE_DEPTH}"
+    why_not = native_why_not(config)
     what = f"RenderConfig.integrator {config.integrator!r}"
     return plan_native(config.integrator, allowed=not why_not, why_not=why_not, what=what)
 

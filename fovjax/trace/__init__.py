@@ -7,12 +7,14 @@ on a backend: `"auto"` (default: Embree through XLA's FFI on CPU, Warp on CUDA, 
 chosen per platform inside the program), `"embree"`, `"warp"` or `"jax"` (the `while_loop`
 traversal, any XLA device: the reference the others are tested against), or one registered with
 `register_backend` (a `RayBackend`); `describe_backend()` names what "auto" runs and why,
-`embree_status()` whether the native handlers (`fovjax.native`) built;
+`embree_status()` whether the native handlers (`fovjax.native`) built, `start_embree_build()`
+builds them in the background ahead of use (a first run);
 - `merge_bvhs(bvhs)` → one BVH of several trees (levels of detail), queried with `level=` per ray;
 - `Traversal(lanes=, packets=, steps_per_refill=)`: the JAX traversal's tuning (`traversal=`).
 """
 
 from ..native import release_scenes as release_embree_scenes
+from ..native import start_build as start_embree_build
 from ..native import status as embree_status
 from ._backends import BACKENDS as BACKENDS
 from ._backends import BUILTIN_BACKENDS as BUILTIN_BACKENDS
@@ -54,6 +56,7 @@ __all__ = [
     "merge_bvhs",
     "embree_status",
     "release_embree_scenes",
+    "start_embree_build",
     "BACKENDS",
     "BUILTIN_BACKENDS",
     "QueryOptions",
