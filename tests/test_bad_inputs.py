@@ -233,6 +233,8 @@ ROWS = [
     ("inspect cornell --triangles 0", 2, "--triangles 0"),
     ("inspect", 2, "the following arguments are required: scene"),
     (f"inspect cornell {HUGE}", 2, "--width/--height 1000000x1000000: a full frame"),
+    # -- build -------------------------------------------------------------------------------
+    ("build atrium", 2, "unrecognized arguments: atrium"),
     # -- session -----------------------------------------------------------------------------
     ("session --gaze bogus:thing --frames 2 -o {tmp}/s", 2, "unknown scheme 'bogus'"),
     ("session --gaze synthetic:spiral --frames 2 -o {tmp}/s", 2, "'spiral'"),

@@ -46,6 +46,7 @@ _SUBCOMMAND_MODULES = [
     "fovjax.cli._fit_stability",
     "fovjax.cli._view",
     "fovjax.cli._inspect",
+    "fovjax.cli._build",
 ]
 
 # Exit status of an interrupted command (128 + SIGINT), as shells report Ctrl-C.

@@ -410,7 +410,10 @@ def _first_run_note(building: Path | None, programs: Path | None, native: bool =
     handlers), how long that usually takes and where it is kept for later runs."""
     kept = []
     if building is not None:
-        doing = f"building the native handlers (C++, {HANDLERS_TYPICAL}, while the scene loads)"
+        doing = (
+            f"building the native handlers (C++, {HANDLERS_TYPICAL}, while the scene loads; "
+            "`fovjax build` does it ahead)"
+        )
         kept.append((doing, building.parent))
     if programs is not None:
         typical = PROGRAMS_TYPICAL if native else "longer without the native handlers"
