@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    from fovjax import native
+    from fovjax import trace
 
     start = time.perf_counter()
     print(
@@ -33,7 +33,7 @@ def run(args) -> int:
         file=sys.stderr,
         flush=True,
     )
-    found = native.status()
+    found = trace.embree_status()
     if not found:
         print(
             f"fovjax build: the native handlers cannot run here: {found.reason} "
