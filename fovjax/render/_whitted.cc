@@ -88,7 +88,8 @@ struct LightAt {
   float spot;
 };
 
-LightAt LightTowards(const ShadeScene& s, int l, Vec3 p, Vec3* dir) {
+// Always inlined: it runs per light at every hit, twice, and GCC left it out of line.
+inline __attribute__((always_inline)) LightAt LightTowards(const ShadeScene& s, int l, Vec3 p, Vec3* dir) {
   const float* row = s.lights + kLightStride * l;
   const int32_t kind = s.light_kind[l];
   LightAt at;
