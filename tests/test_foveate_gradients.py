@@ -42,8 +42,10 @@ def frame():
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=W, eye_height=H)
     arrays, bvh = scene_arrays(scene), bvh_for(scene, None)
     foveation = Foveation(fovea_deg=5, periphery_deg=10, spp=1)
+    # One reflection level (the mirror block's): deeper paths' replay is tests/test_render_replay.py's,
+    # and each level adds to the three programs' compile.
     options = FrameOptions(
-        spp=1, jitter=False, config=RenderConfig(max_depth=3), budget=2 * W * H, diagnostics=()
+        spp=1, jitter=False, config=RenderConfig(max_depth=1), budget=2 * W * H, diagnostics=()
     )
     gaze = jnp.asarray([[0.4, 0.5], [0.6, 0.5]], jnp.float32)
     weights = np.random.default_rng(1).uniform(0, 1, (H, 2 * W, 3)).astype(np.float32)
