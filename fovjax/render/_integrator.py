@@ -732,8 +732,8 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
         return in_jax(scene, o, d, active, offset)
     batch = active.shape
 
-    def native(scene, o, d, active, offset):
-        total, traced, _, _ = native_whitted(
+    def call_native(scene, o, d, active, offset, store_paths=False):
+        return native_whitted(
             whitted_operands(scene, bvh) if operands is None else operands,
             o.reshape(-1, 3),
             d.reshape(-1, 3),
@@ -745,26 +745,17 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             tile_width=_tile_width(batch, config),
             robust=bvh.watertight,
             shading=shading_attributes(config),
+            store_paths=store_paths,
         )
+
+    def native(scene, o, d, active, offset):
+        total, traced, _, _ = call_native(scene, o, d, active, offset)
         return (total.reshape(batch + (3,)), *_traced_counts(traced))
 
     def native_jvp(primals, tangents):
         # The forward stores each ray's path; the derivatives are those of its replay.
         scene, o, d, active, offset = primals
-        total, traced, prim, visible = native_whitted(
-            whitted_operands(scene, bvh) if operands is None else operands,
-            o.reshape(-1, 3),
-            d.reshape(-1, 3),
-            active.reshape(-1),
-            offset,
-            max_depth=config.max_depth,
-            recompute=config.hits == "recomputed",
-            packets=config.packet is not None,
-            tile_width=_tile_width(batch, config),
-            robust=bvh.watertight,
-            shading=shading_attributes(config),
-            store_paths=True,
-        )
+        total, traced, prim, visible = call_native(scene, o, d, active, offset, store_paths=True)
         counts = _traced_counts(traced)
         paths = StoredPaths(prim, visible)
 

@@ -69,23 +69,30 @@ def _number(msg: dict, name: str, low: float | None = None, high: float | None =
     return value
 
 
-def parse_message(data) -> dict:
-    """Validate one page message (str or bytes) and return it as a dict with checked, typed
-    values; `MessageError` says why a message is rejected."""
+def json_object(data, limit: int) -> dict:
+    """One page message (str or bytes) of at most `limit` bytes, parsed as a JSON object;
+    `MessageError` says why it is not one."""
     if isinstance(data, bytes | bytearray):
         size = len(data)
     elif isinstance(data, str):
         size = len(data.encode("utf-8", "surrogatepass"))
     else:
         raise MessageError(f"expected a JSON text message, got {type(data).__name__}")
-    if size > MAX_MESSAGE_BYTES:
-        raise MessageError(f"message of {size} bytes exceeds the {MAX_MESSAGE_BYTES}-byte limit")
+    if size > limit:
+        raise MessageError(f"message of {size} bytes exceeds the {limit}-byte limit")
     try:
         msg = json.loads(data)
     except (ValueError, UnicodeDecodeError) as err:
         raise MessageError(f"malformed JSON: {err}") from None
     if not isinstance(msg, dict):
         raise MessageError(f"expected a JSON object, got {type(msg).__name__}")
+    return msg
+
+
+def parse_message(data) -> dict:
+    """Validate one page message (str or bytes) and return it as a dict with checked, typed
+    values; `MessageError` says why a message is rejected."""
+    msg = json_object(data, MAX_MESSAGE_BYTES)
     kind = msg.get("type")
     if not isinstance(kind, str) or kind not in _FIELDS:
         raise MessageError(f"unknown message type {kind!r} (expected one of {sorted(_FIELDS)})")

@@ -24,9 +24,7 @@ Server -> page: as the 2D viewer's, the frame statistics carrying the rendered e
 
 from __future__ import annotations
 
-import json
-
-from ._protocol import MessageError, _number, parse_message
+from ._protocol import MessageError, _number, json_object, parse_message
 from ._xr_geometry import XRPose, XRView
 
 XR_MAX_MESSAGE_BYTES = 4096
@@ -94,20 +92,7 @@ def parse_xr_message(data) -> dict:
     """Validate one headset-page message (str or bytes); returns a dict with checked values (an
     "xr_pose" carries an `XRPose` under "pose"). `MessageError` says why a message is rejected;
     "key" messages are checked as `parse_message` checks them."""
-    if isinstance(data, bytes | bytearray):
-        size = len(data)
-    elif isinstance(data, str):
-        size = len(data.encode("utf-8", "surrogatepass"))
-    else:
-        raise MessageError(f"expected a JSON text message, got {type(data).__name__}")
-    if size > XR_MAX_MESSAGE_BYTES:
-        raise MessageError(f"message of {size} bytes exceeds the {XR_MAX_MESSAGE_BYTES}-byte limit")
-    try:
-        msg = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as err:
-        raise MessageError(f"malformed JSON: {err}") from None
-    if not isinstance(msg, dict):
-        raise MessageError(f"expected a JSON object, got {type(msg).__name__}")
+    msg = json_object(data, XR_MAX_MESSAGE_BYTES)
     kind = msg.get("type")
     if kind == "key":
         parsed = parse_message(data)
