@@ -42,6 +42,8 @@ from _record import write_record  # noqa: E402
 
 STEP = 0.1  # the target's Kd change
 FD_STEP = 1e-2  # the finite differences' step in Kd (linear: any step is exact up to rounding)
+SAME_PATH = 1e-3  # a pixel's largest channel difference between the renderers on the same paths
+ADAM_RATE = 0.02
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -76,37 +78,59 @@ class DifferentiableWhitted(mf.MitsubaWhitted):
     def set_kd(self, kd):
         self.kd = self.mi.Float(np.asarray(kd, np.float32).ravel())
 
-    def loss(self, prepared, target):
+    def loss(self, prepared, target, weights=None):
+        """The mean squared difference to `target`, or, with `weights` (0 or 1 per pixel), its
+        mean over the pixels weighted 1."""
+        dr = self.dr
         image, _ = self.frame(prepared)
         diff = image - target
-        return self.dr.mean(self.dr.square(diff.x) + self.dr.square(diff.y) + self.dr.square(diff.z)) / 3
+        squared = dr.square(diff.x) + dr.square(diff.y) + dr.square(diff.z)
+        if weights is None:
+            return dr.mean(squared) / 3
+        return dr.sum(weights * squared) / (3 * dr.sum(weights))
 
 
-def _mitsuba(arrays, rig, config, target_image):
-    """(forward, forward + backward) callables of Mitsuba's loss, and its gradients once."""
-    from fovjax.render import stereo_sample_rays
-    from fovjax.render.internal import scene_scale
+class _Mitsuba:
+    """Mitsuba's loss on the benchmark's rays: `forward`, `forward_backward` (optionally over
+    pixels weighted 0 or 1), its image, and `adam` steps with Mitsuba's own optimiser."""
 
-    mi, dr = mf.load_mitsuba()
-    integrator = DifferentiableWhitted(mi, dr, arrays, config, config.ray_offset * float(scene_scale(arrays)))
-    rays = stereo_sample_rays(rig, None, 1, None)
-    prepared = integrator.prepare(np.asarray(rays.origins), np.asarray(rays.directions))
-    # The target in the layout of Mitsuba's image (side by side, row by row).
-    target = mi.Vector3f(
-        *(mi.Float(np.ascontiguousarray(c)) for c in np.asarray(target_image).reshape(-1, 3).T)
-    )
+    def __init__(self, arrays, rig, config, target_image):
+        from fovjax.render import stereo_sample_rays
+        from fovjax.render.internal import scene_scale
 
-    def forward():
-        loss = integrator.loss(prepared, target)
+        self.mi, self.dr = mf.load_mitsuba()
+        mi = self.mi
+        offset = config.ray_offset * float(scene_scale(arrays))
+        self.integrator = DifferentiableWhitted(mi, self.dr, arrays, config, offset)
+        self.kd0 = self.integrator.kd
+        rays = stereo_sample_rays(rig, None, 1, None)
+        self.prepared = self.integrator.prepare(np.asarray(rays.origins), np.asarray(rays.directions))
+        # The target in the layout of Mitsuba's image (side by side, row by row).
+        self.target = self._vector(target_image)
+
+    def _vector(self, image):
+        mi = self.mi
+        return mi.Vector3f(*(mi.Float(np.ascontiguousarray(c)) for c in np.asarray(image).reshape(-1, 3).T))
+
+    def image(self) -> np.ndarray:
+        """The frame as fovjax lays it out: (H, 2W, 3)."""
+        image, _ = self.integrator.frame(self.prepared)
+        return np.stack([np.asarray(c) for c in (image.x, image.y, image.z)], axis=-1)
+
+    def forward(self):
+        dr = self.dr
+        loss = self.integrator.loss(self.prepared, self.target)
         dr.eval(loss)
         dr.sync_thread()
         return loss
 
-    def forward_backward():
-        params = integrator.parameters()
+    def forward_backward(self, weights=None):
+        dr = self.dr
+        w = None if weights is None else self.mi.Float(np.ascontiguousarray(weights, np.float32).ravel())
+        params = self.integrator.parameters()
         for p in params:
             dr.enable_grad(p)
-        loss = integrator.loss(prepared, target)
+        loss = self.integrator.loss(self.prepared, self.target, w)
         dr.backward(loss)
         grads = [dr.grad(p) for p in params]
         dr.eval(grads)
@@ -115,7 +139,49 @@ def _mitsuba(arrays, rig, config, target_image):
             dr.disable_grad(p)
         return loss, grads
 
-    return forward, forward_backward
+    def adam(self, steps: int, rate: float) -> tuple[float, np.ndarray]:
+        """`steps` steps of `mi.ad.Adam` on Kd from the scene's Kd: (last loss, Kd)."""
+        dr = self.dr
+        optimiser = self.mi.ad.Adam(lr=rate)
+        optimiser["kd"] = self.mi.Float(self.kd0)
+        loss = None
+        for _ in range(steps):
+            self.integrator.kd = optimiser["kd"]
+            loss = self.integrator.loss(self.prepared, self.target)
+            dr.backward(loss)
+            optimiser.step()
+            dr.eval(optimiser["kd"])
+        dr.sync_thread()
+        kd = np.asarray(optimiser["kd"], np.float64)
+        self.integrator.kd = self.kd0
+        return float(np.asarray(loss).ravel()[0]), kd
+
+
+def _fovjax_adam(loss, kd0, light0, scene_in, rate: float):
+    """One compiled Adam step on Kd (the update `mi.ad.Adam` makes), and the loop of `steps`:
+    (last loss, Kd)."""
+    import jax
+    import jax.numpy as jnp
+
+    b1, b2, eps = 0.9, 0.999, 1e-8
+
+    @jax.jit
+    def step(kd, m, v, t, scene_in):
+        value, grad = jax.value_and_grad(loss)(kd, light0, scene_in)
+        t = t + 1
+        m = b1 * m + (1 - b1) * grad
+        v = b2 * v + (1 - b2) * grad * grad
+        scale = rate * jnp.sqrt(1 - b2**t) / (1 - b1**t)
+        return kd - scale * m / (jnp.sqrt(v) + eps), m, v, t, value
+
+    def run(steps: int):
+        kd, m, v, t = kd0, jnp.zeros_like(kd0), jnp.zeros_like(kd0), jnp.zeros((), jnp.float32)
+        value = None
+        for _ in range(steps):
+            kd, m, v, t, value = step(kd, m, v, t, scene_in)
+        return float(value), np.asarray(kd, np.float64)
+
+    return run
 
 
 def run_size(scene, bvh, width, height, args):
@@ -142,9 +208,12 @@ def run_size(scene, bvh, width, height, args):
     scene_in = jax.tree.map(jnp.asarray, arrays)
 
     def make_loss(cfg):
-        def loss(kd, light_color, scene_in):
+        def loss(kd, light_color, scene_in, weights=None):
             a = eqx.tree_at(lambda s: (s.kd, s.light_color), scene_in, (kd, light_color))
-            return jnp.mean((render_stereo_image(a, bvh, rig, config=cfg) - target) ** 2)
+            squared = (render_stereo_image(a, bvh, rig, config=cfg) - target) ** 2
+            if weights is None:
+                return jnp.mean(squared)
+            return jnp.sum(weights[..., None] * squared) / (3 * jnp.sum(weights))
 
         return loss
 
@@ -157,7 +226,8 @@ def run_size(scene, bvh, width, height, args):
     fj_grad = bound(jax.value_and_grad(loss, argnums=(0, 1)))
     jax_loss = make_loss(RenderConfig(max_depth=args.max_depth, integrator="jax"))
     fj_jax_grad = bound(jax.value_and_grad(jax_loss, argnums=(0, 1)))
-    mi_forward, mi_grad = _mitsuba(arrays, rig, config, target)
+    peer = _Mitsuba(arrays, rig, config, target)
+    mi_forward, mi_grad = peer.forward, peer.forward_backward
 
     runs = {
         "fovjax_forward": lambda: jax.block_until_ready(fj_forward(kd0, light0)),
@@ -197,6 +267,24 @@ def run_size(scene, bvh, width, height, args):
     out["loss_mitsuba"] = float(np.asarray(mi_value).ravel()[0])
     out["kd_gradient_vs_mitsuba"] = relative(g_kd, mi_kd)
     out["light_gradient_vs_mitsuba"] = relative(g_light, mi_light)
+    # Away from visibility changes: the loss over the pixels whose colour the two renderers
+    # agree on. Where the two traversals disagree on which surface a ray (or its reflection or
+    # shadow ray) meets, a pixel's colour differs by the difference of two surfaces' radiance;
+    # the same path differs only by float rounding (~1e-6), far below SAME_PATH.
+    fj_image = np.asarray(jax.jit(lambda s: render_stereo_image(s, bvh, rig, config=config))(scene_in))
+    mi_image = peer.image().reshape(fj_image.shape)
+    same = np.max(np.abs(fj_image - mi_image), axis=-1) <= SAME_PATH
+    weights = jnp.asarray(same, jnp.float32)
+    _, (g_kd_same, g_light_same) = jax.jit(jax.value_and_grad(loss, argnums=(0, 1)))(
+        kd0, light0, scene_in, weights
+    )
+    _, (mi_kd_same, *mi_lights_same) = peer.forward_backward(np.asarray(same, np.float32))
+    mi_kd_same = np.asarray(mi_kd_same, np.float64).reshape(g_kd.shape)
+    mi_light_same = np.stack([np.asarray(c, np.float64).reshape(3) for c in mi_lights_same])
+    out["pixels_where_paths_differ"] = int(np.sum(~same))
+    g_kd_same, g_light_same = (np.asarray(g, np.float64) for g in (g_kd_same, g_light_same))
+    out["kd_gradient_vs_mitsuba_same_paths"] = relative(g_kd_same, mi_kd_same)
+    out["light_gradient_vs_mitsuba_same_paths"] = relative(g_light_same, mi_light_same)
     # Central finite differences of fovjax's forward on the three largest Kd components.
     flat = np.argsort(-np.abs(g_kd).ravel())[:3]
     fd, an = [], []
@@ -208,6 +296,23 @@ def run_size(scene, bvh, width, height, args):
         an.append(g_kd[m, c])
     out["kd_gradient_vs_finite_differences"] = relative(np.asarray(an), np.asarray(fd))
     out["ratio_forward_backward"] = out["fovjax_forward_backward_ms"] / out["mitsuba_forward_backward_ms"]
+    if args.adam_steps:
+        # Recovering the changed material: Adam on every Kd, from the scene's, `adam_steps`
+        # steps each (after a warm-up of two steps: compiles, Dr.Jit's kernels).
+        fj_adam = _fovjax_adam(loss, kd0, light0, scene_in, ADAM_RATE)
+        truth = np.asarray(kd0, np.float64)
+        truth[changed] += STEP
+        for name, run in (("fovjax", fj_adam), ("mitsuba", lambda n: peer.adam(n, ADAM_RATE))):
+            t0 = time.perf_counter()
+            run(2)
+            out[f"{name}_adam_warm_up_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            last, kd = run(args.adam_steps)
+            out[f"{name}_adam_s"] = time.perf_counter() - t0
+            out[f"{name}_adam_loss"] = last
+            out[f"{name}_adam_kd_error"] = float(np.max(np.abs(kd.reshape(truth.shape) - truth)))
+        out["adam_steps"] = args.adam_steps
+        out["ratio_adam"] = out["fovjax_adam_s"] / out["mitsuba_adam_s"]
     out["ratio_forward"] = out["fovjax_forward_ms"] / out["mitsuba_forward_ms"]
     out["fovjax_gradient_over_forward"] = out["fovjax_forward_backward_ms"] / out["fovjax_forward_ms"]
     out["mitsuba_gradient_over_forward"] = out["mitsuba_forward_backward_ms"] / out["mitsuba_forward_ms"]
@@ -248,6 +353,18 @@ def report(r) -> None:
         f"light colour vs Mitsuba {r['light_gradient_vs_mitsuba']:.2e}, "
         f"Kd vs finite differences {r['kd_gradient_vs_finite_differences']:.2e}"
     )
+    print(
+        f"  away from visibility changes ({r['pixels_where_paths_differ']} pixels left out): "
+        f"Kd vs Mitsuba {r['kd_gradient_vs_mitsuba_same_paths']:.2e}, "
+        f"light colour vs Mitsuba {r['light_gradient_vs_mitsuba_same_paths']:.2e}"
+    )
+    if "adam_steps" in r:
+        print(
+            f"  {r['adam_steps']} Adam steps on Kd: fovjax {r['fovjax_adam_s']:.2f} s "
+            f"(loss {r['fovjax_adam_loss']:.2e}, Kd error {r['fovjax_adam_kd_error']:.3f}), "
+            f"Mitsuba {r['mitsuba_adam_s']:.2f} s (loss {r['mitsuba_adam_loss']:.2e}, "
+            f"Kd error {r['mitsuba_adam_kd_error']:.3f}); fovjax / Mitsuba {r['ratio_adam']:.2f}"
+        )
 
 
 COLUMNS = [
@@ -262,6 +379,9 @@ COLUMNS = [
     "gradient / forward: Mitsuba",
     "Kd gradient vs Mitsuba",
     "Kd gradient vs finite differences",
+    "Kd gradient vs Mitsuba, away from visibility changes",
+    "Adam steps s: fovjax",
+    "Adam steps s: Mitsuba",
 ]
 
 
@@ -271,6 +391,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--sizes", type=_size, nargs="+", default=[(320, 256), (640, 512)], metavar="WxH")
     ap.add_argument("--max-depth", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--adam-steps", type=int, default=50, help="Adam steps timed per size (0: none)")
     ap.add_argument(
         "--no-jax-integrator",
         action="store_true",
@@ -279,6 +400,8 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     if args.repeats < 1:
         ap.error(f"--repeats {args.repeats}: at least 1")
+    if args.adam_steps < 0:
+        ap.error(f"--adam-steps {args.adam_steps}: at least 0")
     if args.max_depth < 0:
         ap.error(f"--max-depth {args.max_depth}: at least 0")
     import fovjax
@@ -298,7 +421,10 @@ def main(argv=None) -> dict:
         report(r)
         rows.append(r)
     table = {
-        "title": f"Gradients of an image loss (Kd, lights), {args.scene}, depth {args.max_depth}, SPP 1",
+        "title": (
+            f"Gradients of an image loss (Kd, lights), {args.scene}, depth {args.max_depth}, SPP 1; "
+            f"{args.adam_steps} Adam steps on Kd"
+        ),
         "columns": COLUMNS,
         "rows": [
             [
@@ -313,6 +439,9 @@ def main(argv=None) -> dict:
                 round(r["mitsuba_gradient_over_forward"], 2),
                 f"{r['kd_gradient_vs_mitsuba']:.1e}",
                 f"{r['kd_gradient_vs_finite_differences']:.1e}",
+                f"{r['kd_gradient_vs_mitsuba_same_paths']:.1e}",
+                None if "adam_steps" not in r else round(r["fovjax_adam_s"], 2),
+                None if "adam_steps" not in r else round(r["mitsuba_adam_s"], 2),
             ]
             for r in rows
         ],

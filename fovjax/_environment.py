@@ -58,6 +58,14 @@ VARIABLES: dict[str, Variable] = {
             "0 turns the native FFI handler off: the JAX traversal and integrator run instead",
         ),
         Variable(
+            "FOVJAX_NATIVE_FLAGS",
+            TEXT,
+            "unset: none",
+            "compiler flags added after the project's when the native handlers are built (a later "
+            "`-O` wins: `-O0` for a quick build while changing them; `-march=native`); each set of "
+            "flags builds its own library",
+        ),
+        Variable(
             "FOVJAX_NATIVE_SANITIZE",
             SWITCH,
             "0",

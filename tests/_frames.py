@@ -30,3 +30,26 @@ def assert_same_radiance(actual, expected) -> None:
     np.testing.assert_allclose(
         np.asarray(actual), np.asarray(expected), rtol=SAME_RADIANCE, atol=SAME_RADIANCE
     )
+
+
+# Blinn-Phong's specular term (n·h)^ns turns a relative difference e of n·h between the two
+# programs into ns·e of the term, which is part of the sample (every term is non-negative):
+# n and h are unit vectors normalised apart (1/sqrt in C++, XLA's rsqrt estimate refined once)
+# from hit points that round apart, a few ulp each, and their dot product adds two more. A
+# bound of 8 ulp for e.
+N_DOT_H_ULPS = 8
+
+
+def native_rtol(arrays) -> float:
+    """The relative tolerance of a native sample against the JAX one: SAME_RADIANCE (two
+    programs' rounding, tests/_frames.py) plus the specular exponent's amplification at the
+    scene's largest exponent. Its absolute floor is SAME_RADIANCE."""
+    return SAME_RADIANCE + N_DOT_H_ULPS * 2.0**-24 * float(np.max(np.asarray(arrays.ns)))
+
+
+def assert_native_radiance(native, reference, arrays) -> None:
+    """Every sample (or pixel: a mean of samples keeps the bound) of `native` is `reference`'s
+    to float rounding (`native_rtol`)."""
+    np.testing.assert_allclose(
+        np.asarray(native), np.asarray(reference), rtol=native_rtol(arrays), atol=SAME_RADIANCE
+    )

@@ -62,12 +62,20 @@ def test_a_second_run_loads_the_programs_the_first_compiled(tmp_path):
     # JAX one to float rounding: tests/test_render_native.py), its cache directory under a
     # regular file (it cannot be created, whoever runs the test, root too): said once and
     # skipped, the same frame to within one 8-bit step.
+    # The native handlers are the suite's (already built; the cache directory that would hold
+    # them is the one that cannot be written).
+    import fovjax.native
+
+    built = fovjax.native.status()
+    assert built and built.library, built.reason
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
-    suite = _fovjax([*RENDER, "-o", str(tmp_path / "c.png")], blocker / "cache")
+    library = {"FOVJAX_NATIVE_DIR": str(Path(built.library).parent)}
+    suite = _fovjax([*RENDER, "-o", str(tmp_path / "c.png")], blocker / "cache", **library)
     assert suite.returncode == 0, suite.stderr
     assert "compile cache off: cannot write" in suite.stderr and str(blocker) in suite.stderr
     assert "Traceback" not in suite.stderr
+    assert "integrator: native" in suite.stdout, suite.stdout
     users_frame = iio.imread(tmp_path / "a.png").astype(int)
     suite_frame = iio.imread(tmp_path / "c.png").astype(int)
     assert users_frame.shape == suite_frame.shape

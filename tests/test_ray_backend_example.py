@@ -58,23 +58,24 @@ def test_the_example_backend_answers_as_the_jax_traversal(brute_force):
 
 def test_the_example_backend_renders(brute_force):
     """The renderer takes a registered backend by name (with the JAX integrator: the native one
-    traces with Embree) and its image is the JAX traversal's."""
-    from fovjax.render import RenderConfig, StereoRig
+    traces with Embree) and its image is the native integrator's, whose oracle is the JAX
+    traversal (tests/test_render_native.py): one JAX integrator compile, the example's."""
+    from _frames import assert_native_radiance
+
+    from fovjax.render import RenderConfig, StereoRig, scene_arrays
 
     scene = fovjax.scenes.cornell_box()
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=12, eye_height=8)
-    images = [
-        np.asarray(
-            fovjax.render_stereo(
-                scene, rig, key=jax.random.key(0), config=RenderConfig(backend=b, max_depth=1)
-            ).image
-        )
-        for b in ("brute-force", "jax")
-    ]
-    np.testing.assert_allclose(images[0], images[1], atol=1e-5)
+    mine, native = (
+        fovjax.render_stereo(scene, rig, key=jax.random.key(0), config=RenderConfig(backend=b, max_depth=1))
+        for b in ("brute-force", "auto")
+    )
     assert "ray backend is 'brute-force'" in fovjax.render.describe_integrator(
         RenderConfig(backend="brute-force"), "cpu"
     )
+    assert fovjax.render.describe_integrator(RenderConfig(), "cpu").startswith("native")
+    assert mine.stats.rays == native.stats.rays
+    assert_native_radiance(mine.image, native.image, scene_arrays(scene))
 
 
 def test_the_registry_names_its_rules(brute_force):

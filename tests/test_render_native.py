@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _frames import SAME_RADIANCE
+from _frames import assert_native_radiance
 
 import fovjax
 import fovjax.scenes
@@ -53,28 +53,6 @@ if not embree_status():  # embreex is here but the handler did not build (e.g. n
         pytest.fail(f"the Embree FFI handler is unavailable: {embree_status().reason}", pytrace=False)
     pytest.skip(
         f"the Embree FFI handler is unavailable here: {embree_status().reason}", allow_module_level=True
-    )
-
-# Blinn-Phong's specular term (n·h)^ns turns a relative difference e of n·h between the two
-# programs into ns·e of the term, which is part of the sample (every term is non-negative):
-# n and h are unit vectors normalised apart (1/sqrt in C++, XLA's rsqrt estimate refined once)
-# from hit points that round apart, a few ulp each, and their dot product adds two more. A
-# bound of 8 ulp for e.
-N_DOT_H_ULPS = 8
-
-
-def native_rtol(arrays) -> float:
-    """The relative tolerance of a native sample against the JAX one: SAME_RADIANCE (two
-    programs' rounding, tests/_frames.py) plus the specular exponent's amplification at the
-    scene's largest exponent. Its absolute floor is SAME_RADIANCE."""
-    return SAME_RADIANCE + N_DOT_H_ULPS * 2.0**-24 * float(np.max(np.asarray(arrays.ns)))
-
-
-def assert_native_radiance(native, reference, arrays) -> None:
-    """Every sample (or pixel: a mean of samples keeps the bound) of `native` is `reference`'s
-    to float rounding (`native_rtol`)."""
-    np.testing.assert_allclose(
-        np.asarray(native), np.asarray(reference), rtol=native_rtol(arrays), atol=SAME_RADIANCE
     )
 
 

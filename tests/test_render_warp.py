@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from _frames import SAME_RADIANCE
+from _frames import N_DOT_H_ULPS, SAME_RADIANCE
 
 import fovjax
 from fovjax.render import RenderConfig, StereoRig, radiance, scene_arrays, stereo_sample_rays
@@ -45,9 +45,6 @@ CHANGE = 1e-2
 HALF_WIDTH, LENGTH, TOP = 1.3, (-14.0, 3.0), 3.0
 LIGHT = (0.3, 2.4, -4.0)  # the point light the occluder lies beyond
 OCCLUDER_Y = 2.9
-# Blinn–Phong's (n·h)^ns turns a relative difference e of n·h between two programs into ns·e of
-# the term (tests/test_render_native.py): a bound of 8 ulp for e.
-N_DOT_H_ULPS = 8
 
 
 def _quad(corners, material, uvs=None, bend=0.0):

@@ -116,9 +116,11 @@ def test_a_handler_that_cannot_build_falls_back_to_the_jax_traversal_and_says_wh
 
 def test_the_handler_compiles_from_source_in_a_fresh_directory(tmp_path):
     """What a fresh machine does on first use: compile the native handlers with the system's
-    compiler into the cache directory, load it, check the library's struct layout, register it."""
+    compiler into the cache directory, load it, check the library's struct layout, register it.
+    Without optimisation (`FOVJAX_NATIVE_FLAGS=-O0`, the build's slowest part left out): the
+    optimised build is `.ci/run`'s first step on a fresh machine, whose library the suite runs."""
     _extras.require("embreex")
-    out = _fallback({}, "trace", tmp_path)
+    out = _fallback({"FOVJAX_NATIVE_FLAGS": "-O0"}, "trace", tmp_path)
     assert out["STATUS"].startswith("Embree 4."), out["STATUS"]
     assert out["AUTO"].startswith("embree (Embree 4.")
     assert float(out["AGREE"]) == 1.0
@@ -126,6 +128,25 @@ def test_the_handler_compiles_from_source_in_a_fresh_directory(tmp_path):
     assert out["BUILDING"] == "True" and out["BUILT"] == "False"
     assert [str(p) for p in (tmp_path / "native").glob("fovjax_native-*.so")] == [out["STARTED"]]
     assert out["LIBRARY"] == out["STARTED"]
+
+
+def test_extra_flags_build_their_own_library_and_a_bad_one_is_named(tmp_path, monkeypatch):
+    """`FOVJAX_NATIVE_FLAGS` goes into the library's name (a build with other flags is never
+    loaded in its place), and a flag the compiler refuses is named where the build's failure is
+    said, the JAX traversal running instead."""
+    from fovjax.native import _library
+
+    compiler = _library._compiler()
+    assert compiler is not None
+    names = set()
+    for value in ("", "-O0", "-O0 -march=native"):
+        monkeypatch.setenv("FOVJAX_NATIVE_FLAGS", value)
+        names.add(_library.library_path(compiler).name)
+    assert len(names) == 3
+    out = _fallback({"FOVJAX_NATIVE_FLAGS": "--no-such-flag"}, "status", tmp_path)
+    assert out["STATUS"].startswith("could not build the native handlers: "), out["STATUS"]
+    assert "FOVJAX_NATIVE_FLAGS='--no-such-flag'" in out["STATUS"]
+    assert out["AUTO"].startswith("jax (the JAX traversal; Embree FFI unavailable: could not build")
 
 
 def test_the_native_backend_can_be_turned_off(tmp_path):

@@ -13,7 +13,8 @@ background (`start_build`); `status()` waits for it. XLA's FFI headers come from
 jaxlib (`jax.ffi.include_dir()`); Embree is the library inside the `embreex` wheel, opened at
 run time. Anything missing (no compiler, no embreex, a library whose struct or data layout does
 not match) leaves `status()` False with the reason, and every stage runs its JAX implementation.
-`FOVJAX_NATIVE=0` turns the native handlers off; `FOVJAX_NATIVE_SANITIZE=1` builds them with
+`FOVJAX_NATIVE=0` turns the native handlers off; `FOVJAX_NATIVE_FLAGS` adds compiler flags after
+the project's (its own library: the flags are in the name); `FOVJAX_NATIVE_SANITIZE=1` builds them with
 AddressSanitizer and UndefinedBehaviorSanitizer (the process must then start with the sanitizer
 runtime preloaded: `.ci/sanitize`).
 """
@@ -26,6 +27,7 @@ import functools
 import glob
 import hashlib
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -115,8 +117,15 @@ def _compiler() -> str | None:
     return None
 
 
+def _extra_flags() -> tuple[str, ...]:
+    """`FOVJAX_NATIVE_FLAGS`, split as a shell would: compiler flags after the project's (a
+    later `-O` wins; `-march=native`, `-O0` for a quick build of a change)."""
+    return tuple(shlex.split(_environment.text("FOVJAX_NATIVE_FLAGS") or ""))
+
+
 def _flags() -> tuple[str, ...]:
-    return FLAGS + (SANITIZE_FLAGS if _environment.switch("FOVJAX_NATIVE_SANITIZE") else ())
+    sanitize = SANITIZE_FLAGS if _environment.switch("FOVJAX_NATIVE_SANITIZE") else ()
+    return FLAGS + _extra_flags() + sanitize
 
 
 def embree_library() -> str | None:
@@ -164,7 +173,7 @@ def _choices(compiler: str) -> list[tuple[str, ...]]:
     """The flags to build with, in order of preference: with `PARALLEL_FLAGS` first where the
     compiler is GCC (and no sanitizer is asked for), then plain."""
     flags = _flags()
-    if flags == FLAGS and _gcc(compiler, _compiler_version(compiler)):
+    if not _environment.switch("FOVJAX_NATIVE_SANITIZE") and _gcc(compiler, _compiler_version(compiler)):
         return [flags + PARALLEL_FLAGS, flags]
     return [flags]
 
@@ -203,7 +212,11 @@ def _compile(compiler: str, flags: tuple[str, ...]) -> Path:
             lines = [ln for ln in done.stderr.splitlines() if "error" in ln][:3] or done.stderr.splitlines()[
                 -3:
             ]
-            raise RuntimeError(f"{Path(compiler).name} failed to compile {ENTRY.name}: " + " | ".join(lines))
+            extra = _extra_flags()
+            said = f" (with FOVJAX_NATIVE_FLAGS={' '.join(extra)!r})" if extra else ""
+            raise RuntimeError(
+                f"{Path(compiler).name} failed to compile {ENTRY.name}{said}: " + " | ".join(lines)
+            )
         os.replace(tmp, path)  # atomic: a concurrent process never loads half a library
     finally:
         if os.path.exists(tmp):
