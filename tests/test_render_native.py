@@ -394,7 +394,15 @@ def test_corridor_slots_with_levels_of_detail_agree(corridor):
         config = RenderConfig(max_depth=2, integrator=integrator)
         classes = ShadingClasses(jnp.full(3, 2, jnp.int32), shadows, level=level)
         out = traced_sums(
-            merged, bvh, cameras, jax.random.key(8), sel, config=config, budget=budget, classes=classes, scale=scale
+            merged,
+            bvh,
+            cameras,
+            jax.random.key(8),
+            sel,
+            config=config,
+            budget=budget,
+            classes=classes,
+            scale=scale,
         )
         return out.consumed[0], jnp.stack([out.primary, out.shadow, out.reflection, out.consumed[2]])
 
@@ -409,7 +417,49 @@ def test_corridor_slots_with_levels_of_detail_agree(corridor):
         assert_same_counts(got[1], want[1])
         for k in range(3):
             if levels[k]:  # the second level shows where it is traced
-                assert np.abs(np.asarray(want[0] - level0))[traced & (region == k)].max() > CHANGE, (levels, k)
+                assert np.abs(np.asarray(want[0] - level0))[traced & (region == k)].max() > CHANGE, (
+                    levels,
+                    k,
+                )
+
+
+def test_slots_keep_the_chunked_path_for_a_texture_level_of_detail():
+    """A texture level of detail per region is not written natively: `slots_why_not` names it
+    (the frame takes the chunked path), and the handler's wrapper refuses its tables."""
+    from fovjax.foveate._frame import slots_in_one_call, slots_why_not
+    from fovjax.foveate._native import native_whitted_slots
+    from fovjax.render.internal import SHADOWS_ALL, ShadingClasses
+
+    config = RenderConfig(max_depth=2, integrator="native")
+    depth, shadows = np.full(3, 2, np.int32), np.full(3, SHADOWS_ALL, np.int32)
+    plain = ShadingClasses(depth, shadows, level=np.zeros(3, np.int32))
+    textured = ShadingClasses(
+        depth, shadows, texture_level=np.zeros(3, np.float32), texture_cone=np.ones(3, np.float32)
+    )
+    key = jax.random.key(0)
+    assert slots_why_not(config, key, plain, 8, 8, 1) == "" and slots_in_one_call(config, key, plain, 8, 8, 1)
+    why = slots_why_not(config, key, textured, 8, 8, 1)
+    assert "texture_lod" in why and not slots_in_one_call(config, key, textured, 8, 8, 1)
+    assert "off" in slots_why_not(RenderConfig(integrator="jax"), key, None, 8, 8, 1)
+    with pytest.raises(ValueError, match="texture level of detail"):
+        native_whitted_slots(
+            (),
+            np.zeros(4, np.int32),
+            4,
+            np.zeros(2, np.uint32),
+            np.arange(16),
+            np.zeros((1, 2)),
+            np.zeros((2, 16)),
+            spp=1,
+            height=4,
+            width=4,
+            jitter=False,
+            max_depth=2,
+            recompute=True,
+            packets=False,
+            region=np.zeros((2, 4, 4), np.int32),
+            classes=textured,
+        )
 
 
 def test_corridor_slots_with_shading_classes_derivatives(corridor):

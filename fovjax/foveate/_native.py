@@ -94,7 +94,9 @@ def native_whitted_slots(
     tables = (none, none, none, none)
     if classes is not None:
         if classes.texture_level is not None or classes.texture_cone is not None:
-            raise ValueError("the native slots integrator has no texture level of detail (ShadingClasses.texture_level)")
+            raise ValueError(
+                "the native slots integrator has no texture level of detail (ShadingClasses.texture_level)"
+            )
         if region is None:
             raise ValueError("native_whitted_slots: classes need each pixel's region (2, H, W)")
         level = none if classes.level is None else jnp.asarray(classes.level, i32).reshape(-1)

@@ -14,7 +14,10 @@ namespace {
 // (`_slot_samples`, `positions_at`, `Camera.ray_directions`, `normalize`: the same operations
 // in the same order), its Whitted radiance (`WhittedBlock`), then every slot's radiance added to
 // its pixel in slot order, as the chunks add them. Its work is the live slots' (the chunk loop's
-// per-chunk operations around the integrator are gone).
+// per-chunk operations around the integrator are gone). With shading classes (per-region
+// fidelity: `ShadingClasses` tables, traced operands) a slot's class is its pixel's region, as
+// `trace_selection`'s `class_at` has it, and `WhittedBlock` applies its class's reflection depth,
+// shadow mode and tree of a merged BVH to it and to its reflections.
 
 // JAX's threefry2x32 uniform (see UniformRun) at each of n counters.
 FOVJAX_VECTOR_CLONES
