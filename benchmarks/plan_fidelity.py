@@ -114,6 +114,7 @@ def main(argv=None):
         help="sampling densities to plan at, Foveation.blocks pairs P,O (e.g. 2,4 1,3); default: 2,4 only",
     )
     parser.add_argument("-o", "--output", default="out/plan_fidelity")
+    parser.add_argument("--note", default="", help="said first in the record's note (e.g. a shared machine)")
     args = parser.parse_args(argv)
 
     scene = fovjax.scenes.atrium(triangles=args.triangles)
@@ -195,7 +196,8 @@ def main(argv=None):
     write_record(
         "plan_fidelity",
         {"tables": [{"title": title, "columns": cols, "rows": rows}]},
-        note=f"load average at the start {' '.join(load)}, at the end {end_load}",
+        note=(f"{args.note}; " if args.note else "")
+        + f"load average at the start {' '.join(load)}, at the end {end_load}",
     )
 
 

@@ -91,6 +91,37 @@ MUTATIONS = (
         "w = w * kr;",
         "w = kr;",
     ),
+    Mutation(
+        "class-depth-ignored",
+        "a shading class's reflection depth is not applied (every class reflects to max_depth)",
+        "if (!(depth < s.class_depth[b.cls[k]])) continue;",
+        "if (false) continue;",
+    ),
+    Mutation(
+        "class-untested-light-dark",
+        "a light whose shadow ray a class does not trace is dropped instead of shining unshadowed",
+        "float n_dot_l = ndl, spot = at.spot;  // where the class traces no ray: unshadowed",
+        "float n_dot_l = ndl, spot = at.spot;\n          if (kClasses && !Tested(s, b.cls[k], l)) continue;",
+    ),
+    Mutation(
+        "class-brightest-first",
+        "SHADOWS_BRIGHTEST tests the first light instead of the one of the largest R + G + B",
+        "s->brightest = l;",
+        "s->brightest = 0;",
+    ),
+    Mutation(
+        "class-level-ignored",
+        "every class's rays traced against the merged BVH's first tree",
+        "const bool levels = kClasses && s.class_level != nullptr;",
+        "const bool levels = false;",
+    ),
+    Mutation(
+        "class-unreplayed-light",
+        "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
+        "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
+        "          if (paths != nullptr && (!kClasses || Tested(s, b.cls[k], l)))\n"
+        "            paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
+    ),
 )
 
 

@@ -51,6 +51,13 @@ def test_the_mirror_is_the_owners_constants():
         "skipped": _sampling.SKIPPED,
     }
     assert set(layout.RULES) == set(_config.SAMPLING_RULES)
+    from fovjax.render import internal as render_internal
+
+    assert layout.SHADOWS == {
+        "all": render_internal.SHADOWS_ALL,
+        "brightest": render_internal.SHADOWS_BRIGHTEST,
+        "none": render_internal.SHADOWS_NONE,
+    }
     assert (
         layout.LIGHT_KINDS
         == _scene.LIGHT_KINDS

@@ -257,6 +257,231 @@ def test_corridor_slots_native_agree_at_every_depth(corridor):
     assert previous[1][1] > 2 * previous[1][0]  # three lights' shadow rays
 
 
+# Per-region shading tables (`ShadingClasses`: reflection depth and shadow mode per region,
+# fovea / periphery / outside), each with a region at depth 0 against one at full depth and a
+# region without shadow rays against one with all of them; "brightest" in one region.
+CLASS_TABLES = [
+    ((0, CORRIDOR_DEPTH, 2), ("brightest", "none", "all")),
+    ((CORRIDOR_DEPTH, 2, 0), ("all", "brightest", "none")),
+]
+
+
+def _modes(names):
+    from fovjax.render.internal import SHADOWS_ALL, SHADOWS_BRIGHTEST, SHADOWS_NONE
+
+    codes = {"all": SHADOWS_ALL, "brightest": SHADOWS_BRIGHTEST, "none": SHADOWS_NONE}
+    return jnp.asarray([codes[n] for n in names], jnp.int32)
+
+
+def test_corridor_slots_with_shading_classes_agree(corridor):
+    """Per-region fidelity in the native slots integrator (`traced_sums` with `ShadingClasses`,
+    a slot's class its pixel's region) against the chunked JAX path with the same tables: equal
+    ray counts, every pixel to float rounding, for tables in which each lever changes the
+    oracle's image far above rounding (a region's depth, a region's shadow rays, "brightest"
+    against "all" and "none"), with the brightest light first and, its colour swapped with
+    another light's, second. The tables are traced operands: every table runs in the one
+    compiled native program."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.render.internal import ShadingClasses
+
+    arrays, bvh, rig = corridor
+    fov = Foveation(20.0, 40.0, spp=1)
+    cameras = rig.eye_cameras(None)
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
+    budget = 2 * CORRIDOR_W * CORRIDOR_H
+    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
+    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    key = jax.random.key(8)
+    traces = {"native": 0, "jax": 0}
+
+    def sums(a, depth, shadows, integrator):
+        traces[integrator] += 1
+        config = RenderConfig(max_depth=CORRIDOR_DEPTH, integrator=integrator)
+        classes = ShadingClasses(depth, shadows)
+        out = traced_sums(a, bvh, cameras, key, sel, config=config, budget=budget, classes=classes)
+        (rgb, bad, n_bad) = out.consumed
+        return rgb, jnp.stack([out.primary, out.shadow, out.reflection, n_bad])
+
+    native = jax.jit(functools.partial(sums, integrator="native"))
+    oracle = jax.jit(functools.partial(sums, integrator="jax"))
+    depth0 = jnp.zeros(3, jnp.int32)
+    assert "fovjax_whitted_slots" in native.lower(arrays, depth0, depth0).as_text()
+    colours = np.asarray(arrays.light_color)
+    brightest = int(np.argmax(colours.sum(axis=1)))
+    swapped = colours.copy()
+    swapped[[brightest, 1 - brightest]] = colours[[1 - brightest, brightest]]
+    full_depth = jnp.full(3, CORRIDOR_DEPTH, jnp.int32)
+    region = np.asarray(sel.region).reshape(-1)
+    traced = np.asarray(n).reshape(-1) > 0
+    for light_color in (colours, swapped):
+        a = dataclasses.replace(arrays, light_color=jnp.asarray(light_color))
+        for depths, names in CLASS_TABLES:
+            depth, shadows = jnp.asarray(depths, jnp.int32), _modes(names)
+            got, want = native(a, depth, shadows), oracle(a, depth, shadows)
+            assert_native_radiance(got[0], want[0], arrays)
+            assert_same_counts(got[1], want[1])
+            rgb = np.asarray(want[0])
+            # Each lever shows in the oracle, in the region that pulls it.
+            shallow = int(np.argmin(depths))
+            deep = np.asarray(oracle(a, full_depth, shadows)[0])
+            assert np.abs(rgb - deep)[traced & (region == shallow)].max() > CHANGE, (depths, names)
+            for mode in ("none", "brightest"):
+                k = names.index(mode)
+                others = ("all", "none") if mode == "brightest" else ("all",)
+                for other in others:
+                    moved = _modes([other if i == k else m for i, m in enumerate(names)])
+                    changed = np.asarray(oracle(a, depth, moved)[0])
+                    assert np.abs(rgb - changed)[traced & (region == k)].max() > CHANGE, (names, k, other)
+            assert int(np.asarray(want[1])[0]) == int(sel.n_traced)
+    assert traces == {"native": 1, "jax": 1}  # new tables (and colours) recompile nothing
+
+
+def test_corridor_slots_with_levels_of_detail_agree(corridor):
+    """Geometry level of detail per region in the native slots integrator: the corridor and a
+    second level whose box stands elsewhere, merged into one BVH and one set of scene arrays as
+    `Fidelity.lod` merges a scene's levels; each slot, its shadow rays and its reflections are
+    traced against its region's tree (`ShadingClasses.level`) and shaded with that tree's
+    triangles. Against the chunked JAX path with the same tables: equal ray counts, every
+    pixel to float rounding, for tables under which the second level changes the oracle's image
+    in its regions far above rounding."""
+    import equinox as eqx
+
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._lod import _merged_geometry, _with_geometry
+    from fovjax.render.internal import ShadingClasses, scene_scale
+    from fovjax.trace import merge_bvhs
+
+    arrays, _, rig = corridor
+    scene = corridor_scene()
+    moved = np.asarray(scene.vertices).copy()
+    moved[-20:] += np.asarray([0.5, 0.3, 0.6], np.float32)  # the box: its five quads come last
+    other = eqx.tree_at(lambda s: s.vertices, scene, moved)
+    merged = _with_geometry(arrays, _merged_geometry([scene, other]))
+    bvh = merge_bvhs([build_bvh(scene, cache=False), build_bvh(other, cache=False)])
+    scale = scene_scale(arrays)  # the finest level's, as the foveated frame passes it
+    fov = Foveation(20.0, 40.0, spp=1)
+    cameras = rig.eye_cameras(None)
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
+    budget = 2 * CORRIDOR_W * CORRIDOR_H
+    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
+    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    region = np.asarray(sel.region).reshape(-1)
+    traced = np.asarray(n).reshape(-1) > 0
+
+    def sums(level, shadows, integrator):
+        config = RenderConfig(max_depth=2, integrator=integrator)
+        classes = ShadingClasses(jnp.full(3, 2, jnp.int32), shadows, level=level)
+        out = traced_sums(
+            merged,
+            bvh,
+            cameras,
+            jax.random.key(8),
+            sel,
+            config=config,
+            budget=budget,
+            classes=classes,
+            scale=scale,
+        )
+        return out.consumed[0], jnp.stack([out.primary, out.shadow, out.reflection, out.consumed[2]])
+
+    native = jax.jit(functools.partial(sums, integrator="native"))
+    oracle = jax.jit(functools.partial(sums, integrator="jax"))
+    shadows = _modes(("all", "brightest", "all"))
+    level0 = oracle(jnp.zeros(3, jnp.int32), shadows)[0]
+    for levels in ((0, 1, 1), (1, 0, 1)):
+        level = jnp.asarray(levels, jnp.int32)
+        got, want = native(level, shadows), oracle(level, shadows)
+        assert_native_radiance(got[0], want[0], arrays)
+        assert_same_counts(got[1], want[1])
+        for k in range(3):
+            if levels[k]:  # the second level shows where it is traced
+                assert np.abs(np.asarray(want[0] - level0))[traced & (region == k)].max() > CHANGE, (
+                    levels,
+                    k,
+                )
+
+
+def test_slots_keep_the_chunked_path_for_a_texture_level_of_detail():
+    """A texture level of detail per region is not written natively: `slots_why_not` names it
+    (the frame takes the chunked path), and the handler's wrapper refuses its tables."""
+    from fovjax.foveate._frame import slots_in_one_call, slots_why_not
+    from fovjax.foveate._native import native_whitted_slots
+    from fovjax.render.internal import SHADOWS_ALL, ShadingClasses
+
+    config = RenderConfig(max_depth=2, integrator="native")
+    depth, shadows = np.full(3, 2, np.int32), np.full(3, SHADOWS_ALL, np.int32)
+    plain = ShadingClasses(depth, shadows, level=np.zeros(3, np.int32))
+    textured = ShadingClasses(
+        depth, shadows, texture_level=np.zeros(3, np.float32), texture_cone=np.ones(3, np.float32)
+    )
+    key = jax.random.key(0)
+    assert slots_why_not(config, key, plain, 8, 8, 1) == "" and slots_in_one_call(config, key, plain, 8, 8, 1)
+    why = slots_why_not(config, key, textured, 8, 8, 1)
+    assert "texture_lod" in why and not slots_in_one_call(config, key, textured, 8, 8, 1)
+    assert "off" in slots_why_not(RenderConfig(integrator="jax"), key, None, 8, 8, 1)
+    with pytest.raises(ValueError, match="texture level of detail"):
+        native_whitted_slots(
+            (),
+            np.zeros(4, np.int32),
+            4,
+            np.zeros(2, np.uint32),
+            np.arange(16),
+            np.zeros((1, 2)),
+            np.zeros((2, 16)),
+            spp=1,
+            height=4,
+            width=4,
+            jitter=False,
+            max_depth=2,
+            recompute=True,
+            packets=False,
+            region=np.zeros((2, 4, 4), np.int32),
+            classes=textured,
+        )
+
+
+def test_corridor_slots_with_shading_classes_derivatives(corridor):
+    """The derivative of the native slots with shading classes is the replay of the paths it
+    stored, which hold what the classes left out (no reflection past a region's depth, a light
+    whose shadow ray was not traced counted as unblocked): the chunked JAX path's, in Kd and in
+    the lights' colours."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.render.internal import ShadingClasses
+
+    arrays, bvh, rig = corridor
+    fov = Foveation(20.0, 40.0, spp=1)
+    cameras = rig.eye_cameras(None)
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
+    budget = 2 * CORRIDOR_W * CORRIDOR_H
+    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
+    sel, _, _, _ = jax.jit(select)(ecc, jax.random.key(3))
+    classes = ShadingClasses(jnp.asarray([0, 2, 1], jnp.int32), _modes(("brightest", "none", "all")))
+    kd, colour = jnp.asarray(arrays.kd), jnp.asarray(arrays.light_color)
+    tangents = (
+        jax.random.normal(jax.random.key(1), kd.shape, jnp.float32),
+        jax.random.normal(jax.random.key(2), colour.shape, jnp.float32),
+    )
+
+    def sums(kd, colour, integrator):
+        config = RenderConfig(max_depth=2, integrator=integrator)
+        a = dataclasses.replace(arrays, kd=kd, light_color=colour)
+        out = traced_sums(a, bvh, cameras, None, sel, config=config, budget=budget, classes=classes)
+        return out.consumed[0]
+
+    def both(kd, colour):
+        return tuple(
+            jax.jvp(functools.partial(sums, integrator=name), (kd, colour), tangents)
+            for name in ("native", "jax")
+        )
+
+    lowered = jax.jit(both).lower(kd, colour)
+    assert "fovjax_whitted_slots" in lowered.as_text()
+    (native, d_native), (chunked, d_jax) = lowered.compile()(kd, colour)
+    assert_native_radiance(native, chunked, arrays)
+    assert np.abs(np.asarray(d_jax)).max() > 0.1
+    np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_jax), rtol=1e-5, atol=1e-5)
+
+
 # ---- the featured spheres ---------------------------------------------------------------------
 
 EYE_W, EYE_H = 40, 32

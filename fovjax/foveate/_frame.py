@@ -437,18 +437,32 @@ def trace_selection(
     )
 
 
-def slots_in_one_call(config, jitter_key, classes, scale, h: int, w: int, spp: int) -> bool:
-    """Whether `traced_sums` can run its slots through the native integrator in one call: the
-    native integrator on (`integrator_plan`), full fidelity (no shading classes, no levels of
-    detail) and sub-pixel draws the handler reproduces (threefry2x32, `positions_at`'s per
-    sample uniform; or no jitter)."""
+def slots_why_not(config, jitter_key, classes, h: int, w: int, spp: int) -> str:
+    """Why `traced_sums` cannot run its slots through the native integrator in one call, or ""
+    where it can: the native integrator on (`integrator_plan`), sub-pixel draws the handler
+    reproduces (threefry2x32, `positions_at`'s per sample uniform; or no jitter), and shading
+    classes it implements: per-region reflection depth, shadow rays and geometry level of detail
+    (a tree of the merged BVH per region) run in the handler; a texture level of detail
+    (`ShadingClasses.texture_level`: trilinear lookups in the mip pyramids, with the ray cones of
+    "auto") is not written there and keeps the chunked JAX path."""
     from ..render.internal import integrator_plan
 
-    if not integrator_plan(config).cpu or classes is not None or scale is not None:
-        return False
+    plan = integrator_plan(config)
+    if not plan.cpu:
+        return f"the native integrator is off ({plan.reason})"
+    if classes is not None and (classes.texture_level is not None or classes.texture_cone is not None):
+        return "a texture level of detail per region (Fidelity.texture_lod) runs in the chunked JAX path only"
     if 2 * spp * h * w >= 2**31:
-        return False
-    return jitter_key is None or _per_sample_uniform(jitter_key)
+        return f"2 x {spp} x {h} x {w} samples do not fit the handler's 32-bit slot indices"
+    if jitter_key is not None and not _per_sample_uniform(jitter_key):
+        return "the frame key's sub-pixel draws are not the default threefry2x32 the handler reproduces"
+    return ""
+
+
+def slots_in_one_call(config, jitter_key, classes, h: int, w: int, spp: int) -> bool:
+    """Whether `traced_sums` runs its slots through the native integrator in one call
+    (`slots_why_not` says why not)."""
+    return not slots_why_not(config, jitter_key, classes, h, w, spp)
 
 
 def slots_in_one_warp_call(config, classes, scale) -> bool:
@@ -492,13 +506,16 @@ def traced_sums(
     samples). `classes`, `scale`: as `trace_selection`'s. Chunk by chunk, each chunk's samples go
     to their pixels as it is traced (`sample_adder`: no array of every slot's radiance). Where
     `slots_in_one_call` holds and the program runs on a CPU, one call of the native handler
-    (`native_whitted_slots`) makes every live slot's ray, traces it and adds it to its pixel:
-    the chunk loop's per-chunk operations are not run; on an NVIDIA GPU, where
+    (`native_whitted_slots`, with the shading classes' tables where given) makes every live
+    slot's ray, traces it and adds it to its pixel: the chunk loop's per-chunk operations are
+    not run; on an NVIDIA GPU, where
     `slots_in_one_warp_call` holds, one launch of the Warp integrator does (`warp_slot_sums`).
     Its derivatives on a CPU are those of a replay of the paths it stored
-    (`fovjax.render.internal.replay_radiance` over the slots: no ray traced again), and elsewhere
-    those of the JAX integrator over every slot (`dense`), so that forward and reverse mode both
-    go through the frame."""
+    (`fovjax.render.internal.replay_radiance` over the slots: no ray traced again; the paths hold
+    what the classes left out: levels not reflected to, lights whose shadow rays were not traced
+    count as unblocked, faces of the class's level), and elsewhere those of the JAX integrator
+    over every slot (`dense`), so that forward and reverse mode both go through the frame; with
+    classes elsewhere, those of the chunked path (forward mode)."""
     from ..render.internal import ChunkedRadiance, scene_scale
 
     _, spp, h, w = sel.classes.shape
@@ -529,6 +546,10 @@ def traced_sums(
     def in_one_call(scene, cameras, order, n_traced):
         return native_slots(scene, cameras, order, n_traced, store_paths=False)
 
+    def slot_offset(scene):
+        """The secondary rays' offset (`radiance_in_chunks`'s: from `scale` where given)."""
+        return config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
+
     def native_slots(scene, cameras, order, n_traced, *, store_paths):
         from ..render.internal import shading_attributes, whitted_operands
         from ..scene import stratified_offsets
@@ -536,8 +557,7 @@ def traced_sums(
         with jax.ensure_compile_time_eval():
             grid = np.asarray(stratified_offsets(spp), np.float32)
         key_data = jnp.zeros(2, jnp.uint32) if jitter_key is None else key_words(jitter_key)
-        offset = config.ray_offset * scene_scale(scene)
-        offset = jax.lax.stop_gradient(jnp.asarray(offset, jnp.float32).reshape(1))
+        offset = jax.lax.stop_gradient(jnp.asarray(slot_offset(scene), jnp.float32).reshape(1))
         sums, bad_pixel, counts, prim, visible = native_whitted_slots(
             (*whitted_operands(scene, bvh), offset),
             order,
@@ -556,6 +576,8 @@ def traced_sums(
             robust=bvh.watertight,
             shading=shading_attributes(config),
             store_paths=store_paths,
+            region=None if classes is None else sel.region,
+            classes=classes,
         )
         out = (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
         return (out, (prim, visible)) if store_paths else out
@@ -596,7 +618,7 @@ def traced_sums(
         scene, cameras, order, n_traced = primals
         out, paths = native_slots(scene, cameras, order, n_traced, store_paths=True)
         paths = StoredPaths(*paths)
-        offset = config.ray_offset * scene_scale(scene)
+        offset = slot_offset(scene)
 
         def replayed(scene, cameras, order, n_traced):
             o, d = slot_rays_of(cameras, order)
@@ -611,7 +633,7 @@ def traced_sums(
         s = sel._replace(order=order, n_traced=n_traced)
         return warp_slot_sums(scene, bvh, cameras, jitter_key, s, config=config, budget=budget)
 
-    on_cpu = slots_in_one_call(config, jitter_key, classes, scale, h, w, spp)
+    on_cpu = slots_in_one_call(config, jitter_key, classes, h, w, spp)
     on_gpu = slots_in_one_warp_call(config, classes, scale)
     if not (on_cpu or on_gpu):
         (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
@@ -626,7 +648,8 @@ def traced_sums(
             cuda=in_one_warp_call if on_gpu else None,
             cpu_only=cpu_only,
             cpu_jvp=replay_jvp if on_cpu and replays else None,
-            differentiate=dense,
+            # `dense` is the frame at full fidelity: with classes the chunked path's derivatives.
+            differentiate=dense if classes is None else None,
         )
         consumed, (primary, shadow, reflection) = run(scene, cameras, sel.order, sel.n_traced)
     return ChunkedRadiance(None, primary, shadow, reflection, (), consumed)

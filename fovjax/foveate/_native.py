@@ -60,6 +60,8 @@ def native_whitted_slots(
     robust: bool = True,
     shading: dict | None = None,
     store_paths: bool = False,
+    region=None,
+    classes=None,
 ):
     """A foveated frame's live slots made into rays, traced through the Whitted integrator and
     summed into their pixels, in one call of the slots handler (CPU only): (sums (2·H·W, 3), bad
@@ -72,7 +74,11 @@ def native_whitted_slots(
     sub-samples' cell centres (S, 2); `cameras` (`camera_rows`). `operands`: the scene's
     (`fovjax.render.internal.whitted_operands`) with the ray offset last; `robust`: the BVH's
     `watertight`; `shading`: the shading options' attributes
-    (`fovjax.render.internal.shading_attributes`; None: `RenderConfig`'s defaults). What
+    (`fovjax.render.internal.shading_attributes`; None: `RenderConfig`'s defaults). `classes`:
+    None (every slot at full fidelity), or the `fovjax.render.internal.ShadingClasses` whose
+    `max_depth`, `shadows` and `level` (a tree of the merged BVH per class, or None) the slots
+    are traced with (traced int32 tables; no texture level of detail), a slot's class being its
+    pixel's `region` (2, H, W), as `_frame.trace_selection`'s `class_at`. What
     `_frame.trace_selection` with the native integrator and `sample_adder` compute, in their
     order."""
     from ..render import DEFAULT_CONFIG
@@ -84,6 +90,22 @@ def native_whitted_slots(
         )
     f32, i32 = jnp.float32, jnp.int32
     n_pixels = 2 * height * width
+    none = jnp.zeros((0,), i32)
+    tables = (none, none, none, none)
+    if classes is not None:
+        if classes.texture_level is not None or classes.texture_cone is not None:
+            raise ValueError(
+                "the native slots integrator has no texture level of detail (ShadingClasses.texture_level)"
+            )
+        if region is None:
+            raise ValueError("native_whitted_slots: classes need each pixel's region (2, H, W)")
+        level = none if classes.level is None else jnp.asarray(classes.level, i32).reshape(-1)
+        tables = (
+            jnp.asarray(region, i32).reshape(n_pixels),
+            jnp.asarray(classes.max_depth, i32).reshape(-1),
+            jnp.asarray(classes.shadows, i32).reshape(-1),
+            level,
+        )
     slots = int(np.shape(order)[0])
     stored = (max_depth + 1) * slots if store_paths else 0
     out = (
@@ -101,6 +123,7 @@ def native_whitted_slots(
         jnp.asarray(locality, i32).reshape(-1),
         jnp.asarray(grid, f32).reshape(spp, 2),
         jax.lax.stop_gradient(jnp.asarray(cameras, f32).reshape(2, layout.CAMERA_STRIDE)),
+        *tables,
         *operands,
         spp=np.int32(spp),
         height=np.int32(height),

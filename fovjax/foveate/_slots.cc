@@ -14,7 +14,10 @@ namespace {
 // (`_slot_samples`, `positions_at`, `Camera.ray_directions`, `normalize`: the same operations
 // in the same order), its Whitted radiance (`WhittedBlock`), then every slot's radiance added to
 // its pixel in slot order, as the chunks add them. Its work is the live slots' (the chunk loop's
-// per-chunk operations around the integrator are gone).
+// per-chunk operations around the integrator are gone). With shading classes (per-region
+// fidelity: `ShadingClasses` tables, traced operands) a slot's class is its pixel's region, as
+// `trace_selection`'s `class_at` has it, and `WhittedBlock` applies its class's reflection depth,
+// shadow mode and tree of a merged BVH to it and to its reflections.
 
 // JAX's threefry2x32 uniform (see UniformRun) at each of n counters.
 FOVJAX_VECTOR_CLONES
@@ -106,7 +109,10 @@ void SlotRays(const SlotLayout& L, const int32_t* position, int64_t begin, int64
 
 ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::Buffer<ffi::S32> n_live,
                         ffi::Buffer<ffi::U32> key, ffi::Buffer<ffi::S32> locality,
-                        ffi::Buffer<ffi::F32> grid, ffi::Buffer<ffi::F32> cameras, FOVJAX_SCENE_PARAMS,
+                        ffi::Buffer<ffi::F32> grid, ffi::Buffer<ffi::F32> cameras,
+                        ffi::Buffer<ffi::S32> region, ffi::Buffer<ffi::S32> class_depth,
+                        ffi::Buffer<ffi::S32> class_shadows, ffi::Buffer<ffi::S32> class_level,
+                        FOVJAX_SCENE_PARAMS,
                         ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
                         ffi::ResultBuffer<ffi::S32> counts_out, ffi::ResultBuffer<ffi::S32> path_prim,
                         ffi::ResultBuffer<ffi::U32> path_visible, int32_t spp, int32_t height,
@@ -133,6 +139,15 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   ffi::Error status =
       SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
   if (status.failure()) return status;
+  // Per-region fidelity: a slot's class is its pixel's region (`trace_selection`'s `class_at`).
+  status = ClassesFrom(class_depth, class_shadows, class_level, &s);
+  if (status.failure()) return status;
+  const bool classes = s.class_depth != nullptr;
+  if (region.element_count() != (classes ? 2 * static_cast<size_t>(hw) : 0)) {
+    return ffi::Error::InvalidArgument(
+        "fovjax slots: the regions are (2, H, W) with class tables and empty without");
+  }
+  const int32_t* pixel_class = classes ? region.typed_data() : nullptr;
   const int64_t n = std::max<int64_t>(
       0, std::min<int64_t>(n_live.typed_data()[0], static_cast<int64_t>(order.element_count())));
   // Each slot's path (`PathsOut`, a column per slot of `order`), where the buffers are not empty.
@@ -188,6 +203,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     thread_local std::vector<float> o, d;
     thread_local SlotScratch scratch;
     thread_local std::unique_ptr<bool[]> active;
+    thread_local std::vector<int32_t> ray_class;
     o.resize(3 * per_block), d.resize(3 * per_block);
     scratch.Reserve(per_block);
     if (!active) active.reset(new bool[per_block]);
@@ -198,8 +214,13 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     block.n = m;
     PathsOut block_paths = paths;
     block_paths.column = position.get() + begin;  // the slots these rays are
+    if (classes) {
+      ray_class.resize(per_block);
+      for (int64_t i = 0; i < m; ++i) ray_class[i] = pixel_class[target[begin + i]];
+    }
     WhittedBlock(t, s, o.data(), d.data(), active.get(), block, radiance.get() + 3 * begin,
-                 traced.get() + begin, packets != 0, true, store ? &block_paths : nullptr);
+                 traced.get() + begin, packets != 0, true, store ? &block_paths : nullptr,
+                 classes ? ray_class.data() : nullptr);
   });
   if (out_of_range.load() != 0) {
     return ffi::Error::InvalidArgument(
@@ -250,7 +271,11 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
                                                 .Arg<ffi::Buffer<ffi::U32>>()   // the frame key's data (2)
                                                 .Arg<ffi::Buffer<ffi::S32>>()   // locality order (H·W)
                                                 .Arg<ffi::Buffer<ffi::F32>>()   // sub-sample cell centres (S, 2)
-                                                .Arg<ffi::Buffer<ffi::F32>>())  // the eyes' cameras (2, 16)
+                                                .Arg<ffi::Buffer<ffi::F32>>()   // the eyes' cameras (2, 16)
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // region per pixel (2·H·W) or empty
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // class max_depth (K) or empty
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // class shadow mode (K) or empty
+                                                .Arg<ffi::Buffer<ffi::S32>>())  // class tree (K) or empty
                                   .Ret<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
                                   .Ret<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples

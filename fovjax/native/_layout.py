@@ -19,6 +19,8 @@ SPECULARS = {"blinn-phong": 0, "phong": 1}
 REGIONS = {"fovea": 0, "periphery": 1, "outside": 2}
 CLASSES = {"mandatory": 0, "optional": 1, "skipped": 2}
 RULES = {"either": 0, "strict": 1, "thesis-measured": 2}
+# Shadow modes of a shading class (`fovjax.render.internal.SHADOWS_ALL`, ...).
+SHADOWS = {"all": 0, "brightest": 1, "none": 2}
 # A stored path's face where no ray was traced at that level (`render/_replay.py`); -1 is a miss.
 PATH_NOT_TRACED = -2
 # The Whitted handlers' scene operands, in the order the handlers bind them.
@@ -68,6 +70,7 @@ def expected_layout() -> dict[str, str]:
         ("region", REGIONS),
         ("class", CLASSES),
         ("rule", RULES),
+        ("shadows", SHADOWS),
     )
     for prefix, codes in groups:
         layout.update({f"{prefix}_{name.replace('-', '_')}": str(code) for name, code in codes.items()})

@@ -77,7 +77,27 @@ struct ShadeScene {
   int max_depth;
   bool recompute;  // u, v by Möller–Trumbore on `vertices` (RenderConfig.hits "recomputed")
   Shading shading;
+  // Shading fidelity per class of rays (`ShadingClasses`, fovjax/render/_integrator.py), a ray's
+  // class given with it (a reflection keeps its sample's): null tables, every ray at full
+  // fidelity (`ClassesFrom`).
+  const int32_t* class_depth = nullptr;    // (K,): reflections only while depth < it
+  const int32_t* class_shadows = nullptr;  // (K,): kShadowsAll, kShadowsBrightest or kShadowsNone
+  const int32_t* class_level = nullptr;    // (K,): the tree of a merged BVH, or null (tree 0)
+  int32_t num_classes = 0;
+  int brightest = 0;  // the light of the largest R + G + B (the first of equals, as jnp.argmax)
 };
+
+// A ray's class as an index of the tables (clamped, as a JAX gather clamps).
+inline int32_t ClassIndex(const ShadeScene& s, int32_t c) {
+  return c < 0 ? 0 : (c >= s.num_classes ? s.num_classes - 1 : c);
+}
+
+// Whether class `c` traces a shadow ray to light l (`_tested_lights`); a light it does not test
+// lights the point unshadowed.
+inline bool Tested(const ShadeScene& s, int32_t c, int l) {
+  const int32_t mode = s.class_shadows[c];
+  return mode == kShadowsAll || (mode == kShadowsBrightest && l == s.brightest);
+}
 
 // Where a light is and how much of it reaches p (`_shadow_rays`): the direction and distance
 // towards it, and a spot light's cone factor (1 for the other kinds): 1 within the inner
@@ -153,12 +173,12 @@ Vec3 Environment(const Texture& e, Vec3 d) {
 // One block's work buffers, kept per thread across blocks and calls.
 struct WhittedBuffers {
   std::vector<float> o, d, weight, tmin, tmax, t, u, v;
-  std::vector<int32_t> prim, pixel, column;
+  std::vector<int32_t> prim, pixel, column, cls, level;
   std::vector<float> point, n_geo, n_shade, kd;
   std::vector<int32_t> material;
   std::vector<float> so, sd, stmin, stmax, st, su, sv, n_dot_l, spot;
-  std::vector<int32_t> sprim;
-  void Reserve(int64_t n, int lights) {
+  std::vector<int32_t> sprim, slevel;
+  void Reserve(int64_t n, int lights, bool classes) {
     for (auto* x : {&o, &d, &weight, &point, &n_geo, &n_shade, &kd}) x->resize(3 * n);
     for (auto* x : {&tmin, &tmax, &t, &u, &v}) x->resize(n);
     prim.resize(n);
@@ -169,6 +189,11 @@ struct WhittedBuffers {
     for (auto* x : {&so, &sd}) x->resize(3 * ns);
     for (auto* x : {&stmin, &stmax, &st, &su, &sv, &n_dot_l, &spot}) x->resize(ns);
     sprim.resize(ns);
+    if (classes) {
+      cls.resize(n);
+      level.resize(n);
+      slevel.resize(ns);
+    }
   }
 };
 
@@ -208,13 +233,17 @@ struct PathsOut {
 // `sparse`: the rays are samples scattered over the screen (a foveated frame's), whose hits'
 // faces and vertices are seldom in the cache from a neighbour's: they are prefetched a few rays
 // ahead of the shading (a full frame's neighbouring rays share their faces: it gains nothing).
-void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
-                  const bool* active, const BlockRays& block, float* total, int32_t* traced,
-                  bool packets, bool sparse, const PathsOut* paths = nullptr) {
+// `kClasses`: each ray's class in `ray_class` (indexed as the rays), its fidelity the tables' of
+// `s` (`ShadingClasses`); without, the loop has none of their work (`WhittedBlock` picks).
+template <bool kClasses>
+void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
+                 const bool* active, const BlockRays& block, float* total, int32_t* traced, bool packets,
+                 bool sparse, const PathsOut* paths, const int32_t* ray_class) {
   thread_local WhittedBuffers b;
   const int64_t n = block.n;
   const int nl = s.num_lights;
-  b.Reserve(n, nl);
+  b.Reserve(n, nl, kClasses);
+  const bool levels = kClasses && s.class_level != nullptr;  // rays traced against their class's tree
   int64_t m = 0;
   for (int64_t i = 0; i < n; ++i) {
     const int64_t g = block.Index(i);
@@ -223,6 +252,10 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
     if (!active[g]) continue;
     b.pixel[m] = static_cast<int32_t>(g);
     b.column[m] = paths == nullptr ? 0 : static_cast<int32_t>(paths->column ? paths->column[i] : g);
+    if constexpr (kClasses) {
+      b.cls[m] = ClassIndex(s, ray_class[g]);
+      if (levels) b.level[m] = s.class_level[b.cls[m]];
+    }
     for (int c = 0; c < 3; ++c) {
       b.o[3 * m + c] = o_in[3 * g + c];
       b.d[3 * m + c] = d_in[3 * g + c];
@@ -236,7 +269,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       b.tmin[k] = 0.0f;
       b.tmax[k] = INFINITY;
     }
-    Rays rays{b.o.data(), b.d.data(), b.tmin.data(), b.tmax.data(), nullptr,
+    Rays rays{b.o.data(), b.d.data(), b.tmin.data(), b.tmax.data(), levels ? b.level.data() : nullptr,
               b.t.data(), b.prim.data(), b.u.data(), b.v.data()};
     TraceList(tree, rays, m, false, packets);
     if (paths != nullptr) {
@@ -332,7 +365,13 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
         float distance = n2 > 0.0f ? std::sqrt(n2) : 0.0f;
         float ndl = Dot(nsh, dir);
         if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
+        if constexpr (kClasses) {
+          if (!Tested(s, b.cls[k], l)) continue;  // no ray: the light shines unshadowed
+        }
         const int64_t j = ns++;
+        if constexpr (kClasses) {
+          if (levels) b.slevel[j] = b.level[k];
+        }
         for (int c = 0; c < 3; ++c) {
           b.so[3 * j + c] = (&origin.x)[c];
           b.sd[3 * j + c] = (&dir.x)[c];
@@ -343,7 +382,7 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
         b.spot[j] = at.spot;
       }
     }
-    Rays shadow{b.so.data(), b.sd.data(), b.stmin.data(), b.stmax.data(), nullptr,
+    Rays shadow{b.so.data(), b.sd.data(), b.stmin.data(), b.stmax.data(), levels ? b.slevel.data() : nullptr,
                 b.st.data(), b.sprim.data(), b.su.data(), b.sv.data()};
     TraceList(tree, shadow, ns, true, packets);
     // Shading, and the reflection rays compacted to the front.
@@ -375,22 +414,26 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
           float ndl = Dot(nsh, dir);
           // not wanted: no ray, no light
           if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
-          const int64_t j = js++;
-          traced[px] += 1 << 8;
-          if (b.sprim[j] >= 0) continue;  // blocked
+          float n_dot_l = ndl, spot = at.spot;  // where the class traces no ray: unshadowed
+          if (!kClasses || Tested(s, b.cls[k], l)) {
+            const int64_t j = js++;
+            traced[px] += 1 << 8;
+            if (b.sprim[j] >= 0) continue;  // blocked
+            n_dot_l = b.n_dot_l[j], spot = b.spot[j];
+          }
           if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;
           // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
           float cosine;
           if (s.shading.specular == kSpecularPhong) {
-            Vec3 mirrored = (2.0f * b.n_dot_l[j]) * nsh - dir;
+            Vec3 mirrored = (2.0f * n_dot_l) * nsh - dir;
             cosine = -Dot(mirrored, d);
           } else {
             cosine = Dot(nsh, Normalize(dir - d));
           }
           float spec = cosine > 0.0f ? std::exp2(shininess * std::log2(cosine)) : 0.0f;
-          if (s.shading.payload) spec = spec * b.n_dot_l[j];  // §4.4.3's shadow payload, n·l
-          Vec3 color = Load3(s.lights + kLightStride * l + 3) * b.spot[j];
-          Vec3 term = (kd * b.n_dot_l[j] + ks * spec) * color;
+          if (s.shading.payload) spec = spec * n_dot_l;  // §4.4.3's shadow payload, n·l
+          Vec3 color = Load3(s.lights + kLightStride * l + 3) * spot;
+          Vec3 term = (kd * n_dot_l + ks * spec) * color;
           sum = first ? term : sum + term;
           first = false;
         }
@@ -402,6 +445,9 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       out[2] += c.z;
       w = w * kr;
       if (!(spawn && (w.x != 0.0f || w.y != 0.0f || w.z != 0.0f))) continue;
+      if constexpr (kClasses) {
+        if (!(depth < s.class_depth[b.cls[k]])) continue;  // the class's reflection depth
+      }
       const float cut = s.shading.min_contribution;  // §2.5.2's contribution cut-off
       if (cut > 0.0f && !(0.30f * w.x + 0.59f * w.y + 0.11f * w.z >= cut)) continue;
       Vec3 reflected = d - 2.0f * Dot(d, nsh) * nsh;
@@ -414,11 +460,58 @@ void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_i
       }
       b.pixel[next] = px;
       b.column[next] = b.column[k];
+      if constexpr (kClasses) {
+        b.cls[next] = b.cls[k];
+        if (levels) b.level[next] = b.level[k];
+      }
       traced[px] += 1;
       ++next;
     }
     m = next;
   }
+}
+
+// `WhittedRays` with each ray's class in `ray_class` where `s` has class tables, else at full
+// fidelity.
+void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
+                  const bool* active, const BlockRays& block, float* total, int32_t* traced,
+                  bool packets, bool sparse, const PathsOut* paths = nullptr,
+                  const int32_t* ray_class = nullptr) {
+  if (s.class_depth != nullptr && ray_class != nullptr) {
+    WhittedRays<true>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, paths, ray_class);
+  } else {
+    WhittedRays<false>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, paths, nullptr);
+  }
+}
+
+// The class tables of `ShadingClasses` (max_depth, shadows, level: int32 (K,), level empty for
+// none; all three empty: no classes) into `s`, after `SceneFrom` (the brightest light is read
+// from its lights).
+ffi::Error ClassesFrom(ffi::Buffer<ffi::S32> depth, ffi::Buffer<ffi::S32> shadows, ffi::Buffer<ffi::S32> level,
+                       ShadeScene* s) {
+  const size_t k = depth.element_count();
+  if (shadows.element_count() != k || (level.element_count() != 0 && level.element_count() != k) ||
+      (k == 0 && level.element_count() != 0) || k > (size_t{1} << 30)) {
+    return ffi::Error::InvalidArgument(
+        "fovjax Whitted: class tables (max_depth, shadows, level) of different lengths");
+  }
+  if (k == 0) return ffi::Error::Success();
+  s->class_depth = depth.typed_data();
+  s->class_shadows = shadows.typed_data();
+  s->class_level = level.element_count() ? level.typed_data() : nullptr;
+  s->num_classes = static_cast<int32_t>(k);
+  // jnp.argmax of the colours' sums: the first of equal sums, the first NaN above all.
+  s->brightest = 0;
+  float best = 0.0f;
+  for (int l = 0; l < s->num_lights; ++l) {
+    const float* c = s->lights + kLightStride * l + 3;
+    const float sum = c[0] + c[1] + c[2];
+    if (l == 0 || (!std::isnan(best) && (std::isnan(sum) || sum > best))) {
+      best = sum;
+      s->brightest = l;
+    }
+  }
+  return ffi::Error::Success();
 }
 
 // The Whitted handlers' scene operands (`whitted_operands`), checked, as a ShadeScene and its

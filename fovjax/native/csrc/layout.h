@@ -25,6 +25,8 @@ constexpr int kFovea = 0, kPeriphery = 1, kOutside = 2;
 constexpr int8_t kMandatory = 0, kOptional = 1, kSkipped = 2;
 // Sampling rules (`Foveation.rule`).
 constexpr int kRuleEither = 0, kRuleStrict = 1, kRuleThesisMeasured = 2;
+// Shadow modes of a shading class (`ShadingClasses.shadows`, fovjax/render/_integrator.py).
+constexpr int kShadowsAll = 0, kShadowsBrightest = 1, kShadowsNone = 2;
 // A stored path's face where no ray was traced at that level (render/_whitted.cc, `PathsOut`).
 constexpr int32_t kPathNotTraced = -2;
 // The Whitted handlers' scene operands, in order (`FOVJAX_SCENE_PARAMS`, render/_whitted.cc).

@@ -120,7 +120,9 @@ const char* fovjax_native_layout() {
       ";class_mandatory=" + std::to_string(kMandatory) + ";class_optional=" + std::to_string(kOptional) +
       ";class_skipped=" + std::to_string(kSkipped) + ";rule_either=" + std::to_string(kRuleEither) +
       ";rule_strict=" + std::to_string(kRuleStrict) +
-      ";rule_thesis_measured=" + std::to_string(kRuleThesisMeasured) + ";path_not_traced=" + std::to_string(kPathNotTraced) + ";scene_operands=" + kSceneOperands;
+      ";rule_thesis_measured=" + std::to_string(kRuleThesisMeasured) +
+      ";shadows_all=" + std::to_string(kShadowsAll) + ";shadows_brightest=" + std::to_string(kShadowsBrightest) +
+      ";shadows_none=" + std::to_string(kShadowsNone) + ";path_not_traced=" + std::to_string(kPathNotTraced) + ";scene_operands=" + kSceneOperands;
   return text.c_str();
 }
 
