@@ -49,11 +49,12 @@ def replay_radiance(
     arithmetic, written with the JAX integrator's shading. Differentiable in `scene`'s arrays,
     `o`, `d` (not in `paths`).
 
-    Each level puts its live rays first and shades them `chunk` at a time (a `lax.cond` skips
-    the chunks past them): the cost follows the rays the forward traced. (Rematerialising each
+    Each level shades its rays `chunk` at a time, a `lax.cond` skipping the chunks without a
+    live ray (a deeper level puts its live rays first): the cost follows the rays the forward
+    traced. (Rematerialising each
     chunk in the reverse pass, `jax.checkpoint`, would keep only its inputs, but made a gradient
     several times slower.)"""
-    from ._integrator import _finish_shading, _live_first, _surface_and_shadow_rays
+    from ._integrator import _finish_shading, _surface_and_shadow_rays
 
     scene = jax.tree.map(jnp.asarray, scene)  # host NumPy leaves cannot be indexed by traced faces
     prims = jax.lax.stop_gradient(paths.prim)
@@ -83,25 +84,47 @@ def replay_radiance(
     weight = jnp.ones_like(o)
     total = jnp.zeros_like(o)
     chunks = jnp.arange(count)
-    for k in range(prims.shape[0]):
-        n_live, order = _live_first(prims[k] != layout.PATH_NOT_TRACED)
-        # The level's rays, live ones first, as the scan's per-chunk inputs and outputs (no
-        # carry: a carried array would be copied whole every chunk of the reverse pass).
-        ins = tuple(
-            x[order].reshape((count, size) + x.shape[1:]) for x in (o, d, weight, prims[k], visible[k])
-        )
 
-        def body(_, chunk, n_live=n_live):
-            c, taken = chunk[0], chunk[1:]
+    def permuted(x, by):  # `by` a permutation: unique indices, here and in the reverse pass
+        return x.at[by].get(unique_indices=True)
+
+    for k in range(prims.shape[0]):
+        alive = prims[k] != layout.PATH_NOT_TRACED
+        level = (o, d, weight, prims[k], visible[k])
+        if k == 0:
+            # The first level, the largest, shades its rays where they are: every ray a frame
+            # traces is live there and a foveated frame's unused slots come last, so only
+            # chunks without a live ray are skipped, and no permutation is paid for.
+            back = None
+            live_chunk = jnp.any(alive.reshape(count, size), axis=1)
+        else:
+            # A deeper level puts its live rays first (a stable permutation: `back`, each ray's
+            # place, and its inverse `order`).
+            live = alive.astype(jnp.int32)
+            n_live = jnp.sum(live)
+            back = jnp.where(alive, jnp.cumsum(live) - 1, n_live + jnp.cumsum(1 - live) - 1)
+            index = jnp.arange(back.shape[0], dtype=back.dtype)
+            order = jnp.zeros_like(back).at[back].set(index, unique_indices=True)
+            level = tuple(permuted(x, order) for x in level)
+            live_chunk = chunks * size < n_live
+        # The level's rays as the scan's per-chunk inputs and outputs (no carry: a carried
+        # array would be copied whole every chunk of the reverse pass).
+        ins = tuple(x.reshape((count, size) + x.shape[1:]) for x in level)
+
+        def body(_, chunk):
+            is_live, taken = chunk[0], chunk[1:]
 
             def skip(taken):
                 return tuple(jnp.zeros((size, 3), jnp.float32) for _ in range(4))
 
-            return None, jax.lax.cond(c * size < n_live, lambda t: shade(scene, *t), skip, taken)
+            return None, jax.lax.cond(is_live, lambda t: shade(scene, *t), skip, taken)
 
-        _, outs = jax.lax.scan(body, None, (chunks, *ins))
+        _, outs = jax.lax.scan(body, None, (live_chunk, *ins))
         contribution, o_next, d_next, w_next = (x.reshape(count * size, 3) for x in outs)
-        back = jnp.zeros_like(order).at[order].set(jnp.arange(order.shape[0], dtype=order.dtype))
-        total = total + contribution[back]
-        o, d, weight = o_next[back], d_next[back], w_next[back]
+        if back is not None:
+            contribution, o_next, d_next, w_next = (
+                permuted(x, back) for x in (contribution, o_next, d_next, w_next)
+            )
+        total = total + contribution
+        o, d, weight = o_next, d_next, w_next
     return total[:n]
