@@ -573,3 +573,16 @@ def test_cli_render_stereo_spheres(tmp_path, capsys):
     assert "[3/6] foveated frame" in captured.err and "[6/6] writing" in captured.err
     assert main(["render", "--scene", "nowhere.obj", "-o", str(out)]) == 2
     assert "not a built-in scene" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("n", [1, 5, 4099])
+def test_live_first_is_a_stable_partition(n):
+    """The queues' permutation (`_live_first`): the live entries first, each part in its order
+    (NumPy's stable argsort of "not live"), and their count."""
+    from fovjax.render._integrator import _live_first
+
+    alive = np.random.default_rng(n).random(n) < 0.3
+    alive[0] = n > 1  # a dead first entry where there is more than one
+    count, order = _live_first(jnp.asarray(alive))
+    assert int(count) == int(alive.sum())
+    np.testing.assert_array_equal(np.asarray(order), np.argsort(~alive, kind="stable"))

@@ -475,8 +475,10 @@ def _live_first(alive):
     """(number alive, a stable permutation that puts the alive entries first). O(n)."""
     live = alive.astype(jnp.int32)
     n_live = jnp.sum(live)
-    rank = jnp.where(alive, jnp.cumsum(live) - 1, n_live + jnp.cumsum(1 - live) - 1)
-    return n_live, jnp.zeros_like(rank).at[rank].set(jnp.arange(live.shape[0], dtype=rank.dtype))
+    index = jnp.arange(live.shape[0], dtype=jnp.int32)
+    before = jnp.cumsum(live)  # live entries up to each, itself included
+    rank = jnp.where(alive, before - 1, n_live + index - before)
+    return n_live, jnp.zeros_like(rank).at[rank].set(index, unique_indices=True)
 
 
 def _reflection_level(scene, bvh, total, source, n_queued, queue, depth, *, offset, config, size):

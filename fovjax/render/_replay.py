@@ -102,8 +102,9 @@ def replay_radiance(
             # place, and its inverse `order`).
             live = alive.astype(jnp.int32)
             n_live = jnp.sum(live)
-            back = jnp.where(alive, jnp.cumsum(live) - 1, n_live + jnp.cumsum(1 - live) - 1)
-            index = jnp.arange(back.shape[0], dtype=back.dtype)
+            index = jnp.arange(live.shape[0], dtype=jnp.int32)
+            before = jnp.cumsum(live)  # live rays up to each, itself included
+            back = jnp.where(alive, before - 1, n_live + index - before)
             order = jnp.zeros_like(back).at[back].set(index, unique_indices=True)
             level = tuple(permuted(x, order) for x in level)
             live_chunk = chunks * size < n_live
