@@ -82,9 +82,11 @@ def guenter_stereo(
     # Where each layer shows (its radius plus the blend beyond it; the outer layer everywhere),
     # and the pixels of its grid its magnification reads there: a grid pixel within one stride.
     strides = (1, *method.strides)
-    shown = [ecc <= r + method.blend_deg for r in radii] + [jnp.ones_like(ecc, bool)]
-    trace_pixel = jnp.zeros_like(ecc, bool)
-    for stride, where in zip(strides, shown, strict=True):
+    # The outer layer shows everywhere: its whole grid is traced (as it is, not dilated: XLA
+    # would fold the dilation of a constant mask at compile time).
+    shown = [ecc <= r + method.blend_deg for r in radii]
+    trace_pixel = jnp.broadcast_to(_on_grid(h, w, strides[-1])[None], ecc.shape)
+    for stride, where in zip(strides[:-1], shown, strict=True):
         trace_pixel = trace_pixel | (_dilate(where, stride) & _on_grid(h, w, stride)[None])
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config

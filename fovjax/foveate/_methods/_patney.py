@@ -165,10 +165,12 @@ def patney_stereo(
     radii = (foveation.fovea_deg, foveation.periphery_deg)
     strides = (1, *method.strides)
     # Where each shading rate shows (its radius plus the blend; the outer rate everywhere):
-    # the top-left pixel of each of its blocks there is traced.
-    shown = [ecc <= r + method.blend_deg for r in radii] + [jnp.ones_like(ecc, bool)]
-    trace_pixel = jnp.zeros_like(ecc, bool)
-    for stride, where in zip(strides, shown, strict=True):
+    # the top-left pixel of each of its blocks there is traced. The outer rate's blocks all
+    # show, so its top-lefts are taken as they are: the block reduction of a constant mask
+    # would be folded by XLA at compile time (seconds per megapixel).
+    shown = [ecc <= r + method.blend_deg for r in radii]
+    trace_pixel = jnp.broadcast_to(_top_left(h, w, strides[-1])[None], ecc.shape)
+    for stride, where in zip(strides[:-1], shown, strict=True):
         trace_pixel = trace_pixel | (_block_any(where, stride) & _top_left(h, w, stride)[None])
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
