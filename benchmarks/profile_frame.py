@@ -214,10 +214,13 @@ def main(argv=None):
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=5, backend=args.backend)
     gaze = (tuple(args.gaze), tuple(args.gaze))
-    foveation = Foveation(fovea_deg=args.pair[0], periphery_deg=args.pair[1], spp=args.spp, method=args.method)
+    foveation = Foveation(
+        fovea_deg=args.pair[0], periphery_deg=args.pair[1], spp=args.spp, method=args.method
+    )
     print(
         f"atrium {scene.num_triangles:,} triangles, 2 x {w}x{h}, SPP {args.spp}, depth 5, backend "
-        f"{args.backend}, method {args.method} ({fovjax.trace.describe_backend(args.backend, jax.devices()[0].platform)}), "
+        f"{args.backend} ({fovjax.trace.describe_backend(args.backend, jax.devices()[0].platform)}), "
+        f"method {args.method}, "
         f"jax {jax.__version__}, {os.cpu_count()} CPUs"
     )
     # One renderer prepared once (scene arrays and BVH on the device), called per frame.

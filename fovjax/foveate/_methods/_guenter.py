@@ -11,7 +11,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
 from ._base import FrameInputs
 from ._catalog import Guenter2012
-from ._sparse import trace_pixels
+from ._sparse import side_by_side, trace_pixels
 
 
 def _on_grid(h: int, w: int, stride: int) -> Bool[Array, "H W"]:
@@ -95,5 +95,5 @@ def guenter_stereo(
     w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
     coarse = outer * (1 - w_middle)[..., None] + middle * w_middle[..., None]
     eyes = coarse * (1 - w_inner)[..., None] + inner * w_inner[..., None]
-    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
     return outputs, jnp.zeros((), jnp.int32), None

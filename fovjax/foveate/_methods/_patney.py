@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
@@ -21,7 +22,7 @@ from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentric
 from ._base import FrameInputs
 from ._catalog import Patney2016
 from ._guenter import layer_weights
-from ._sparse import trace_pixels
+from ._sparse import side_by_side, trace_pixels
 
 # Rec. 709 luminance weights: the contrast gain is measured on luminance and applied to every
 # channel alike, so the enhancement keeps a pixel's hue.
@@ -44,6 +45,11 @@ def empty_history(h: int, w: int) -> TaaHistory:
     return TaaHistory(jnp.zeros((2, h, w, 3), jnp.float32), jnp.zeros((2, h, w), bool))
 
 
+def _made(x):
+    """`x`, computed on its own rather than inside each of its consumers' loops."""
+    return jax.lax.optimization_barrier(x)
+
+
 def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, "E H W C"]:
     """A separable Gaussian blur of standard deviation `sigma` pixels (static; 0: `image`),
     truncated at 3σ and normalised, the border pixels repeated beyond the image."""
@@ -54,11 +60,13 @@ def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, 
     total = sum(taps)
     taps = [t / total for t in taps]
     _, h, w, _ = image.shape
-    padded = jnp.pad(image, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge")
+    # Each padded image is made once (the barriers): fused into the taps' sums, the edge
+    # padding's concatenate is evaluated per tap and output element, several times slower.
+    padded = _made(jnp.pad(image, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge"))
     out = taps[0] * padded[:, :h]
     for k in range(1, len(taps)):
         out = out + taps[k] * padded[:, k : k + h]
-    padded = jnp.pad(out, ((0, 0), (0, 0), (radius, radius), (0, 0)), mode="edge")
+    padded = _made(jnp.pad(out, ((0, 0), (0, 0), (radius, radius), (0, 0)), mode="edge"))
     result = taps[0] * padded[:, :, :w]
     for k in range(1, len(taps)):
         result = result + taps[k] * padded[:, :, k : k + w]
@@ -100,7 +108,7 @@ def contrast_preserving_filter(
 def _neighbourhood(image: Float[Array, "E H W 3"]):
     """Per pixel the mean and standard deviation of its 3×3 neighbourhood (border repeated)."""
     _, h, w, _ = image.shape
-    padded = jnp.pad(image, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    padded = _made(jnp.pad(image, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge"))
     taps = [padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)]
     mean = sum(taps) / 9.0
     var = sum(t * t for t in taps) / 9.0 - mean * mean
@@ -196,5 +204,5 @@ def patney_stereo(
     ]
     eyes = blend(accumulated, *filtered)
     reused = jnp.sum(history.valid, dtype=jnp.int32)
-    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
     return outputs, reused, TaaHistory(accumulated, jnp.ones_like(history.valid))

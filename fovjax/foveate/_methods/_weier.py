@@ -27,7 +27,7 @@ from .._frame import (
 )
 from ._base import FrameInputs
 from ._catalog import Weier2016
-from ._sparse import trace_pixels
+from ._sparse import side_by_side, trace_pixels
 
 # A ray that misses keeps a point this many scene sizes along it: reprojected, it moves with
 # the view's rotation only (the sky), never with its translation (float32 keeps the direction
@@ -165,6 +165,6 @@ def weier_stereo(
     # Every pixel is traced or holds a usable reprojected sample: nothing to fill.
     eyes = jnp.where(fresh[..., None], pixels.prefill, back.color)
     history = WeierHistory(eyes, jnp.where(fresh[..., None], points, back.point), fresh | usable)
-    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
     reused = jnp.sum(~fresh, dtype=jnp.int32)
     return outputs, reused, history
