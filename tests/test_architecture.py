@@ -309,7 +309,7 @@ NATIVE_HANDLERS = {
     "native": set(),
     "trace": {"FovjaxEmbreeQuery"},
     "render": {"FovjaxEmbreeWhitted"},
-    "foveate": {"FovjaxSelectSamples", "FovjaxWhittedSlots", "FovjaxFillAndBlur"},
+    "foveate": {"FovjaxSelectSamples", "FovjaxWhittedSlots", "FovjaxFillAndBlur", "FovjaxReproject"},
 }
 NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"
 

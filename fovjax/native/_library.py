@@ -49,6 +49,7 @@ HANDLERS = {
     "fovjax_select_samples": "FovjaxSelectSamples",
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
+    "fovjax_reproject": "FovjaxReproject",
 }
 FLAGS = (
     "-O3",
