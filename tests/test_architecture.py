@@ -309,7 +309,13 @@ NATIVE_HANDLERS = {
     "native": set(),
     "trace": {"FovjaxEmbreeQuery"},
     "render": {"FovjaxEmbreeWhitted"},
-    "foveate": {"FovjaxSelectSamples", "FovjaxWhittedSlots", "FovjaxFillAndBlur", "FovjaxReproject"},
+    "foveate": {
+        "FovjaxSelectSamples",
+        "FovjaxWhittedSlots",
+        "FovjaxFillAndBlur",
+        "FovjaxReproject",
+        "FovjaxGaussianBlur",
+    },
 }
 NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"
 

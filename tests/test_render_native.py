@@ -360,6 +360,41 @@ def test_weier_reprojection_native_is_the_jax_path():
     )
 
 
+def test_patney_blurs_native_are_the_jax_path():
+    """Patney 2016's Gaussian blur (`gaussian_blur`) through the native blur handler against the
+    JAX blur: equal to float rounding, at blurs wider than the image (every tap clamped at its
+    edge), odd sizes and one or three channels; the derivative is the JAX blur's. (The
+    pre-filter built on it is tests/test_foveate_methods.py's: a CPU runs its blurs natively.)"""
+    from fovjax.foveate._methods._patney import gaussian_blur
+
+    images = [
+        jax.random.uniform(jax.random.key(i), shape) for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 1)])
+    ]
+
+    def both(images):
+        out = []
+        for image in images:
+            for sigma in (0.5, 2.0, 4.0):
+                out.append([gaussian_blur(image, sigma, native=n) for n in (True, False)])
+        image = images[0]
+        tangent = jnp.ones_like(image)
+        out.append(
+            [
+                jax.jvp(lambda x, n=n: gaussian_blur(x, 2.0, native=n), (image,), (tangent,))[1]
+                for n in (True, False)
+            ]
+        )
+        return out
+
+    lowered = jax.jit(both).lower(images)
+    assert lowered.as_text().count("fovjax_gaussian_blur") >= 6
+    for native, reference in lowered.compile()(images):
+        np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-7)
+    # The blur is not the identity: a blurred image has less contrast than its image.
+    blurred = jax.jit(lambda x: gaussian_blur(x, 2.0, native=True))(images[0])
+    assert np.asarray(blurred).std() < 0.5 * np.asarray(images[0]).std()
+
+
 # ---- the featured spheres ---------------------------------------------------------------------
 
 EYE_W, EYE_H = 40, 32

@@ -1,7 +1,8 @@
 """The foveated frame's native side: sample selection (`foveate/_select.cc`), the slots
 integrator (`foveate/_slots.cc`), the reconstruction (`foveate/_fill.cc`) and Weier 2016's
-forward projection (`foveate/_reproject.cc`), each the primal of its JAX oracle in `_frame.py` /
-`_fill.py` / `_methods/_weier.py` on a CPU. Not differentiable: the callers' custom
+forward projection (`foveate/_reproject.cc`) and Patney 2016's Gaussian blurs
+(`foveate/_blur.cc`), each the primal of its JAX oracle in `_frame.py` / `_fill.py` /
+`_methods/_weier.py` / `_methods/_patney.py` on a CPU. Not differentiable: the callers' custom
 JVPs take derivatives from the JAX side (`fovjax.native.internal.on_platforms`)."""
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ SELECT_TARGET = "fovjax_select_samples"
 SLOTS_TARGET = "fovjax_whitted_slots"
 FILL_TARGET = "fovjax_fill_and_blur"
 REPROJECT_TARGET = "fovjax_reproject"
+BLUR_TARGET = "fovjax_gaussian_blur"
 
 
 def camera_rows(cameras) -> Float[Array, "2 stride"]:
@@ -217,3 +219,13 @@ def native_reproject(color, point, valid, cameras, *, width: int, height: int):
         half_width=np.float32(0.5 * width),
         half_height=np.float32(0.5 * height),
     )
+
+
+def native_gaussian_blur(image, taps):
+    """A separable Gaussian blur of `image` (N, H, W, C) with the normalised `taps` (2r + 1),
+    the border pixels repeated, through the blur handler (CPU only): what
+    `_methods._patney.gaussian_blur` computes, the taps added in its order."""
+    f32 = jnp.float32
+    out = jax.ShapeDtypeStruct(np.shape(image), f32)
+    call = handler(BLUR_TARGET, out, what="the native Gaussian blur", vmap_method="sequential")
+    return call(jax.lax.stop_gradient(jnp.asarray(image, f32)), jnp.asarray(taps, f32))

@@ -50,6 +50,7 @@ HANDLERS = {
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
     "fovjax_reproject": "FovjaxReproject",
+    "fovjax_gaussian_blur": "FovjaxGaussianBlur",
 }
 FLAGS = (
     "-O3",

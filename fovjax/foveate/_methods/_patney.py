@@ -11,14 +11,18 @@ as traced). The filters are pure image functions of static size (`gaussian_blur`
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ...native.internal import on_platforms
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
+from .._native import native_gaussian_blur
 from ._base import FrameInputs
 from ._catalog import Patney2016
 from ._guenter import layer_weights
@@ -50,15 +54,28 @@ def _made(x):
     return jax.lax.optimization_barrier(x)
 
 
-def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, "E H W C"]:
+def gaussian_blur(
+    image: Float[Array, "E H W C"], sigma: float, *, native: bool = False
+) -> Float[Array, "E H W C"]:
     """A separable Gaussian blur of standard deviation `sigma` pixels (static; 0: `image`),
-    truncated at 3σ and normalised, the border pixels repeated beyond the image."""
+    truncated at 3σ and normalised, the border pixels repeated beyond the image. `native`: on
+    a CPU through the blur handler (`native_gaussian_blur`: the same taps added in the same
+    order, a band of rows per task on both cores), chosen inside the program; derivatives are
+    this function's."""
     if sigma == 0:
         return image
     radius = max(1, math.ceil(3 * sigma))
     taps = [math.exp(-0.5 * (k / sigma) ** 2) for k in range(-radius, radius + 1)]
     total = sum(taps)
     taps = [t / total for t in taps]
+    if native:
+        in_jax = functools.partial(_blur, taps=taps, radius=radius)
+        on_cpu = functools.partial(native_gaussian_blur, taps=np.asarray(taps, np.float32))
+        return on_platforms(in_jax, cpu=on_cpu)(image)
+    return _blur(image, taps=taps, radius=radius)
+
+
+def _blur(image, *, taps, radius):
     _, h, w, _ = image.shape
     # Each padded image is made once (the barriers): fused into the taps' sums, the edge
     # padding's concatenate is evaluated per tap and output element, several times slower.
@@ -77,16 +94,23 @@ def luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
     return image @ jnp.asarray(LUMINANCE, jnp.float32)[:, None]
 
 
-def local_std(values: Float[Array, "E H W C"], window_sigma: float) -> Float[Array, "E H W C"]:
+def local_std(
+    values: Float[Array, "E H W C"], window_sigma: float, *, native: bool = False
+) -> Float[Array, "E H W C"]:
     """The standard deviation of `values` in a Gaussian window of `window_sigma` pixels around
-    each pixel (E[x²] − E[x]², never negative)."""
-    mean = gaussian_blur(values, window_sigma)
-    var = gaussian_blur(values * values, window_sigma) - mean * mean
+    each pixel (E[x²] − E[x]², never negative). `native`: as `gaussian_blur`'s."""
+    mean = gaussian_blur(values, window_sigma, native=native)
+    var = gaussian_blur(values * values, window_sigma, native=native) - mean * mean
     return jnp.sqrt(jnp.maximum(var, 0.0))
 
 
 def contrast_preserving_filter(
-    image: Float[Array, "E H W 3"], sigma: float, *, window_sigma: float, max_gain: float
+    image: Float[Array, "E H W 3"],
+    sigma: float,
+    *,
+    window_sigma: float,
+    max_gain: float,
+    native: bool = False,
 ) -> Float[Array, "E H W 3"]:
     """The pre-filter: a Gaussian blur of `sigma` pixels, then the local contrast the blur
     removed restored. With B the blurred image, m its local mean (a Gaussian window of
@@ -94,11 +118,12 @@ def contrast_preserving_filter(
     of B in that window, the result is m + (B − m)·g with g = s_I / s_B clipped to [1,
     `max_gain`] (g = 1 where B is flat): a variance-preserving contrast enhancement, so
     the blur's low-pass shape is kept and its loss of contrast is not. A constant image is a
-    fixed point (up to float rounding); the result is clipped at 0 (radiance)."""
-    blurred = gaussian_blur(image, sigma)
-    mean = gaussian_blur(blurred, window_sigma)
-    s_image = local_std(luminance(image), window_sigma)
-    s_blurred = local_std(luminance(blurred), window_sigma)
+    fixed point (up to float rounding); the result is clipped at 0 (radiance). `native`: the
+    blurs through the native handler on a CPU (`gaussian_blur`)."""
+    blurred = gaussian_blur(image, sigma, native=native)
+    mean = gaussian_blur(blurred, window_sigma, native=native)
+    s_image = local_std(luminance(image), window_sigma, native=native)
+    s_blurred = local_std(luminance(blurred), window_sigma, native=native)
     gain = jnp.where(
         s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
     )
@@ -167,6 +192,9 @@ def patney_stereo(
     scene, bvh, rig, head_pose, gaze, key, foveation, *_ = inputs  # no fidelity tables
     spp, jitter, config = options.spp, options.jitter, options.config
     diagnostics = diagnostics_tuple(options.diagnostics, "patney_stereo")
+    from ...render.internal import integrator_plan
+
+    native = integrator_plan(config).cpu  # the blurs through the native handler on a CPU
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
@@ -199,6 +227,7 @@ def patney_stereo(
             method.blur_per_stride * s,
             window_sigma=method.window_per_sigma * method.blur_per_stride * s,
             max_gain=method.max_gain,
+            native=native,
         )
         for s in method.strides
     ]
