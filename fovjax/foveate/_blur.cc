@@ -14,11 +14,26 @@ namespace {
 FOVJAX_VECTOR_CLONES
 void TapRow(const float* taps, int k, const float* src, int64_t stride, int64_t n, float* __restrict__ out) {
   const float t0 = taps[0];
-  for (int64_t j = 0; j < n; ++j) out[j] = t0 * src[j];
+  const float* __restrict__ first = src;
+  for (int64_t j = 0; j < n; ++j) out[j] = t0 * first[j];
   for (int t = 1; t < k; ++t) {
     const float tt = taps[t];
     const float* __restrict__ s = src + t * stride;
     for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tt * s[j];
+  }
+}
+
+// out[j] = sum_u taps[u] * rows[u][j] for j < n, summed in order (u = 0 first): the column pass
+// of one output row from the k rows it reads.
+FOVJAX_VECTOR_CLONES
+void TapColumns(const float* taps, int k, const float* const* rows, int64_t n, float* __restrict__ out) {
+  const float t0 = taps[0];
+  const float* __restrict__ first = rows[0];
+  for (int64_t j = 0; j < n; ++j) out[j] = t0 * first[j];
+  for (int u = 1; u < k; ++u) {
+    const float tu = taps[u];
+    const float* __restrict__ s = rows[u];
+    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tu * s[j];
   }
 }
 
@@ -52,12 +67,7 @@ ffi::Error GaussianBlur(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ffi::
         const int64_t yy = std::clamp<int64_t>(y + u - r, 0, h - 1);
         reads[u] = img + yy * row;
       }
-      for (int64_t j = 0; j < row; ++j) mid[j] = t[0] * reads[0][j];
-      for (int u = 1; u < k; ++u) {
-        const float tu = t[u];
-        const float* __restrict__ s = reads[u];
-        for (int64_t j = 0; j < row; ++j) mid[j] = mid[j] + tu * s[j];
-      }
+      TapColumns(t, k, reads.data(), row, mid);
       for (int p = 0; p < r; ++p) {
         for (int64_t ch = 0; ch < c; ++ch) {
           column[p * c + ch] = mid[ch];
