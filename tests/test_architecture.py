@@ -313,7 +313,6 @@ NATIVE_HANDLERS = {
         "FovjaxSelectSamples",
         "FovjaxWhittedSlots",
         "FovjaxFillAndBlur",
-        "FovjaxReproject",
         "FovjaxGaussianBlur",
     },
 }

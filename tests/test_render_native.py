@@ -322,44 +322,6 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
     assert (np.asarray(reference[0])[n == 0] == 0).all()
 
 
-def test_weier_reprojection_native_is_the_jax_path():
-    """Weier 2016's forward projection of its history (`reproject_history`) through the native
-    handler against `reproject`: the same pixels landed and the same samples picked in each
-    (their colours and points equal), the depths to float rounding; points of random depths
-    seen from a moved, rotated viewer, some behind it or off its image, some pixels holding
-    no sample, and duplicated points (equal depths: the lowest source index wins)."""
-    from fovjax.foveate._methods._weier import WeierHistory, reproject_history
-
-    h, w = 24, 40
-    keys = jax.random.split(jax.random.key(0), 3)
-    points = jax.random.uniform(keys[0], (2, h, w, 3)) * jnp.asarray([6.0, 6.0, 9.0]) - jnp.asarray(
-        [3, 3, 8.0]
-    )
-    points = points.at[:, :4].set(points[:, 4:8])
-    history = WeierHistory(
-        jax.random.uniform(keys[1], (2, h, w, 3)), points, jax.random.uniform(keys[2], (2, h, w)) < 0.9
-    )
-    cameras = StereoRig.look_at((0.13, 0.05, 0.1), (-0.2, 0.1, -1), eye_width=w, eye_height=h).eye_cameras(
-        None
-    )
-
-    def both(history, cameras):
-        return tuple(reproject_history(history, cameras, h=h, w=w, native=n) for n in (True, False))
-
-    lowered = jax.jit(both).lower(history, cameras)
-    assert "fovjax_reproject" in lowered.as_text()
-    native, reference = lowered.compile()(history, cameras)
-    landed = np.asarray(reference.landed)
-    assert 0.1 * landed.size < landed.sum() < 0.5 * landed.size  # many collide (the z-buffer), some miss
-    np.testing.assert_array_equal(np.asarray(native.landed), landed)
-    np.testing.assert_array_equal(np.asarray(native.color)[landed], np.asarray(reference.color)[landed])
-    np.testing.assert_array_equal(np.asarray(native.point)[landed], np.asarray(reference.point)[landed])
-    assert np.isinf(np.asarray(native.depth)[~landed]).all()
-    np.testing.assert_allclose(
-        np.asarray(native.depth)[landed], np.asarray(reference.depth)[landed], rtol=1e-6
-    )
-
-
 def test_patney_blurs_native_are_the_jax_path():
     """Patney 2016's Gaussian blur (`gaussian_blur`) through the native blur handler against the
     JAX blur: equal to float rounding, at blurs wider than the image (every tap clamped at its

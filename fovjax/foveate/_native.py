@@ -1,8 +1,7 @@
 """The foveated frame's native side: sample selection (`foveate/_select.cc`), the slots
-integrator (`foveate/_slots.cc`), the reconstruction (`foveate/_fill.cc`) and Weier 2016's
-forward projection (`foveate/_reproject.cc`) and Patney 2016's Gaussian blurs
-(`foveate/_blur.cc`), each the primal of its JAX oracle in `_frame.py` / `_fill.py` /
-`_methods/_weier.py` / `_methods/_patney.py` on a CPU. Not differentiable: the callers' custom
+integrator (`foveate/_slots.cc`), the reconstruction (`foveate/_fill.cc`) and Patney 2016's
+Gaussian blurs (`foveate/_blur.cc`), each the primal of its JAX oracle in `_frame.py` /
+`_fill.py` / `_methods/_patney.py` on a CPU. Not differentiable: the callers' custom
 JVPs take derivatives from the JAX side (`fovjax.native.internal.on_platforms`)."""
 
 from __future__ import annotations
@@ -17,7 +16,6 @@ from ..native.internal import handler, layout
 SELECT_TARGET = "fovjax_select_samples"
 SLOTS_TARGET = "fovjax_whitted_slots"
 FILL_TARGET = "fovjax_fill_and_blur"
-REPROJECT_TARGET = "fovjax_reproject"
 BLUR_TARGET = "fovjax_gaussian_blur"
 
 
@@ -193,32 +191,6 @@ def native_fill_and_blur(
         blur_fovea=np.int32(blur_fovea),
     )
     return image, complete[0]
-
-
-def native_reproject(color, point, valid, cameras, *, width: int, height: int):
-    """Weier 2016's history forward-projected into this frame's cameras through the reprojection
-    handler (CPU only): per pixel the nearest sample that landed in it (colour (2, H, W, 3),
-    point (2, H, W, 3), depth along the view axis (2, H, W), inf where none) and whether one did
-    (2, H, W): what `_methods._weier.reproject` computes, with `Camera.project`'s arithmetic.
-    `cameras`: `camera_rows`; `width`, `height`: the cameras' image size (`Camera.width`,
-    `Camera.height`)."""
-    _, h, w = np.shape(valid)
-    f32 = jnp.float32
-    out = (
-        jax.ShapeDtypeStruct((2, h, w, 3), f32),
-        jax.ShapeDtypeStruct((2, h, w, 3), f32),
-        jax.ShapeDtypeStruct((2, h, w), f32),
-        jax.ShapeDtypeStruct((2, h, w), jnp.bool_),
-    )
-    call = handler(REPROJECT_TARGET, out, what="the native reprojection", vmap_method="sequential")
-    return call(
-        jax.lax.stop_gradient(jnp.asarray(color, f32)),
-        jax.lax.stop_gradient(jnp.asarray(point, f32)),
-        jnp.asarray(valid, bool),
-        jax.lax.stop_gradient(jnp.asarray(cameras, f32).reshape(2, layout.CAMERA_STRIDE)),
-        half_width=np.float32(0.5 * width),
-        half_height=np.float32(0.5 * height),
-    )
 
 
 def native_gaussian_blur(image, taps):

@@ -49,7 +49,6 @@ HANDLERS = {
     "fovjax_select_samples": "FovjaxSelectSamples",
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
-    "fovjax_reproject": "FovjaxReproject",
     "fovjax_gaussian_blur": "FovjaxGaussianBlur",
 }
 FLAGS = (

@@ -15,7 +15,6 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ...native.internal import on_platforms
 from .._frame import (
     SAMPLING_STREAM,
     FoveatedOutputs,
@@ -26,7 +25,6 @@ from .._frame import (
     eccentricities,
     slot_rays,
 )
-from .._native import camera_rows, native_reproject
 from ._base import FrameInputs
 from ._catalog import Weier2016
 from ._sparse import side_by_side, trace_pixels
@@ -97,26 +95,6 @@ def reproject(history: WeierHistory, cameras, *, h: int, w: int) -> Reprojected:
     return Reprojected(*(jnp.stack(p) for p in zip(*parts, strict=True)))
 
 
-def reproject_history(history: WeierHistory, cameras, *, h: int, w: int, native: bool) -> Reprojected:
-    """`reproject`; `native`: on a CPU through the reprojection handler (`native_reproject`:
-    the same z-buffer and picks, one pass per eye on both cores instead of XLA's screen-sized
-    scatters), chosen inside the program (`reproject` elsewhere, and its derivatives)."""
-
-    def in_jax(color, point, valid, cameras):
-        return reproject(WeierHistory(color, point, valid), cameras, h=h, w=w)
-
-    args = (history.color, history.point, history.valid, tuple(cameras))
-    if not native or h * w >= 2**31:
-        return in_jax(*args)
-
-    def on_cpu(color, point, valid, cameras):
-        width, height = cameras[0].width, cameras[0].height
-        out = native_reproject(color, point, valid, camera_rows(cameras), width=width, height=height)
-        return Reprojected(*out)
-
-    return on_platforms(in_jax, cpu=on_cpu)(*args)
-
-
 def occluded_leaks(depth: Float[Array, "2 H W"], tolerance: float) -> Bool[Array, "2 H W"]:
     """Reprojected samples farther than (1 + tolerance) times the nearest reprojected sample of
     their 3×3 neighbourhood: background seen through a gap that a nearer surface's samples left
@@ -170,9 +148,7 @@ def weier_stereo(
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
-    from ...render.internal import integrator_plan
-
-    back = reproject_history(history, cameras, h=h, w=w, native=integrator_plan(config).cpu)
+    back = reproject(history, cameras, h=h, w=w)
     usable = back.landed & ~occluded_leaks(back.depth, method.retrace_tolerance)
     keys = jax.random.split(jax.random.fold_in(key, SAMPLING_STREAM), 2)
     draws = jnp.stack([jax.random.uniform(keys[i], (h, w), jnp.float32) for i in range(2)])
