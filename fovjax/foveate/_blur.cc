@@ -9,31 +9,33 @@
 
 namespace {
 
-// out[j] = sum_t taps[t] * src[j + t * stride] for j < n, summed in order (t = 0 first, as the
-// JAX blur adds its terms).
-FOVJAX_VECTOR_CLONES
-void TapRow(const float* taps, int k, const float* src, int64_t stride, int64_t n, float* __restrict__ out) {
-  const float t0 = taps[0];
-  const float* __restrict__ first = src;
-  for (int64_t j = 0; j < n; ++j) out[j] = t0 * first[j];
-  for (int t = 1; t < k; ++t) {
-    const float tt = taps[t];
-    const float* __restrict__ s = src + t * stride;
-    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tt * s[j];
-  }
-}
+// out[j] = sum_u taps[u] * rows[u][j] for j < n, summed in order (u = 0 first, as the JAX
+// blur adds its terms): kBlock outputs at a time, their sums held in vector registers while
+// the k rows are read (a pass over `out` per tap is bound by its loads and stores instead).
+constexpr int64_t kBlock = 64;
 
-// out[j] = sum_u taps[u] * rows[u][j] for j < n, summed in order (u = 0 first): the column pass
-// of one output row from the k rows it reads.
 FOVJAX_VECTOR_CLONES
-void TapColumns(const float* taps, int k, const float* const* rows, int64_t n, float* __restrict__ out) {
-  const float t0 = taps[0];
-  const float* __restrict__ first = rows[0];
-  for (int64_t j = 0; j < n; ++j) out[j] = t0 * first[j];
-  for (int u = 1; u < k; ++u) {
-    const float tu = taps[u];
-    const float* __restrict__ s = rows[u];
-    for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tu * s[j];
+void TapRows(const float* taps, int k, const float* const* rows, int64_t n, float* __restrict__ out) {
+  int64_t j0 = 0;
+  for (; j0 + kBlock <= n; j0 += kBlock) {
+    float acc[kBlock];
+    const float t0 = taps[0];
+    const float* __restrict__ s0 = rows[0] + j0;
+#pragma GCC unroll 64
+    for (int i = 0; i < kBlock; ++i) acc[i] = t0 * s0[i];
+    for (int u = 1; u < k; ++u) {
+      const float tu = taps[u];
+      const float* __restrict__ s = rows[u] + j0;
+#pragma GCC unroll 64
+      for (int i = 0; i < kBlock; ++i) acc[i] = acc[i] + tu * s[i];
+    }
+#pragma GCC unroll 64
+    for (int i = 0; i < kBlock; ++i) out[j0 + i] = acc[i];
+  }
+  for (int64_t j = j0; j < n; ++j) {
+    float acc = taps[0] * rows[0][j];
+    for (int u = 1; u < k; ++u) acc = acc + taps[u] * rows[u][j];
+    out[j] = acc;
   }
 }
 
@@ -67,14 +69,15 @@ ffi::Error GaussianBlur(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ffi::
         const int64_t yy = std::clamp<int64_t>(y + u - r, 0, h - 1);
         reads[u] = img + yy * row;
       }
-      TapColumns(t, k, reads.data(), row, mid);
+      TapRows(t, k, reads.data(), row, mid);
       for (int p = 0; p < r; ++p) {
         for (int64_t ch = 0; ch < c; ++ch) {
           column[p * c + ch] = mid[ch];
           column[(r + w + p) * c + ch] = mid[(w - 1) * c + ch];
         }
       }
-      TapRow(t, k, column.data(), c, row, dst + (e * h + y) * row);
+      for (int u = 0; u < k; ++u) reads[u] = column.data() + u * c;  // the row pass: shifted columns
+      TapRows(t, k, reads.data(), row, dst + (e * h + y) * row);
     }
   });
   return ffi::Error::Success();
