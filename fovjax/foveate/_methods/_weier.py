@@ -100,7 +100,8 @@ def occluded_leaks(depth: Float[Array, "2 H W"], tolerance: float) -> Bool[Array
     their 3×3 neighbourhood: background seen through a gap that a nearer surface's samples left
     (they would smear the background over the surface). Pixels without a sample have depth inf
     and never count as nearest."""
-    padded = jnp.pad(depth, ((0, 0), (1, 1), (1, 1)), constant_values=jnp.inf)
+    # Made once: fused into the nine taps' minimum, the padding is evaluated per tap.
+    padded = jax.lax.optimization_barrier(jnp.pad(depth, ((0, 0), (1, 1), (1, 1)), constant_values=jnp.inf))
     h, w = depth.shape[1:]
     nearest = depth
     for dy in range(3):
