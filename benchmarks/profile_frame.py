@@ -3,6 +3,7 @@
     python benchmarks/profile_frame.py                   # full and foveated, 2 x 1280x1024, SPP 1
     python benchmarks/profile_frame.py --frames foveated --top 30
     python benchmarks/profile_frame.py --size 640 512 --spp 4
+    python benchmarks/profile_frame.py --frames foveated --size 640 512 --method weier2016
 
 Renders the atrium's stereo frame (one `FoveatedRenderer`: `render_full` and/or `render`,
 foveated 5°/10° at an off-centre gaze, backend auto), then records `--repeats` frames with
@@ -68,6 +69,10 @@ STAGES = (
         r"foveate/_(sampling|positions)\.py|foveate/_frame\.py:\d+\((select_samples|_slot_samples|slot_rays|traced_mask|traced_count)",
     ),
     ("accumulate", r"foveate/_frame\.py:\d+\((accumulate|tile_sums|grid_sums)"),
+    ("method: pixels listed (select_pixels)", r"foveate/_methods/_sparse\.py:\d+\(select_pixels"),
+    ("method: reprojection", r"foveate/_methods/_weier\.py:\d+\((reproject|_reproject_eye|occluded_leaks)"),
+    ("method: hit points (traced_points)", r"foveate/_methods/_weier\.py:\d+\(traced_points"),
+    ("method: layers, filters, history", r"foveate/_methods/_(guenter|patney|weier)\.py"),
     ("fill / blur", r"foveate/_fill\.py"),
     (
         "surfaces (gathers, normals, textures)",
@@ -196,6 +201,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--top", type=int, default=15, help="slowest operations listed per frame")
     ap.add_argument("--backend", choices=fovjax.trace.BACKENDS, default="auto")
+    ap.add_argument("--method", default="thesis", help="the foveated frame's method (a registered name)")
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.spp < 1 or min(args.size) < 8:
         ap.error(
@@ -208,10 +214,13 @@ def main(argv=None):
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
     config = RenderConfig(max_depth=5, backend=args.backend)
     gaze = (tuple(args.gaze), tuple(args.gaze))
-    foveation = Foveation(fovea_deg=args.pair[0], periphery_deg=args.pair[1], spp=args.spp)
+    foveation = Foveation(
+        fovea_deg=args.pair[0], periphery_deg=args.pair[1], spp=args.spp, method=args.method
+    )
     print(
         f"atrium {scene.num_triangles:,} triangles, 2 x {w}x{h}, SPP {args.spp}, depth 5, backend "
         f"{args.backend} ({fovjax.trace.describe_backend(args.backend, jax.devices()[0].platform)}), "
+        f"method {args.method}, "
         f"jax {jax.__version__}, {os.cpu_count()} CPUs"
     )
     # One renderer prepared once (scene arrays and BVH on the device), called per frame.
@@ -257,7 +266,7 @@ def main(argv=None):
                     "title": (
                         f"Inside the frame program: ms per frame by stage, 2 x {w}x{h}, SPP {args.spp}, "
                         f"foveated {args.pair[0]:g}°/{args.pair[1]:g}° at gaze {args.gaze}, "
-                        f"backend {args.backend} "
+                        f"backend {args.backend}, method {args.method} "
                         "(operations on both worker threads; the last row is the frame's wall time)"
                     ),
                     "columns": ["stage", *kinds],

@@ -309,7 +309,12 @@ NATIVE_HANDLERS = {
     "native": set(),
     "trace": {"FovjaxEmbreeQuery"},
     "render": {"FovjaxEmbreeWhitted"},
-    "foveate": {"FovjaxSelectSamples", "FovjaxWhittedSlots", "FovjaxFillAndBlur"},
+    "foveate": {
+        "FovjaxSelectSamples",
+        "FovjaxWhittedSlots",
+        "FovjaxFillAndBlur",
+        "FovjaxGaussianBlur",
+    },
 }
 NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"
 

@@ -482,6 +482,84 @@ def test_corridor_slots_with_shading_classes_derivatives(corridor):
     np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_jax), rtol=1e-5, atol=1e-5)
 
 
+def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corridor):
+    """The other foveation methods' traced pixels (`trace_pixels`: Guenter 2012, Patney 2016 and
+    Weier 2016 all trace through it) on a CPU: selected by the native selection handler and
+    traced and summed by the native slots handler, against the JAX selection and chunk loop: the
+    same slots, masks and per-pixel counts (integers), every pixel's mean to float rounding and
+    the same ray counts, at SPP 4 with jitter along the corridor's mirrors at one reflection
+    level (a bounce skipped, or a pixel's sub-sample left out, changes the means far above
+    rounding: asserted of the reflections the oracle traced)."""
+    from fovjax.foveate._frame import eccentricities
+    from fovjax.foveate._methods._sparse import trace_pixels
+
+    arrays, bvh, rig = corridor
+    spp = 4
+    fov = Foveation(20.0, 40.0, spp=spp)
+    cameras = rig.eye_cameras(None)
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
+    trace_pixel = jax.random.uniform(jax.random.key(5), ecc.shape) < 0.4
+    key = jax.random.key(8)
+
+    def pixels(integrator):
+        config = RenderConfig(max_depth=1, integrator=integrator)
+        out = trace_pixels(
+            arrays, bvh, cameras, key, ecc, trace_pixel, foveation=fov, spp=spp, jitter=True, config=config
+        )
+        k = out.selection.n_traced
+        live = jnp.where(jnp.arange(out.selection.order.shape[0]) < k, out.selection.order, -1)
+        c = out.counts
+        return out.prefill, out.n, out.mask, live, jnp.stack([c.primary, c.shadow, c.reflection, c.bad])
+
+    lowered = jax.jit(lambda: (pixels("native"), pixels("jax"))).lower()
+    text = lowered.as_text()
+    assert "fovjax_whitted_slots" in text and "fovjax_select_samples" in text
+    native, reference = lowered.compile()()
+    for a, b in zip(native[1:4], reference[1:4], strict=True):  # counts, mask, slots: integers
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert_native_radiance(native[0], reference[0], arrays)
+    assert_same_counts(native[4], reference[4])
+    n, counts = np.asarray(reference[1]), np.asarray(reference[4])
+    np.testing.assert_array_equal(n, spp * np.asarray(trace_pixel))  # every sub-sample of a traced pixel
+    assert counts[0] == n.sum() and counts[2] > 0.25 * counts[0]  # the mirrors' reflections
+    assert (np.asarray(reference[0])[n == 0] == 0).all()
+
+
+def test_patney_blurs_native_are_the_jax_path():
+    """Patney 2016's Gaussian blur (`gaussian_blur`) through the native blur handler against the
+    JAX blur: equal to float rounding, at blurs wider than the image (every tap clamped at its
+    edge), odd sizes and one or three channels; the derivative is the JAX blur's. (The
+    pre-filter built on it is tests/test_foveate_methods.py's: a CPU runs its blurs natively.)"""
+    from fovjax.foveate._methods._patney import gaussian_blur
+
+    images = [
+        jax.random.uniform(jax.random.key(i), shape) for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 1)])
+    ]
+
+    def both(images):
+        out = []
+        for image in images:
+            for sigma in (0.5, 2.0, 4.0):
+                out.append([gaussian_blur(image, sigma, native=n) for n in (True, False)])
+        image = images[0]
+        tangent = jnp.ones_like(image)
+        out.append(
+            [
+                jax.jvp(lambda x, n=n: gaussian_blur(x, 2.0, native=n), (image,), (tangent,))[1]
+                for n in (True, False)
+            ]
+        )
+        return out
+
+    lowered = jax.jit(both).lower(images)
+    assert lowered.as_text().count("fovjax_gaussian_blur") >= 6
+    for native, reference in lowered.compile()(images):
+        np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-7)
+    # The blur is not the identity: a blurred image has less contrast than its image.
+    blurred = jax.jit(lambda x: gaussian_blur(x, 2.0, native=True))(images[0])
+    assert np.asarray(blurred).std() < 0.5 * np.asarray(images[0]).std()
+
+
 # ---- the featured spheres ---------------------------------------------------------------------
 
 EYE_W, EYE_H = 40, 32

@@ -300,10 +300,11 @@ def test_not_watertight_scenes():
 
 
 def test_every_frame_program_lowers_for_cuda():
-    """Each frame program (full, foveated, an eval batch) exported for CUDA, on this CPU: the
-    backend is chosen per platform inside the program, so the CUDA lowering carries no CPU-only
-    op (no Embree FFI call, no host callback); where Warp is installed, each runs the Warp
-    integrator there (its mesh id and its kernel, `fovjax/render/_warp_whitted.py`)."""
+    """Each frame program (full, foveated, an eval batch, the other foveation methods') exported
+    for CUDA, on this CPU: the backend and the native stages are chosen per platform inside the
+    program, so the CUDA lowering carries no CPU-only op (no Embree FFI call, no foveation
+    handler, no host callback); where Warp is installed, each runs the Warp integrator there
+    (its mesh id and its kernel, `fovjax/render/_warp_whitted.py`)."""
     from fovjax.eval import render_foveated_batch
     from fovjax.foveate import Foveation
     from fovjax.render import RenderConfig, StereoRig
@@ -342,15 +343,24 @@ def test_every_frame_program_lowers_for_cuda():
             lambda: render_foveated_batch(
                 scene, rig, gazes=[((0.5, 0.5), (0.5, 0.5))], keys=[0], config=config
             ),
+            *(
+                lambda m=method: fovjax.render_stereo(
+                    scene, rig, foveation=Foveation(method=m), config=config
+                )
+                for method in ("guenter2012", "patney2016", "weier2016")
+            ),
         ):
             with pytest.raises(Exported):
                 call()
     finally:
         LOWERING_HOOKS.remove(export_for_cuda)
-    assert set(exported) == {"stereo", "foveated"} | {e for e in exported if e.startswith("batch")}
+    methods = {"foveated-guenter2012", "foveated-patney2016", "foveated-weier2016"}
+    assert set(exported) == {"stereo", "foveated"} | methods | {e for e in exported if e.startswith("batch")}
     assert any(e.startswith("batch") for e in exported)
     for entry, module in exported.items():
         assert "fovjax_embree_query" not in module, f"{entry}: the Embree call is on the CUDA path"
+        for target in ("fovjax_select_samples", "fovjax_whitted_slots", "fovjax_gaussian_blur"):
+            assert target not in module, f"{entry}: the CPU handler {target} is on the CUDA path"
         assert "callback" not in module, f"{entry}: a host callback is on the CUDA path"
         for target in integrator:
             assert target in module, f"{entry}: the Warp integrator's {target} is not on the CUDA path"

@@ -104,7 +104,7 @@ class FrameOptions:
       given) or are the pixel cells' centres;
     - `config`: the `fovjax.render.RenderConfig`;
     - `budget`: the static number of ray slots of both eyes (the thesis's method; None for the
-      other methods' programs, which trace pixels without slots);
+      other methods' programs, whose slots are every sub-sample of the pixels they trace);
     - `tile` (rows, cols): the fovea tile, `grid` (a stride): the pixel grid, traced as images
       in packets (None: not; only where the budget is every sample, so that their samples are
       never dropped; see `Foveation.fovea_tile_deg`);

@@ -1,6 +1,7 @@
 """The foveated frame's native side: sample selection (`foveate/_select.cc`), the slots
-integrator (`foveate/_slots.cc`) and the reconstruction (`foveate/_fill.cc`), each the primal of
-its JAX oracle in `_frame.py` / `_fill.py` on a CPU. Not differentiable: the callers' custom
+integrator (`foveate/_slots.cc`), the reconstruction (`foveate/_fill.cc`) and Patney 2016's
+Gaussian blurs (`foveate/_blur.cc`), each the primal of its JAX oracle in `_frame.py` /
+`_fill.py` / `_methods/_patney.py` on a CPU. Not differentiable: the callers' custom
 JVPs take derivatives from the JAX side (`fovjax.native.internal.on_platforms`)."""
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from ..native.internal import handler, layout
 SELECT_TARGET = "fovjax_select_samples"
 SLOTS_TARGET = "fovjax_whitted_slots"
 FILL_TARGET = "fovjax_fill_and_blur"
+BLUR_TARGET = "fovjax_gaussian_blur"
 
 
 def camera_rows(cameras) -> Float[Array, "2 stride"]:
@@ -212,3 +214,13 @@ def native_fill_and_blur(
         blur_fovea=np.int32(blur_fovea),
     )
     return image, complete[0]
+
+
+def native_gaussian_blur(image, taps):
+    """A separable Gaussian blur of `image` (N, H, W, C) with the normalised `taps` (2r + 1),
+    the border pixels repeated, through the blur handler (CPU only): what
+    `_methods._patney.gaussian_blur` computes, the taps added in its order."""
+    f32 = jnp.float32
+    out = jax.ShapeDtypeStruct(np.shape(image), f32)
+    call = handler(BLUR_TARGET, out, what="the native Gaussian blur", vmap_method="sequential")
+    return call(jax.lax.stop_gradient(jnp.asarray(image, f32)), jnp.asarray(taps, f32))

@@ -51,6 +51,7 @@ HANDLERS = {
     "fovjax_select_samples": "FovjaxSelectSamples",
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
+    "fovjax_gaussian_blur": "FovjaxGaussianBlur",
 }
 FLAGS = (
     "-O3",

@@ -11,7 +11,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
 from ._base import FrameInputs
 from ._catalog import Guenter2012
-from ._sparse import trace_pixels
+from ._sparse import side_by_side, trace_pixels
 
 
 def _on_grid(h: int, w: int, stride: int) -> Bool[Array, "H W"]:
@@ -82,9 +82,11 @@ def guenter_stereo(
     # Where each layer shows (its radius plus the blend beyond it; the outer layer everywhere),
     # and the pixels of its grid its magnification reads there: a grid pixel within one stride.
     strides = (1, *method.strides)
-    shown = [ecc <= r + method.blend_deg for r in radii] + [jnp.ones_like(ecc, bool)]
-    trace_pixel = jnp.zeros_like(ecc, bool)
-    for stride, where in zip(strides, shown, strict=True):
+    # The outer layer shows everywhere: its whole grid is traced (as it is, not dilated: XLA
+    # would fold the dilation of a constant mask at compile time).
+    shown = [ecc <= r + method.blend_deg for r in radii]
+    trace_pixel = jnp.broadcast_to(_on_grid(h, w, strides[-1])[None], ecc.shape)
+    for stride, where in zip(strides[:-1], shown, strict=True):
         trace_pixel = trace_pixel | (_dilate(where, stride) & _on_grid(h, w, stride)[None])
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
@@ -93,5 +95,5 @@ def guenter_stereo(
     w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
     coarse = outer * (1 - w_middle)[..., None] + middle * w_middle[..., None]
     eyes = coarse * (1 - w_inner)[..., None] + inner * w_inner[..., None]
-    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
     return outputs, jnp.zeros((), jnp.int32), None

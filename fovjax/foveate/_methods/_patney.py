@@ -11,17 +11,22 @@ as traced). The filters are pure image functions of static size (`gaussian_blur`
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ...native.internal import on_platforms
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
+from .._native import native_gaussian_blur
 from ._base import FrameInputs
 from ._catalog import Patney2016
 from ._guenter import layer_weights
-from ._sparse import trace_pixels
+from ._sparse import side_by_side, trace_pixels
 
 # Rec. 709 luminance weights: the contrast gain is measured on luminance and applied to every
 # channel alike, so the enhancement keeps a pixel's hue.
@@ -44,21 +49,41 @@ def empty_history(h: int, w: int) -> TaaHistory:
     return TaaHistory(jnp.zeros((2, h, w, 3), jnp.float32), jnp.zeros((2, h, w), bool))
 
 
-def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, "E H W C"]:
+def _made(x):
+    """`x`, computed on its own rather than inside each of its consumers' loops."""
+    return jax.lax.optimization_barrier(x)
+
+
+def gaussian_blur(
+    image: Float[Array, "E H W C"], sigma: float, *, native: bool = False
+) -> Float[Array, "E H W C"]:
     """A separable Gaussian blur of standard deviation `sigma` pixels (static; 0: `image`),
-    truncated at 3σ and normalised, the border pixels repeated beyond the image."""
+    truncated at 3σ and normalised, the border pixels repeated beyond the image. `native`: on
+    a CPU through the blur handler (`native_gaussian_blur`: the same taps added in the same
+    order, a band of rows per task on both cores), chosen inside the program; derivatives are
+    this function's."""
     if sigma == 0:
         return image
     radius = max(1, math.ceil(3 * sigma))
     taps = [math.exp(-0.5 * (k / sigma) ** 2) for k in range(-radius, radius + 1)]
     total = sum(taps)
     taps = [t / total for t in taps]
+    if native:
+        in_jax = functools.partial(_blur, taps=taps, radius=radius)
+        on_cpu = functools.partial(native_gaussian_blur, taps=np.asarray(taps, np.float32))
+        return on_platforms(in_jax, cpu=on_cpu)(image)
+    return _blur(image, taps=taps, radius=radius)
+
+
+def _blur(image, *, taps, radius):
     _, h, w, _ = image.shape
-    padded = jnp.pad(image, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge")
+    # Each padded image is made once (the barriers): fused into the taps' sums, the edge
+    # padding's concatenate is evaluated per tap and output element, several times slower.
+    padded = _made(jnp.pad(image, ((0, 0), (radius, radius), (0, 0), (0, 0)), mode="edge"))
     out = taps[0] * padded[:, :h]
     for k in range(1, len(taps)):
         out = out + taps[k] * padded[:, k : k + h]
-    padded = jnp.pad(out, ((0, 0), (0, 0), (radius, radius), (0, 0)), mode="edge")
+    padded = _made(jnp.pad(out, ((0, 0), (0, 0), (radius, radius), (0, 0)), mode="edge"))
     result = taps[0] * padded[:, :, :w]
     for k in range(1, len(taps)):
         result = result + taps[k] * padded[:, :, k : k + w]
@@ -69,16 +94,23 @@ def luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
     return image @ jnp.asarray(LUMINANCE, jnp.float32)[:, None]
 
 
-def local_std(values: Float[Array, "E H W C"], window_sigma: float) -> Float[Array, "E H W C"]:
+def local_std(
+    values: Float[Array, "E H W C"], window_sigma: float, *, native: bool = False
+) -> Float[Array, "E H W C"]:
     """The standard deviation of `values` in a Gaussian window of `window_sigma` pixels around
-    each pixel (E[x²] − E[x]², never negative)."""
-    mean = gaussian_blur(values, window_sigma)
-    var = gaussian_blur(values * values, window_sigma) - mean * mean
+    each pixel (E[x²] − E[x]², never negative). `native`: as `gaussian_blur`'s."""
+    mean = gaussian_blur(values, window_sigma, native=native)
+    var = gaussian_blur(values * values, window_sigma, native=native) - mean * mean
     return jnp.sqrt(jnp.maximum(var, 0.0))
 
 
 def contrast_preserving_filter(
-    image: Float[Array, "E H W 3"], sigma: float, *, window_sigma: float, max_gain: float
+    image: Float[Array, "E H W 3"],
+    sigma: float,
+    *,
+    window_sigma: float,
+    max_gain: float,
+    native: bool = False,
 ) -> Float[Array, "E H W 3"]:
     """The pre-filter: a Gaussian blur of `sigma` pixels, then the local contrast the blur
     removed restored. With B the blurred image, m its local mean (a Gaussian window of
@@ -86,11 +118,12 @@ def contrast_preserving_filter(
     of B in that window, the result is m + (B − m)·g with g = s_I / s_B clipped to [1,
     `max_gain`] (g = 1 where B is flat): a variance-preserving contrast enhancement, so
     the blur's low-pass shape is kept and its loss of contrast is not. A constant image is a
-    fixed point (up to float rounding); the result is clipped at 0 (radiance)."""
-    blurred = gaussian_blur(image, sigma)
-    mean = gaussian_blur(blurred, window_sigma)
-    s_image = local_std(luminance(image), window_sigma)
-    s_blurred = local_std(luminance(blurred), window_sigma)
+    fixed point (up to float rounding); the result is clipped at 0 (radiance). `native`: the
+    blurs through the native handler on a CPU (`gaussian_blur`)."""
+    blurred = gaussian_blur(image, sigma, native=native)
+    mean = gaussian_blur(blurred, window_sigma, native=native)
+    s_image = local_std(luminance(image), window_sigma, native=native)
+    s_blurred = local_std(luminance(blurred), window_sigma, native=native)
     gain = jnp.where(
         s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
     )
@@ -100,7 +133,7 @@ def contrast_preserving_filter(
 def _neighbourhood(image: Float[Array, "E H W 3"]):
     """Per pixel the mean and standard deviation of its 3×3 neighbourhood (border repeated)."""
     _, h, w, _ = image.shape
-    padded = jnp.pad(image, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    padded = _made(jnp.pad(image, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge"))
     taps = [padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)]
     mean = sum(taps) / 9.0
     var = sum(t * t for t in taps) / 9.0 - mean * mean
@@ -159,16 +192,21 @@ def patney_stereo(
     scene, bvh, rig, head_pose, gaze, key, foveation, *_ = inputs  # no fidelity tables
     spp, jitter, config = options.spp, options.jitter, options.config
     diagnostics = diagnostics_tuple(options.diagnostics, "patney_stereo")
+    from ...render.internal import integrator_plan
+
+    native = integrator_plan(config).cpu  # the blurs through the native handler on a CPU
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
     radii = (foveation.fovea_deg, foveation.periphery_deg)
     strides = (1, *method.strides)
     # Where each shading rate shows (its radius plus the blend; the outer rate everywhere):
-    # the top-left pixel of each of its blocks there is traced.
-    shown = [ecc <= r + method.blend_deg for r in radii] + [jnp.ones_like(ecc, bool)]
-    trace_pixel = jnp.zeros_like(ecc, bool)
-    for stride, where in zip(strides, shown, strict=True):
+    # the top-left pixel of each of its blocks there is traced. The outer rate's blocks all
+    # show, so its top-lefts are taken as they are: the block reduction of a constant mask
+    # would be folded by XLA at compile time (seconds per megapixel).
+    shown = [ecc <= r + method.blend_deg for r in radii]
+    trace_pixel = jnp.broadcast_to(_top_left(h, w, strides[-1])[None], ecc.shape)
+    for stride, where in zip(strides[:-1], shown, strict=True):
         trace_pixel = trace_pixel | (_block_any(where, stride) & _top_left(h, w, stride)[None])
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
@@ -189,10 +227,11 @@ def patney_stereo(
             method.blur_per_stride * s,
             window_sigma=method.window_per_sigma * method.blur_per_stride * s,
             max_gain=method.max_gain,
+            native=native,
         )
         for s in method.strides
     ]
     eyes = blend(accumulated, *filtered)
     reused = jnp.sum(history.valid, dtype=jnp.int32)
-    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
     return outputs, reused, TaaHistory(accumulated, jnp.ones_like(history.valid))

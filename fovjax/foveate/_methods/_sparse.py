@@ -1,6 +1,6 @@
 """What the methods' frames share with the thesis's: trace every sub-sample of a chosen set of
 pixels (listed in locality order and compacted as `fovjax.foveate._frame` lists its samples,
-then traced chunk by chunk over the traced slots only) and resolve them to per-pixel means."""
+then traced as its slots are: `traced_sums`) and resolve them to per-pixel means."""
 
 from __future__ import annotations
 
@@ -8,12 +8,15 @@ import dataclasses
 import functools
 from typing import cast
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._frame import FoveatedOutputs, Selection, accumulate, locality_order, trace_selection, traced_count
+from ...native.internal import on_platforms
+from .._frame import FoveatedOutputs, Selection, locality_order, pixel_means, traced_count, traced_sums
+from .._native import native_select_samples
 from .._positions import positions_at
-from .._sampling import MANDATORY, SKIPPED, compaction_order, regions
+from .._sampling import FOVEA, MANDATORY, OUTSIDE, SKIPPED, compaction_order, regions, subsample_rank
 
 
 def select_pixels(ecc, trace_pixel, *, spp: int, foveation) -> Selection:
@@ -27,6 +30,55 @@ def select_pixels(ecc, trace_pixel, *, spp: int, foveation) -> Selection:
     order, counts, rank = cast(tuple[Array, Array, Array], compaction_order(local, with_rank=True))
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)])
     return Selection(ecc, region, classes, counts, order, rank, counts[MANDATORY])
+
+
+def pixel_selection(ecc, trace_pixel, *, spp: int, foveation, native: bool):
+    """`select_pixels` with its traced mask (2, S, H, W) and traced samples per pixel (2, H, W):
+    (selection with int8 classes and no ranks, mask, counts). `native`: on a CPU through the
+    thesis's native selection handler (`native_select_samples`), chosen inside the program (the
+    JAX functions elsewhere): a pixel mask is that handler's selection under the rule "strict"
+    with the traced pixels as the fovea (every sub-sample mandatory) and every other pixel
+    outside at probability 0 (no draw kept, so nothing optional): the same integers as
+    `select_pixels`, without XLA's screen-sized gathers and prefix sums."""
+    _, h, w = ecc.shape
+    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)])
+
+    def in_jax():
+        sel = select_pixels(ecc, trace_pixel, spp=spp, foveation=foveation)
+        mask = sel.classes != SKIPPED
+        return sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, traced_count(mask, spp)
+
+    if not native or 2 * spp * h * w >= 2**31:
+        classes, order, counts, mask, n = in_jax()
+    else:
+
+        def on_cpu():
+            as_region = jnp.where(trace_pixel, FOVEA, OUTSIDE).astype(jnp.int32)
+            classes, order, counts, mask, n, _ = native_select_samples(
+                as_region,
+                jnp.zeros(ecc.shape, jnp.float32),
+                jnp.zeros((2, 2), jnp.uint32),  # the draws' key: no draw is kept
+                locality_order(h, w),
+                (spp, spp, spp),
+                subsample_rank(spp),
+                spp=spp,
+                rule="strict",
+                blocks=(1, 1),
+                budget=2 * spp * h * w,
+            )
+            return classes, order, counts, mask, n
+
+        classes, order, counts, mask, n = on_platforms(in_jax, cpu=on_cpu, derivatives=False)()
+    sel = Selection(ecc, region, classes, counts, order, None, counts[MANDATORY])
+    return sel, mask, n
+
+
+def side_by_side(eyes: Float[Array, "2 H W 3"]) -> Float[Array, "H W2 3"]:
+    """Both eyes' images side by side, left first: `concatenate([eyes[0], eyes[1]], axis=1)` as
+    a transpose (XLA:CPU fuses a concatenate with the gathers and blends before it into one
+    loop several times slower than the same work written out)."""
+    _, h, w, c = eyes.shape
+    return jnp.transpose(eyes, (1, 0, 2, 3)).reshape(h, 2 * w, c)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,22 +125,24 @@ def trace_pixels(
     render's sub-pixel positions of `key` (pixel-cell centres without `jitter`), with all their
     shadow and reflection rays; a static budget of every sample (nothing is ever dropped)."""
     from ...render import RayCounts
+    from ...render.internal import integrator_plan
 
     _, h, w = ecc.shape
-    sel = select_pixels(ecc, trace_pixel, spp=spp, foveation=foveation)
+    native = integrator_plan(config).cpu
+    sel, mask, n = pixel_selection(ecc, trace_pixel, spp=spp, foveation=foveation, native=native)
     budget = 2 * spp * h * w
     size = min(config.chunk_size, budget)
     padded = -(-budget // size) * size
     if padded > sel.order.shape[0]:  # whole chunks of slots (the padding is never live)
         sel = sel._replace(order=jnp.pad(sel.order, (0, padded - sel.order.shape[0])))
-    positions = functools.partial(positions_at, key if jitter else None, spp=spp, h=h, w=w)
-    traced = trace_selection(scene, bvh, cameras, positions, sel, config=config, budget=budget)
-    mask = sel.classes != SKIPPED
-    n = traced_count(mask, spp)
-    zero = jnp.minimum(traced.primary, 0)  # see `foveated_stereo`: not hoisted to the start
-    init = (jnp.full((2 * h * w, 3), zero, jnp.float32), jnp.zeros(2 * h * w, bool), zero)
-    prefill, n_bad, bad_pixel = accumulate(
-        traced.total, sel, n, spp=spp, h=h, w=w, size=size, bad_color=config.bad_color, init=init
-    )
+    jitter_key = key if jitter else None
+    positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
+    # The thesis's frame's slots: on a CPU with the native integrator one call of the slots
+    # handler makes, traces and sums every live slot's ray; elsewhere the chunk loop.
+    traced = traced_sums(scene, bvh, cameras, jitter_key, sel, config=config, budget=budget)
+    prefill, n_bad, bad_pixel = pixel_means(traced.consumed, n, h=h, w=w, bad_color=config.bad_color)
+    # Made once: the methods read each pixel's mean several times (magnified, held, blended),
+    # and XLA would otherwise recompute the division at each read.
+    prefill = jax.lax.optimization_barrier(prefill)
     counts = RayCounts(traced.primary, traced.shadow, traced.reflection, n_bad)
     return TracedPixels(sel, positions, size, budget, prefill, n, mask, counts, bad_pixel)

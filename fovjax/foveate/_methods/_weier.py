@@ -27,7 +27,7 @@ from .._frame import (
 )
 from ._base import FrameInputs
 from ._catalog import Weier2016
-from ._sparse import trace_pixels
+from ._sparse import side_by_side, trace_pixels
 
 # A ray that misses keeps a point this many scene sizes along it: reprojected, it moves with
 # the view's rotation only (the sky), never with its translation (float32 keeps the direction
@@ -100,7 +100,8 @@ def occluded_leaks(depth: Float[Array, "2 H W"], tolerance: float) -> Bool[Array
     their 3×3 neighbourhood: background seen through a gap that a nearer surface's samples left
     (they would smear the background over the surface). Pixels without a sample have depth inf
     and never count as nearest."""
-    padded = jnp.pad(depth, ((0, 0), (1, 1), (1, 1)), constant_values=jnp.inf)
+    # Made once: fused into the nine taps' minimum, the padding is evaluated per tap.
+    padded = jax.lax.optimization_barrier(jnp.pad(depth, ((0, 0), (1, 1), (1, 1)), constant_values=jnp.inf))
     h, w = depth.shape[1:]
     nearest = depth
     for dy in range(3):
@@ -165,6 +166,6 @@ def weier_stereo(
     # Every pixel is traced or holds a usable reprojected sample: nothing to fill.
     eyes = jnp.where(fresh[..., None], pixels.prefill, back.color)
     history = WeierHistory(eyes, jnp.where(fresh[..., None], points, back.point), fresh | usable)
-    outputs = pixels.outputs(jnp.concatenate([eyes[0], eyes[1]], axis=1), diagnostics)
+    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
     reused = jnp.sum(~fresh, dtype=jnp.int32)
     return outputs, reused, history

@@ -7,7 +7,8 @@
 //   trace/           ray queries (_embree_queries.cc)
 //   render/          the Whitted integrator and its shading (_whitted.cc)
 //   foveate/         sample selection with JAX's threefry (_select.cc), the slots integrator
-//                    (_slots.cc), pixel means, fill and blur (_fill.cc)
+//                    (_slots.cc), pixel means, fill and blur (_fill.cc), Patney 2016's Gaussian blurs
+//                    (_blur.cc)
 //
 // Embree itself is the shared library inside the `embreex` wheel, opened with dlopen at run time.
 
@@ -23,6 +24,7 @@
 #include "foveate/_select.cc"
 #include "foveate/_slots.cc"
 #include "foveate/_fill.cc"
+#include "foveate/_blur.cc"
 
 extern "C" {
 
