@@ -31,8 +31,9 @@ class StoredPaths(NamedTuple):
     visible: UInt32[Array, "levels n"]
 
 
-# Rays shaded per chunk of a level (the live ones first: a level costs what its rays do).
-CHUNK = 4096
+# Rays shaded per chunk of a level. The reverse pass pays per chunk for stacking its residuals,
+# and a deep level with a few live rays pays a whole chunk: benchmarks/gradients.py.
+CHUNK = 16384
 
 
 def replay_radiance(
