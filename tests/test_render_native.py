@@ -203,6 +203,20 @@ def test_corridor_full_frame_native_agrees(corridor):
     assert int(counts.bad) == 0 and np.asarray(reference.rgb).std() > 0.05
 
 
+def _corridor_selection(rig):
+    """The corridor's eye cameras and one foveated selection (20°/40°, SPP 1, off-centre
+    gazes, the JAX selection): (cameras, selection, traced samples per pixel, slot budget)."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask
+
+    fov = Foveation(20.0, 40.0, spp=1)
+    cameras = rig.eye_cameras(None)
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
+    budget = 2 * CORRIDOR_W * CORRIDOR_H
+    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
+    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    return cameras, sel, n, budget
+
+
 def test_corridor_slots_native_agree_at_every_depth(corridor):
     """The foveated frame's slots (`traced_sums`) through the native handler and through the
     JAX integrator, at every depth 0..5: equal counts, every pixel to float rounding; and each
@@ -213,16 +227,11 @@ def test_corridor_slots_native_agree_at_every_depth(corridor):
     per-region fidelity's tables, traced values) cap its reflections below `max_depth` 5, as
     `RenderConfig.max_depth` does (tests/test_fidelity.py: the class path at full tables is the
     plain one). The native programs are one handler call each."""
-    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._frame import traced_sums
     from fovjax.render.internal import SHADOWS_ALL, ShadingClasses
 
     arrays, bvh, rig = corridor
-    fov = Foveation(20.0, 40.0, spp=1)
-    cameras = rig.eye_cameras(None)
-    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
-    budget = 2 * CORRIDOR_W * CORRIDOR_H
-    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
-    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    cameras, sel, n, budget = _corridor_selection(rig)
     traced = np.asarray(n).reshape(-1) > 0
     key = jax.random.key(8)
 
@@ -281,16 +290,11 @@ def test_corridor_slots_with_shading_classes_agree(corridor):
     against "all" and "none"), with the brightest light first and, its colour swapped with
     another light's, second. The tables are traced operands: every table runs in the one
     compiled native program."""
-    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._frame import traced_sums
     from fovjax.render.internal import ShadingClasses
 
     arrays, bvh, rig = corridor
-    fov = Foveation(20.0, 40.0, spp=1)
-    cameras = rig.eye_cameras(None)
-    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
-    budget = 2 * CORRIDOR_W * CORRIDOR_H
-    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
-    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    cameras, sel, n, budget = _corridor_selection(rig)
     key = jax.random.key(8)
     traces = {"native": 0, "jax": 0}
 
@@ -346,7 +350,7 @@ def test_corridor_slots_with_levels_of_detail_agree(corridor):
     in its regions far above rounding."""
     import equinox as eqx
 
-    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._frame import traced_sums
     from fovjax.foveate._lod import _merged_geometry, _with_geometry
     from fovjax.render.internal import ShadingClasses, scene_scale
     from fovjax.trace import merge_bvhs
@@ -359,12 +363,7 @@ def test_corridor_slots_with_levels_of_detail_agree(corridor):
     merged = _with_geometry(arrays, _merged_geometry([scene, other]))
     bvh = merge_bvhs([build_bvh(scene, cache=False), build_bvh(other, cache=False)])
     scale = scene_scale(arrays)  # the finest level's, as the foveated frame passes it
-    fov = Foveation(20.0, 40.0, spp=1)
-    cameras = rig.eye_cameras(None)
-    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
-    budget = 2 * CORRIDOR_W * CORRIDOR_H
-    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
-    sel, _, n, _ = jax.jit(select)(ecc, jax.random.key(3))
+    cameras, sel, n, budget = _corridor_selection(rig)
     region = np.asarray(sel.region).reshape(-1)
     traced = np.asarray(n).reshape(-1) > 0
 
@@ -445,16 +444,11 @@ def test_corridor_slots_with_shading_classes_derivatives(corridor):
     stored, which hold what the classes left out (no reflection past a region's depth, a light
     whose shadow ray was not traced counted as unblocked): the chunked JAX path's, in Kd and in
     the lights' colours."""
-    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._frame import traced_sums
     from fovjax.render.internal import ShadingClasses
 
     arrays, bvh, rig = corridor
-    fov = Foveation(20.0, 40.0, spp=1)
-    cameras = rig.eye_cameras(None)
-    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.55, 0.5]]), fov)
-    budget = 2 * CORRIDOR_W * CORRIDOR_H
-    select = functools.partial(selection_with_mask, foveation=fov, budget=budget, native=False)
-    sel, _, _, _ = jax.jit(select)(ecc, jax.random.key(3))
+    cameras, sel, _, budget = _corridor_selection(rig)
     classes = ShadingClasses(jnp.asarray([0, 2, 1], jnp.int32), _modes(("brightest", "none", "all")))
     kd, colour = jnp.asarray(arrays.kd), jnp.asarray(arrays.light_color)
     tangents = (

@@ -147,6 +147,9 @@ def test_extra_flags_build_their_own_library_and_a_bad_one_is_named(tmp_path, mo
     assert out["STATUS"].startswith("could not build the native handlers: "), out["STATUS"]
     assert "FOVJAX_NATIVE_FLAGS='--no-such-flag'" in out["STATUS"]
     assert out["AUTO"].startswith("jax (the JAX traversal; Embree FFI unavailable: could not build")
+    monkeypatch.setenv("FOVJAX_NATIVE_FLAGS", '"-O0')
+    with pytest.raises(ValueError, match="FOVJAX_NATIVE_FLAGS='\"-O0' cannot be split"):
+        _library.library_path(compiler)
 
 
 def test_the_native_backend_can_be_turned_off(tmp_path):

@@ -121,7 +121,12 @@ def _compiler() -> str | None:
 def _extra_flags() -> tuple[str, ...]:
     """`FOVJAX_NATIVE_FLAGS`, split as a shell would: compiler flags after the project's (a
     later `-O` wins; `-march=native`, `-O0` for a quick build of a change)."""
-    return tuple(shlex.split(_environment.text("FOVJAX_NATIVE_FLAGS") or ""))
+    value = _environment.text("FOVJAX_NATIVE_FLAGS") or ""
+    try:
+        return tuple(shlex.split(value))
+    except ValueError as exc:
+        said = f"FOVJAX_NATIVE_FLAGS={value!r} cannot be split into flags as a shell would: {exc}"
+        raise ValueError(said) from None
 
 
 def _flags() -> tuple[str, ...]:
