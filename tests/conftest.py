@@ -10,6 +10,7 @@ to time something)."""
 
 import os
 import shutil
+import signal
 import sys
 import tempfile
 import types
@@ -19,6 +20,10 @@ import pytest
 from _frames import FAST_COMPILE_FLAGS
 
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+# A shell starts a background job (`pytest &`) with Ctrl-C ignored, and the programs the tests
+# start would inherit that and never see the Ctrl-C the interrupt tests send them.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 # The command line keeps compiled programs on disk (`fovjax.render.enable_compile_cache`); the
 # suite runs without it, so no test depends on what an earlier test or run left there
 # (tests/test_compile_cache.py turns it on in its own processes and directories).

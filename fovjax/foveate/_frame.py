@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ..native.internal import on_platforms
+from ..native.internal import jvp_of, on_platforms
 from ..render import RenderConfig
 from ._config import max_region_spp, region_spp, shading_classes
 from ._eccentricity import eccentricity_map
@@ -626,7 +626,7 @@ def traced_sums(
             bad = ~jnp.all(jnp.isfinite(rgb), axis=-1)
             return slot_sums(rgb, bad, order, n_traced), out[1]
 
-        _, tangents_out = jax.jvp(replayed, primals, tangents)
+        _, tangents_out = jvp_of(replayed, primals, tangents)
         return out, tangents_out
 
     def in_one_warp_call(scene, cameras, order, n_traced):

@@ -16,6 +16,7 @@ import functools
 from collections.abc import Callable
 
 import jax
+from jax.custom_derivatives import SymbolicZero
 
 from .. import _environment
 from ._library import status
@@ -74,6 +75,25 @@ def other_platforms() -> bool:
     return False
 
 
+def jvp_of(fn: Callable, primals, tangents):
+    """`jax.jvp(fn, primals, tangents)` where a tangent may be a `SymbolicZero` (a custom JVP
+    rule's operand that does not depend on what is differentiated): those operands are held
+    constant, so no tangent arithmetic is traced for them. An instantiated zero would be
+    multiplied through (XLA does not fold `x * 0` in floating point): a gradient with respect
+    to materials alone would otherwise compute the geometry's derivatives too."""
+    flat_primals, tree = jax.tree.flatten(primals)
+    flat_tangents = tree.flatten_up_to(tangents)  # a SymbolicZero is a leaf
+    moving = [i for i, t in enumerate(flat_tangents) if not isinstance(t, SymbolicZero)]
+
+    def of_moving(*xs):
+        full = list(flat_primals)
+        for i, x in zip(moving, xs, strict=True):
+            full[i] = x
+        return fn(*jax.tree.unflatten(tree, full))
+
+    return jax.jvp(of_moving, [flat_primals[i] for i in moving], [flat_tangents[i] for i in moving])
+
+
 def on_platforms(
     reference: Callable,
     *,
@@ -90,7 +110,7 @@ def on_platforms(
     CPU's branch). `derivatives`: the stage's derivatives are `reference`'s (a custom JVP), so
     they do not depend on where the primal ran; False where the outputs are not differentiable
     (integers, masks) or the caller differentiates elsewhere. `cpu_jvp(primals, tangents)`:
-    the JVP rule on a CPU instead (it returns the primal outputs, the native side's, and their
+    the JVP rule on a CPU instead (its tangents may be `SymbolicZero`s: `jvp_of`; it returns the primal outputs, the native side's, and their
     tangents: e.g. the JVP of a replay of what the native forward stored), `reference`'s
     elsewhere, or `differentiate`'s where given: a function of the same value whose JVP (and
     its transpose, for reverse mode) JAX can take where `reference`'s cannot (a loop whose trip
@@ -114,7 +134,7 @@ def on_platforms(
     stage = jax.custom_jvp(primal)
 
     def reference_jvp(primals, tangents):
-        return jax.jvp(reference if differentiate is None else differentiate, primals, tangents)
+        return jvp_of(reference if differentiate is None else differentiate, primals, tangents)
 
     if cpu_jvp is None:
         rule = reference_jvp
@@ -123,7 +143,25 @@ def on_platforms(
     else:
 
         def rule(primals, tangents):
-            return jax.lax.platform_dependent(primals, tangents, cpu=cpu_jvp, default=reference_jvp)
+            # The symbolic zeros stay out of `platform_dependent`'s operands (arrays only).
+            flat, tree = jax.tree.flatten(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
+            moving = [i for i, t in enumerate(flat) if not isinstance(t, SymbolicZero)]
 
-    stage.defjvp(rule)
+            def with_zeros(jvp):
+                def branch(primals, moved):
+                    full = list(flat)
+                    for i, t in zip(moving, moved, strict=True):
+                        full[i] = t
+                    return jvp(primals, jax.tree.unflatten(tree, full))
+
+                return branch
+
+            return jax.lax.platform_dependent(
+                primals,
+                [flat[i] for i in moving],
+                cpu=with_zeros(cpu_jvp),
+                default=with_zeros(reference_jvp),
+            )
+
+    stage.defjvp(rule, symbolic_zeros=True)
     return stage

@@ -8,6 +8,7 @@ import jax
 
 from . import _layout as layout
 from ._dispatch import NativePlan as NativePlan
+from ._dispatch import jvp_of as jvp_of
 from ._dispatch import on_platforms as on_platforms
 from ._dispatch import other_platforms as other_platforms
 from ._dispatch import plan_native as plan_native
@@ -27,4 +28,4 @@ def handler(target: str, result_shapes, *, what: str, **kwargs):
     return jax.ffi.ffi_call(target, result_shapes, **kwargs)
 
 
-__all__ = ["HANDLERS", "NativePlan", "handler", "layout", "on_platforms", "other_platforms", "plan_native"]
+__all__ = ["HANDLERS", "NativePlan", "handler", "jvp_of", "layout", "on_platforms", "other_platforms", "plan_native"]

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ..native.internal import on_platforms
+from ..native.internal import jvp_of, on_platforms
 from ..scene import POINT_LIGHT, SPOT_LIGHT
 from ..trace import BVH, Hit, closest_hit, occluded
 from ..trace.internal import backend_geometry, lowering_platform
@@ -766,7 +766,7 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             rgb = replay_radiance(scene, bvh, o.reshape(-1, 3), d.reshape(-1, 3), offset, paths, shading)
             return (rgb.reshape(batch + (3,)), *counts)
 
-        _, tangents_out = jax.jvp(replayed, primals, tangents)
+        _, tangents_out = jvp_of(replayed, primals, tangents)
         return (total.reshape(batch + (3,)), *counts), tangents_out
 
     shading = shading_of(config)
