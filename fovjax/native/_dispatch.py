@@ -110,11 +110,12 @@ def on_platforms(
     CPU's branch). `derivatives`: the stage's derivatives are `reference`'s (a custom JVP), so
     they do not depend on where the primal ran; False where the outputs are not differentiable
     (integers, masks) or the caller differentiates elsewhere. `cpu_jvp(primals, tangents)`:
-    the JVP rule on a CPU instead (its tangents may be `SymbolicZero`s: `jvp_of`; it returns the primal outputs, the native side's, and their
-    tangents: e.g. the JVP of a replay of what the native forward stored), `reference`'s
-    elsewhere, or `differentiate`'s where given: a function of the same value whose JVP (and
-    its transpose, for reverse mode) JAX can take where `reference`'s cannot (a loop whose trip
-    count depends on the data). All take the same operands and return the same structure."""
+    the JVP rule on a CPU instead (tangents may be `SymbolicZero`s: `jvp_of`; it returns the
+    primal outputs, the native side's, and their tangents: e.g. the JVP of a replay of what
+    the native forward stored), `reference`'s elsewhere, or `differentiate`'s where given: a
+    function of the same value whose JVP (and its transpose, for reverse mode) JAX can take
+    where `reference`'s cannot (a loop whose trip count depends on the data). All take the
+    same operands and return the same structure."""
     if cpu_only:
         if cpu is None:
             raise ValueError("on_platforms: cpu_only needs a cpu function")

@@ -28,4 +28,13 @@ def handler(target: str, result_shapes, *, what: str, **kwargs):
     return jax.ffi.ffi_call(target, result_shapes, **kwargs)
 
 
-__all__ = ["HANDLERS", "NativePlan", "handler", "jvp_of", "layout", "on_platforms", "other_platforms", "plan_native"]
+__all__ = [
+    "HANDLERS",
+    "NativePlan",
+    "handler",
+    "jvp_of",
+    "layout",
+    "on_platforms",
+    "other_platforms",
+    "plan_native",
+]
