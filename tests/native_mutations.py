@@ -116,6 +116,30 @@ MUTATIONS = (
         "const bool levels = false;",
     ),
     Mutation(
+        "adjoint-shininess-linear",
+        "the adjoint's d spec / d Ns without the log of the cosine",
+        "dm[15] += static_cast<double>(spec) * std::log(static_cast<double>(cosine)) *",
+        "dm[15] += static_cast<double>(spec) *",
+    ),
+    Mutation(
+        "adjoint-reflectance-local",
+        "the adjoint's d / d Kr from the level's own radiance instead of what follows it",
+        "Add3(dm + 12, g * weight_at[k] * after);",
+        "Add3(dm + 12, g * weight_at[k] * radiance_at[k]);",
+    ),
+    Mutation(
+        "adjoint-texture-ignored",
+        "the adjoint's d / d Kd without the texture's factor",
+        "Add3(dm + 3, gw * texture * (ndl * color));  // kd",
+        "Add3(dm + 3, gw * (ndl * color));  // kd",
+    ),
+    Mutation(
+        "adjoint-blocked-light",
+        "the adjoint counts a light whose shadow ray was blocked",
+        "if (((bits >> l) & 1u) == 0) continue;",
+        "if (false) continue;",
+    ),
+    Mutation(
         "class-unreplayed-light",
         "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
         "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",

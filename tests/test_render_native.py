@@ -635,32 +635,61 @@ def test_auto_runs_the_native_integrator_on_this_cpu(featured):
 
 
 def test_gradients_are_the_jax_integrators(featured):
-    """The native primal's derivatives (those of a replay of the paths it stored,
-    fovjax/render/_replay.py) are the JAX integrator's: d(mean image) / d(Kd, light colour,
-    vertices) agree with integrator='jax' (textures, normals, the environment and both kinds of
-    light on the way): one closed form in two programs, whose gradients are sums over every ray
-    added in different orders, so within float32's bound for such a sum, eps × rays × the
-    gradient's largest component."""
+    """The native primal's derivatives are the JAX integrator's: those of the shading parameters
+    (every material column, the lights' colours, the ambient colour) from the native adjoint
+    (fovjax/render/_whitted_adjoint.cc), the vertices' from a replay of the stored paths
+    (fovjax/render/_replay.py); textures, normals, the environment and both kinds of light on
+    the way. One closed form in two programs, whose gradients are sums over every ray added in
+    different orders, so within float32's bound for such a sum, eps × rays × the gradient's
+    largest component."""
     _, arrays, bvh, rig = featured
     rays = stereo_sample_rays(rig, None, 1, jax.random.key(5))
+    fields = ("ka", "kd", "ks", "ke", "kr", "ns", "light_color", "ambient", "vertices")
+    # Every material reflects and shines a little, so that each column's gradient is not zero.
+    start = {name: jnp.asarray(getattr(arrays, name)) for name in fields}
+    start["kr"] = jnp.maximum(start["kr"], 0.2)
+    start["ke"] = start["ke"] + 0.05
+    start["ns"] = jnp.clip(start["ns"], 4.0, 64.0)
 
-    def loss(kd, color, vertices, integrator):
-        a = dataclasses.replace(arrays, kd=kd, light_color=color, vertices=vertices)
-        # One reflection level: the derivative path is the same at every level, and each level
-        # adds to the two gradient programs' compile (the suite's slowest test at depth 3).
-        config = RenderConfig(max_depth=1, integrator=integrator)
-        return jnp.mean(radiance(a, bvh, rays.origins, rays.directions, config=config).rgb)
+    def loss(params, integrator):
+        a = dataclasses.replace(arrays, **params)
+        # Two reflection levels: the reflectance's derivative reaches past a level, and each
+        # level adds to the two gradient programs' compile.
+        config = RenderConfig(max_depth=2, integrator=integrator)
+        rgb = radiance(a, bvh, rays.origins, rays.directions, config=config).rgb
+        return jnp.mean(rgb * jnp.asarray([1.0, 0.5, 0.25]))
 
-    args = (jnp.asarray(arrays.kd), jnp.asarray(arrays.light_color), jnp.asarray(arrays.vertices))
-    grads = {
-        name: jax.jit(jax.grad(lambda *a, n=name: loss(*a, n), argnums=(0, 1, 2)))(*args)
-        for name in ("native", "jax")
-    }
+    grads = {name: jax.jit(jax.grad(lambda p, n=name: loss(p, n)))(start) for name in ("native", "jax")}
     bound = float(np.finfo(np.float32).eps) * int(np.prod(rays.origins.shape[:-1]))
-    for g_native, g_jax in zip(grads["native"], grads["jax"], strict=True):
-        scale = float(np.max(np.abs(np.asarray(g_jax))))
-        np.testing.assert_allclose(np.asarray(g_native), np.asarray(g_jax), rtol=0, atol=bound * scale)
-    assert float(jnp.abs(grads["jax"][0]).sum()) > 0  # Kd matters to the image
+    for name in fields:
+        g_native, g_jax = np.asarray(grads["native"][name]), np.asarray(grads["jax"][name])
+        scale = float(np.max(np.abs(g_jax)))
+        assert scale > 0, name  # the parameter matters to the image
+        np.testing.assert_allclose(g_native, g_jax, rtol=0, atol=bound * scale, err_msg=name)
+
+
+def test_the_shading_adjoint_alone_is_the_replays(featured):
+    """A gradient with respect to the shading parameters alone runs the native adjoint and no
+    replay (its program holds the adjoint's call, and its reverse pass no scan over the replay's
+    chunks), and is the replay's gradient (`integrator='jax'`, the oracle)."""
+    from fovjax.render._native import ADJOINT_TARGET
+
+    _, arrays, bvh, rig = featured
+    rays = stereo_sample_rays(rig, None, 1, jax.random.key(6))
+
+    def loss(kd, integrator):
+        a = dataclasses.replace(arrays, kd=kd)
+        config = RenderConfig(max_depth=1, integrator=integrator)
+        return jnp.sum(radiance(a, bvh, rays.origins, rays.directions, config=config).rgb ** 2)
+
+    kd = jnp.asarray(arrays.kd)
+    text = jax.jit(jax.grad(lambda k: loss(k, "native"))).lower(kd).as_text()
+    assert ADJOINT_TARGET in text and "while" not in text
+    native = jax.jit(jax.grad(lambda k: loss(k, "native")))(kd)
+    reference = jax.jit(jax.grad(lambda k: loss(k, "jax")))(kd)
+    bound = float(np.finfo(np.float32).eps) * int(np.prod(rays.origins.shape[:-1]))
+    scale = float(np.max(np.abs(np.asarray(reference))))
+    np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=0, atol=bound * scale)
 
 
 def test_foveated_frame_through_the_native_integrator_agrees(featured):

@@ -613,7 +613,17 @@ def traced_sums(
 
     def replay_jvp(primals, tangents):
         """The handler's sums, with the derivatives of a replay of the paths it stored."""
-        from ..render.internal import StoredPaths, replay_radiance, shading_of
+        from ..render.internal import (
+            SHADING_FIELDS,
+            StoredPaths,
+            native_shading_adjoint,
+            replay_radiance,
+            shading_attributes,
+            shading_of,
+            shading_tangent,
+            split_tangents,
+            whitted_operands,
+        )
 
         scene, cameras, order, n_traced = primals
         out, paths = native_slots(scene, cameras, order, n_traced, store_paths=True)
@@ -626,8 +636,33 @@ def traced_sums(
             bad = ~jnp.all(jnp.isfinite(rgb), axis=-1)
             return slot_sums(rgb, bad, order, n_traced), out[1]
 
-        _, tangents_out = jvp_of(replayed, primals, tangents)
-        return out, tangents_out
+        def replayed_rgb(scene, cameras, order, n_traced):
+            o, d = slot_rays_of(cameras, order)
+            return (replay_radiance(scene, bvh, o, d, offset, paths, shading_of(config)),)
+
+        def adjoint(primals, stored, cotangent):  # what it reads comes in `stored` (traced later)
+            ops, o, d, offset, prim, visible = stored
+            attributes = shading_attributes(config)
+            return native_shading_adjoint(ops, o, d, offset, prim, visible, cotangent, shading=attributes)
+
+        # As the full frame's (`fovjax/render/_integrator.py`): the shading parameters through the
+        # native adjoint, the rest through the replay, each only where something moves.
+        rest, moving = split_tangents(primals, tangents, SHADING_FIELDS)
+        sums = None
+        if rest is not None:
+            _, ((sums, *_), _) = jvp_of(replayed, primals, rest)
+        if moving is not None:
+            o, d = slot_rays_of(cameras, order)
+            stored = (whitted_operands(scene, bvh), o, d, offset, *paths)
+            rgb = shading_tangent(replayed_rgb, adjoint, primals, stored, moving, SHADING_FIELDS)
+            # A bad slot's pixel is painted `bad_color` (`pixel_means`): its tangent is not read.
+            by_adjoint = slot_sums(rgb, jnp.zeros(rgb.shape[0], bool), order, n_traced)[0]
+            sums = by_adjoint if sums is None else sums + by_adjoint
+        if sums is None:
+            sums = jnp.zeros_like(out[0][0])
+        float0 = np.zeros((), jax.dtypes.float0)
+        no_counts = tuple(np.zeros(np.shape(c), jax.dtypes.float0) for c in out[1])
+        return out, ((sums, np.zeros(np.shape(out[0][1]), jax.dtypes.float0), float0), no_counts)
 
     def in_one_warp_call(scene, cameras, order, n_traced):
         s = sel._replace(order=order, n_traced=n_traced)

@@ -48,6 +48,7 @@ ENTRY = Path(__file__).with_name("csrc") / "library.cc"
 HANDLERS = {
     "fovjax_embree_query": "FovjaxEmbreeQuery",
     "fovjax_embree_whitted": "FovjaxEmbreeWhitted",
+    "fovjax_whitted_adjoint": "FovjaxWhittedAdjoint",
     "fovjax_select_samples": "FovjaxSelectSamples",
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",

@@ -57,13 +57,15 @@ from ._config import DEFAULT_CONFIG, LUMINANCE, RenderConfig
 from ._envmap import envmap_lookup
 from ._mips import lod_uv, mip_level, mip_lookup
 from ._native import (
+    SHADING_FIELDS,
     integrator_plan,
+    native_shading_adjoint,
     native_whitted,
     shading_attributes,
     warp_integrator_plan,
     whitted_operands,
 )
-from ._replay import StoredPaths, replay_radiance
+from ._replay import StoredPaths, replay_radiance, shading_tangent, split_tangents
 from ._vec import all3, any3, cross, dot, interpolate, norm, normalize
 from ._warp_whitted import warp_integrate
 
@@ -766,8 +768,28 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             rgb = replay_radiance(scene, bvh, o.reshape(-1, 3), d.reshape(-1, 3), offset, paths, shading)
             return (rgb.reshape(batch + (3,)), *counts)
 
-        _, tangents_out = jvp_of(replayed, primals, tangents)
-        return (total.reshape(batch + (3,)), *counts), tangents_out
+        def adjoint(primals, stored, cotangent):  # what it reads comes in its operands (traced later)
+            _, o, d, _, offset = primals
+            ops, prim, visible = stored
+            rays = (o.reshape(-1, 3), d.reshape(-1, 3), offset)
+            g = cotangent.reshape(-1, 3)
+            return native_shading_adjoint(ops, *rays, prim, visible, g, shading=shading_attributes(config))
+
+        # The shading parameters' derivatives through the native adjoint, the rest (geometry,
+        # textures, rays) through the replay's: each only where something moves.
+        rest, moving = split_tangents(primals, tangents, SHADING_FIELDS)
+        rgb = None
+        if rest is not None:
+            _, (rgb, *_) = jvp_of(replayed, primals, rest)
+        if moving is not None:
+            ops = whitted_operands(scene, bvh) if operands is None else operands
+            stored = (ops, prim, visible)
+            by_adjoint = shading_tangent(replayed, adjoint, primals, stored, moving, SHADING_FIELDS)
+            rgb = by_adjoint if rgb is None else rgb + by_adjoint
+        if rgb is None:
+            rgb = jnp.zeros(batch + (3,), jnp.float32)
+        no_counts = tuple(np.zeros((), jax.dtypes.float0) for _ in counts)
+        return (total.reshape(batch + (3,)), *counts), (rgb, *no_counts)
 
     shading = shading_of(config)
     replays = scene.num_lights <= 32  # the paths' visibility bits

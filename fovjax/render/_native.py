@@ -18,6 +18,10 @@ from ..trace import BVH
 from ._arrays import light_columns
 
 WHITTED_TARGET = "fovjax_embree_whitted"
+ADJOINT_TARGET = "fovjax_whitted_adjoint"
+# The scene fields whose gradient the native adjoint computes (`native_shading_adjoint`): the
+# materials' columns, the lights' colours and the ambient colour.
+SHADING_FIELDS = tuple(name for name, _ in layout.MATERIAL_COLUMNS) + ("light_color", "ambient")
 # The most reflections the handler counts per ray (its counts are 8 bits).
 MAX_NATIVE_DEPTH = 255
 
@@ -199,3 +203,40 @@ def native_whitted(
     if not store_paths:
         return total, traced, prim, visible  # the paths empty
     return total, traced, prim.reshape(max_depth + 1, n), visible.reshape(max_depth + 1, n)
+
+
+def native_shading_adjoint(operands: tuple, o, d, offset, prim, visible, cotangent, *, shading: dict) -> dict:
+    """The gradient of Σ cotangent · radiance with respect to `SHADING_FIELDS`, along the paths a
+    native forward stored (`native_whitted(..., store_paths=True)`'s `prim` and `visible`, for
+    the flat rays `o`, `d`): the transpose of the replay's derivative in those fields
+    (`_replay.replay_radiance`, its oracle), computed by the handler `render/_whitted_adjoint.cc`
+    with no ray traced. `operands`: the scene's (`whitted_operands`); `shading`:
+    `shading_attributes`. A dict of the fields' gradients, each of its field's shape."""
+    f32 = jnp.float32
+    n = cotangent.shape[0]
+    materials, lights = operands[9], operands[13]
+    out = (
+        jax.ShapeDtypeStruct((materials.shape[0], layout.MATERIAL_STRIDE), f32),
+        jax.ShapeDtypeStruct((lights.shape[0], 3), f32),
+        jax.ShapeDtypeStruct((3,), f32),
+    )
+    call = handler(ADJOINT_TARGET, out, what="the native integrator's adjoint", vmap_method="sequential")
+    d_materials, d_lights, d_ambient = call(
+        jnp.asarray(o, f32).reshape(n, 3),
+        jnp.asarray(d, f32).reshape(n, 3),
+        jnp.asarray(prim, jnp.int32).reshape(-1),
+        jnp.asarray(visible, jnp.uint32).reshape(-1),
+        jnp.asarray(cotangent, f32).reshape(n, 3),
+        *operands,
+        jnp.asarray(offset, f32).reshape(1),
+        specular=shading["specular"],
+        specular_payload=shading["specular_payload"],
+    )
+    grads, start = {}, 0
+    for name, width in layout.MATERIAL_COLUMNS:
+        block = d_materials[:, start : start + width]
+        grads[name] = block[:, 0] if width == 1 else block
+        start += width
+    grads["light_color"] = d_lights
+    grads["ambient"] = d_ambient
+    return grads

@@ -16,9 +16,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero, linear_call
 from jaxtyping import Array, Float, Int, UInt32
 
-from ..native.internal import layout
+from ..native.internal import jvp_of, layout
 from ..trace import Hit, hit_geometry
 
 
@@ -130,3 +131,58 @@ def replay_radiance(
         total = total + contribution
         o, d, weight = o_next, d_next, w_next
     return total[:n]
+
+
+def _is_zero(t) -> bool:
+    return isinstance(t, SymbolicZero)
+
+
+def split_tangents(primals, tangents, fields: tuple[str, ...], where: int = 0):
+    """A custom JVP rule's tangents in two: (the tangents with the scene's `fields` held still,
+    or None where nothing else moves; the tangents of the `fields` that move, by name, or None
+    where none moves). The scene is operand `where` of `primals`."""
+    flat, tree = jax.tree_util.tree_flatten_with_path(tangents, is_leaf=_is_zero)
+    primal_leaves = tree.flatten_up_to(primals)
+    rest, moving = [], {}
+    for (path, t), x in zip(flat, primal_leaves, strict=True):
+        key = path[1] if len(path) == 2 and path[0] == jax.tree_util.SequenceKey(where) else None
+        name = getattr(key, "name", None)
+        if name in fields:
+            moving[name] = t
+            rest.append(SymbolicZero(jax.typeof(x).to_tangent_aval()))
+        else:
+            rest.append(t)
+    rest_tangents = None if all(_is_zero(t) for t in rest) else jax.tree.unflatten(tree, rest)
+    shading = {name: t for name, t in moving.items() if not _is_zero(t)}
+    return rest_tangents, (shading or None)
+
+
+def shading_tangent(
+    replayed, adjoint, primals, stored, shading: dict, fields: tuple[str, ...], where: int = 0
+):
+    """The tangent of `replayed(*primals)`'s first output along the scene's `fields` (the scene
+    operand `where`), `shading` their tangents: a linear map whose forward is the replay's own
+    JVP and whose transpose is `adjoint(primals, stored, cotangent)` (the native adjoint, given
+    what the forward `stored`: a dict of the fields' gradients), so that reverse mode never
+    transposes the replay for these fields."""
+    names = tuple(name for name in fields if name in shading)
+
+    def forward(residuals, linear):
+        primals, _ = residuals
+        flat, tree = jax.tree_util.tree_flatten_with_path(primals)
+        tangents = []
+        for path, x in flat:
+            key = path[1] if len(path) == 2 and path[0] == jax.tree_util.SequenceKey(where) else None
+            name = getattr(key, "name", None)
+            if name in names:
+                tangents.append(linear[names.index(name)])
+            else:
+                tangents.append(SymbolicZero(jax.typeof(x).to_tangent_aval()))
+        _, out = jvp_of(replayed, primals, jax.tree.unflatten(tree, tangents))
+        return out[0]
+
+    def transpose(residuals, cotangent):
+        grads = adjoint(*residuals, cotangent)
+        return tuple(grads[name].astype(jnp.float32).reshape(shading[name].shape) for name in names)
+
+    return linear_call(forward, transpose, (primals, stored), tuple(shading[name] for name in names))

@@ -38,12 +38,16 @@ from ._mips import pixel_spread_angle as pixel_spread_angle
 from ._mips import texture_mips as texture_mips
 from ._mips import with_texture_mips as with_texture_mips
 from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
+from ._native import SHADING_FIELDS as SHADING_FIELDS
 from ._native import integrator_plan as integrator_plan
+from ._native import native_shading_adjoint as native_shading_adjoint
 from ._native import shading_attributes as shading_attributes
 from ._native import warp_integrator_plan as warp_integrator_plan
 from ._native import whitted_operands as whitted_operands
 from ._replay import StoredPaths as StoredPaths
 from ._replay import replay_radiance as replay_radiance
+from ._replay import shading_tangent as shading_tangent
+from ._replay import split_tangents as split_tangents
 from ._warp_whitted import warp_integrate as warp_integrate
 
 __all__ = [
@@ -71,6 +75,10 @@ __all__ = [
     "whitted_operands",
     "StoredPaths",
     "replay_radiance",
+    "shading_tangent",
+    "split_tangents",
+    "SHADING_FIELDS",
+    "native_shading_adjoint",
     "shading_of",
     "shading_attributes",
     "radiance_in_chunks",

@@ -5,7 +5,8 @@
 //   native/csrc/     Embree declarations and their layout check, the scene cache, the thread pool,
 //                    the layout shared with Python (layout.h), and the library's C entry points
 //   trace/           ray queries (_embree_queries.cc)
-//   render/          the Whitted integrator and its shading (_whitted.cc)
+//   render/          the Whitted integrator and its shading (_whitted.cc), its adjoint in the
+//                    shading parameters (_whitted_adjoint.cc)
 //   foveate/         sample selection with JAX's threefry (_select.cc), the slots integrator
 //                    (_slots.cc), pixel means, fill and blur (_fill.cc), Patney 2016's Gaussian blurs
 //                    (_blur.cc)
@@ -21,6 +22,7 @@
 
 #include "trace/_embree_queries.cc"
 #include "render/_whitted.cc"
+#include "render/_whitted_adjoint.cc"
 #include "foveate/_select.cc"
 #include "foveate/_slots.cc"
 #include "foveate/_fill.cc"
