@@ -635,16 +635,17 @@ def test_auto_runs_the_native_integrator_on_this_cpu(featured):
 
 
 def test_gradients_are_the_jax_integrators(featured):
-    """The native primal's derivatives are the JAX integrator's: those of the shading parameters
-    (every material column, the lights' colours, the ambient colour) from the native adjoint
-    (fovjax/render/_whitted_adjoint.cc), the vertices' from a replay of the stored paths
-    (fovjax/render/_replay.py); textures, normals, the environment and both kinds of light on
-    the way. One closed form in two programs, whose gradients are sums over every ray added in
-    different orders, so within float32's bound for such a sum, eps × rays × the gradient's
-    largest component."""
+    """The native primal's derivatives in the shading parameters (every material column, the
+    lights' colours, the ambient colour), from the native adjoint
+    (fovjax/render/_whitted_adjoint.cc), are the JAX integrator's; textures, normals, the
+    environment and both kinds of light on the way. (The other parameters' come from a replay of
+    the stored paths, fovjax/render/_replay.py: tests/test_render_grad.py checks both at once
+    against finite differences.) One closed form in two programs, whose gradients are sums over
+    every ray added in different orders, so within float32's bound for such a sum, eps × rays ×
+    the gradient's largest component."""
     _, arrays, bvh, rig = featured
     rays = stereo_sample_rays(rig, None, 1, jax.random.key(5))
-    fields = ("ka", "kd", "ks", "ke", "kr", "ns", "light_color", "ambient", "vertices")
+    fields = ("ka", "kd", "ks", "ke", "kr", "ns", "light_color", "ambient")
     # Every material reflects and shines a little, so that each column's gradient is not zero.
     start = {name: jnp.asarray(getattr(arrays, name)) for name in fields}
     start["kr"] = jnp.maximum(start["kr"], 0.2)
