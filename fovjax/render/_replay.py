@@ -8,6 +8,11 @@ positions and the rays as in the JAX integrator; which face a ray hit and whethe
 was blocked (visibility) are taken as given, as there. The replay shades with the JAX
 integrator's own functions (`_surface_and_shadow_rays`, `_finish_shading`), so the two cannot
 drift apart; a level shades the rays it holds, chunk by chunk, at the forward's fixed shapes.
+
+The shading parameters (materials, the lights' colours, the ambient colour) have a native
+adjoint along the same paths (`render/_whitted_adjoint.cc`): `split_tangents` and
+`shading_tangent` send their derivatives there (the replay's JVP stays their forward mode, and
+the oracle the adjoint is tested against), and everything else through the replay.
 """
 
 from __future__ import annotations

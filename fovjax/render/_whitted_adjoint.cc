@@ -14,8 +14,8 @@
 
 namespace {
 
-// What one block of rays adds to the gradient, in double (the blocks are summed in order, so
-// the result does not depend on the threads).
+// What one run of rays adds to the gradient, in double (the runs are summed in order, so the
+// result does not depend on the threads).
 struct AdjointSums {
   std::vector<double> materials;  // (M, kMaterialStride)
   std::vector<double> lights;     // (L, 3): the colours
@@ -204,14 +204,17 @@ ffi::Error WhittedAdjoint(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, f
   const float* g = cotangent.typed_data();
   const int32_t* prim = path_prim.typed_data();
   const uint32_t* visible = path_visible.typed_data();
-  const int64_t per_block = 4096;
-  const int64_t blocks = (n + per_block - 1) / per_block;
-  std::vector<AdjointSums> sums(static_cast<size_t>(blocks));
-  ParallelFor(pool, blocks, [&](int64_t blk) {
-    AdjointSums& out = sums[static_cast<size_t>(blk)];
+  // At most kParts runs of rays, each with its own sums: the memory is bounded by the scene's
+  // materials and lights, not by the rays.
+  constexpr int64_t kParts = 64;
+  const int64_t parts = std::min<int64_t>(kParts, (n + 4095) / 4096);
+  const int64_t per_part = (n + parts - 1) / parts;
+  std::vector<AdjointSums> sums(static_cast<size_t>(parts));
+  ParallelFor(pool, parts, [&](int64_t part) {
+    AdjointSums& out = sums[static_cast<size_t>(part)];
     out.Reset(s.num_materials, s.num_lights);
-    const int64_t end = std::min(n, (blk + 1) * per_block);
-    for (int64_t i = blk * per_block; i < end; ++i) {
+    const int64_t end = std::min(n, (part + 1) * per_part);
+    for (int64_t i = part * per_part; i < end; ++i) {
       if (prim[i] == kPathNotTraced) continue;
       const Vec3 gi = Load3(g + 3 * i);
       if (gi.x == 0.0f && gi.y == 0.0f && gi.z == 0.0f) continue;
