@@ -41,6 +41,7 @@ import mitsuba_frame as mf  # noqa: E402
 from _record import write_record  # noqa: E402
 
 STEP = 0.1  # the target's Kd change
+OFF_TARGET = 0.02  # every Kd this far from the scene's: the loss non-zero at every pixel
 FD_STEP = 1e-2  # the finite differences' step in Kd (linear: any step is exact up to rounding)
 SAME_PATH = 1e-3  # a pixel's largest channel difference between the renderers on the same paths
 ADAM_RATE = 0.02
@@ -229,9 +230,14 @@ def run_size(scene, bvh, width, height, args):
     peer = _Mitsuba(arrays, rig, config, target)
     mi_forward, mi_grad = peer.forward, peer.forward_backward
 
+    kd_off = kd0 + OFF_TARGET
     runs = {
         "fovjax_forward": lambda: jax.block_until_ready(fj_forward(kd0, light0)),
         "fovjax_forward_backward": lambda: jax.block_until_ready(fj_grad(kd0, light0)),
+        # At the scene's Kd the loss is zero wherever the changed material is not seen, and the
+        # native adjoint skips a ray whose cotangent is zero: the same gradient where every
+        # pixel's loss is non-zero (every Kd off the target, as along an optimisation).
+        "fovjax_forward_backward_everywhere": lambda: jax.block_until_ready(fj_grad(kd_off, light0)),
         "mitsuba_forward": mi_forward,
         "mitsuba_forward_backward": mi_grad,
     }
@@ -315,6 +321,9 @@ def run_size(scene, bvh, width, height, args):
         out["ratio_adam"] = out["fovjax_adam_s"] / out["mitsuba_adam_s"]
     out["ratio_forward"] = out["fovjax_forward_ms"] / out["mitsuba_forward_ms"]
     out["fovjax_gradient_over_forward"] = out["fovjax_forward_backward_ms"] / out["fovjax_forward_ms"]
+    out["fovjax_gradient_everywhere_over_forward"] = (
+        out["fovjax_forward_backward_everywhere_ms"] / out["fovjax_forward_ms"]
+    )
     out["mitsuba_gradient_over_forward"] = out["mitsuba_forward_backward_ms"] / out["mitsuba_forward_ms"]
     return out
 
@@ -334,6 +343,7 @@ def report(r) -> None:
     rows = [
         ("fovjax forward", "fovjax_forward_ms"),
         ("fovjax forward + backward", "fovjax_forward_backward_ms"),
+        ("fovjax forward + backward, every pixel off target", "fovjax_forward_backward_everywhere_ms"),
         ("fovjax, JAX integrator, forward + backward", "fovjax_jax_integrator_forward_backward_ms"),
         ("Mitsuba forward", "mitsuba_forward_ms"),
         ("Mitsuba forward + backward", "mitsuba_forward_backward_ms"),
@@ -343,9 +353,11 @@ def report(r) -> None:
             print(f"  {label:44s} {r[key]:9.1f} ms")
     ratios = (r["ratio_forward"], r["ratio_forward_backward"])
     print("  fovjax / Mitsuba: forward {:.2f}, forward + backward {:.2f}".format(*ratios))
+    everywhere = r.get("fovjax_gradient_everywhere_over_forward")
     print(
-        f"  gradient / forward: fovjax {r['fovjax_gradient_over_forward']:.2f}, "
-        f"Mitsuba {r['mitsuba_gradient_over_forward']:.2f}"
+        f"  gradient / forward: fovjax {r['fovjax_gradient_over_forward']:.2f}"
+        + ("" if everywhere is None else f" ({everywhere:.2f} every pixel off target)")
+        + f", Mitsuba {r['mitsuba_gradient_over_forward']:.2f}"
     )
     print(
         "  gradients, max relative difference: "
