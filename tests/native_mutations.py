@@ -134,6 +134,13 @@ MUTATIONS = (
         "Add3(dm + 3, gw * (ndl * color));  // kd",
     ),
     Mutation(
+        "adjoint-kd-alone-untextured",
+        "the adjoint's d / d Kd without the texture's factor where Kd alone moves (no specular term)",
+        "if (!specular) {  // Kd's term alone (and Ka's, Ke's, the ambient's above)\n"
+        "        Add3(dm + 3, gw * texture * (ndl * color));",
+        "if (!specular) {\n        Add3(dm + 3, gw * (ndl * color));",
+    ),
+    Mutation(
         "adjoint-blocked-light",
         "the adjoint counts a light whose shadow ray was blocked",
         "if (((bits >> l) & 1u) == 0) continue;",

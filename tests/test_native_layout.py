@@ -53,6 +53,9 @@ def test_the_mirror_is_the_owners_constants():
     assert set(layout.RULES) == set(_config.SAMPLING_RULES)
     from fovjax.render import internal as render_internal
 
+    # The shading adjoint's field bits follow the order of the fields it returns.
+    by_bit = tuple(sorted(layout.ADJOINT_FIELDS, key=layout.ADJOINT_FIELDS.get))
+    assert by_bit == render_internal.SHADING_FIELDS
     assert layout.SHADOWS == {
         "all": render_internal.SHADOWS_ALL,
         "brightest": render_internal.SHADOWS_BRIGHTEST,

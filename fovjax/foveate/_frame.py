@@ -640,10 +640,12 @@ def traced_sums(
             o, d = slot_rays_of(cameras, order)
             return (replay_radiance(scene, bvh, o, d, offset, paths, shading_of(config)),)
 
-        def adjoint(primals, stored, cotangent):  # what it reads comes in `stored` (traced later)
+        def adjoint(primals, stored, cotangent, moving):  # what it reads comes in `stored` (traced later)
             ops, o, d, offset, prim, visible = stored
             attributes = shading_attributes(config)
-            return native_shading_adjoint(ops, o, d, offset, prim, visible, cotangent, shading=attributes)
+            return native_shading_adjoint(
+                ops, o, d, offset, prim, visible, cotangent, shading=attributes, moving=moving
+            )
 
         # As the full frame's (`fovjax/render/_integrator.py`): the shading parameters through the
         # native adjoint, the rest through the replay, each only where something moves.

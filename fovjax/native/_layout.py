@@ -21,6 +21,9 @@ CLASSES = {"mandatory": 0, "optional": 1, "skipped": 2}
 RULES = {"either": 0, "strict": 1, "thesis-measured": 2}
 # Shadow modes of a shading class (`fovjax.render.internal.SHADOWS_ALL`, ...).
 SHADOWS = {"all": 0, "brightest": 1, "none": 2}
+# The shading adjoint's fields (`fovjax.render.internal.SHADING_FIELDS`): bit i of its `moving`
+# attribute asks for field i's gradient.
+ADJOINT_FIELDS = {"ka": 0, "kd": 1, "ks": 2, "ke": 3, "kr": 4, "ns": 5, "light_color": 6, "ambient": 7}
 # A stored path's face where no ray was traced at that level (`render/_replay.py`); -1 is a miss.
 PATH_NOT_TRACED = -2
 # The Whitted handlers' scene operands, in the order the handlers bind them.
@@ -71,6 +74,7 @@ def expected_layout() -> dict[str, str]:
         ("class", CLASSES),
         ("rule", RULES),
         ("shadows", SHADOWS),
+        ("adjoint", ADJOINT_FIELDS),
     )
     for prefix, codes in groups:
         layout.update({f"{prefix}_{name.replace('-', '_')}": str(code) for name, code in codes.items()})

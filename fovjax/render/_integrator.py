@@ -768,12 +768,13 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             rgb = replay_radiance(scene, bvh, o.reshape(-1, 3), d.reshape(-1, 3), offset, paths, shading)
             return (rgb.reshape(batch + (3,)), *counts)
 
-        def adjoint(primals, stored, cotangent):  # what it reads comes in its operands (traced later)
+        def adjoint(primals, stored, cotangent, moving):  # what it reads comes in its operands (traced later)
             _, o, d, _, offset = primals
             ops, prim, visible = stored
             rays = (o.reshape(-1, 3), d.reshape(-1, 3), offset)
             g = cotangent.reshape(-1, 3)
-            return native_shading_adjoint(ops, *rays, prim, visible, g, shading=shading_attributes(config))
+            attributes = shading_attributes(config)
+            return native_shading_adjoint(ops, *rays, prim, visible, g, shading=attributes, moving=moving)
 
         # The shading parameters' derivatives through the native adjoint, the rest (geometry,
         # textures, rays) through the replay's: each only where something moves.

@@ -22,6 +22,7 @@ ADJOINT_TARGET = "fovjax_whitted_adjoint"
 # The scene fields whose gradient the native adjoint computes (`native_shading_adjoint`): the
 # materials' columns, the lights' colours and the ambient colour.
 SHADING_FIELDS = tuple(name for name, _ in layout.MATERIAL_COLUMNS) + ("light_color", "ambient")
+assert set(SHADING_FIELDS) == set(layout.ADJOINT_FIELDS)
 # The most reflections the handler counts per ray (its counts are 8 bits).
 MAX_NATIVE_DEPTH = 255
 
@@ -205,13 +206,19 @@ def native_whitted(
     return total, traced, prim.reshape(max_depth + 1, n), visible.reshape(max_depth + 1, n)
 
 
-def native_shading_adjoint(operands: tuple, o, d, offset, prim, visible, cotangent, *, shading: dict) -> dict:
+def native_shading_adjoint(
+    operands: tuple, o, d, offset, prim, visible, cotangent, *, shading: dict, moving=SHADING_FIELDS
+) -> dict:
     """The gradient of Σ cotangent · radiance with respect to `SHADING_FIELDS`, along the paths a
     native forward stored (`native_whitted(..., store_paths=True)`'s `prim` and `visible`, for
     the flat rays `o`, `d`): the transpose of the replay's derivative in those fields
     (`_replay.replay_radiance`, its oracle), computed by the handler `render/_whitted_adjoint.cc`
     with no ray traced. `operands`: the scene's (`whitted_operands`); `shading`:
-    `shading_attributes`. A dict of the fields' gradients, each of its field's shape."""
+    `shading_attributes`; `moving`: the fields whose gradient is read (the others' may be
+    left out of the work). A dict of the fields' gradients, each of its field's shape."""
+    bits = 0
+    for name in moving:
+        bits |= 1 << layout.ADJOINT_FIELDS[name]
     f32 = jnp.float32
     n = cotangent.shape[0]
     materials, lights = operands[9], operands[13]
@@ -231,6 +238,7 @@ def native_shading_adjoint(operands: tuple, o, d, offset, prim, visible, cotange
         jnp.asarray(offset, f32).reshape(1),
         specular=shading["specular"],
         specular_payload=shading["specular_payload"],
+        moving=np.int32(bits),
     )
     grads, start = {}, 0
     for name, width in layout.MATERIAL_COLUMNS:

@@ -167,9 +167,9 @@ def shading_tangent(
 ):
     """The tangent of `replayed(*primals)`'s first output along the scene's `fields` (the scene
     operand `where`), `shading` their tangents: a linear map whose forward is the replay's own
-    JVP and whose transpose is `adjoint(primals, stored, cotangent)` (the native adjoint, given
-    what the forward `stored`: a dict of the fields' gradients), so that reverse mode never
-    transposes the replay for these fields."""
+    JVP and whose transpose is `adjoint(primals, stored, cotangent, moving)` (the native
+    adjoint, given what the forward `stored` and the fields that move: a dict of their
+    gradients), so that reverse mode never transposes the replay for these fields."""
     names = tuple(name for name in fields if name in shading)
 
     def forward(residuals, linear):
@@ -187,7 +187,7 @@ def shading_tangent(
         return out[0]
 
     def transpose(residuals, cotangent):
-        grads = adjoint(*residuals, cotangent)
+        grads = adjoint(*residuals, cotangent, names)
         return tuple(grads[name].astype(jnp.float32).reshape(shading[name].shape) for name in names)
 
     return linear_call(forward, transpose, (primals, stored), tuple(shading[name] for name in names))

@@ -37,8 +37,14 @@ inline void Add3(double* to, Vec3 v) {
 // local shading of a hit, the environment of a miss), then the reflectances backwards.
 constexpr int kMaxLevels = 64;
 
+// Bits of `moving` (layout.h's kAdjoint*): the fields whose gradient is wanted; the specular
+// term is computed only where one of them reads it.
+constexpr int32_t kMovingKs = 1 << kAdjointKs, kMovingKr = 1 << kAdjointKr, kMovingNs = 1 << kAdjointNs,
+                  kMovingLight = 1 << kAdjointLightColor;
+
 void AdjointRay(const ShadeScene& s, Vec3 o, Vec3 d, const int32_t* prim, const uint32_t* visible,
-                int64_t stride, int levels, Vec3 g, AdjointSums* out) {
+                int64_t stride, int levels, Vec3 g, int32_t moving, AdjointSums* out) {
+  const bool specular = (moving & (kMovingKs | kMovingKr | kMovingNs | kMovingLight)) != 0;
   Vec3 weight_at[kMaxLevels];
   Vec3 radiance_at[kMaxLevels];
   int32_t material_at[kMaxLevels];
@@ -121,6 +127,12 @@ void AdjointRay(const ShadeScene& s, Vec3 o, Vec3 d, const int32_t* prim, const 
       const float ndl = Dot(nsh, dir);
       if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;  // not wanted
       if (((bits >> l) & 1u) == 0) continue;                                // blocked
+      const Vec3 light = Load3(s.lights + kLightStride * l + 3);
+      const Vec3 color = light * at.spot;
+      if (!specular) {  // Kd's term alone (and Ka's, Ke's, the ambient's above)
+        Add3(dm + 3, gw * texture * (ndl * color));
+        continue;
+      }
       float cosine;
       if (s.shading.specular == kSpecularPhong) {
         Vec3 mirrored = (2.0f * ndl) * nsh - dir;
@@ -131,13 +143,11 @@ void AdjointRay(const ShadeScene& s, Vec3 o, Vec3 d, const int32_t* prim, const 
       const float log2_cosine = cosine > 0.0f ? std::log2(cosine) : 0.0f;
       float spec = cosine > 0.0f ? std::exp2(shininess * log2_cosine) : 0.0f;
       if (s.shading.payload) spec = spec * ndl;
-      const Vec3 light = Load3(s.lights + kLightStride * l + 3);
-      const Vec3 color = light * at.spot;
       const Vec3 unlit = kd_tex * ndl + ks * spec;  // the term before the light's colour
       local = local + unlit * color;
       Add3(dm + 3, gw * texture * (ndl * color));  // kd
       Add3(dm + 6, gw * (spec * color));           // ks
-      if (cosine > 0.0f) {                         // d spec / d ns = spec · ln(cosine)
+      if ((moving & kMovingNs) && cosine > 0.0f) {  // d spec / d ns = spec · ln(cosine)
         const Vec3 by = gw * ks * color;
         dm[15] += static_cast<double>(spec) * std::log(static_cast<double>(cosine)) *
                   (static_cast<double>(by.x) + by.y + by.z);
@@ -176,7 +186,8 @@ ffi::Error WhittedAdjoint(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, f
                           ffi::Buffer<ffi::S32> path_prim, ffi::Buffer<ffi::U32> path_visible,
                           ffi::Buffer<ffi::F32> cotangent, FOVJAX_SCENE_PARAMS,
                           ffi::ResultBuffer<ffi::F32> d_materials, ffi::ResultBuffer<ffi::F32> d_lights,
-                          ffi::ResultBuffer<ffi::F32> d_ambient, int32_t specular, int32_t specular_payload) {
+                          ffi::ResultBuffer<ffi::F32> d_ambient, int32_t specular, int32_t specular_payload,
+                          int32_t moving) {
   const int64_t n = static_cast<int64_t>(cotangent.element_count() / 3);
   if (origins.element_count() != 3 * static_cast<size_t>(n) ||
       directions.element_count() != 3 * static_cast<size_t>(n) || n < 1 ||
@@ -219,7 +230,7 @@ ffi::Error WhittedAdjoint(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, f
       const Vec3 gi = Load3(g + 3 * i);
       if (gi.x == 0.0f && gi.y == 0.0f && gi.z == 0.0f) continue;
       AdjointRay(s, Load3(o + 3 * i), Load3(d + 3 * i), prim + i, visible + i, n, static_cast<int>(levels), gi,
-                 &out);
+                 moving, &out);
     }
   });
   if (out_of_range.load() != 0) {
@@ -253,4 +264,5 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedAdjoint, WhittedAdjoint,
                                   .Ret<ffi::Buffer<ffi::F32>>()   // d light colours (L, 3)
                                   .Ret<ffi::Buffer<ffi::F32>>()   // d ambient (3)
                                   .Attr<int32_t>("specular")           // kSpecularBlinnPhong, kSpecularPhong
-                                  .Attr<int32_t>("specular_payload"));  // the specular times n·l too
+                                  .Attr<int32_t>("specular_payload")  // the specular times n·l too
+                                  .Attr<int32_t>("moving"));  // bits: the fields whose gradient is wanted

@@ -27,6 +27,10 @@ constexpr int8_t kMandatory = 0, kOptional = 1, kSkipped = 2;
 constexpr int kRuleEither = 0, kRuleStrict = 1, kRuleThesisMeasured = 2;
 // Shadow modes of a shading class (`ShadingClasses.shadows`, fovjax/render/_integrator.py).
 constexpr int kShadowsAll = 0, kShadowsBrightest = 1, kShadowsNone = 2;
+// The shading adjoint's fields (render/_whitted_adjoint.cc): bit i of its `moving` attribute
+// asks for field i's gradient (ka, kd, ks, ke, kr, ns, the lights' colours, the ambient colour).
+constexpr int kAdjointKa = 0, kAdjointKd = 1, kAdjointKs = 2, kAdjointKe = 3, kAdjointKr = 4, kAdjointNs = 5,
+              kAdjointLightColor = 6, kAdjointAmbient = 7;
 // A stored path's face where no ray was traced at that level (render/_whitted.cc, `PathsOut`).
 constexpr int32_t kPathNotTraced = -2;
 // The Whitted handlers' scene operands, in order (`FOVJAX_SCENE_PARAMS`, render/_whitted.cc).

@@ -126,7 +126,11 @@ const char* fovjax_native_layout() {
       ";rule_strict=" + std::to_string(kRuleStrict) +
       ";rule_thesis_measured=" + std::to_string(kRuleThesisMeasured) +
       ";shadows_all=" + std::to_string(kShadowsAll) + ";shadows_brightest=" + std::to_string(kShadowsBrightest) +
-      ";shadows_none=" + std::to_string(kShadowsNone) + ";path_not_traced=" + std::to_string(kPathNotTraced) + ";scene_operands=" + kSceneOperands;
+      ";shadows_none=" + std::to_string(kShadowsNone) + ";adjoint_ka=" + std::to_string(kAdjointKa) +
+      ";adjoint_kd=" + std::to_string(kAdjointKd) + ";adjoint_ks=" + std::to_string(kAdjointKs) +
+      ";adjoint_ke=" + std::to_string(kAdjointKe) + ";adjoint_kr=" + std::to_string(kAdjointKr) +
+      ";adjoint_ns=" + std::to_string(kAdjointNs) + ";adjoint_light_color=" + std::to_string(kAdjointLightColor) +
+      ";adjoint_ambient=" + std::to_string(kAdjointAmbient) + ";path_not_traced=" + std::to_string(kPathNotTraced) + ";scene_operands=" + kSceneOperands;
   return text.c_str();
 }
 
