@@ -78,9 +78,9 @@ def other_platforms() -> bool:
 def jvp_of(fn: Callable, primals, tangents):
     """`jax.jvp(fn, primals, tangents)` where a tangent may be a `SymbolicZero` (a custom JVP
     rule's operand that does not depend on what is differentiated): those operands are held
-    constant, so no tangent arithmetic is traced for them. An instantiated zero would be
-    multiplied through (XLA does not fold `x * 0` in floating point): a gradient with respect
-    to materials alone would otherwise compute the geometry's derivatives too."""
+    constant, so no tangent arithmetic is traced for them. In forward mode an instantiated zero
+    would be multiplied through (XLA does not fold `x * 0` in floating point): work, and NaN
+    where a derivative is infinite. Reverse mode drops such terms either way."""
     flat_primals, tree = jax.tree.flatten(primals)
     flat_tangents = tree.flatten_up_to(tangents)  # a SymbolicZero is a leaf
     moving = [i for i, t in enumerate(flat_tangents) if not isinstance(t, SymbolicZero)]
