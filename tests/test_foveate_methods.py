@@ -181,6 +181,28 @@ def test_magnify_is_bilinear_between_grid_pixels():
     assert np.array_equal(np.asarray(magnify(jnp.asarray(ramp), 1)), ramp)
 
 
+@pytest.mark.parametrize(("h", "w", "stride"), [(13, 17, 2), (11, 10, 3), (9, 14, 4)])
+def test_magnify_is_the_per_pixel_rule(h, w, stride):
+    """Against a per-pixel loop: pixel (y, x) blends grid pixels y // s, x // s and the next
+    (the last where there is none) by the fraction y / s - y // s (sizes the stride does not
+    divide included)."""
+    from fovjax.foveate._methods._guenter import magnify
+
+    pix = np.random.default_rng(h * w + stride).random((2, h, w, 3), dtype=np.float32)
+    grid = pix[:, ::stride, ::stride]
+    hg, wg = grid.shape[1:3]
+    want = np.zeros_like(pix)
+    for y in range(h):
+        for x in range(w):
+            y0, x0 = y // stride, x // stride
+            y1, x1 = min(y0 + 1, hg - 1), min(x0 + 1, wg - 1)
+            fy, fx = y / stride - y0, x / stride - x0
+            top = grid[:, y0, x0] * (1 - fx) + grid[:, y0, x1] * fx
+            bottom = grid[:, y1, x0] * (1 - fx) + grid[:, y1, x1] * fx
+            want[:, y, x] = top * (1 - fy) + bottom * fy
+    np.testing.assert_allclose(np.asarray(magnify(jnp.asarray(pix), stride)), want, atol=1e-6)
+
+
 def test_guenter_layer_rule_by_hand():
     from fovjax.foveate._methods import Guenter2012
 

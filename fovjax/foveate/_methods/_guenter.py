@@ -5,6 +5,7 @@ thresholds) traced."""
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
@@ -40,19 +41,35 @@ def magnify(pix: Float[Array, "E H W 3"], stride: int) -> Float[Array, "E H W 3"
         return pix
     _, h, w, _ = pix.shape
     grid = pix[:, ::stride, ::stride]  # (E, Hg, Wg, 3)
-    hg, wg = grid.shape[1:3]
 
-    def axis(n, ng):
-        g = jnp.arange(n, dtype=jnp.float32) / stride
-        i0 = jnp.floor(g).astype(jnp.int32)
-        f = g - i0
-        i1 = jnp.minimum(i0 + 1, ng - 1)
-        return i0, i1, f
+    # Row k reads grid rows k // stride and the one after (clamped): each grid row repeated
+    # `stride` times, not a gather (XLA:CPU runs a gather fused into the frame's last loop
+    # element by element).
+    fy = _fraction(h, stride)
+    fx = _fraction(w, stride)
+    below = _repeat(grid, _next(grid, 1), stride, h, fy, axis=1)
+    return _repeat(below, _next(below, 2), stride, w, fx, axis=2)
 
-    y0, y1, fy = axis(h, hg)
-    x0, x1, fx = axis(w, wg)
-    rows = grid[:, y0] * (1 - fy)[None, :, None, None] + grid[:, y1] * fy[None, :, None, None]
-    return rows[:, :, x0] * (1 - fx)[None, None, :, None] + rows[:, :, x1] * fx[None, None, :, None]
+
+def _fraction(n: int, stride: int):
+    g = jnp.arange(n, dtype=jnp.float32) / stride
+    return g - jnp.floor(g)
+
+
+def _next(grid, axis: int):
+    """`grid` one row (`axis` 1) or column (`axis` 2) on, the last repeated."""
+    last = jax.lax.slice_in_dim(grid, grid.shape[axis] - 1, grid.shape[axis], axis=axis)
+    return jnp.concatenate([jax.lax.slice_in_dim(grid, 1, grid.shape[axis], axis=axis), last], axis=axis)
+
+
+def _repeat(grid, following, stride: int, n: int, f, axis: int):
+    """Each grid row (or column) `stride` times, cut to `n`, blended towards the next by `f`."""
+    a = jax.lax.slice_in_dim(jnp.repeat(grid, stride, axis=axis), 0, n, axis=axis)
+    b = jax.lax.slice_in_dim(jnp.repeat(following, stride, axis=axis), 0, n, axis=axis)
+    shape = [1, 1, 1, 1]
+    shape[axis] = n
+    f = f.reshape(shape)
+    return a * (1 - f) + b * f
 
 
 def _smoothstep(t):
