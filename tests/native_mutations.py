@@ -147,6 +147,24 @@ MUTATIONS = (
         "if (false) continue;",
     ),
     Mutation(
+        "taa-edge-zero",
+        "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
+        "std::copy(line + row - c, line + row, p + c + row);",
+        "std::fill(p + c + row, p + 2 * c + row, 0.0f);",
+    ),
+    Mutation(
+        "taa-history-unclipped",
+        "the history blend keeps the history unclipped",
+        "const float clipped = above < hi ? above : hi;",
+        "const float clipped = before[j];",
+    ),
+    Mutation(
+        "taa-variance-unsquared",
+        "the history blend's clip box from the mean absolute value, not the variance",
+        "squares[j] = squares[j] + t[j] * t[j];",
+        "squares[j] = squares[j] + t[j];",
+    ),
+    Mutation(
         "class-unreplayed-light",
         "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
         "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",

@@ -314,6 +314,7 @@ NATIVE_HANDLERS = {
         "FovjaxWhittedSlots",
         "FovjaxFillAndBlur",
         "FovjaxGaussianBlur",
+        "FovjaxTaaBlend",
     },
 }
 NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"

@@ -554,6 +554,50 @@ def test_patney_blurs_native_are_the_jax_path():
     assert np.asarray(blurred).std() < 0.5 * np.asarray(images[0]).std()
 
 
+def test_patney_history_blend_native_is_the_jax_path():
+    """Patney 2016's history blend (`taa_blend`) through the native TAA handler against the JAX
+    blend: equal to float rounding, with pixels with and without a history, odd sizes (the
+    border's taps clamped, a single row) and a history far outside the neighbourhood
+    (clipped); the derivative is the JAX blend's."""
+    from fovjax.foveate._methods._patney import TaaHistory, taa_blend
+
+    cases = []
+    for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 3), (1, 1, 2, 3)]):
+        k = jax.random.split(jax.random.key(10 + i), 3)
+        color = 3.0 * jax.random.uniform(k[1], shape) - 1.0  # partly outside the clip box
+        cases.append(
+            (jax.random.uniform(k[0], shape), TaaHistory(color, jax.random.bernoulli(k[2], 0.7, shape[:3])))
+        )
+
+    def both(cases):
+        out = [
+            [taa_blend(c, hist, alpha=0.1, gamma=1.0, native=n) for n in (True, False)] for c, hist in cases
+        ]
+        current, hist = cases[0]
+        out.append(
+            [
+                jax.jvp(
+                    lambda x, n=n: taa_blend(x, hist, alpha=0.25, gamma=0.5, native=n),
+                    (current,),
+                    (jnp.ones_like(current),),
+                )[1]
+                for n in (True, False)
+            ]
+        )
+        return out
+
+    lowered = jax.jit(both).lower(cases)
+    assert lowered.as_text().count("fovjax_taa_blend") >= 3
+    results = lowered.compile()(cases)
+    for native, reference in results:
+        np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-7)
+    # The history counts: blended pixels differ from this frame, the others are it.
+    (native, _), (current, hist) = results[0], cases[0]
+    held = np.asarray(hist.valid)
+    changed = np.any(np.asarray(native) != np.asarray(current), axis=-1)
+    assert changed[held].mean() > 0.9 and not changed[~held].any()
+
+
 # ---- the featured spheres ---------------------------------------------------------------------
 
 EYE_W, EYE_H = 40, 32

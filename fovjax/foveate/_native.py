@@ -17,6 +17,7 @@ SELECT_TARGET = "fovjax_select_samples"
 SLOTS_TARGET = "fovjax_whitted_slots"
 FILL_TARGET = "fovjax_fill_and_blur"
 BLUR_TARGET = "fovjax_gaussian_blur"
+TAA_TARGET = "fovjax_taa_blend"
 
 
 def camera_rows(cameras) -> Float[Array, "2 stride"]:
@@ -224,3 +225,20 @@ def native_gaussian_blur(image, taps):
     out = jax.ShapeDtypeStruct(np.shape(image), f32)
     call = handler(BLUR_TARGET, out, what="the native Gaussian blur", vmap_method="sequential")
     return call(jax.lax.stop_gradient(jnp.asarray(image, f32)), jnp.asarray(taps, f32))
+
+
+def native_taa_blend(current, color, valid, *, alpha: float, gamma: float):
+    """Patney 2016's history blend through the TAA handler (CPU only): `current` and the
+    history's `color` (N, H, W, C), `valid` (N, H, W); what `_methods._patney.taa_blend`
+    computes, its neighbourhood's taps added in its order."""
+    f32 = jnp.float32
+    out = jax.ShapeDtypeStruct(np.shape(current), f32)
+    call = handler(TAA_TARGET, out, what="the native history blend", vmap_method="sequential")
+    return call(
+        jax.lax.stop_gradient(jnp.asarray(current, f32)),
+        jax.lax.stop_gradient(jnp.asarray(color, f32)),
+        jnp.asarray(valid, bool),
+        alpha=np.float32(alpha),
+        keep=np.float32(1.0 - alpha),
+        gamma=np.float32(gamma),
+    )

@@ -53,6 +53,7 @@ HANDLERS = {
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
     "fovjax_gaussian_blur": "FovjaxGaussianBlur",
+    "fovjax_taa_blend": "FovjaxTaaBlend",
 }
 FLAGS = (
     "-O3",

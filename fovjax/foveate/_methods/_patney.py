@@ -22,7 +22,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ...native.internal import on_platforms
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
-from .._native import native_gaussian_blur
+from .._native import native_gaussian_blur, native_taa_blend
 from ._base import FrameInputs
 from ._catalog import Patney2016
 from ._guenter import layer_weights
@@ -140,17 +140,28 @@ def _neighbourhood(image: Float[Array, "E H W 3"]):
     return mean, jnp.sqrt(jnp.maximum(var, 0.0))
 
 
-def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float):
+def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float, native: bool = False):
     """Temporal antialiasing: the history clamped per channel to the box mean ± `gamma`·std of
     the current frame's 3×3 neighbourhood (variance clipping), the box widened to contain the
     current pixel (so a still image is a fixed point), then blended, `alpha` of the current
-    frame; where the history holds nothing, the current frame. Returns the blended image."""
+    frame; where the history holds nothing, the current frame. Returns the blended image.
+    `native`: on a CPU through the TAA handler (`native_taa_blend`: the same arithmetic in the
+    same order, a band of rows per task on both cores), chosen inside the program; derivatives
+    are this function's."""
+    if native:
+        in_jax = functools.partial(_taa_blend, alpha=alpha, gamma=gamma)
+        on_cpu = functools.partial(native_taa_blend, alpha=alpha, gamma=gamma)
+        return on_platforms(in_jax, cpu=on_cpu)(current, history.color, history.valid)
+    return _taa_blend(current, history.color, history.valid, alpha=alpha, gamma=gamma)
+
+
+def _taa_blend(current, color, valid, *, alpha: float, gamma: float):
     mean, std = _neighbourhood(current)
     lo = jnp.minimum(mean - gamma * std, current)
     hi = jnp.maximum(mean + gamma * std, current)
-    clipped = jnp.clip(history.color, lo, hi)
+    clipped = jnp.clip(color, lo, hi)
     blended = alpha * current + (1.0 - alpha) * clipped
-    return jnp.where(history.valid[..., None], blended, current)
+    return jnp.where(valid[..., None], blended, current)
 
 
 def _block_any(mask: Bool[Array, "E H W"], stride: int) -> Bool[Array, "E H W"]:
@@ -194,7 +205,7 @@ def patney_stereo(
     diagnostics = diagnostics_tuple(options.diagnostics, "patney_stereo")
     from ...render.internal import integrator_plan
 
-    native = integrator_plan(config).cpu  # the blurs through the native handler on a CPU
+    native = integrator_plan(config).cpu  # the blurs and the history blend natively on a CPU
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
@@ -219,7 +230,7 @@ def patney_stereo(
         return rest * (1 - w_inner)[..., None] + fine * w_inner[..., None]
 
     shaded = blend(inner, middle, outer)
-    accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma)
+    accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma, native=native)
     # The pre-filter per shading rate (σ grows with the block size), shown where that rate is.
     filtered = [
         contrast_preserving_filter(
