@@ -165,6 +165,24 @@ MUTATIONS = (
         "squares[j] = squares[j] + t[j];",
     ),
     Mutation(
+        "layers-unclamped-grid",
+        "Guenter's magnified layers read a grid pixel past the last one instead of holding it",
+        "const int64_t i1 = std::min<int64_t>(i0 + 1, cells - 1);",
+        "const int64_t i1 = std::min<int64_t>(i0 + 1, cells);",
+    ),
+    Mutation(
+        "layers-nearest",
+        "Guenter's magnified layers take the nearest grid pixel before, not bilinear",
+        "  return {i0 * stride, i1 * stride, g - floor_g};",
+        "  return {i0 * stride, i1 * stride, 0.0f};",
+    ),
+    Mutation(
+        "layers-weights-swapped",
+        "Guenter's blend weighs the outer layer by the middle's weight",
+        "const float coarse = outer * (1.0f - w_middle[x]) + middle * w_middle[x];",
+        "const float coarse = middle * (1.0f - w_middle[x]) + outer * w_middle[x];",
+    ),
+    Mutation(
         "class-unreplayed-light",
         "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
         "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",

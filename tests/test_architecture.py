@@ -315,6 +315,7 @@ NATIVE_HANDLERS = {
         "FovjaxFillAndBlur",
         "FovjaxGaussianBlur",
         "FovjaxTaaBlend",
+        "FovjaxLayerBlend",
     },
 }
 NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"

@@ -598,6 +598,43 @@ def test_patney_history_blend_native_is_the_jax_path():
     assert changed[held].mean() > 0.9 and not changed[~held].any()
 
 
+@pytest.mark.parametrize(("h", "w", "strides"), [(13, 18, (2, 4)), (10, 7, (3, 5))])
+def test_guenter_layers_native_are_the_jax_path(h, w, strides):
+    """Guenter 2012's layers (`composite`: the middle and outer layers magnified, blended by
+    eccentricity, both eyes side by side) through the native layers handler against the JAX
+    composite: equal to float rounding, at sizes the strides do not divide and radii that put
+    every pixel in a blend somewhere; the derivative is the JAX composite's."""
+    from fovjax.foveate._methods._guenter import composite
+
+    k = jax.random.split(jax.random.key(h * w), 2)
+    pix = jax.random.uniform(k[0], (2, h, w, 3))
+    ecc = 12.0 * jax.random.uniform(k[1], (2, h, w))
+    radii = jnp.asarray([3.0, 7.0])
+
+    def both(pix, ecc, radii):
+        out = [composite(pix, ecc, radii, strides=strides, blend_deg=2.0, native=n) for n in (True, False)]
+        jvps = [
+            jax.jvp(
+                lambda r, n=n: composite(pix, ecc, r, strides=strides, blend_deg=2.0, native=n),
+                (radii,),
+                (jnp.ones_like(radii),),
+            )[1]
+            for n in (True, False)
+        ]
+        return out, jvps
+
+    lowered = jax.jit(both).lower(pix, ecc, radii)
+    assert "fovjax_layer_blend" in lowered.as_text()
+    (native, reference), (native_jvp, reference_jvp) = lowered.compile()(pix, ecc, radii)
+    assert native.shape == (h, 2 * w, 3)
+    np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(native_jvp), np.asarray(reference_jvp), rtol=1e-6, atol=1e-6)
+    # Inside the inner radius a pixel is its own mean (the left eye on the left).
+    inner = np.asarray(ecc[0]) < 3.0
+    np.testing.assert_array_equal(np.asarray(native)[:, :w][inner], np.asarray(pix[0])[inner])
+    assert np.abs(np.asarray(native)[:, :w][~inner] - np.asarray(pix[0])[~inner]).max() > 0.05
+
+
 # ---- the featured spheres ---------------------------------------------------------------------
 
 EYE_W, EYE_H = 40, 32

@@ -18,6 +18,7 @@ SLOTS_TARGET = "fovjax_whitted_slots"
 FILL_TARGET = "fovjax_fill_and_blur"
 BLUR_TARGET = "fovjax_gaussian_blur"
 TAA_TARGET = "fovjax_taa_blend"
+LAYERS_TARGET = "fovjax_layer_blend"
 
 
 def camera_rows(cameras) -> Float[Array, "2 stride"]:
@@ -241,4 +242,24 @@ def native_taa_blend(current, color, valid, *, alpha: float, gamma: float):
         alpha=np.float32(alpha),
         keep=np.float32(1.0 - alpha),
         gamma=np.float32(gamma),
+    )
+
+
+def native_layer_blend(pix, ecc, radii, *, strides: tuple[int, int], blend_deg: float):
+    """Guenter 2012's layers through the layers handler (CPU only): each pixel's mean `pix`
+    (2, H, W, 3), the eccentricities `ecc` (2, H, W), the inner and middle layers' `radii`
+    (2,); the middle and outer layers magnified from their grids of `strides`, blended over
+    `blend_deg`, both eyes side by side (H, 2W, 3): what `_methods._guenter.composite`
+    computes, in its order."""
+    _, h, w, _ = np.shape(pix)
+    f32 = jnp.float32
+    out = jax.ShapeDtypeStruct((h, 2 * w, 3), f32)
+    call = handler(LAYERS_TARGET, out, what="the native layer blend", vmap_method="sequential")
+    return call(
+        jax.lax.stop_gradient(jnp.asarray(pix, f32)),
+        jax.lax.stop_gradient(jnp.asarray(ecc, f32)),
+        jax.lax.stop_gradient(jnp.asarray(radii, f32).reshape(2)),
+        middle_stride=np.int32(strides[0]),
+        outer_stride=np.int32(strides[1]),
+        blend_deg=np.float32(blend_deg),
     )

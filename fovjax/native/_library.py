@@ -54,6 +54,7 @@ HANDLERS = {
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
     "fovjax_gaussian_blur": "FovjaxGaussianBlur",
     "fovjax_taa_blend": "FovjaxTaaBlend",
+    "fovjax_layer_blend": "FovjaxLayerBlend",
 }
 FLAGS = (
     "-O3",

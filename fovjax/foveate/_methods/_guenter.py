@@ -5,11 +5,15 @@ thresholds) traced."""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ...native.internal import on_platforms
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
+from .._native import native_layer_blend
 from ._base import FrameInputs
 from ._catalog import Guenter2012
 from ._sparse import side_by_side, trace_pixels
@@ -83,6 +87,33 @@ def layer_weights(ecc: Float[Array, "E H W"], radii, blend_deg: float):
     return [1.0 - _smoothstep((ecc - r) / blend_deg) for r in radii]
 
 
+def composite(
+    pix: Float[Array, "2 H W 3"],
+    ecc: Float[Array, "2 H W"],
+    radii: Float[Array, "2"],
+    *,
+    strides: tuple[int, int],
+    blend_deg: float,
+    native: bool = False,
+) -> Float[Array, "H W2 3"]:
+    """The three layers from each pixel's mean `pix`: the inner as it is, the middle and outer
+    magnified from their grids of `strides`, blended by eccentricity across `blend_deg` beyond
+    the inner and middle `radii`; both eyes side by side. `native`: on a CPU through the layers
+    handler (`native_layer_blend`: the same arithmetic in the same order, a band of rows per
+    task on both cores), chosen inside the program; derivatives are this function's."""
+
+    def in_jax(pix, ecc, radii):
+        inner, middle, outer = (magnify(pix, s) for s in (1, *strides))
+        w_inner, w_middle = layer_weights(ecc, (radii[0], radii[1]), blend_deg)
+        coarse = outer * (1 - w_middle)[..., None] + middle * w_middle[..., None]
+        return side_by_side(coarse * (1 - w_inner)[..., None] + inner * w_inner[..., None])
+
+    if not native:
+        return in_jax(pix, ecc, radii)
+    on_cpu = functools.partial(native_layer_blend, strides=strides, blend_deg=blend_deg)
+    return on_platforms(in_jax, cpu=on_cpu)(pix, ecc, radii)
+
+
 def guenter_stereo(
     method: Guenter2012, inputs: FrameInputs, history: None = None, *, options: FrameOptions
 ) -> tuple[FoveatedOutputs, Int[Array, ""], None]:
@@ -108,9 +139,16 @@ def guenter_stereo(
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
     )
-    inner, middle, outer = (magnify(pixels.prefill, s) for s in strides)
-    w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
-    coarse = outer * (1 - w_middle)[..., None] + middle * w_middle[..., None]
-    eyes = coarse * (1 - w_inner)[..., None] + inner * w_inner[..., None]
-    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
+    from ...render.internal import integrator_plan
+
+    native = integrator_plan(config).cpu  # the layers blended natively on a CPU
+    image = composite(
+        pixels.prefill,
+        ecc,
+        jnp.stack(radii),
+        strides=method.strides,
+        blend_deg=method.blend_deg,
+        native=native,
+    )
+    outputs = pixels.outputs(image, diagnostics)
     return outputs, jnp.zeros((), jnp.int32), None

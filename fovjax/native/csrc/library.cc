@@ -9,7 +9,7 @@
 //                    shading parameters (_whitted_adjoint.cc)
 //   foveate/         sample selection with JAX's threefry (_select.cc), the slots integrator
 //                    (_slots.cc), pixel means, fill and blur (_fill.cc), Patney 2016's Gaussian blurs
-//                    (_blur.cc) and history blend (_taa.cc)
+//                    (_blur.cc) and history blend (_taa.cc), Guenter 2012's layers (_layers.cc)
 //
 // Embree itself is the shared library inside the `embreex` wheel, opened with dlopen at run time.
 
@@ -28,6 +28,7 @@
 #include "foveate/_fill.cc"
 #include "foveate/_blur.cc"
 #include "foveate/_taa.cc"
+#include "foveate/_layers.cc"
 
 extern "C" {
 
