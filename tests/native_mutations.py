@@ -183,6 +183,12 @@ MUTATIONS = (
         "const float coarse = middle * (1.0f - w_middle[x]) + outer * w_middle[x];",
     ),
     Mutation(
+        "surface-normal-unflipped",
+        "a hit's normals are not turned to face the ray (the surface shared by the forward and the adjoint)",
+        "const float sign = Dot(ng, d) > 0.0f ? -1.0f : 1.0f;",
+        "const float sign = 1.0f;",
+    ),
+    Mutation(
         "class-unreplayed-light",
         "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
         "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",

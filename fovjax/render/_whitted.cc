@@ -170,6 +170,67 @@ Vec3 Environment(const Texture& e, Vec3 d) {
   return top * (1 - fy) + bottom * fy;
 }
 
+// A hit's surface, as `hit_geometry` and the shading compute it: the point, the geometric
+// normal and the shading normal (both facing the ray's origin) and the barycentrics, u and v
+// recomputed from the face where `recompute` (else the given ones).
+struct Surface {
+  Vec3 p, ng, nsh;
+  float b0, u, v;
+};
+
+inline __attribute__((always_inline)) Surface SurfaceAt(const ShadeScene& s, const int32_t* face, Vec3 o,
+                                                        Vec3 d, float u, float v, bool recompute) {
+  Vec3 c0 = Load3(s.vertices + 3 * face[0]), c1 = Load3(s.vertices + 3 * face[1]),
+       c2 = Load3(s.vertices + 3 * face[2]);
+  if (recompute) {
+    Vec3 e1 = c1 - c0, e2 = c2 - c0;
+    Vec3 pvec = Cross(d, e2);
+    float det = Dot(e1, pvec);
+    if (det != 0.0f) {
+      float inv_det = 1.0f / det;
+      Vec3 tvec = o - c0;
+      Vec3 qvec = Cross(tvec, e1);
+      u = Dot(tvec, pvec) * inv_det;
+      v = Dot(d, qvec) * inv_det;
+    } else {
+      u = v = 0.0f;
+    }
+  }
+  Surface at;
+  at.u = u;
+  at.v = v;
+  at.b0 = 1.0f - u - v;
+  at.p = Interpolate(at.b0, u, v, c0, c1, c2);
+  Vec3 ng = Normalize(Cross(c1 - c0, c2 - c0));
+  const float sign = Dot(ng, d) > 0.0f ? -1.0f : 1.0f;
+  at.ng = ng * sign;
+  at.nsh = at.ng;
+  if (s.normals != nullptr) {
+    Vec3 ni = Normalize(Interpolate(at.b0, u, v, Load3(s.normals + 3 * face[0]), Load3(s.normals + 3 * face[1]),
+                                    Load3(s.normals + 3 * face[2])));
+    if (!(ni.x == 0.0f && ni.y == 0.0f && ni.z == 0.0f)) at.nsh = ni * sign;
+  }
+  return at;
+}
+
+// The texture's factor on Kd at a hit into `factor`, and whether material `mat` has one.
+inline __attribute__((always_inline)) bool TextureAt(const ShadeScene& s, int32_t mat, const int32_t* face,
+                                                     const Surface& at, Vec3* factor) {
+  if (s.textures.empty()) return false;
+  const int32_t ti = s.texture[mat];
+  if (!(ti >= 0 && ti < static_cast<int32_t>(s.textures.size()))) return false;
+  float tu = 0.0f, tv = 0.0f;
+  if (s.uvs != nullptr) {
+    const float* a = s.uvs + 2 * face[0];
+    const float* bb = s.uvs + 2 * face[1];
+    const float* c = s.uvs + 2 * face[2];
+    tu = a[0] * at.b0 + bb[0] * at.u + c[0] * at.v;
+    tv = a[1] * at.b0 + bb[1] * at.u + c[1] * at.v;
+  }
+  *factor = Bilinear(s.textures[ti], tu, tv);
+  return true;
+}
+
 // One block's work buffers, kept per thread across blocks and calls.
 struct WhittedBuffers {
   std::vector<float> o, d, weight, tmin, tmax, t, u, v;
@@ -305,51 +366,12 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         b.prim[k] = -1;  // shaded as a miss; the call returns an error
         continue;
       }
-      Vec3 c0 = Load3(s.vertices + 3 * face[0]), c1 = Load3(s.vertices + 3 * face[1]),
-           c2 = Load3(s.vertices + 3 * face[2]);
-      Vec3 d = Load3(&b.d[3 * k]);
-      float u = b.u[k], v = b.v[k];
-      if (s.recompute) {  // hit_geometry
-        Vec3 e1 = c1 - c0, e2 = c2 - c0;
-        Vec3 pvec = Cross(d, e2);
-        float det = Dot(e1, pvec);
-        if (det != 0.0f) {
-          float inv_det = 1.0f / det;
-          Vec3 tvec = Load3(&b.o[3 * k]) - c0;
-          Vec3 qvec = Cross(tvec, e1);
-          u = Dot(tvec, pvec) * inv_det;
-          v = Dot(d, qvec) * inv_det;
-        } else {
-          u = v = 0.0f;
-        }
-      }
-      const float b0 = 1.0f - u - v;
-      Vec3 p = Interpolate(b0, u, v, c0, c1, c2);
-      Vec3 ng = Normalize(Cross(c1 - c0, c2 - c0));
-      const float sign = Dot(ng, d) > 0.0f ? -1.0f : 1.0f;
-      ng = ng * sign;
-      Vec3 nsh = ng;
-      if (s.normals != nullptr) {
-        Vec3 ni = Normalize(Interpolate(b0, u, v, Load3(s.normals + 3 * face[0]),
-                                        Load3(s.normals + 3 * face[1]), Load3(s.normals + 3 * face[2])));
-        if (!(ni.x == 0.0f && ni.y == 0.0f && ni.z == 0.0f)) nsh = ni * sign;
-      }
-      const float* row = s.materials + kMaterialStride * mat;
-      Vec3 kd = Load3(row + 3);
-      if (!s.textures.empty()) {
-        const int32_t ti = s.texture[mat];
-        if (ti >= 0 && ti < static_cast<int32_t>(s.textures.size())) {
-          float tu = 0.0f, tv = 0.0f;
-          if (s.uvs != nullptr) {
-            const float* a = s.uvs + 2 * face[0];
-            const float* bb = s.uvs + 2 * face[1];
-            const float* c = s.uvs + 2 * face[2];
-            tu = a[0] * b0 + bb[0] * u + c[0] * v;
-            tv = a[1] * b0 + bb[1] * u + c[1] * v;
-          }
-          kd = kd * Bilinear(s.textures[ti], tu, tv);
-        }
-      }
+      const Surface at =
+          SurfaceAt(s, face, Load3(&b.o[3 * k]), Load3(&b.d[3 * k]), b.u[k], b.v[k], s.recompute);
+      const Vec3 p = at.p, ng = at.ng, nsh = at.nsh;
+      Vec3 kd = Load3(s.materials + kMaterialStride * mat + 3);
+      Vec3 texture;
+      if (TextureAt(s, mat, face, at, &texture)) kd = kd * texture;
       for (int c = 0; c < 3; ++c) {
         b.point[3 * k + c] = (&p.x)[c];
         b.n_geo[3 * k + c] = (&ng.x)[c];

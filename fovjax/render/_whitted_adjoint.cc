@@ -68,51 +68,13 @@ void AdjointRay(const ShadeScene& s, Vec3 o, Vec3 d, const int32_t* prim, const 
       s.out_of_range->store(1);
       return;
     }
-    Vec3 c0 = Load3(s.vertices + 3 * face[0]), c1 = Load3(s.vertices + 3 * face[1]),
-         c2 = Load3(s.vertices + 3 * face[2]);
-    // hit_geometry, as the replay recomputes it
-    float u = 0.0f, v = 0.0f;
-    {
-      Vec3 e1 = c1 - c0, e2 = c2 - c0;
-      Vec3 pvec = Cross(d, e2);
-      float det = Dot(e1, pvec);
-      if (det != 0.0f) {
-        float inv_det = 1.0f / det;
-        Vec3 tvec = o - c0;
-        Vec3 qvec = Cross(tvec, e1);
-        u = Dot(tvec, pvec) * inv_det;
-        v = Dot(d, qvec) * inv_det;
-      }
-    }
-    const float b0 = 1.0f - u - v;
-    Vec3 p = Interpolate(b0, u, v, c0, c1, c2);
-    Vec3 ng = Normalize(Cross(c1 - c0, c2 - c0));
-    const float sign = Dot(ng, d) > 0.0f ? -1.0f : 1.0f;
-    ng = ng * sign;
-    Vec3 nsh = ng;
-    if (s.normals != nullptr) {
-      Vec3 ni = Normalize(Interpolate(b0, u, v, Load3(s.normals + 3 * face[0]), Load3(s.normals + 3 * face[1]),
-                                      Load3(s.normals + 3 * face[2])));
-      if (!(ni.x == 0.0f && ni.y == 0.0f && ni.z == 0.0f)) nsh = ni * sign;
-    }
+    const Surface at = SurfaceAt(s, face, o, d, 0.0f, 0.0f, true);  // hit_geometry, as the replay
+    const Vec3 p = at.p, ng = at.ng, nsh = at.nsh;
     const float* row = s.materials + kMaterialStride * mat;
     Vec3 ka = Load3(row), kd = Load3(row + 3), ks = Load3(row + 6), ke = Load3(row + 9), kr = Load3(row + 12);
     const float shininess = row[15];
     Vec3 texture{1.0f, 1.0f, 1.0f};
-    if (!s.textures.empty()) {
-      const int32_t ti = s.texture[mat];
-      if (ti >= 0 && ti < static_cast<int32_t>(s.textures.size())) {
-        float tu = 0.0f, tv = 0.0f;
-        if (s.uvs != nullptr) {
-          const float* a = s.uvs + 2 * face[0];
-          const float* bb = s.uvs + 2 * face[1];
-          const float* c = s.uvs + 2 * face[2];
-          tu = a[0] * b0 + bb[0] * u + c[0] * v;
-          tv = a[1] * b0 + bb[1] * u + c[1] * v;
-        }
-        texture = Bilinear(s.textures[ti], tu, tv);
-      }
-    }
+    TextureAt(s, mat, face, at, &texture);
     const Vec3 kd_tex = kd * texture;
     const Vec3 gw = g * w;  // d loss / d (this level's radiance before the weight)
     double* dm = out->materials.data() + static_cast<int64_t>(kMaterialStride) * mat;
