@@ -152,6 +152,44 @@ def test_extra_flags_build_their_own_library_and_a_bad_one_is_named(tmp_path, mo
         _library.library_path(compiler)
 
 
+def test_the_user_s_flags_come_last(monkeypatch):
+    """`FOVJAX_NATIVE_FLAGS` follows every flag of the project's, link-time optimisation's
+    included, so the user's win (`-fno-lto` builds plainly); without them the first choice is
+    the project's flags and `PARALLEL_FLAGS` (the library's name unchanged)."""
+    from fovjax.native import _library
+
+    compiler = _library._compiler()
+    assert compiler is not None
+    monkeypatch.setenv("FOVJAX_NATIVE_FLAGS", "-fno-lto -O1")
+    monkeypatch.delenv("FOVJAX_NATIVE_SANITIZE", raising=False)
+    choices = _library._choices(compiler)
+    assert all(choice[-2:] == ("-fno-lto", "-O1") for choice in choices)
+    if len(choices) == 2:  # GCC
+        assert set(_library.PARALLEL_FLAGS) <= set(choices[0])
+    monkeypatch.delenv("FOVJAX_NATIVE_FLAGS")
+    assert _library._choices(compiler)[0][: len(_library.FLAGS)] == _library.FLAGS
+
+
+def test_a_library_without_the_entry_points_is_refused_by_name(tmp_path, monkeypatch):
+    """A library that loads but lacks the handlers' entry points (a build whose flags left it
+    without code: GCC's `-flto` with `-fno-lto` before it) is named in the status, with what
+    it lacks and how to rebuild it, and nothing is registered (the JAX traversal runs)."""
+    _extras.require("embreex")
+    from fovjax.native import _library
+
+    compiler = _library._compiler()
+    assert compiler is not None
+    source, empty = tmp_path / "empty.cc", tmp_path / "fovjax_native-empty.so"
+    source.write_text('extern "C" int fovjax_nothing() { return 0; }\n')
+    subprocess.run([compiler, "-shared", "-fPIC", str(source), "-o", str(empty)], check=True, timeout=120)
+    monkeypatch.setattr(_library, "_built_library", lambda compiler: (empty, 0.0))
+    monkeypatch.setenv("FOVJAX_NATIVE_FLAGS", "-O1")
+    status = _library._load()
+    assert not status.available
+    assert str(empty) in status.reason and "fovjax_native_layout" in status.reason
+    assert "FOVJAX_NATIVE_FLAGS='-O1'" in status.reason and "remove it" in status.reason
+
+
 def test_the_native_backend_can_be_turned_off(tmp_path):
     out = _fallback({"FOVJAX_NATIVE": "0"}, "status", tmp_path)
     assert out["STARTED"] == "None" and out["BUILDING"] == "False"

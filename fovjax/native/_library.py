@@ -56,6 +56,16 @@ HANDLERS = {
     "fovjax_taa_blend": "FovjaxTaaBlend",
     "fovjax_layer_blend": "FovjaxLayerBlend",
 }
+# The library's C entry points (library.cc's extern "C"), read by `_load`.
+ENTRY_POINTS = (
+    "fovjax_native_layout",
+    "fovjax_embree_init",
+    "fovjax_embree_error",
+    "fovjax_embree_version",
+    "fovjax_embree_release",
+    "fovjax_embree_packet_width",
+    "fovjax_embree_cached_scenes",
+)
 FLAGS = (
     "-O3",
     "-fno-math-errno",
@@ -181,10 +191,10 @@ def _compiler_version(compiler: str) -> str:
 def _choices(compiler: str) -> list[tuple[str, ...]]:
     """The flags to build with, in order of preference: with `PARALLEL_FLAGS` first where the
     compiler is GCC (and no sanitizer is asked for), then plain."""
-    flags = _flags()
     if not _environment.switch("FOVJAX_NATIVE_SANITIZE") and _gcc(compiler, _compiler_version(compiler)):
-        return [flags + PARALLEL_FLAGS, flags]
-    return [flags]
+        # The user's flags last, after PARALLEL_FLAGS too: theirs win (`-fno-lto`).
+        return [FLAGS + PARALLEL_FLAGS + _extra_flags(), _flags()]
+    return [_flags()]
 
 
 def build(compiler: str, flags: tuple[str, ...] | None = None) -> tuple[Path, float]:
@@ -334,6 +344,15 @@ def _load() -> NativeStatus:
         lib = ctypes.CDLL(str(path))
     except OSError as exc:
         return NativeStatus(False, f"could not load {path}: {exc}")
+    missing = [name for name in ENTRY_POINTS + tuple(HANDLERS.values()) if not hasattr(lib, name)]
+    if missing:
+        extra = _extra_flags()
+        said = f", built with FOVJAX_NATIVE_FLAGS={' '.join(extra)!r}" if extra else ""
+        return NativeStatus(
+            False,
+            f"{path} lacks the handlers' entry points ({', '.join(missing[:3])}"
+            f"{', …' if len(missing) > 3 else ''}){said}: remove it to build it again",
+        )
     lib.fovjax_native_layout.restype = ctypes.c_char_p
     differences = layout_differences(parse_layout(lib.fovjax_native_layout().decode()))
     if differences:
