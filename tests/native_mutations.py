@@ -189,6 +189,18 @@ MUTATIONS = (
         "const float sign = 1.0f;",
     ),
     Mutation(
+        "plain-with-spot-lights",
+        "the option-free loop runs for a scene with spot lights (their cone ignored)",
+        "} else if (paths == nullptr && !s.spots && s.shading.specular",
+        "} else if (paths == nullptr && s.shading.specular",
+    ),
+    Mutation(
+        "plain-with-phong",
+        "the option-free loop runs for Phong's specular term (Blinn–Phong's computed instead)",
+        "&& s.shading.specular == kSpecularBlinnPhong && !s.shading.payload",
+        "&& !s.shading.payload",
+    ),
+    Mutation(
         "class-unreplayed-light",
         "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
         "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",

@@ -85,6 +85,7 @@ struct ShadeScene {
   const int32_t* class_level = nullptr;    // (K,): the tree of a merged BVH, or null (tree 0)
   int32_t num_classes = 0;
   int brightest = 0;  // the light of the largest R + G + B (the first of equals, as jnp.argmax)
+  bool spots = false;  // whether a light is a spot light
 };
 
 // A ray's class as an index of the tables (clamped, as a JAX gather clamps).
@@ -109,16 +110,18 @@ struct LightAt {
 };
 
 // Always inlined: it runs per light at every hit, twice, and GCC left it out of line.
+// `kSpots` false: the scene has no spot light (`ShadeScene::spots`), so none is looked for.
+template <bool kSpots = true>
 inline __attribute__((always_inline)) LightAt LightTowards(const ShadeScene& s, int l, Vec3 p, Vec3* dir) {
   const float* row = s.lights + kLightStride * l;
   const int32_t kind = s.light_kind[l];
   LightAt at;
-  at.positional = kind == kLightPoint || kind == kLightSpot;
+  at.positional = kind == kLightPoint || (kSpots && kind == kLightSpot);
   Vec3 position = Load3(row);
   at.to_light = at.positional ? position - p : position;
   *dir = Normalize(at.to_light);
   at.spot = 1.0f;
-  if (kind == kLightSpot) {
+  if (kSpots && kind == kLightSpot) {
     const float c = -Dot(Load3(row + 6), *dir), cos_inner = row[9], cos_outer = row[10];
     at.spot = c >= cos_inner ? 1.0f : c > cos_outer ? (c - cos_outer) / (cos_inner - cos_outer) : 0.0f;
   }
@@ -296,7 +299,9 @@ struct PathsOut {
 // ahead of the shading (a full frame's neighbouring rays share their faces: it gains nothing).
 // `kClasses`: each ray's class in `ray_class` (indexed as the rays), its fidelity the tables' of
 // `s` (`ShadingClasses`); without, the loop has none of their work (`WhittedBlock` picks).
-template <bool kClasses>
+// `kPlain`: no spot light, Blinn–Phong without the payload, no cut-off, no stored paths: the
+// loop has none of those options' work.
+template <bool kClasses, bool kPlain>
 void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
                  const bool* active, const BlockRays& block, float* total, int32_t* traced, bool packets,
                  bool sparse, const PathsOut* paths, const int32_t* ray_class) {
@@ -312,7 +317,9 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
     traced[g] = 0;
     if (!active[g]) continue;
     b.pixel[m] = static_cast<int32_t>(g);
-    b.column[m] = paths == nullptr ? 0 : static_cast<int32_t>(paths->column ? paths->column[i] : g);
+    if constexpr (!kPlain) {
+      b.column[m] = paths == nullptr ? 0 : static_cast<int32_t>(paths->column ? paths->column[i] : g);
+    }
     if constexpr (kClasses) {
       b.cls[m] = ClassIndex(s, ray_class[g]);
       if (levels) b.level[m] = s.class_level[b.cls[m]];
@@ -333,7 +340,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
     Rays rays{b.o.data(), b.d.data(), b.tmin.data(), b.tmax.data(), levels ? b.level.data() : nullptr,
               b.t.data(), b.prim.data(), b.u.data(), b.v.data()};
     TraceList(tree, rays, m, false, packets);
-    if (paths != nullptr) {
+    if (!kPlain && paths != nullptr) {
       for (int64_t k = 0; k < m; ++k) {
         paths->prim[depth * paths->n + b.column[k]] = b.prim[k] < 0 ? -1 : b.prim[k];
       }
@@ -382,7 +389,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       Vec3 origin = p + s.offset * ng;
       for (int l = 0; l < nl; ++l) {
         Vec3 dir;
-        const LightAt at = LightTowards(s, l, p, &dir);
+        const LightAt at = LightTowards<!kPlain>(s, l, p, &dir);
         float n2 = Dot(at.to_light, at.to_light);
         float distance = n2 > 0.0f ? std::sqrt(n2) : 0.0f;
         float ndl = Dot(nsh, dir);
@@ -401,7 +408,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         b.stmin[j] = 0.0f;
         b.stmax[j] = at.positional ? distance : INFINITY;
         b.n_dot_l[j] = ndl;
-        b.spot[j] = at.spot;
+        if constexpr (!kPlain) b.spot[j] = at.spot;
       }
     }
     Rays shadow{b.so.data(), b.sd.data(), b.stmin.data(), b.stmax.data(), levels ? b.slevel.data() : nullptr,
@@ -432,7 +439,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         bool first = true;
         for (int l = 0; l < nl; ++l) {
           Vec3 dir;
-          const LightAt at = LightTowards(s, l, p, &dir);
+          const LightAt at = LightTowards<!kPlain>(s, l, p, &dir);
           float ndl = Dot(nsh, dir);
           // not wanted: no ray, no light
           if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
@@ -441,19 +448,20 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
             const int64_t j = js++;
             traced[px] += 1 << 8;
             if (b.sprim[j] >= 0) continue;  // blocked
-            n_dot_l = b.n_dot_l[j], spot = b.spot[j];
+            n_dot_l = b.n_dot_l[j];
+            if constexpr (!kPlain) spot = b.spot[j];
           }
-          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;
+          if (!kPlain && paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;
           // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
           float cosine;
-          if (s.shading.specular == kSpecularPhong) {
+          if (!kPlain && s.shading.specular == kSpecularPhong) {
             Vec3 mirrored = (2.0f * n_dot_l) * nsh - dir;
             cosine = -Dot(mirrored, d);
           } else {
             cosine = Dot(nsh, Normalize(dir - d));
           }
           float spec = cosine > 0.0f ? std::exp2(shininess * std::log2(cosine)) : 0.0f;
-          if (s.shading.payload) spec = spec * n_dot_l;  // §4.4.3's shadow payload, n·l
+          if (!kPlain && s.shading.payload) spec = spec * n_dot_l;  // §4.4.3's shadow payload, n·l
           Vec3 color = Load3(s.lights + kLightStride * l + 3) * spot;
           Vec3 term = (kd * n_dot_l + ks * spec) * color;
           sum = first ? term : sum + term;
@@ -470,7 +478,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       if constexpr (kClasses) {
         if (!(depth < s.class_depth[b.cls[k]])) continue;  // the class's reflection depth
       }
-      const float cut = s.shading.min_contribution;  // §2.5.2's contribution cut-off
+      const float cut = kPlain ? 0.0f : s.shading.min_contribution;  // §2.5.2's contribution cut-off
       if (cut > 0.0f && !(0.30f * w.x + 0.59f * w.y + 0.11f * w.z >= cut)) continue;
       Vec3 reflected = d - 2.0f * Dot(d, nsh) * nsh;
       if (Dot(reflected, ng) <= 0.0f) reflected = d - 2.0f * Dot(d, ng) * ng;
@@ -481,7 +489,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         b.weight[3 * next + c2] = (&w.x)[c2];
       }
       b.pixel[next] = px;
-      b.column[next] = b.column[k];
+      if constexpr (!kPlain) b.column[next] = b.column[k];
       if constexpr (kClasses) {
         b.cls[next] = b.cls[k];
         if (levels) b.level[next] = b.level[k];
@@ -494,15 +502,22 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
 }
 
 // `WhittedRays` with each ray's class in `ray_class` where `s` has class tables, else at full
-// fidelity.
+// fidelity (without the options' work where none is asked for).
 void WhittedBlock(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
                   const bool* active, const BlockRays& block, float* total, int32_t* traced,
                   bool packets, bool sparse, const PathsOut* paths = nullptr,
                   const int32_t* ray_class = nullptr) {
   if (s.class_depth != nullptr && ray_class != nullptr) {
-    WhittedRays<true>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, paths, ray_class);
+    WhittedRays<true, false>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, paths,
+                             ray_class);
+  } else if (paths == nullptr && !s.spots && s.shading.specular == kSpecularBlinnPhong && !s.shading.payload &&
+             s.shading.min_contribution == 0.0f) {
+    // The thesis's frame: none of the options' work (the same arithmetic: a spot factor of 1).
+    WhittedRays<false, true>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, nullptr,
+                             nullptr);
   } else {
-    WhittedRays<false>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, paths, nullptr);
+    WhittedRays<false, false>(tree, s, o_in, d_in, active, block, total, traced, packets, sparse, paths,
+                              nullptr);
   }
 }
 
@@ -595,6 +610,7 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, 
   s.lights = lights.typed_data();
   s.light_kind = light_kind.typed_data();
   s.num_lights = static_cast<int>(nl);
+  s.spots = std::any_of(s.light_kind, s.light_kind + nl, [](int32_t kind) { return kind == kLightSpot; });
   s.ambient = Load3(ambient.typed_data());
   s.environment = Texture{environment.typed_data(), env_dims[0], env_dims[1]};
   s.offset = offset.typed_data()[0];
