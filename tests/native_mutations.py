@@ -203,8 +203,8 @@ MUTATIONS = (
     Mutation(
         "class-unreplayed-light",
         "a light whose shadow ray a class does not trace is left out of the stored path's visible lights",
-        "          if (paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
-        "          if (paths != nullptr && (!kClasses || Tested(s, b.cls[k], l)))\n"
+        "if (!kPlain && paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
+        "if (!kPlain && paths != nullptr && (!kClasses || Tested(s, b.cls[k], l)))\n"
         "            paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
     ),
 )
