@@ -142,6 +142,11 @@ def _extra_flags() -> tuple[str, ...]:
         raise ValueError(said) from None
 
 
+def _flags_said() -> str:
+    """`FOVJAX_NATIVE_FLAGS` as a message names it."""
+    return f"FOVJAX_NATIVE_FLAGS={' '.join(_extra_flags())!r}"
+
+
 def _flags() -> tuple[str, ...]:
     sanitize = SANITIZE_FLAGS if _environment.switch("FOVJAX_NATIVE_SANITIZE") else ()
     return FLAGS + _extra_flags() + sanitize
@@ -231,8 +236,7 @@ def _compile(compiler: str, flags: tuple[str, ...]) -> Path:
             lines = [ln for ln in done.stderr.splitlines() if "error" in ln][:3] or done.stderr.splitlines()[
                 -3:
             ]
-            extra = _extra_flags()
-            said = f" (with FOVJAX_NATIVE_FLAGS={' '.join(extra)!r})" if extra else ""
+            said = f" (with {_flags_said()})" if _extra_flags() else ""
             raise RuntimeError(
                 f"{Path(compiler).name} failed to compile {ENTRY.name}{said}: " + " | ".join(lines)
             )
@@ -346,8 +350,7 @@ def _load() -> NativeStatus:
         return NativeStatus(False, f"could not load {path}: {exc}")
     missing = [name for name in ENTRY_POINTS + tuple(HANDLERS.values()) if not hasattr(lib, name)]
     if missing:
-        extra = _extra_flags()
-        said = f", built with FOVJAX_NATIVE_FLAGS={' '.join(extra)!r}" if extra else ""
+        said = f", built with {_flags_said()}" if _extra_flags() else ""
         return NativeStatus(
             False,
             f"{path} lacks the handlers' entry points ({', '.join(missing[:3])}"
