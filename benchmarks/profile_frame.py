@@ -71,7 +71,7 @@ STAGES = (
     ("accumulate", r"foveate/_frame\.py:\d+\((accumulate|tile_sums|grid_sums)"),
     ("method: pixels listed (select_pixels)", r"foveate/_methods/_sparse\.py:\d+\(select_pixels"),
     ("method: reprojection", r"foveate/_methods/_weier\.py:\d+\((reproject|_reproject_eye|occluded_leaks)"),
-    ("method: hit points (traced_points)", r"foveate/_methods/_weier\.py:\d+\(traced_points"),
+    ("method: hit points (first_hit_points)", r"foveate/_frame\.py:\d+\((first_hit_points|_first_points)"),
     ("method: layers, filters, history", r"foveate/_methods/_(guenter|patney|weier)\.py"),
     ("fill / blur", r"foveate/_fill\.py"),
     (

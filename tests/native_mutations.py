@@ -171,6 +171,18 @@ MUTATIONS = (
         "const int64_t i1 = std::min<int64_t>(i0 + 1, cells);",
     ),
     Mutation(
+        "first-point-any-sample",
+        "a pixel's first point is its last traced sub-sample's, not sub-sample 0's",
+        "if (first_points && (L.order[i] - eye * per_eye) % spp == 0) {",
+        "if (first_points) {",
+    ),
+    Mutation(
+        "first-point-miss-at-origin",
+        "a sub-sample 0 that misses keeps its ray's origin, not a point far along it",
+        "const float t = b.prim[k] >= 0 ? b.t[k] : block.miss_t;",
+        "const float t = b.prim[k] >= 0 ? b.t[k] : 0.0f;",
+    ),
+    Mutation(
         "layers-nearest",
         "Guenter's magnified layers take the nearest grid pixel before, not bilinear",
         "  return {i0 * stride, i1 * stride, g - floor_g};",

@@ -72,6 +72,7 @@ CORRIDOR_DEPTH = 4
 CORRIDOR_DEPTHS = range(6)
 # A change of the image "far above rounding": 100x the tolerance of a sample of radiance ~1.
 CHANGE = 1e-2
+MISS = 1e3  # a missing ray's point, in scene sizes along it (Weier's `MISS_DISTANCE`)
 HALF_WIDTH, LENGTH = 1.3, (-14.0, 3.0)  # mirrors at x = ±HALF_WIDTH, from z = LENGTH[0] to LENGTH[1]
 LIGHT = (0.3, 2.4, -4.0)  # the point light the occluder lies beyond
 OCCLUDER_Y = 2.9
@@ -483,9 +484,13 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
     same slots, masks and per-pixel counts (integers), every pixel's mean to float rounding and
     the same ray counts, at SPP 4 with jitter along the corridor's mirrors at one reflection
     level (a bounce skipped, or a pixel's sub-sample left out, changes the means far above
-    rounding: asserted of the reflections the oracle traced)."""
+    rounding: asserted of the reflections the oracle traced). Weier's points (`first_hit_points`:
+    each pixel's sub-sample 0's hit), which the slots handler keeps from the rays it traces, are
+    the chunk loop's own queries' to float rounding (a pixel's other sub-samples hit elsewhere;
+    a miss lies `MISS` scene sizes away, untraced pixels hold 0)."""
     from fovjax.foveate._frame import eccentricities
     from fovjax.foveate._methods._sparse import trace_pixels
+    from fovjax.render.internal import scene_scale
 
     arrays, bvh, rig = corridor
     spp = 4
@@ -498,12 +503,23 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
     def pixels(integrator):
         config = RenderConfig(max_depth=1, integrator=integrator)
         out = trace_pixels(
-            arrays, bvh, cameras, key, ecc, trace_pixel, foveation=fov, spp=spp, jitter=True, config=config
+            arrays,
+            bvh,
+            cameras,
+            key,
+            ecc,
+            trace_pixel,
+            foveation=fov,
+            spp=spp,
+            jitter=True,
+            config=config,
+            first_points=MISS,
         )
         k = out.selection.n_traced
         live = jnp.where(jnp.arange(out.selection.order.shape[0]) < k, out.selection.order, -1)
         c = out.counts
-        return out.prefill, out.n, out.mask, live, jnp.stack([c.primary, c.shadow, c.reflection, c.bad])
+        counts = jnp.stack([c.primary, c.shadow, c.reflection, c.bad])
+        return out.prefill, out.n, out.mask, live, out.first_points, counts
 
     lowered = jax.jit(lambda: (pixels("native"), pixels("jax"))).lower()
     text = lowered.as_text()
@@ -512,8 +528,14 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
     for a, b in zip(native[1:4], reference[1:4], strict=True):  # counts, mask, slots: integers
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert_native_radiance(native[0], reference[0], arrays)
-    assert_same_counts(native[4], reference[4])
-    n, counts = np.asarray(reference[1]), np.asarray(reference[4])
+    assert_same_counts(native[5], reference[5])
+    n, counts = np.asarray(reference[1]), np.asarray(reference[5])
+    points, traced = np.asarray(reference[4]), np.asarray(trace_pixel)
+    far = MISS * float(scene_scale(arrays))
+    assert (points[~traced] == 0).all() and (np.asarray(native[4])[~traced] == 0).all()
+    distance = np.linalg.norm(points - np.asarray(cameras[0].position), axis=-1)[traced]
+    assert (distance < 0.5 * far).mean() > 0.5 and (distance > 0.5 * far).any()  # the open end: misses
+    np.testing.assert_allclose(np.asarray(native[4]), points, rtol=1e-5, atol=1e-5 * far / MISS)
     np.testing.assert_array_equal(n, spp * np.asarray(trace_pixel))  # every sub-sample of a traced pixel
     assert counts[0] == n.sum() and counts[2] > 0.25 * counts[0]  # the mirrors' reflections
     assert (np.asarray(reference[0])[n == 0] == 0).all()
@@ -1076,3 +1098,45 @@ def test_slots_in_one_native_call_are_the_chunked_path(featured, case):
     g_native, g_jax = np.asarray(d_native[0]), np.asarray(d_jax[0])
     assert np.abs(g_jax).max() > 0  # the sums depend on Kd
     np.testing.assert_allclose(g_native, g_jax, rtol=1e-5, atol=1e-6)
+
+
+def test_first_points_native_and_their_derivatives_are_the_chunked_paths(featured):
+    """Weier's points (`traced_sums` with `first_points`: each pixel's sub-sample 0's hit): on a
+    CPU from the slots handler's own primary hits, their derivatives recomputed on the faces it
+    stored; against the chunk loop's own queries (`first_hit_points`): the points to float
+    rounding, and their JVP along a move of every vertex (nonzero on the hits, zero on a miss:
+    its point lies a fixed distance along its ray)."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.render.internal import scene_scale
+
+    w, h, spp = 16, 12, 1
+    scene, arrays, bvh, _ = featured
+    fov = Foveation(5.0, 10.0, spp=spp)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    cameras = rig.eye_cameras(jnp.asarray([2.0, -1.0, 0.5]))
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    budget = 2 * spp * w * h
+    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=budget, native=False)
+    vertices = jnp.asarray(arrays.vertices)
+    tangent = jax.random.normal(jax.random.key(1), vertices.shape, jnp.float32)
+
+    def points(v, integrator):
+        config = RenderConfig(max_depth=1, integrator=integrator)
+        a = dataclasses.replace(arrays, vertices=v)
+        out = traced_sums(a, bvh, cameras, None, sel, config=config, budget=budget, first_points=MISS)
+        return out.consumed[3]
+
+    def both(v):
+        return [jax.jvp(lambda v, i=i: points(v, i), (v,), (tangent,)) for i in ("native", "jax")]
+
+    lowered = jax.jit(both).lower(vertices)
+    assert "fovjax_whitted_slots" in lowered.as_text()
+    (p_native, d_native), (p_jax, d_jax) = (tuple(map(np.asarray, r)) for r in lowered.compile()(vertices))
+    size = float(scene_scale(arrays))
+    traced = np.asarray(n).reshape(-1) > 0
+    far = np.linalg.norm(p_jax - np.asarray(cameras[0].position), axis=-1) > 0.5 * MISS * size
+    assert traced.sum() > 0 and (traced & ~far).any() and (traced & far).any()  # hits and misses
+    assert (p_jax[~traced] == 0).all() and (p_native[~traced] == 0).all()
+    np.testing.assert_allclose(p_native, p_jax, rtol=1e-5, atol=1e-5 * size)
+    assert np.abs(d_jax[traced & ~far]).min(axis=-1).max() > 0 and (d_jax[far] == 0).all()
+    np.testing.assert_allclose(d_native, d_jax, rtol=1e-4, atol=1e-5 * np.abs(d_jax).max())

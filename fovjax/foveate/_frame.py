@@ -498,8 +498,62 @@ def warp_slot_sums(scene, bvh, cameras, jitter_key, sel: Selection, *, config, b
     return sums, (jnp.sum(active & valid, dtype=jnp.int32), n_shadow, n_reflection)
 
 
+def _first_points(points, scene, bvh, o, d, prim, target, far):
+    """`points` with each ray's hit o + t·d set at `target` (a miss: t = `far`), t recomputed
+    from its face `prim` (`hit_geometry`: differentiable in the vertices and the rays)."""
+    from ..trace import hit_geometry
+
+    t, _, _ = hit_geometry(scene.vertices, bvh.faces, prim, o, d)
+    t = jnp.where(jnp.isfinite(t), t, far)
+    return points.at[target].set(o + t[:, None] * d, mode="drop")
+
+
+def first_hit_points(
+    scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int, miss_scenes: float
+) -> Float[Array, "P 3"]:
+    """Per pixel (2·H·W, 3) the point its sub-sample 0's primary ray hits (a miss: the point
+    `miss_scenes` scene sizes (`scene_scale`) along the ray; 0 where that sub-sample is not
+    among the live slots), chunk by chunk over the live slots (`closest_hit` on
+    `config.backend`). What the slots handler gives with `traced_sums`' `first_points` from the
+    rays it traces anyway. Forward-mode derivatives (a loop over the live chunks)."""
+    from ..render.internal import chunk_loop, scene_scale
+    from ..trace import closest_hit
+
+    _, spp, h, w = sel.classes.shape
+    size = min(config.chunk_size, budget)
+    order = sel.order
+    if order.shape[0] % size:  # whole chunks (the padding is never live)
+        order = jnp.pad(order, (0, size - order.shape[0] % size))
+    far = jax.lax.stop_gradient(miss_scenes * scene_scale(scene))
+    positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
+    lanes = jnp.arange(size, dtype=jnp.int32)
+    n_pixels = 2 * h * w
+
+    def body(points, first):
+        slots = jax.lax.dynamic_slice_in_dim(order, first, size)
+        eye, sample, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
+        wanted = (first + lanes < sel.n_traced) & (sample == 0)
+        o, d = slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
+        hit = closest_hit(bvh, o, d, 0.0, jnp.where(wanted, jnp.inf, 0.0), backend=config.backend)
+        target = jnp.where(wanted, eye * (h * w) + pixel, n_pixels)
+        return _first_points(points, scene, bvh, o, d, hit.prim, target, far)
+
+    init = jnp.zeros((n_pixels, 3), jnp.float32)
+    return chunk_loop(order.shape[0] // size, size, sel.n_traced, body, init)
+
+
 def traced_sums(
-    scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int, classes=None, scale=None
+    scene,
+    bvh,
+    cameras,
+    jitter_key,
+    sel: Selection,
+    *,
+    config,
+    budget: int,
+    classes=None,
+    scale=None,
+    first_points: float | None = None,
 ):
     """Stages 3 and 4a without image tiles: the selected samples traced and summed into their
     pixels; a `ChunkedRadiance` whose `consumed` is (sums (2·H·W, 3), bad pixel (2·H·W), bad
@@ -515,8 +569,14 @@ def traced_sums(
     what the classes left out: levels not reflected to, lights whose shadow rays were not traced
     count as unblocked, faces of the class's level), and elsewhere those of the JAX integrator
     over every slot (`dense`), so that forward and reverse mode both go through the frame; with
-    classes elsewhere, those of the chunked path (forward mode)."""
+    classes elsewhere, those of the chunked path (forward mode). `first_points` (None, or the
+    distance of a miss's point in scene sizes): `consumed` has a fourth member,
+    `first_hit_points`' (on a CPU from the rays the handler traces anyway; derivatives from
+    the faces it stored; at full fidelity only)."""
     from ..render.internal import ChunkedRadiance, scene_scale
+
+    if first_points is not None and classes is not None:
+        raise ValueError("traced_sums: first_points at full fidelity only (classes is None)")
 
     _, spp, h, w = sel.classes.shape
     size = min(config.chunk_size, budget)
@@ -543,6 +603,32 @@ def traced_sums(
         )
         return out.consumed, (out.primary, out.shadow, out.reflection)
 
+    def with_first_points(run):
+        """`run` with `first_hit_points` after its sums, where `first_points` asks for them."""
+        if first_points is None:
+            return run
+
+        def run_and_points(scene, cameras, order, n_traced):
+            consumed, counts = run(scene, cameras, order, n_traced)
+            s = sel._replace(order=order, n_traced=n_traced)
+            kw = {"config": config, "budget": budget, "miss_scenes": first_points}
+            return (*consumed, first_hit_points(scene, bvh, cameras, jitter_key, s, **kw)), counts
+
+        return run_and_points
+
+    def far_of(scene):
+        """A miss's point's distance along its ray (`first_points` scene sizes)."""
+        return jax.lax.stop_gradient(first_points * scene_scale(scene))
+
+    def slot_points(scene, cameras, order, n_traced, prim):
+        """Every live slot of sub-sample 0's hit point at its pixel, from its face `prim`."""
+        o, d = slot_rays_of(cameras, order)
+        live = jnp.arange(order.shape[0], dtype=jnp.int32) < n_traced
+        eye, sample, pixel = _slot_samples(order, spp=spp, h=h, w=w)
+        target = jnp.where(live & (sample == 0), eye * (h * w) + pixel, n_pixels)
+        points = jnp.zeros((n_pixels, 3), jnp.float32)
+        return _first_points(points, scene, bvh, o, d, prim, target, far_of(scene))
+
     def in_one_call(scene, cameras, order, n_traced):
         return native_slots(scene, cameras, order, n_traced, store_paths=False)
 
@@ -558,7 +644,7 @@ def traced_sums(
             grid = np.asarray(stratified_offsets(spp), np.float32)
         key_data = jnp.zeros(2, jnp.uint32) if jitter_key is None else key_words(jitter_key)
         offset = jax.lax.stop_gradient(jnp.asarray(slot_offset(scene), jnp.float32).reshape(1))
-        sums, bad_pixel, counts, prim, visible = native_whitted_slots(
+        sums, bad_pixel, counts, prim, visible, points = native_whitted_slots(
             (*whitted_operands(scene, bvh), offset),
             order,
             n_traced,
@@ -578,8 +664,10 @@ def traced_sums(
             store_paths=store_paths,
             region=None if classes is None else sel.region,
             classes=classes,
+            far=None if first_points is None else far_of(scene),
         )
-        out = (sums, bad_pixel, counts[3]), (counts[0], counts[1], counts[2])
+        consumed = (sums, bad_pixel, counts[3]) + (() if first_points is None else (points,))
+        out = consumed, (counts[0], counts[1], counts[2])
         return (out, (prim, visible)) if store_paths else out
 
     def slot_rays_of(cameras, order):
@@ -604,12 +692,17 @@ def traced_sums(
         """The slots through the renderer's `radiance`, every slot at once: what `chunked`
         computes, with fixed shapes (its derivatives go both ways)."""
         from ..render import radiance
+        from ..trace import closest_hit
 
         o, d = slot_rays_of(cameras, order)
         live = jnp.arange(order.shape[0], dtype=jnp.int32) < n_traced
         r = radiance(scene, bvh, o, d, active=live, config=config)
         counts = (r.counts.primary, r.counts.shadow, r.counts.reflection)
-        return slot_sums(r.rgb, r.bad, order, n_traced), counts
+        if first_points is None:
+            return slot_sums(r.rgb, r.bad, order, n_traced), counts
+        prim = closest_hit(bvh, o, d, 0.0, jnp.where(live, jnp.inf, 0.0), backend=config.backend).prim
+        points = slot_points(scene, cameras, order, n_traced, prim)
+        return (*slot_sums(r.rgb, r.bad, order, n_traced), points), counts
 
     def replay_jvp(primals, tangents):
         """The handler's sums, with the derivatives of a replay of the paths it stored."""
@@ -662,9 +755,14 @@ def traced_sums(
             sums = by_adjoint if sums is None else sums + by_adjoint
         if sums is None:
             sums = jnp.zeros_like(out[0][0])
-        float0 = np.zeros((), jax.dtypes.float0)
         no_counts = tuple(np.zeros(np.shape(c), jax.dtypes.float0) for c in out[1])
-        return out, ((sums, np.zeros(np.shape(out[0][1]), jax.dtypes.float0), float0), no_counts)
+        integers = tuple(np.zeros(np.shape(c), jax.dtypes.float0) for c in out[0][1:3])
+        if first_points is None:
+            return out, ((sums, *integers), no_counts)
+        # The points' derivatives: recomputed on the primary faces the handler stored.
+        points = functools.partial(slot_points, prim=paths.prim[0])
+        _, d_points = jvp_of(points, primals, tangents)
+        return out, ((sums, *integers, d_points), no_counts)
 
     def in_one_warp_call(scene, cameras, order, n_traced):
         s = sel._replace(order=order, n_traced=n_traced)
@@ -673,16 +771,17 @@ def traced_sums(
     on_cpu = slots_in_one_call(config, jitter_key, classes, h, w, spp)
     on_gpu = slots_in_one_warp_call(config, classes, scale)
     if not (on_cpu or on_gpu):
-        (consumed, (primary, shadow, reflection)) = chunked(scene, cameras, sel.order, sel.n_traced)
+        run = with_first_points(chunked)
+        (consumed, (primary, shadow, reflection)) = run(scene, cameras, sel.order, sel.n_traced)
     else:
         from ..render.internal import integrator_plan
 
         cpu_only = on_cpu and integrator_plan(config).cpu_only
         replays = scene.num_lights <= 32  # the paths' visibility bits
         run = on_platforms(
-            chunked,
+            with_first_points(chunked),
             cpu=in_one_call if on_cpu else None,
-            cuda=in_one_warp_call if on_gpu else None,
+            cuda=with_first_points(in_one_warp_call) if on_gpu else None,
             cpu_only=cpu_only,
             cpu_jvp=replay_jvp if on_cpu and replays else None,
             # `dense` is the frame at full fidelity: with classes the chunked path's derivatives.
@@ -777,7 +876,7 @@ def sample_adder(sel: Selection, *, spp, h, w, size):
 def pixel_means(sums, n, *, h, w, bad_color):
     """Stage 4a's end: (per-pixel mean of the traced samples (2, H, W, 3), bad samples, bad
     pixels (2, H, W)) from the sums."""
-    sums, bad_pixel, n_bad = sums
+    sums, bad_pixel, n_bad = sums[:3]  # (first faces after them, where asked)
     mean = sums.reshape(2, h, w, 3) / jnp.maximum(n, 1)[..., None]
     bad_pixel = bad_pixel.reshape(2, h, w)
     mean = jnp.where(bad_pixel[..., None], jnp.asarray(bad_color, jnp.float32), mean)

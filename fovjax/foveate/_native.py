@@ -66,6 +66,7 @@ def native_whitted_slots(
     store_paths: bool = False,
     region=None,
     classes=None,
+    far=None,
 ):
     """A foveated frame's live slots made into rays, traced through the Whitted integrator and
     summed into their pixels, in one call of the slots handler (CPU only): (sums (2·H·W, 3), bad
@@ -82,9 +83,11 @@ def native_whitted_slots(
     None (every slot at full fidelity), or the `fovjax.render.internal.ShadingClasses` whose
     `max_depth`, `shadows` and `level` (a tree of the merged BVH per class, or None) the slots
     are traced with (traced int32 tables; no texture level of detail), a slot's class being its
-    pixel's `region` (2, H, W), as `_frame.trace_selection`'s `class_at`. What
-    `_frame.trace_selection` with the native integrator and `sample_adder` compute, in their
-    order."""
+    pixel's `region` (2, H, W), as `_frame.trace_selection`'s `class_at`. `far` (a traced
+    scalar, or None): a sixth output, per pixel (2·H·W, 3) the point its sub-sample 0's primary
+    ray hit (a miss: `far` along the ray; 0 where that sub-sample is not live),
+    `_frame.first_hit_points`' values (else empty). What `_frame.trace_selection` with the
+    native integrator and `sample_adder` compute, in their order."""
     from ..render import DEFAULT_CONFIG
     from ..render.internal import MAX_NATIVE_DEPTH, shading_attributes
 
@@ -118,9 +121,10 @@ def native_whitted_slots(
         jax.ShapeDtypeStruct((4,), i32),
         jax.ShapeDtypeStruct((stored,), i32),
         jax.ShapeDtypeStruct((stored,), jnp.uint32),
+        jax.ShapeDtypeStruct((0 if far is None else n_pixels, 3), f32),
     )
     call = handler(SLOTS_TARGET, out, what="the native slots integrator", vmap_method="sequential")
-    sums, bad, counts, prim, visible = call(
+    sums, bad, counts, prim, visible, points = call(
         jnp.asarray(order, i32).reshape(-1),
         jnp.asarray(n_live, i32).reshape(1),
         jnp.asarray(key_data, jnp.uint32).reshape(2),
@@ -128,6 +132,7 @@ def native_whitted_slots(
         jnp.asarray(grid, f32).reshape(spp, 2),
         jax.lax.stop_gradient(jnp.asarray(cameras, f32).reshape(2, layout.CAMERA_STRIDE)),
         *tables,
+        jnp.zeros(0, f32) if far is None else jax.lax.stop_gradient(jnp.asarray(far, f32)).reshape(1),
         *operands,
         spp=np.int32(spp),
         height=np.int32(height),
@@ -141,7 +146,7 @@ def native_whitted_slots(
     )
     if store_paths:
         prim, visible = prim.reshape(max_depth + 1, slots), visible.reshape(max_depth + 1, slots)
-    return sums, bad, counts, prim, visible
+    return sums, bad, counts, prim, visible, points
 
 
 def native_select_samples(

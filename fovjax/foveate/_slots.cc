@@ -17,7 +17,9 @@ namespace {
 // per-chunk operations around the integrator are gone). With shading classes (per-region
 // fidelity: `ShadingClasses` tables, traced operands) a slot's class is its pixel's region, as
 // `trace_selection`'s `class_at` has it, and `WhittedBlock` applies its class's reflection depth,
-// shadow mode and tree of a merged BVH to it and to its reflections.
+// shadow mode and tree of a merged BVH to it and to its reflections. Where `first_point_out` is
+// not empty, each pixel's sub-sample 0's primary hit point too (a miss: `far` along the ray; 0
+// where that sub-sample is not live), `first_hit_points`' values.
 
 // JAX's threefry2x32 uniform (see UniformRun) at each of n counters.
 FOVJAX_VECTOR_CLONES
@@ -112,10 +114,12 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
                         ffi::Buffer<ffi::F32> grid, ffi::Buffer<ffi::F32> cameras,
                         ffi::Buffer<ffi::S32> region, ffi::Buffer<ffi::S32> class_depth,
                         ffi::Buffer<ffi::S32> class_shadows, ffi::Buffer<ffi::S32> class_level,
+                        ffi::Buffer<ffi::F32> far,
                         FOVJAX_SCENE_PARAMS,
                         ffi::ResultBuffer<ffi::F32> sums_out, ffi::ResultBuffer<ffi::PRED> bad_out,
                         ffi::ResultBuffer<ffi::S32> counts_out, ffi::ResultBuffer<ffi::S32> path_prim,
-                        ffi::ResultBuffer<ffi::U32> path_visible, int32_t spp, int32_t height,
+                        ffi::ResultBuffer<ffi::U32> path_visible,
+                        ffi::ResultBuffer<ffi::F32> first_point_out, int32_t spp, int32_t height,
                         int32_t width, int32_t jitter, int32_t max_depth, int32_t recompute,
                         int32_t packets, int32_t robust, int32_t specular, int32_t specular_payload,
                         float min_contribution) {
@@ -129,7 +133,9 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
       grid.element_count() != 2 * static_cast<size_t>(spp) ||
       cameras.element_count() != 2 * static_cast<size_t>(kCameraStride) ||
       sums_out->element_count() != 6 * static_cast<size_t>(hw) ||
-      bad_out->element_count() != 2 * static_cast<size_t>(hw) || counts_out->element_count() != 4) {
+      bad_out->element_count() != 2 * static_cast<size_t>(hw) || counts_out->element_count() != 4 ||
+      first_point_out->element_count() != (far.element_count() == 1 ? 6 * static_cast<size_t>(hw) : 0) ||
+      far.element_count() > 1) {
     return ffi::Error::InvalidArgument("fovjax slots: operand shapes do not match the image");
   }
   std::atomic<int> out_of_range{0};
@@ -174,6 +180,8 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   std::unique_ptr<int32_t[]> traced(new int32_t[std::max<int64_t>(n, 1)]);
   std::unique_ptr<int32_t[]> target(new int32_t[std::max<int64_t>(n, 1)]);
   std::unique_ptr<bool[]> valid(new bool[std::max<int64_t>(n, 1)]);
+  const bool first_points = far.element_count() == 1;
+  std::unique_ptr<float[]> point(first_points ? new float[3 * std::max<int64_t>(n, 1)] : nullptr);
   // The order the slots are traced in: the live slots are two ascending runs (the mandatory
   // samples, then the optional ones, each in locality order), merged so that neighbouring
   // samples of both classes share packets; `traced_at[i]`: where slot i was traced. The sums
@@ -212,6 +220,8 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
              target.get() + begin, scratch);
     BlockRays block;
     block.n = m;
+    block.primary_point = first_points ? point.get() + 3 * begin : nullptr;
+    block.miss_t = first_points ? far.typed_data()[0] : 0.0f;
     PathsOut block_paths = paths;
     block_paths.column = position.get() + begin;  // the slots these rays are
     if (classes) {
@@ -230,18 +240,23 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   // (`sample_adder`: a sample whose radiance is not finite adds nothing and marks its pixel).
   float* sums = sums_out->typed_data();
   bool* bad = bad_out->typed_data();
+  float* pixel_point = first_point_out->typed_data();
   int64_t eye_counts[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};
   ParallelFor(pool, 2, [&](int64_t eye) {
     float* eye_sums = sums + 3 * eye * hw;
     bool* eye_bad = bad + eye * hw;
     std::fill(eye_sums, eye_sums + 3 * hw, 0.0f);
     std::fill(eye_bad, eye_bad + hw, false);
+    if (first_points) std::fill(pixel_point + 3 * eye * hw, pixel_point + 3 * (eye + 1) * hw, 0.0f);
     const int32_t first = static_cast<int32_t>(eye * hw), last = static_cast<int32_t>(first + hw);
     int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
     for (int64_t i = 0; i < n; ++i) {
       const int64_t k = traced_at[i];
       const int32_t px = target[k];
       if (px < first || px >= last) continue;
+      if (first_points && (L.order[i] - eye * per_eye) % spp == 0) {
+        std::copy(point.get() + 3 * k, point.get() + 3 * k + 3, pixel_point + 3 * static_cast<int64_t>(px));
+      }
       const float* rgb = radiance.get() + 3 * k;
       primary += valid[k];
       shadow += traced[k] >> 8;
@@ -275,12 +290,14 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
                                                 .Arg<ffi::Buffer<ffi::S32>>()   // region per pixel (2·H·W) or empty
                                                 .Arg<ffi::Buffer<ffi::S32>>()   // class max_depth (K) or empty
                                                 .Arg<ffi::Buffer<ffi::S32>>()   // class shadow mode (K) or empty
-                                                .Arg<ffi::Buffer<ffi::S32>>())  // class tree (K) or empty
+                                                .Arg<ffi::Buffer<ffi::S32>>()   // class tree (K) or empty
+                                                .Arg<ffi::Buffer<ffi::F32>>())  // a miss's distance (1) or empty
                                   .Ret<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
                                   .Ret<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples
                                   .Ret<ffi::Buffer<ffi::S32>>()   // paths' faces ((max_depth + 1) x P) or empty
                                   .Ret<ffi::Buffer<ffi::U32>>()   // paths' unblocked lights, bits, or empty
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // sub-sample 0's hit point (2·H·W, 3) or empty
                                   .Attr<int32_t>("spp")
                                   .Attr<int32_t>("height")
                                   .Attr<int32_t>("width")

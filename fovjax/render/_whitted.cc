@@ -270,6 +270,10 @@ struct WhittedBuffers {
 struct BlockRays {
   int64_t begin = 0, n = 0;
   int64_t width = 0, row0 = 0, col0 = 0;
+  // Where non-null: each ray's primary hit point o + t·d (a miss: t = `miss_t`; inactive: 0),
+  // indexed as `total` is, 3 floats a ray (Weier's points: `traced_sums`' first_points).
+  float* primary_point = nullptr;
+  float miss_t = 0.0f;
   int64_t Index(int64_t i) const {
     if (width == 0) return begin + i;
     const int64_t tile = i / 16, within = i % 16;
@@ -315,6 +319,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
     const int64_t g = block.Index(i);
     total[3 * g] = total[3 * g + 1] = total[3 * g + 2] = 0.0f;
     traced[g] = 0;
+    if (block.primary_point != nullptr) std::fill(block.primary_point + 3 * g, block.primary_point + 3 * g + 3, 0.0f);
     if (!active[g]) continue;
     b.pixel[m] = static_cast<int32_t>(g);
     if constexpr (!kPlain) {
@@ -340,6 +345,13 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
     Rays rays{b.o.data(), b.d.data(), b.tmin.data(), b.tmax.data(), levels ? b.level.data() : nullptr,
               b.t.data(), b.prim.data(), b.u.data(), b.v.data()};
     TraceList(tree, rays, m, false, packets);
+    if (depth == 0 && block.primary_point != nullptr) {
+      for (int64_t k = 0; k < m; ++k) {
+        const float t = b.prim[k] >= 0 ? b.t[k] : block.miss_t;
+        float* p = block.primary_point + 3 * static_cast<int64_t>(b.pixel[k]);
+        for (int c = 0; c < 3; ++c) p[c] = b.o[3 * k + c] + t * b.d[3 * k + c];
+      }
+    }
     if (!kPlain && paths != nullptr) {
       for (int64_t k = 0; k < m; ++k) {
         paths->prim[depth * paths->n + b.column[k]] = b.prim[k] < 0 ? -1 : b.prim[k];

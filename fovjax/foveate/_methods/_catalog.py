@@ -290,8 +290,8 @@ class Weier2016(AbstractFoveationMethod):
             frame, as the thesis's method does under the fallback).
 
     A pixel's samples are traced together (every sub-sample at the frame's spp); its world
-    point is the hit of its first sub-sample's ray (a second closest-hit query over the traced
-    pixels: the integrator returns radiance only). fovjax's choice: the paper's coarse support
+    point is the hit of its first sub-sample's ray (kept by the native integrator from the ray
+    it traces; elsewhere a closest-hit query over the traced pixels). fovjax's choice: the paper's coarse support
     image is not built, because every pixel without a valid sample is traced.
     """
 

@@ -95,6 +95,7 @@ class TracedPixels:
     mask: Bool[Array, "2 S H W"]
     counts: object  # fovjax.render RayCounts
     bad_pixel: Bool[Array, "2 H W"]
+    first_points: Float[Array, "2 H W 3"] | None = None  # `_frame.first_hit_points`', where asked
 
     def outputs(self, image, diagnostics) -> FoveatedOutputs:
         """The frame's `FoveatedOutputs` with `image` (H, 2W, 3) (every traced sample counts as
@@ -119,11 +120,24 @@ class TracedPixels:
 
 
 def trace_pixels(
-    scene, bvh, cameras, key, ecc, trace_pixel, *, foveation, spp, jitter, config
+    scene,
+    bvh,
+    cameras,
+    key,
+    ecc,
+    trace_pixel,
+    *,
+    foveation,
+    spp,
+    jitter,
+    config,
+    first_points: float | None = None,
 ) -> TracedPixels:
     """Trace and shade every sub-sample of the pixels `trace_pixel` (2, H, W) at the full
     render's sub-pixel positions of `key` (pixel-cell centres without `jitter`), with all their
-    shadow and reflection rays; a static budget of every sample (nothing is ever dropped)."""
+    shadow and reflection rays; a static budget of every sample (nothing is ever dropped).
+    `first_points` (None, or a miss's distance in scene sizes): also each pixel's sub-sample 0's
+    primary hit point (`_frame.first_hit_points`)."""
     from ...render import RayCounts
     from ...render.internal import integrator_plan
 
@@ -139,10 +153,13 @@ def trace_pixels(
     positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
     # The thesis's frame's slots: on a CPU with the native integrator one call of the slots
     # handler makes, traces and sums every live slot's ray; elsewhere the chunk loop.
-    traced = traced_sums(scene, bvh, cameras, jitter_key, sel, config=config, budget=budget)
+    traced = traced_sums(
+        scene, bvh, cameras, jitter_key, sel, config=config, budget=budget, first_points=first_points
+    )
+    points = None if first_points is None else traced.consumed[3].reshape(2, h, w, 3)
     prefill, n_bad, bad_pixel = pixel_means(traced.consumed, n, h=h, w=w, bad_color=config.bad_color)
     # Made once: the methods read each pixel's mean several times (magnified, held, blended),
     # and XLA would otherwise recompute the division at each read.
     prefill = jax.lax.optimization_barrier(prefill)
     counts = RayCounts(traced.primary, traced.shadow, traced.reflection, n_bad)
-    return TracedPixels(sel, positions, size, budget, prefill, n, mask, counts, bad_pixel)
+    return TracedPixels(sel, positions, size, budget, prefill, n, mask, counts, bad_pixel, points)

@@ -15,16 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._frame import (
-    SAMPLING_STREAM,
-    FoveatedOutputs,
-    FrameOptions,
-    Selection,
-    _slot_samples,
-    diagnostics_tuple,
-    eccentricities,
-    slot_rays,
-)
+from .._frame import SAMPLING_STREAM, FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
 from ._base import FrameInputs
 from ._catalog import Weier2016
 from ._sparse import side_by_side, trace_pixels
@@ -110,33 +101,6 @@ def occluded_leaks(depth: Float[Array, "2 H W"], tolerance: float) -> Bool[Array
     return jnp.isfinite(depth) & (depth > (1.0 + tolerance) * nearest)
 
 
-def traced_points(scene, bvh, cameras, positions, sel: Selection, *, spp, h, w, config, size):
-    """The world point of each traced pixel: the hit of its first sub-sample's ray (a miss: a
-    point `MISS_DISTANCE` scene sizes along it), chunk by chunk over the traced slots only."""
-    from ...render.internal import chunk_loop, scene_scale
-    from ...trace import closest_hit
-
-    far = MISS_DISTANCE * scene_scale(scene)
-    lanes = jnp.arange(size, dtype=jnp.int32)
-    n_pixels = 2 * h * w
-
-    def body(points, first):
-        slots = jax.lax.dynamic_slice_in_dim(sel.order, first, size)
-        eye, sample, pixel = _slot_samples(slots, spp=spp, h=h, w=w)
-        wanted = (first + lanes < sel.n_traced) & (sample == 0)
-        o, d = slot_rays(cameras, positions, slots, spp=spp, h=h, w=w)
-        hit = closest_hit(
-            bvh, o, d, 0.0, jnp.where(wanted, jnp.inf, 0.0), vertices=scene.vertices, backend=config.backend
-        )
-        t = jnp.where(jnp.isfinite(hit.t), hit.t, far)
-        target = jnp.where(wanted, eye * (h * w) + pixel, n_pixels)
-        return points.at[target].set(o + t[:, None] * d, mode="drop")
-
-    n_chunks = sel.order.shape[0] // size
-    points = chunk_loop(n_chunks, size, sel.n_traced, body, jnp.zeros((n_pixels, 3), jnp.float32))
-    return points.reshape(2, h, w, 3)
-
-
 def weier_stereo(
     method: Weier2016, inputs: FrameInputs, history: WeierHistory, *, options: FrameOptions
 ) -> tuple[FoveatedOutputs, Int[Array, ""], WeierHistory]:
@@ -156,12 +120,19 @@ def weier_stereo(
     refresh = draws < foveation.probability(ecc)  # 1 in the fovea: always traced there
     trace_pixel = refresh | ~usable
     pixels = trace_pixels(
-        scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
+        scene,
+        bvh,
+        cameras,
+        key,
+        ecc,
+        trace_pixel,
+        foveation=foveation,
+        spp=spp,
+        jitter=jitter,
+        config=config,
+        first_points=MISS_DISTANCE,  # each pixel's point: sub-sample 0's hit
     )
-    sel, n = pixels.selection, pixels.n
-    points = traced_points(
-        scene, bvh, cameras, pixels.positions, sel, spp=spp, h=h, w=w, config=config, size=pixels.size
-    )
+    n, points = pixels.n, pixels.first_points
     fresh = n > 0
     # Every pixel is traced or holds a usable reprojected sample: nothing to fill.
     eyes = jnp.where(fresh[..., None], pixels.prefill, back.color)
