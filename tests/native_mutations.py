@@ -183,6 +183,36 @@ MUTATIONS = (
         "const float t = b.prim[k] >= 0 ? b.t[k] : 0.0f;",
     ),
     Mutation(
+        "prefilter-gain-unclipped",
+        "Patney's contrast gain not clipped at max_gain",
+        "std::min(std::max(s_image / std::max(s_blurred, flat_std), 1.0f), max_gain);",
+        "std::max(s_image / std::max(s_blurred, flat_std), 1.0f);",
+    ),
+    Mutation(
+        "prefilter-edge-not-repeated",
+        "Patney's blurs repeat the second pixel beyond the image's left edge, not the edge pixel",
+        "for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, pad.data() + p * c);",
+        "for (int64_t p = 0; p < left; ++p) std::copy(column + c, column + 2 * c, pad.data() + p * c);",
+    ),
+    Mutation(
+        "prefilter-coarse-weight-swapped",
+        "Patney's blend weighs the coarse rate's filter by the middle rate's weight",
+        "rest[3 * j + ch] = v[3 * j + ch] * (1.0f - b[j]);",
+        "rest[3 * j + ch] = v[3 * j + ch] * b[j];",
+    ),
+    Mutation(
+        "prefilter-rect-short",
+        "the coarse rate's rectangle one column short of where it shows",
+        "row[2] = first, row[3] = end;",
+        "row[2] = first, row[3] = end - 1;",
+    ),
+    Mutation(
+        "prefilter-blurred-luminance-of-image",
+        "the blurred image's local contrast measured on the image's luminance",
+        "const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;",
+        "const float lb = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;",
+    ),
+    Mutation(
         "layers-nearest",
         "Guenter's magnified layers take the nearest grid pixel before, not bilinear",
         "  return {i0 * stride, i1 * stride, g - floor_g};",

@@ -313,8 +313,8 @@ NATIVE_HANDLERS = {
         "FovjaxSelectSamples",
         "FovjaxWhittedSlots",
         "FovjaxFillAndBlur",
-        "FovjaxGaussianBlur",
         "FovjaxTaaBlend",
+        "FovjaxPatneyPrefilter",
         "FovjaxLayerBlend",
     },
 }

@@ -541,39 +541,61 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
     assert (np.asarray(reference[0])[n == 0] == 0).all()
 
 
-def test_patney_blurs_native_are_the_jax_path():
-    """Patney 2016's Gaussian blur (`gaussian_blur`) through the native blur handler against the
-    JAX blur: equal to float rounding, at blurs wider than the image (every tap clamped at its
-    edge), odd sizes and one or three channels; the derivative is the JAX blur's. (The
-    pre-filter built on it is tests/test_foveate_methods.py's: a CPU runs its blurs natively.)"""
-    from fovjax.foveate._methods._patney import gaussian_blur
+# The pre-filter's cases: (eye height, width, gaze (x, y) in the eye's pixels, inner and middle
+# radii, blur σ of the middle and coarse rates): the rates' rings cut by the image's edges, a
+# window wider than the image (every tap clamped), the inner rate over the whole image (no
+# filter computed) and the coarse rate everywhere (no inner or middle rate).
+PREFILTER_CASES = [
+    (37, 29, (6.0, 30.0), (4.0, 9.0), (1.0, 2.0)),
+    (13, 9, (4.0, 6.0), (2.0, 4.0), (2.0, 4.0)),
+    (11, 15, (7.0, 5.0), (50.0, 60.0), (1.0, 2.0)),
+    (11, 15, (7.0, 5.0), (-5.0, -4.0), (1.0, 2.0)),
+]
 
-    images = [
-        jax.random.uniform(jax.random.key(i), shape) for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 1)])
-    ]
 
-    def both(images):
-        out = []
-        for image in images:
-            for sigma in (0.5, 2.0, 4.0):
-                out.append([gaussian_blur(image, sigma, native=n) for n in (True, False)])
-        image = images[0]
-        tangent = jnp.ones_like(image)
-        out.append(
-            [
-                jax.jvp(lambda x, n=n: gaussian_blur(x, 2.0, native=n), (image,), (tangent,))[1]
-                for n in (True, False)
-            ]
-        )
-        return out
+@pytest.mark.parametrize("case", PREFILTER_CASES, ids=lambda c: f"{c[0]}x{c[1]}-radii{c[3][0]:g}")
+def test_patney_prefilter_native_is_the_jax_path(case):
+    """Patney 2016's pre-filters and the blend of its rates (`prefilter_and_blend`) through the
+    pre-filter handler, which computes each rate's filter only in the rectangle where it shows,
+    against the JAX filters over the whole image: equal to float rounding (the contrast gain is
+    a ratio of standard deviations computed as E[x²] − E[x]², whose cancellation in float32
+    amplifies the two compilers' rounding; 1e-4 of a value is far below a filter's effect),
+    and the derivative is the JAX path's. The filters change the image where a coarser rate
+    shows and the inner rate's pixels are the image's."""
+    from fovjax.foveate._methods._guenter import layer_weights
+    from fovjax.foveate._methods._patney import prefilter_and_blend
 
-    lowered = jax.jit(both).lower(images)
-    assert lowered.as_text().count("fovjax_gaussian_blur") >= 6
-    for native, reference in lowered.compile()(images):
-        np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-7)
-    # The blur is not the identity: a blurred image has less contrast than its image.
-    blurred = jax.jit(lambda x: gaussian_blur(x, 2.0, native=True))(images[0])
-    assert np.asarray(blurred).std() < 0.5 * np.asarray(images[0]).std()
+    h, w, (gx, gy), radii, sigmas = case
+    k = jax.random.split(jax.random.key(h * w), 2)
+    image = jax.random.uniform(k[0], (2, h, w, 3)) * jnp.asarray([1.0, 0.5, 2.0])
+    y, x = jnp.mgrid[0:h, 0:w]
+    ecc = jnp.stack([jnp.hypot(x - gx, y - gy), jnp.hypot(x - w + 1 - gx, y - gy)])  # degrees = pixels
+    w_inner, w_middle = layer_weights(ecc, jnp.asarray(radii), 1.5)
+    tangent = jax.random.normal(k[1], image.shape)
+
+    def both(image, w_inner, w_middle):
+        def run(native):
+            return lambda im: prefilter_and_blend(
+                im, w_inner, w_middle, sigmas, window_per_sigma=2.0, max_gain=4.0, native=native
+            )
+
+        # Under differentiation both sides are the JAX path's (its JVP gives the primal too).
+        return [run(n)(image) for n in (True, False)], [
+            jax.jvp(run(n), (image,), (tangent,))[1] for n in (True, False)
+        ]
+
+    lowered = jax.jit(both).lower(image, w_inner, w_middle)
+    assert "fovjax_patney_prefilter" in lowered.as_text()
+    (native, reference), (d_native, d_reference) = lowered.compile()(image, w_inner, w_middle)
+    native, reference = np.asarray(native), np.asarray(reference)
+    assert native.shape == (h, 2 * w, 3)
+    np.testing.assert_allclose(native, reference, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_reference), rtol=1e-4, atol=1e-5)
+    eyes = np.stack([native[:, :w], native[:, w:]])
+    inner = np.asarray(w_inner) == 1.0
+    np.testing.assert_array_equal(eyes[inner], np.asarray(image)[inner])
+    if not inner.all():
+        assert np.abs(eyes[~inner] - np.asarray(image)[~inner]).max() > 0.05
 
 
 def test_patney_history_blend_native_is_the_jax_path():

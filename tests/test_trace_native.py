@@ -400,7 +400,12 @@ def test_every_frame_program_lowers_for_cuda():
     assert any(e.startswith("batch") for e in exported)
     for entry, module in exported.items():
         assert "fovjax_embree_query" not in module, f"{entry}: the Embree call is on the CUDA path"
-        for target in ("fovjax_select_samples", "fovjax_whitted_slots", "fovjax_gaussian_blur"):
+        for target in (
+            "fovjax_select_samples",
+            "fovjax_whitted_slots",
+            "fovjax_patney_prefilter",
+            "fovjax_taa_blend",
+        ):
             assert target not in module, f"{entry}: the CPU handler {target} is on the CUDA path"
         assert "callback" not in module, f"{entry}: a host callback is on the CUDA path"
         for target in integrator:

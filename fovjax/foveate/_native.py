@@ -1,7 +1,8 @@
 """The foveated frame's native side: sample selection (`foveate/_select.cc`), the slots
-integrator (`foveate/_slots.cc`), the reconstruction (`foveate/_fill.cc`) and Patney 2016's
-Gaussian blurs (`foveate/_blur.cc`), each the primal of its JAX oracle in `_frame.py` /
-`_fill.py` / `_methods/_patney.py` on a CPU. Not differentiable: the callers' custom
+integrator (`foveate/_slots.cc`), the reconstruction (`foveate/_fill.cc`), Patney 2016's history
+blend and pre-filters (`foveate/_taa.cc`, `foveate/_prefilter.cc`) and Guenter 2012's layers
+(`foveate/_layers.cc`), each the primal of its JAX oracle in `_frame.py` / `_fill.py` /
+`_methods/` on a CPU. Not differentiable: the callers' custom
 JVPs take derivatives from the JAX side (`fovjax.native.internal.on_platforms`)."""
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from ..native.internal import handler, layout
 SELECT_TARGET = "fovjax_select_samples"
 SLOTS_TARGET = "fovjax_whitted_slots"
 FILL_TARGET = "fovjax_fill_and_blur"
-BLUR_TARGET = "fovjax_gaussian_blur"
 TAA_TARGET = "fovjax_taa_blend"
+PREFILTER_TARGET = "fovjax_patney_prefilter"
 LAYERS_TARGET = "fovjax_layer_blend"
 
 
@@ -223,16 +224,6 @@ def native_fill_and_blur(
     return image, complete[0]
 
 
-def native_gaussian_blur(image, taps):
-    """A separable Gaussian blur of `image` (N, H, W, C) with the normalised `taps` (2r + 1),
-    the border pixels repeated, through the blur handler (CPU only): what
-    `_methods._patney.gaussian_blur` computes, the taps added in its order."""
-    f32 = jnp.float32
-    out = jax.ShapeDtypeStruct(np.shape(image), f32)
-    call = handler(BLUR_TARGET, out, what="the native Gaussian blur", vmap_method="sequential")
-    return call(jax.lax.stop_gradient(jnp.asarray(image, f32)), jnp.asarray(taps, f32))
-
-
 def native_taa_blend(current, color, valid, *, alpha: float, gamma: float):
     """Patney 2016's history blend through the TAA handler (CPU only): `current` and the
     history's `color` (N, H, W, C), `valid` (N, H, W); what `_methods._patney.taa_blend`
@@ -247,6 +238,28 @@ def native_taa_blend(current, color, valid, *, alpha: float, gamma: float):
         alpha=np.float32(alpha),
         keep=np.float32(1.0 - alpha),
         gamma=np.float32(gamma),
+    )
+
+
+def native_patney_prefilter(image, w_inner, w_middle, taps, *, luminance, max_gain: float, flat_std: float):
+    """Patney 2016's pre-filters and the blend of its shading rates through the pre-filter
+    handler (CPU only): the image (2, H, W, 3), the inner and middle rates' weights (2, H, W),
+    `taps` the (blur, window) taps of the middle rate's filter and of the coarse rate's, both
+    eyes side by side (H, 2W, 3): what `_methods._patney.prefilter_and_blend` computes, each
+    filter only where its weight is not 0."""
+    _, h, w, _ = np.shape(image)
+    f32 = jnp.float32
+    out = jax.ShapeDtypeStruct((h, 2 * w, 3), f32)
+    call = handler(PREFILTER_TARGET, out, what="the native pre-filters", vmap_method="sequential")
+    (middle_blur, middle_window), (coarse_blur, coarse_window) = taps
+    return call(
+        jax.lax.stop_gradient(jnp.asarray(image, f32)),
+        jax.lax.stop_gradient(jnp.asarray(w_inner, f32)),
+        jax.lax.stop_gradient(jnp.asarray(w_middle, f32)),
+        *(np.asarray(t, np.float32) for t in (middle_blur, middle_window, coarse_blur, coarse_window)),
+        np.asarray(luminance, np.float32),
+        max_gain=np.float32(max_gain),
+        flat_std=np.float32(flat_std),
     )
 
 

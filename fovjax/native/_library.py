@@ -52,8 +52,8 @@ HANDLERS = {
     "fovjax_select_samples": "FovjaxSelectSamples",
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",
-    "fovjax_gaussian_blur": "FovjaxGaussianBlur",
     "fovjax_taa_blend": "FovjaxTaaBlend",
+    "fovjax_patney_prefilter": "FovjaxPatneyPrefilter",
     "fovjax_layer_blend": "FovjaxLayerBlend",
 }
 # The library's C entry points (library.cc's extern "C"), read by `_load`.

@@ -291,8 +291,9 @@ class Weier2016(AbstractFoveationMethod):
 
     A pixel's samples are traced together (every sub-sample at the frame's spp); its world
     point is the hit of its first sub-sample's ray (kept by the native integrator from the ray
-    it traces; elsewhere a closest-hit query over the traced pixels). fovjax's choice: the paper's coarse support
-    image is not built, because every pixel without a valid sample is traced.
+    it traces; elsewhere a closest-hit query over the traced pixels). fovjax's choice: the
+    paper's coarse support image is not built, because every pixel without a valid sample is
+    traced.
     """
 
     retrace_tolerance: float = 0.1

@@ -17,12 +17,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ...native.internal import on_platforms
 from .._frame import FoveatedOutputs, FrameOptions, diagnostics_tuple, eccentricities
-from .._native import native_gaussian_blur, native_taa_blend
+from .._native import native_patney_prefilter, native_taa_blend
 from ._base import FrameInputs
 from ._catalog import Patney2016
 from ._guenter import layer_weights
@@ -54,25 +53,25 @@ def _made(x):
     return jax.lax.optimization_barrier(x)
 
 
-def gaussian_blur(
-    image: Float[Array, "E H W C"], sigma: float, *, native: bool = False
-) -> Float[Array, "E H W C"]:
+def gaussian_blur(image: Float[Array, "E H W C"], sigma: float) -> Float[Array, "E H W C"]:
     """A separable Gaussian blur of standard deviation `sigma` pixels (static; 0: `image`),
-    truncated at 3σ and normalised, the border pixels repeated beyond the image. `native`: on
-    a CPU through the blur handler (`native_gaussian_blur`: the same taps added in the same
-    order, a band of rows per task on both cores), chosen inside the program; derivatives are
-    this function's."""
+    truncated at 3σ and normalised (`blur_taps`), the border pixels repeated beyond the
+    image: down the columns, then along the rows, the taps added in their order."""
     if sigma == 0:
         return image
+    taps = blur_taps(sigma)
+    return _blur(image, taps=taps, radius=len(taps) // 2)
+
+
+def blur_taps(sigma: float) -> list[float]:
+    """`gaussian_blur`'s taps for `sigma` (static): truncated at 3σ and normalised; σ 0: one
+    tap of 1 (the image itself)."""
+    if sigma == 0:
+        return [1.0]
     radius = max(1, math.ceil(3 * sigma))
     taps = [math.exp(-0.5 * (k / sigma) ** 2) for k in range(-radius, radius + 1)]
     total = sum(taps)
-    taps = [t / total for t in taps]
-    if native:
-        in_jax = functools.partial(_blur, taps=taps, radius=radius)
-        on_cpu = functools.partial(native_gaussian_blur, taps=np.asarray(taps, np.float32))
-        return on_platforms(in_jax, cpu=on_cpu)(image)
-    return _blur(image, taps=taps, radius=radius)
+    return [t / total for t in taps]
 
 
 def _blur(image, *, taps, radius):
@@ -94,13 +93,11 @@ def luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
     return image @ jnp.asarray(LUMINANCE, jnp.float32)[:, None]
 
 
-def local_std(
-    values: Float[Array, "E H W C"], window_sigma: float, *, native: bool = False
-) -> Float[Array, "E H W C"]:
+def local_std(values: Float[Array, "E H W C"], window_sigma: float) -> Float[Array, "E H W C"]:
     """The standard deviation of `values` in a Gaussian window of `window_sigma` pixels around
-    each pixel (E[x²] − E[x]², never negative). `native`: as `gaussian_blur`'s."""
-    mean = gaussian_blur(values, window_sigma, native=native)
-    var = gaussian_blur(values * values, window_sigma, native=native) - mean * mean
+    each pixel (E[x²] − E[x]², never negative)."""
+    mean = gaussian_blur(values, window_sigma)
+    var = gaussian_blur(values * values, window_sigma) - mean * mean
     return jnp.sqrt(jnp.maximum(var, 0.0))
 
 
@@ -110,7 +107,6 @@ def contrast_preserving_filter(
     *,
     window_sigma: float,
     max_gain: float,
-    native: bool = False,
 ) -> Float[Array, "E H W 3"]:
     """The pre-filter: a Gaussian blur of `sigma` pixels, then the local contrast the blur
     removed restored. With B the blurred image, m its local mean (a Gaussian window of
@@ -118,16 +114,55 @@ def contrast_preserving_filter(
     of B in that window, the result is m + (B − m)·g with g = s_I / s_B clipped to [1,
     `max_gain`] (g = 1 where B is flat): a variance-preserving contrast enhancement, so
     the blur's low-pass shape is kept and its loss of contrast is not. A constant image is a
-    fixed point (up to float rounding); the result is clipped at 0 (radiance). `native`: the
-    blurs through the native handler on a CPU (`gaussian_blur`)."""
-    blurred = gaussian_blur(image, sigma, native=native)
-    mean = gaussian_blur(blurred, window_sigma, native=native)
-    s_image = local_std(luminance(image), window_sigma, native=native)
-    s_blurred = local_std(luminance(blurred), window_sigma, native=native)
+    fixed point (up to float rounding); the result is clipped at 0 (radiance)."""
+    blurred = gaussian_blur(image, sigma)
+    mean = gaussian_blur(blurred, window_sigma)
+    s_image = local_std(luminance(image), window_sigma)
+    s_blurred = local_std(luminance(blurred), window_sigma)
     gain = jnp.where(
         s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
     )
     return jnp.maximum(mean + (blurred - mean) * gain, 0.0)
+
+
+def rate_blend(fine, middle, coarse, w_inner, w_middle):
+    """The shading rates' images blended by their weights (2, H, W): `middle` over `coarse` by
+    `w_middle`, then `fine` over that by `w_inner`."""
+    rest = coarse * (1 - w_middle)[..., None] + middle * w_middle[..., None]
+    return rest * (1 - w_inner)[..., None] + fine * w_inner[..., None]
+
+
+def prefilter_and_blend(
+    image: Float[Array, "2 H W 3"],
+    w_inner: Float[Array, "2 H W"],
+    w_middle: Float[Array, "2 H W"],
+    sigmas: tuple[float, float],
+    *,
+    window_per_sigma: float,
+    max_gain: float,
+    native: bool = False,
+) -> Float[Array, "H W2 3"]:
+    """The middle and coarse rates' pre-filters of `image` (`contrast_preserving_filter` of σ
+    `sigmas`, the window `window_per_sigma`·σ) blended with it by the rates' weights
+    (`rate_blend`), both eyes side by side. `native`: on a CPU through the pre-filter handler
+    (`native_patney_prefilter`: each filter computed only in the rectangle where its weight is
+    not 0, the blurs' taps added in their order), chosen inside the program; derivatives are
+    this function's."""
+
+    def in_jax(image, w_inner, w_middle):
+        kw = {"max_gain": max_gain}
+        filtered = [
+            contrast_preserving_filter(image, s, window_sigma=window_per_sigma * s, **kw) for s in sigmas
+        ]
+        return side_by_side(rate_blend(image, *filtered, w_inner, w_middle))
+
+    if not native:
+        return in_jax(image, w_inner, w_middle)
+    taps = tuple((blur_taps(s), blur_taps(window_per_sigma * s)) for s in sigmas)
+    on_cpu = functools.partial(
+        native_patney_prefilter, taps=taps, luminance=LUMINANCE, max_gain=max_gain, flat_std=FLAT_STD
+    )
+    return on_platforms(in_jax, cpu=on_cpu)(image, w_inner, w_middle)
 
 
 def _neighbourhood(image: Float[Array, "E H W 3"]):
@@ -205,7 +240,7 @@ def patney_stereo(
     diagnostics = diagnostics_tuple(options.diagnostics, "patney_stereo")
     from ...render.internal import integrator_plan
 
-    native = integrator_plan(config).cpu  # the blurs and the history blend natively on a CPU
+    native = integrator_plan(config).cpu  # the history blend and the pre-filters natively on a CPU
     cameras = rig.eye_cameras(head_pose)
     h, w = rig.eye_height, rig.eye_width
     ecc = eccentricities(cameras, gaze, foveation)
@@ -224,25 +259,18 @@ def patney_stereo(
     )
     inner, middle, outer = (hold(pixels.prefill, s) for s in strides)
     w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
-
-    def blend(fine, mid, coarse):
-        rest = coarse * (1 - w_middle)[..., None] + mid * w_middle[..., None]
-        return rest * (1 - w_inner)[..., None] + fine * w_inner[..., None]
-
-    shaded = blend(inner, middle, outer)
+    shaded = rate_blend(inner, middle, outer, w_inner, w_middle)
     accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma, native=native)
     # The pre-filter per shading rate (σ grows with the block size), shown where that rate is.
-    filtered = [
-        contrast_preserving_filter(
-            accumulated,
-            method.blur_per_stride * s,
-            window_sigma=method.window_per_sigma * method.blur_per_stride * s,
-            max_gain=method.max_gain,
-            native=native,
-        )
-        for s in method.strides
-    ]
-    eyes = blend(accumulated, *filtered)
+    image = prefilter_and_blend(
+        accumulated,
+        w_inner,
+        w_middle,
+        tuple(method.blur_per_stride * s for s in method.strides),
+        window_per_sigma=method.window_per_sigma,
+        max_gain=method.max_gain,
+        native=native,
+    )
     reused = jnp.sum(history.valid, dtype=jnp.int32)
-    outputs = pixels.outputs(side_by_side(eyes), diagnostics)
+    outputs = pixels.outputs(image, diagnostics)
     return outputs, reused, TaaHistory(accumulated, jnp.ones_like(history.valid))

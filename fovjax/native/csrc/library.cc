@@ -8,8 +8,9 @@
 //   render/          the Whitted integrator and its shading (_whitted.cc), its adjoint in the
 //                    shading parameters (_whitted_adjoint.cc)
 //   foveate/         sample selection with JAX's threefry (_select.cc), the slots integrator
-//                    (_slots.cc), pixel means, fill and blur (_fill.cc), Patney 2016's Gaussian blurs
-//                    (_blur.cc) and history blend (_taa.cc), Guenter 2012's layers (_layers.cc)
+//                    (_slots.cc), pixel means, fill and blur (_fill.cc), Patney 2016's history
+//                    blend (_taa.cc) and pre-filters with the rates' blend (_prefilter.cc),
+//                    Guenter 2012's layers (_layers.cc)
 //
 // Embree itself is the shared library inside the `embreex` wheel, opened with dlopen at run time.
 
@@ -26,8 +27,8 @@
 #include "foveate/_select.cc"
 #include "foveate/_slots.cc"
 #include "foveate/_fill.cc"
-#include "foveate/_blur.cc"
 #include "foveate/_taa.cc"
+#include "foveate/_prefilter.cc"
 #include "foveate/_layers.cc"
 
 extern "C" {

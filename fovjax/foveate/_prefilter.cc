@@ -1,0 +1,289 @@
+// Patney 2016's contrast-preserving pre-filters and the blend of the shading rates, both eyes
+// side by side (its oracle: fovjax/foveate/_methods/_patney.py `prefilter_and_blend`).
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "native/csrc/thread_pool.h"
+
+namespace {
+
+// out[j] = sum_u taps[u] * rows[u][j] for j < n, summed in order (u = 0 first, as the JAX
+// blur adds its terms): kBlock outputs at a time, their sums held in vector registers while
+// the k rows are read (a pass over `out` per tap is bound by its loads and stores instead).
+constexpr int64_t kBlock = 64;
+
+FOVJAX_VECTOR_CLONES
+void TapRows(const float* taps, int k, const float* const* rows, int64_t n, float* __restrict__ out) {
+  int64_t j0 = 0;
+  for (; j0 + kBlock <= n; j0 += kBlock) {
+    float acc[kBlock];
+    const float t0 = taps[0];
+    const float* __restrict__ s0 = rows[0] + j0;
+#pragma GCC unroll 64
+    for (int i = 0; i < kBlock; ++i) acc[i] = t0 * s0[i];
+    for (int u = 1; u < k; ++u) {
+      const float tu = taps[u];
+      const float* __restrict__ s = rows[u] + j0;
+#pragma GCC unroll 64
+      for (int i = 0; i < kBlock; ++i) acc[i] = acc[i] + tu * s[i];
+    }
+#pragma GCC unroll 64
+    for (int i = 0; i < kBlock; ++i) out[j0 + i] = acc[i];
+  }
+  for (int64_t j = j0; j < n; ++j) {
+    float acc = taps[0] * rows[0][j];
+    for (int u = 1; u < k; ++u) acc = acc + taps[u] * rows[u][j];
+    out[j] = acc;
+  }
+}
+
+
+// A rectangle of rows [y0, y1) and columns [x0, x1).
+struct Rect {
+  int64_t y0 = 0, y1 = 0, x0 = 0, x1 = 0;
+  int64_t Rows() const { return y1 - y0; }
+  int64_t Cols() const { return x1 - x0; }
+  bool Empty() const { return y1 <= y0 || x1 <= x0; }
+  Rect Grown(int64_t r, int64_t h, int64_t w) const {
+    return {std::max<int64_t>(0, y0 - r), std::min(h, y1 + r), std::max<int64_t>(0, x0 - r), std::min(w, x1 + r)};
+  }
+};
+
+// The Gaussian blur of `gaussian_blur` (columns, then rows, the border pixels repeated) of an
+// image (h, w, c) at the pixels of `at` only, into `out` (at.Rows(), at.Cols(), c): the same
+// taps in the same order as the whole image's blur, so the values are that blur's.
+void BlurRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int64_t c, const std::vector<float>& taps,
+              const Rect& at, float* out) {
+  const int k = static_cast<int>(taps.size()), r = k / 2;
+  // The column pass over the columns the row pass reads (clamped to the image).
+  const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
+  const int64_t row = w * c;
+  // Columns the row pass reads beyond the image's edges (its edge pixels repeated there).
+  const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1;
+  const int64_t rows = 8, bands = (at.Rows() + rows - 1) / rows;
+  ParallelFor(pool, bands, [&](int64_t band) {
+    thread_local std::vector<float> pad;
+    thread_local std::vector<const float*> reads;
+    pad.resize(static_cast<size_t>((at.Cols() + 2 * r) * c));
+    reads.resize(static_cast<size_t>(k));
+    float* column = pad.data() + left * c;  // the column pass, in place inside the padded row
+    const int64_t y0 = at.y0 + band * rows, y1 = std::min(at.y1, y0 + rows);
+    for (int64_t y = y0; y < y1; ++y) {
+      for (int u = 0; u < k; ++u) reads[u] = src + std::clamp<int64_t>(y + u - r, 0, h - 1) * row + cx0 * c;
+      TapRows(taps.data(), k, reads.data(), (cx1 - cx0) * c, column);
+      for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, pad.data() + p * c);
+      const float* last = column + (cx1 - cx0 - 1) * c;
+      for (int64_t p = 0; p < right; ++p) std::copy(last, last + c, column + (cx1 - cx0 + p) * c);
+      for (int u = 0; u < k; ++u) reads[u] = pad.data() + u * c;
+      TapRows(taps.data(), k, reads.data(), at.Cols() * c, out + (y - at.y0) * at.Cols() * c);
+    }
+  });
+}
+
+constexpr int64_t kStack = 7;  // the window's channels: B (3), L, L², L_B, L_B²
+
+// One row of the window's channels from the image's and B's (restrict-qualified and free of
+// branches, so that GCC vectorises it).
+FOVJAX_VECTOR_CLONES
+void StackRow(const float* __restrict__ im, const float* __restrict__ b, int64_t n, float l0, float l1, float l2,
+              float* __restrict__ s) {
+  for (int64_t j = 0; j < n; ++j) {
+    const float li = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;
+    const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;
+    s[kStack * j] = b[3 * j], s[kStack * j + 1] = b[3 * j + 1], s[kStack * j + 2] = b[3 * j + 2];
+    s[kStack * j + 3] = li, s[kStack * j + 4] = li * li, s[kStack * j + 5] = lb, s[kStack * j + 6] = lb * lb;
+  }
+}
+
+// One row of the filter from the window's means `m` and B: the contrast gain (1 where B is
+// flat), then m + (B − m)·gain, clipped at 0.
+FOVJAX_VECTOR_CLONES
+void GainRow(const float* __restrict__ m, const float* __restrict__ b, int64_t n, float flat_std, float max_gain,
+             float* __restrict__ o) {
+  for (int64_t j = 0; j < n; ++j) {
+    const float* p = m + kStack * j;
+    const float s_image = std::sqrt(std::max(p[4] - p[3] * p[3], 0.0f));
+    const float s_blurred = std::sqrt(std::max(p[6] - p[5] * p[5], 0.0f));
+    const float clipped = std::min(std::max(s_image / std::max(s_blurred, flat_std), 1.0f), max_gain);
+    const float gain = s_blurred > flat_std ? clipped : 1.0f;
+    for (int ch = 0; ch < 3; ++ch) o[3 * j + ch] = std::max(p[ch] + (b[3 * j + ch] - p[ch]) * gain, 0.0f);
+  }
+}
+
+struct FilterParams {
+  std::vector<float> blur, window;  // the taps of σ and of the contrast window
+  float luminance[3];
+  float max_gain, flat_std;
+};
+
+// `contrast_preserving_filter` of one eye's image (h, w, 3) at the pixels of `at`, into `out`
+// (at.Rows(), at.Cols(), 3): B the blur, then in the window around each pixel the mean of B
+// and the standard deviations of the luminances of the image and of B, a 7-channel image
+// (B, L, L², L_B, L_B²) blurred once.
+void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w, const FilterParams& f,
+                const Rect& at, float* out) {
+  const int64_t rw = static_cast<int64_t>(f.window.size()) / 2;
+  const Rect around = at.Grown(rw, h, w);  // where the window reads (clamped as the image is)
+  std::unique_ptr<float[]> blurred(new float[around.Rows() * around.Cols() * 3]);  // (not zeroed)
+  BlurRect(pool, image, h, w, 3, f.blur, around, blurred.get());
+  std::unique_ptr<float[]> stack(new float[around.Rows() * around.Cols() * kStack]);
+  const float l0 = f.luminance[0], l1 = f.luminance[1], l2 = f.luminance[2];
+  ParallelFor(pool, around.Rows(), [&](int64_t i) {
+    StackRow(image + ((around.y0 + i) * w + around.x0) * 3, blurred.get() + i * around.Cols() * 3, around.Cols(),
+             l0, l1, l2, stack.get() + i * around.Cols() * kStack);
+  });
+  const Rect inside{at.y0 - around.y0, at.y1 - around.y0, at.x0 - around.x0, at.x1 - around.x0};
+  std::unique_ptr<float[]> window(new float[at.Rows() * at.Cols() * kStack]);
+  BlurRect(pool, stack.get(), around.Rows(), around.Cols(), kStack, f.window, inside, window.get());
+  ParallelFor(pool, at.Rows(), [&](int64_t i) {
+    GainRow(window.get() + i * at.Cols() * kStack, blurred.get() + ((inside.y0 + i) * around.Cols() + inside.x0) * 3,
+            at.Cols(), f.flat_std, f.max_gain, out + i * at.Cols() * 3);
+  });
+}
+
+// The rates' blend along a row (`rate_blend`'s arithmetic in its order): rest = coarse·(1 −
+// w_middle), rest += middle·w_middle, then out = rest·(1 − w_inner) + image·w_inner.
+FOVJAX_VECTOR_CLONES
+void CoarseTerm(const float* __restrict__ v, const float* __restrict__ b, int64_t n, float* __restrict__ rest) {
+  for (int64_t j = 0; j < n; ++j) {
+    for (int ch = 0; ch < 3; ++ch) rest[3 * j + ch] = v[3 * j + ch] * (1.0f - b[j]);
+  }
+}
+
+FOVJAX_VECTOR_CLONES
+void MiddleTerm(const float* __restrict__ v, const float* __restrict__ b, int64_t n, float* __restrict__ rest) {
+  for (int64_t j = 0; j < n; ++j) {
+    for (int ch = 0; ch < 3; ++ch) rest[3 * j + ch] = rest[3 * j + ch] + v[3 * j + ch] * b[j];
+  }
+}
+
+FOVJAX_VECTOR_CLONES
+void InnerOver(const float* __restrict__ rest, const float* __restrict__ image, const float* __restrict__ a, int64_t n,
+               float* __restrict__ out) {
+  for (int64_t j = 0; j < n; ++j) {
+    for (int ch = 0; ch < 3; ++ch) out[3 * j + ch] = rest[3 * j + ch] * (1.0f - a[j]) + image[3 * j + ch] * a[j];
+  }
+}
+
+// The bounding rectangles of one eye's pixels where the middle and the coarse rate's filters
+// have a weight in the blend that is not 0: w_middle·(1 − w_inner) and (1 − w_middle)·(1 −
+// w_inner). Rows in parallel, then their column spans merged.
+void ShownRects(ffi::ThreadPool& pool, const float* inner, const float* middle, int64_t h, int64_t w, Rect out[2]) {
+  std::vector<int64_t> span(static_cast<size_t>(4 * h));  // per row: each filter's first and end column
+  ParallelFor(pool, h, [&](int64_t y) {
+    const float* a = inner + y * w;
+    const float* b = middle + y * w;
+    auto middle_shows = [&](int64_t x) { return a[x] != 1.0f && b[x] != 0.0f; };
+    auto coarse_shows = [&](int64_t x) { return a[x] != 1.0f && b[x] != 1.0f; };
+    int64_t* row = span.data() + 4 * y;
+    // From each end to the first pixel where the filter shows (most rows stop at once).
+    int64_t first = 0, end = w;
+    while (first < w && !middle_shows(first)) ++first;
+    while (end > first && !middle_shows(end - 1)) --end;
+    row[0] = first, row[1] = end;
+    first = 0, end = w;
+    while (first < w && !coarse_shows(first)) ++first;
+    while (end > first && !coarse_shows(end - 1)) --end;
+    row[2] = first, row[3] = end;
+  });
+  for (int f = 0; f < 2; ++f) {
+    Rect box{h, 0, w, 0};
+    for (int64_t y = 0; y < h; ++y) {
+      const int64_t first = span[4 * y + 2 * f], end = span[4 * y + 2 * f + 1];
+      if (end <= first) continue;
+      box.y0 = std::min(box.y0, y), box.y1 = y + 1;
+      box.x0 = std::min(box.x0, first), box.x1 = std::max(box.x1, end);
+    }
+    out[f] = box.Empty() ? Rect{} : box;
+  }
+}
+
+// Per eye: each shading rate's pre-filter where that rate shows (its bounding rectangle: a
+// filter is computed only where its weight in the blend is not 0), then the blend
+// rest = coarse·(1 − w_middle) + middle·w_middle, out = rest·(1 − w_inner) + image·w_inner,
+// written side by side. A term left out is one whose product is 0 there (the filters are
+// finite where the image is), so the values are the whole images' blend.
+ffi::Error PatneyPrefilter(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ffi::Buffer<ffi::F32> w_inner,
+                           ffi::Buffer<ffi::F32> w_middle, ffi::Buffer<ffi::F32> middle_blur,
+                           ffi::Buffer<ffi::F32> middle_window, ffi::Buffer<ffi::F32> coarse_blur,
+                           ffi::Buffer<ffi::F32> coarse_window, ffi::Buffer<ffi::F32> luminance,
+                           ffi::ResultBuffer<ffi::F32> out, float max_gain, float flat_std) {
+  const auto dims = image.dimensions();
+  if (dims.size() != 4 || dims[0] != 2 || dims[3] != 3) {
+    return ffi::Error::InvalidArgument("prefilter: the image must be (2, H, W, 3)");
+  }
+  const int64_t h = dims[1], w = dims[2], hw = h * w;
+  if (w_inner.element_count() != static_cast<size_t>(2 * hw) || w_middle.element_count() != static_cast<size_t>(2 * hw) ||
+      out->element_count() != static_cast<size_t>(6 * hw) || luminance.element_count() != 3) {
+    return ffi::Error::InvalidArgument("prefilter: the weights are (2, H, W) and the output (H, 2W, 3)");
+  }
+  FilterParams filters[2];
+  const ffi::Buffer<ffi::F32>* taps[2][2] = {{&middle_blur, &middle_window}, {&coarse_blur, &coarse_window}};
+  for (int f = 0; f < 2; ++f) {
+    for (int t = 0; t < 2; ++t) {
+      const ffi::Buffer<ffi::F32>& b = *taps[f][t];
+      if (b.element_count() % 2 != 1) return ffi::Error::InvalidArgument("prefilter: an odd number of taps");
+      std::vector<float>& v = t == 0 ? filters[f].blur : filters[f].window;
+      v.assign(b.typed_data(), b.typed_data() + b.element_count());
+    }
+    std::copy(luminance.typed_data(), luminance.typed_data() + 3, filters[f].luminance);
+    filters[f].max_gain = max_gain, filters[f].flat_std = flat_std;
+  }
+  const float* src = image.typed_data();
+  const float* wi = w_inner.typed_data();
+  const float* wm = w_middle.typed_data();
+  float* dst = out->typed_data();
+  for (int64_t e = 0; e < 2; ++e) {
+    const float* img = src + e * hw * 3;
+    const float* inner = wi + e * hw;
+    const float* middle = wm + e * hw;
+    Rect shown[2];
+    ShownRects(pool, inner, middle, h, w, shown);
+    std::unique_ptr<float[]> filtered[2];
+    for (int f = 0; f < 2; ++f) {
+      if (shown[f].Empty()) continue;
+      filtered[f].reset(new float[shown[f].Rows() * shown[f].Cols() * 3]);
+      FilterRect(pool, img, h, w, filters[f], shown[f], filtered[f].get());
+    }
+    // Per row: rest = coarse·(1 − w_middle) + middle·w_middle where each filter was computed
+    // (elsewhere its weight is 0, or w_inner is 1 and rest·0 is 0), then the image over it.
+    ParallelFor(pool, h, [&](int64_t y) {
+      thread_local std::vector<float> rest;
+      rest.assign(static_cast<size_t>(3 * w), 0.0f);
+      const float* a = inner + y * w;
+      const float* b = middle + y * w;
+      const Rect& c = shown[1];
+      if (y >= c.y0 && y < c.y1) {
+        CoarseTerm(filtered[1].get() + (y - c.y0) * c.Cols() * 3, b + c.x0, c.Cols(), rest.data() + 3 * c.x0);
+      }
+      const Rect& m = shown[0];
+      if (y >= m.y0 && y < m.y1) {
+        MiddleTerm(filtered[0].get() + (y - m.y0) * m.Cols() * 3, b + m.x0, m.Cols(), rest.data() + 3 * m.x0);
+      }
+      InnerOver(rest.data(), img + y * w * 3, a, w, dst + (y * 2 * w + e * w) * 3);
+    });
+  }
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxPatneyPrefilter, PatneyPrefilter,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the image (2, H, W, 3)
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the inner rate's weight (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the middle rate's weight (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the middle rate's blur taps
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the middle rate's window taps
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the coarse rate's blur taps
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the coarse rate's window taps
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // the luminance weights (3)
+                                  .Ret<ffi::Buffer<ffi::F32>>()  // both eyes side by side (H, 2W, 3)
+                                  .Attr<float>("max_gain")
+                                  .Attr<float>("flat_std"));
