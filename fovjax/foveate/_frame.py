@@ -618,7 +618,7 @@ def traced_sums(
 
     def far_of(scene):
         """A miss's point's distance along its ray (`first_points` scene sizes)."""
-        return jax.lax.stop_gradient(first_points * scene_scale(scene))
+        return jax.lax.stop_gradient(cast(float, first_points) * scene_scale(scene))
 
     def slot_points(scene, cameras, order, n_traced, prim):
         """Every live slot of sub-sample 0's hit point at its pixel, from its face `prim`."""

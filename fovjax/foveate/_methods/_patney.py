@@ -151,10 +151,10 @@ def prefilter_and_blend(
 
     def in_jax(image, w_inner, w_middle):
         kw = {"max_gain": max_gain}
-        filtered = [
+        middle, coarse = (
             contrast_preserving_filter(image, s, window_sigma=window_per_sigma * s, **kw) for s in sigmas
-        ]
-        return side_by_side(rate_blend(image, *filtered, w_inner, w_middle))
+        )
+        return side_by_side(rate_blend(image, middle, coarse, w_inner, w_middle))
 
     if not native:
         return in_jax(image, w_inner, w_middle)
@@ -266,7 +266,7 @@ def patney_stereo(
         accumulated,
         w_inner,
         w_middle,
-        tuple(method.blur_per_stride * s for s in method.strides),
+        (method.blur_per_stride * method.strides[0], method.blur_per_stride * method.strides[1]),
         window_per_sigma=method.window_per_sigma,
         max_gain=method.max_gain,
         native=native,

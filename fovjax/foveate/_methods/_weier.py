@@ -9,7 +9,7 @@ sample, so the next frame traces them all: the full frame).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -132,7 +132,7 @@ def weier_stereo(
         config=config,
         first_points=MISS_DISTANCE,  # each pixel's point: sub-sample 0's hit
     )
-    n, points = pixels.n, pixels.first_points
+    n, points = pixels.n, cast(Array, pixels.first_points)
     fresh = n > 0
     # Every pixel is traced or holds a usable reprojected sample: nothing to fill.
     eyes = jnp.where(fresh[..., None], pixels.prefill, back.color)
