@@ -1063,6 +1063,22 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
     np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_jax), rtol=1e-6, atol=1e-7)
 
 
+def _featured_selection(featured, w, h, spp):
+    """The featured scene's eye cameras (a head pose off the default) at w×h and one foveated
+    selection (5°/10°, the JAX selection): (cameras, selection, traced samples per pixel,
+    slot budget)."""
+    from fovjax.foveate._frame import eccentricities, selection_with_mask
+
+    scene = featured[0]
+    fov = Foveation(5.0, 10.0, spp=spp)
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    cameras = rig.eye_cameras(jnp.asarray([2.0, -1.0, 0.5]))
+    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    budget = 2 * spp * w * h
+    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=budget, native=False)
+    return cameras, sel, n, budget
+
+
 SLOTS_CASES = [
     # (eye width, height, spp, jittered, the derivative too)
     (37, 29, 4, True, True),  # odd sizes, strata with jitter
@@ -1077,16 +1093,11 @@ def test_slots_in_one_native_call_are_the_chunked_path(featured, case):
     sample adder, the JAX integrator): the same pixel sums to float rounding (ray directions
     are rounded by the two compilers apart), the same bad pixels and ray counts (within the
     file's agreement), and its derivative (a replay of the paths it stored) is the chunked path's."""
-    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._frame import traced_sums
 
     w, h, spp, jittered, derivative = case
-    scene, arrays, bvh, _ = featured
-    fov = Foveation(5.0, 10.0, spp=spp)
-    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
-    cameras = rig.eye_cameras(jnp.asarray([2.0, -1.0, 0.5]))
-    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
-    budget = 2 * spp * w * h
-    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=budget, native=False)
+    _, arrays, bvh, _ = featured
+    cameras, sel, n, budget = _featured_selection(featured, w, h, spp)
     key = jax.random.key(8) if jittered else None
     tangent = jax.random.normal(jax.random.key(1), np.shape(arrays.kd), jnp.float32)
 
@@ -1134,17 +1145,11 @@ def test_first_points_native_and_their_derivatives_are_the_chunked_paths(feature
     stored; against the chunk loop's own queries (`first_hit_points`): the points to float
     rounding, and their JVP along a move of every vertex (nonzero on the hits, zero on a miss:
     its point lies a fixed distance along its ray)."""
-    from fovjax.foveate._frame import eccentricities, selection_with_mask, traced_sums
+    from fovjax.foveate._frame import traced_sums
     from fovjax.render.internal import scene_scale
 
-    w, h, spp = 16, 12, 1
-    scene, arrays, bvh, _ = featured
-    fov = Foveation(5.0, 10.0, spp=spp)
-    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
-    cameras = rig.eye_cameras(jnp.asarray([2.0, -1.0, 0.5]))
-    ecc = eccentricities(cameras, jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
-    budget = 2 * spp * w * h
-    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=budget, native=False)
+    _, arrays, bvh, _ = featured
+    cameras, sel, n, budget = _featured_selection(featured, 16, 12, 1)
     vertices = jnp.asarray(arrays.vertices)
     tangent = jax.random.normal(jax.random.key(1), vertices.shape, jnp.float32)
 
