@@ -403,8 +403,10 @@ def test_every_frame_program_lowers_for_cuda():
         for target in (
             "fovjax_select_samples",
             "fovjax_whitted_slots",
+            "fovjax_fill_and_blur",
             "fovjax_patney_prefilter",
             "fovjax_taa_blend",
+            "fovjax_layer_blend",
         ):
             assert target not in module, f"{entry}: the CPU handler {target} is on the CUDA path"
         assert "callback" not in module, f"{entry}: a host callback is on the CUDA path"
