@@ -509,14 +509,14 @@ def _first_points(points, scene, bvh, o, d, prim, target, far):
 
 
 def first_hit_points(
-    scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int, miss_scenes: float
+    scene, bvh, cameras, jitter_key, sel: Selection, *, config, budget: int, far
 ) -> Float[Array, "P 3"]:
     """Per pixel (2·H·W, 3) the point its sub-sample 0's primary ray hits (a miss: the point
-    `miss_scenes` scene sizes (`scene_scale`) along the ray; 0 where that sub-sample is not
+    `far` along the ray, a scalar without derivatives; 0 where that sub-sample is not
     among the live slots), chunk by chunk over the live slots (`closest_hit` on
     `config.backend`). What the slots handler gives with `traced_sums`' `first_points` from the
     rays it traces anyway. Forward-mode derivatives (a loop over the live chunks)."""
-    from ..render.internal import chunk_loop, scene_scale
+    from ..render.internal import chunk_loop
     from ..trace import closest_hit
 
     _, spp, h, w = sel.classes.shape
@@ -524,7 +524,6 @@ def first_hit_points(
     order = sel.order
     if order.shape[0] % size:  # whole chunks (the padding is never live)
         order = jnp.pad(order, (0, size - order.shape[0] % size))
-    far = jax.lax.stop_gradient(miss_scenes * scene_scale(scene))
     positions = functools.partial(positions_at, jitter_key, spp=spp, h=h, w=w)
     lanes = jnp.arange(size, dtype=jnp.int32)
     n_pixels = 2 * h * w
@@ -611,7 +610,7 @@ def traced_sums(
         def run_and_points(scene, cameras, order, n_traced):
             consumed, counts = run(scene, cameras, order, n_traced)
             s = sel._replace(order=order, n_traced=n_traced)
-            kw = {"config": config, "budget": budget, "miss_scenes": first_points}
+            kw = {"config": config, "budget": budget, "far": far_of(scene)}
             return (*consumed, first_hit_points(scene, bvh, cameras, jitter_key, s, **kw)), counts
 
         return run_and_points
@@ -700,7 +699,8 @@ def traced_sums(
         counts = (r.counts.primary, r.counts.shadow, r.counts.reflection)
         if first_points is None:
             return slot_sums(r.rgb, r.bad, order, n_traced), counts
-        prim = closest_hit(bvh, o, d, 0.0, jnp.where(live, jnp.inf, 0.0), backend=config.backend).prim
+        first = live & (_slot_samples(order, spp=spp, h=h, w=w)[1] == 0)  # only sub-sample 0's point is kept
+        prim = closest_hit(bvh, o, d, 0.0, jnp.where(first, jnp.inf, 0.0), backend=config.backend).prim
         points = slot_points(scene, cameras, order, n_traced, prim)
         return (*slot_sums(r.rgb, r.bad, order, n_traced), points), counts
 
