@@ -191,8 +191,8 @@ MUTATIONS = (
     Mutation(
         "prefilter-edge-not-repeated",
         "Patney's blurs repeat the second pixel beyond the image's left edge, not the edge pixel",
-        "for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, pad.data() + p * c);",
-        "for (int64_t p = 0; p < left; ++p) std::copy(column + c, column + 2 * c, pad.data() + p * c);",
+        "for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, column - (left - p) * c);",
+        "for (int64_t p = 0; p < left; ++p) std::copy(column + c, column + 2 * c, column - (left - p) * c);",
     ),
     Mutation(
         "prefilter-coarse-weight-swapped",
@@ -209,8 +209,26 @@ MUTATIONS = (
     Mutation(
         "prefilter-blurred-luminance-of-image",
         "the blurred image's local contrast measured on the image's luminance",
-        "const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;",
+        "const float lb = b0 * l0 + b1 * l1 + b2 * l2;",
         "const float lb = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;",
+    ),
+    Mutation(
+        "prefilter-window-edge-not-repeated",
+        "Patney's contrast windows repeat the second pixel beyond the left edge, not the edge pixel",
+        "std::fill(column - left, column, column[0]);",
+        "std::fill(column - left, column, column[1]);",
+    ),
+    Mutation(
+        "prefilter-window-mean-of-image",
+        "the blurred image's local mean luminance taken as the image's",
+        "const float mean_lb = m0[j] * l0 + m1[j] * l1 + m2[j] * l2;",
+        "const float mean_lb = mean_l[j];",
+    ),
+    Mutation(
+        "prefilter-strips-first",
+        "every strip of the blurs' column pass reads the first strip's columns",
+        "for (int u = 0; u < k; ++u) reads[u] = row(y + u - r) + x0;",
+        "for (int u = 0; u < k; ++u) reads[u] = row(y + u - r);",
     ),
     Mutation(
         "layers-nearest",
@@ -248,6 +266,18 @@ MUTATIONS = (
         "if (!kPlain && paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
         "if (!kPlain && paths != nullptr && (!kClasses || Tested(s, b.cls[k], l)))\n"
         "            paths->visible[depth * paths->n + b.column[k]] |= 1u << l;",
+    ),
+    Mutation(
+        "fill-bad-flags-half-word",
+        "the fill's pixel means look at four of each eight bad-pixel flags",
+        "std::memcpy(&any, bad + x0, sizeof any);",
+        "std::memcpy(&any, bad + x0, 4);",
+    ),
+    Mutation(
+        "fill-top-left-own-row",
+        "a blank pixel is filled from its own row's block top-left, not its block's top-left row",
+        "const int64_t ty = y - y % f.block[c];",
+        "const int64_t ty = y;",
     ),
 )
 

@@ -547,10 +547,60 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
 # (the inner rate over the whole image: no filter computed), the right eye's 100 (the coarse
 # rate everywhere, no inner or middle rate).
 PREFILTER_CASES = [
-    (37, 29, (6.0, 30.0), (4.0, 9.0), (1.0, 2.0)),
+    # Rows wider than the blurs' strips of columns (each plane of the window too), the rates'
+    # rectangles narrower than the image.
+    (21, 290, (140.0, 10.0), (30.0, 80.0), (1.0, 2.0)),
     (13, 9, (4.0, 6.0), (2.0, 4.0), (2.0, 4.0)),
     (11, 15, None, (4.0, 9.0), (1.0, 2.0)),
 ]
+
+
+def _blur64(values, taps):
+    """`gaussian_blur` in float64: down the columns, then along the rows, edges repeated."""
+    r = len(taps) // 2
+    _, h, w, _ = values.shape
+    padded = np.pad(values, ((0, 0), (r, r), (0, 0), (0, 0)), mode="edge")
+    values = sum(t * padded[:, u : u + h] for u, t in enumerate(taps))
+    padded = np.pad(values, ((0, 0), (0, 0), (r, r), (0, 0)), mode="edge")
+    return sum(t * padded[:, :, u : u + w] for u, t in enumerate(taps))
+
+
+def _prefilter_rounding_bound(image, w_inner, w_middle, sigmas, *, window_per_sigma, max_gain):
+    """Per element of `prefilter_and_blend`'s result (H, 2W, 3), how far float32 rounding can
+    move it, to first order: the contrast gain is s_I / s_B with s² = E[x²] − E[x]², and a
+    window's sums of positive terms round by at most (terms)·u of their value (u = 2⁻²⁴), so
+    each variance moves by up to γ·(E[x²] + E[x]²), its deviation by that over 2s (or its
+    square root, near 0), the gain by the ratio's first-order change (by up to max_gain − 1
+    where s_B is that close to the flat threshold: the two sides may choose differently), and
+    the result by |B − m| times the gain's change. Computed in float64 from the same inputs."""
+    from fovjax.foveate._methods._patney import FLAT_STD, LUMINANCE, blur_taps
+
+    u = 2.0**-24
+    image = np.asarray(image, np.float64)
+    lum = np.asarray(LUMINANCE)
+    bounds = []
+    for sigma in sigmas:
+        blur, window = blur_taps(sigma), blur_taps(window_per_sigma * sigma)
+        gamma = (4 * (len(blur) + len(window)) + 16) * u
+        b = _blur64(image, blur)
+        m = _blur64(b, window)
+        li, lb = image @ lum, b @ lum
+        stats = _blur64(np.stack([li, li * li, lb * lb], -1), window)
+        mean_i, mean_i2, mean_b2 = stats[..., 0], stats[..., 1], stats[..., 2]
+        mean_b = m @ lum
+        deviations = []
+        for second, first in ((mean_i2, mean_i), (mean_b2, mean_b)):
+            d_var = gamma * (second + first * first)
+            sd = np.sqrt(np.maximum(second - first * first, 0.0))
+            deviations.append((sd, np.minimum(d_var / np.maximum(2 * sd, 1e-300), np.sqrt(d_var))))
+        (s_i, ds_i), (s_b, ds_b) = deviations
+        gain = np.clip(s_i / np.maximum(s_b, FLAT_STD), 1.0, max_gain)
+        d_gain = (ds_i + gain * ds_b) / np.maximum(s_b - ds_b, FLAT_STD)
+        d_gain = np.where(np.abs(s_b - FLAT_STD) <= ds_b, max_gain - 1.0, np.minimum(d_gain, max_gain - 1.0))
+        bounds.append(np.abs(b - m) * d_gain[..., None])
+    wi, wm = np.asarray(w_inner)[..., None], np.asarray(w_middle)[..., None]
+    bound = (1 - wi) * ((1 - wm) * bounds[1] + wm * bounds[0])
+    return np.concatenate([bound[0], bound[1]], axis=1)
 
 
 @pytest.mark.parametrize(
@@ -559,9 +609,9 @@ PREFILTER_CASES = [
 def test_patney_prefilter_native_is_the_jax_path(case):
     """Patney 2016's pre-filters and the blend of its rates (`prefilter_and_blend`) through the
     pre-filter handler, which computes each rate's filter only in the rectangle where it shows,
-    against the JAX filters over the whole image: equal to float rounding (the contrast gain is
-    a ratio of standard deviations computed as E[x²] − E[x]², whose cancellation in float32
-    amplifies the two compilers' rounding; 1e-4 of a value is far below a filter's effect),
+    against the JAX filters over the whole image: equal to float rounding (1e-4 of a value, and
+    where the contrast gain's E[x²] − E[x]² cancels, within twice the rounding that the
+    cancellation can amplify, `_prefilter_rounding_bound`; both far below a filter's effect),
     and the derivative is the JAX path's. The filters change the image where a coarser rate
     shows and the inner rate's pixels are the image's."""
     from fovjax.foveate._methods._guenter import layer_weights
@@ -595,7 +645,14 @@ def test_patney_prefilter_native_is_the_jax_path(case):
     (native, reference), (d_native, d_reference) = lowered.compile()(image, w_inner, w_middle)
     native, reference = np.asarray(native), np.asarray(reference)
     assert native.shape == (h, 2 * w, 3)
-    np.testing.assert_allclose(native, reference, rtol=1e-4, atol=1e-5)
+    bound = _prefilter_rounding_bound(image, w_inner, w_middle, sigmas, window_per_sigma=2.0, max_gain=4.0)
+    # The rounding bound is far below what the filters change (the comparison is one).
+    changed = bound > 0
+    effect = np.abs(reference - np.concatenate([image[0], image[1]], axis=1))
+    assert np.median(bound[changed]) < 0.01 * np.median(effect[changed])
+    allowed = 1e-4 * np.abs(reference) + 1e-5 + 2 * bound
+    worst = np.unravel_index(np.argmax(np.abs(native - reference) - allowed), native.shape)
+    assert np.all(np.abs(native - reference) <= allowed), (worst, native[worst], reference[worst])
     np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_reference), rtol=1e-4, atol=1e-5)
     eyes = np.stack([native[:, :w], native[:, w:]])
     inner = np.asarray(w_inner) == 1.0
@@ -1006,7 +1063,8 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
     n_np = np.asarray(n)
     sums = (rng.random((2, h, w, 3)) * n_np[..., None]).astype(np.float32).reshape(-1, 3)
     bad = np.zeros(2 * h * w, bool)
-    bad[np.flatnonzero(n_np > 0)[::30]] = True  # some traced pixels had a NaN sample
+    # Some traced pixels had a NaN sample: every 7th, so at every place in a row of flags.
+    bad[np.flatnonzero(n_np > 0)[::7]] = True
     carry = (jnp.asarray(sums), jnp.asarray(bad), jnp.int32(int(bad.sum())))
     assert bad.any()
     complete_expected = rule == "either" and budget >= 2 * spp * w * h

@@ -34,7 +34,8 @@ inline int64_t Reflect(int64_t i, int64_t n) {  // `_fill._reflect`: the edge no
 }
 
 // Row y of eye e's pixel means (`pixel_means`): each pixel's sum over its traced samples (at
-// least one), or the bad colour. Divisions, as XLA does them (no reciprocal).
+// least one), or the bad colour. Divisions, as XLA does them (no reciprocal); the bad pixels
+// in a loop of their own (GCC does not vectorise the divisions with that choice in the loop).
 FOVJAX_VECTOR_CLONES
 void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) {
   const int64_t p0 = (e * f.h + y) * f.w;
@@ -45,7 +46,16 @@ void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) 
   const int64_t w = f.w;
   for (int64_t x = 0; x < w; ++x) {
     const float d = static_cast<float>(n[x] > 1 ? n[x] : 1);
-    for (int c = 0; c < 3; ++c) out[3 * x + c] = bad[x] ? colour[c] : sums[3 * x + c] / d;
+    out[3 * x] = sums[3 * x] / d, out[3 * x + 1] = sums[3 * x + 1] / d, out[3 * x + 2] = sums[3 * x + 2] / d;
+  }
+  for (int64_t x0 = 0; x0 < w; x0 += 8) {  // eight flags at a time: a bad pixel is rare
+    const int64_t x1 = std::min<int64_t>(w, x0 + 8);
+    uint64_t any = 0;
+    if (x1 - x0 == 8) std::memcpy(&any, bad + x0, sizeof any);
+    if (x1 - x0 == 8 && any == 0) continue;
+    for (int64_t x = x0; x < x1; ++x) {
+      if (bad[x]) out[3 * x] = colour[0], out[3 * x + 1] = colour[1], out[3 * x + 2] = colour[2];
+    }
   }
 }
 
@@ -116,13 +126,20 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
     std::memcpy(row, &means[(y - lo) * n3], static_cast<size_t>(n3) * sizeof(float));
     const int32_t* n = f.n + base + y * w;
     const int32_t* reg = f.region + base + y * w;
-    const int64_t top_row[3] = {y, y - y % f.block[1], y - y % f.block[2]};
+    // Per region: its blocks' top-left row (means and counts) and their columns.
+    const float* top_means[3];
+    const int32_t* top_n[3];
+    const int32_t* top_x[3];
+    for (int c = 0; c < 3; ++c) {
+      const int64_t ty = y - y % f.block[c];
+      top_means[c] = &means[(ty - lo) * n3], top_n[c] = f.n + base + ty * w, top_x[c] = &f.column_top_left[c * w];
+    }
     for (int64_t x = 0; x < w; ++x) {
       if (n[x] != 0) continue;
       const int c = reg[x] < 0 ? 0 : (reg[x] > 2 ? 2 : reg[x]);
-      const int64_t ty = top_row[c], tx = f.column_top_left[c * w + x];
-      ok &= f.n[base + ty * w + tx] != 0;
-      const float* top_left = &means[(ty - lo) * n3 + 3 * tx];
+      const int64_t tx = top_x[c][x];
+      ok &= top_n[c][tx] != 0;
+      const float* top_left = top_means[c] + 3 * tx;
       row[3 * x] = top_left[0], row[3 * x + 1] = top_left[1], row[3 * x + 2] = top_left[2];
     }
   }

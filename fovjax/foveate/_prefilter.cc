@@ -54,6 +54,26 @@ struct Rect {
   }
 };
 
+// The column pass of rows [y0, y1): out(y)[j] = sum_u taps[u] · row(y + u − r)[j] for j < n,
+// `row` clamping its index to the image. In strips of kStrip floats across the rows: a strip's
+// k rows stay in the first-level cache from one output row to the next (whole rows pass
+// through the second level once per tap).
+constexpr int64_t kStrip = 256;
+
+template <class Row, class Out>
+void ColumnStrips(const std::vector<float>& taps, int64_t y0, int64_t y1, int64_t n, const Row& row, const Out& out,
+                  std::vector<const float*>& reads) {
+  const int k = static_cast<int>(taps.size()), r = k / 2;
+  reads.resize(static_cast<size_t>(k));
+  for (int64_t x0 = 0; x0 < n; x0 += kStrip) {
+    const int64_t m = std::min(kStrip, n - x0);
+    for (int64_t y = y0; y < y1; ++y) {
+      for (int u = 0; u < k; ++u) reads[u] = row(y + u - r) + x0;
+      TapRows(taps.data(), k, reads.data(), m, out(y) + x0);
+    }
+  }
+}
+
 // The Gaussian blur of `gaussian_blur` (columns, then rows, the border pixels repeated) of an
 // image (h, w, c) at the pixels of `at` only, into `out` (at.Rows(), at.Cols(), c): the same
 // taps in the same order as the whole image's blur, so the values are that blur's.
@@ -62,56 +82,104 @@ void BlurRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int
   const int k = static_cast<int>(taps.size()), r = k / 2;
   // The column pass over the columns the row pass reads (clamped to the image).
   const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
-  const int64_t row = w * c;
+  const int64_t row = w * c, span = (at.Cols() + 2 * r) * c;
   // Columns the row pass reads beyond the image's edges (its edge pixels repeated there).
   const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1;
   const int64_t rows = 8, bands = (at.Rows() + rows - 1) / rows;
   ParallelFor(pool, bands, [&](int64_t band) {
     thread_local std::vector<float> pad;
     thread_local std::vector<const float*> reads;
-    pad.resize(static_cast<size_t>((at.Cols() + 2 * r) * c));
-    reads.resize(static_cast<size_t>(k));
-    float* column = pad.data() + left * c;  // the column pass, in place inside the padded row
+    pad.resize(static_cast<size_t>(rows * span));
     const int64_t y0 = at.y0 + band * rows, y1 = std::min(at.y1, y0 + rows);
+    auto source = [&](int64_t y) { return src + std::clamp<int64_t>(y, 0, h - 1) * row + cx0 * c; };
+    auto padded = [&](int64_t y) { return pad.data() + (y - y0) * span + left * c; };  // in place, padded
+    ColumnStrips(taps, y0, y1, (cx1 - cx0) * c, source, padded, reads);
     for (int64_t y = y0; y < y1; ++y) {
-      for (int u = 0; u < k; ++u) reads[u] = src + std::clamp<int64_t>(y + u - r, 0, h - 1) * row + cx0 * c;
-      TapRows(taps.data(), k, reads.data(), (cx1 - cx0) * c, column);
-      for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, pad.data() + p * c);
+      float* column = padded(y);
+      for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, column - (left - p) * c);
       const float* last = column + (cx1 - cx0 - 1) * c;
       for (int64_t p = 0; p < right; ++p) std::copy(last, last + c, column + (cx1 - cx0 + p) * c);
-      for (int u = 0; u < k; ++u) reads[u] = pad.data() + u * c;
+      for (int u = 0; u < k; ++u) reads[u] = column - left * c + u * c;
       TapRows(taps.data(), k, reads.data(), at.Cols() * c, out + (y - at.y0) * at.Cols() * c);
     }
   });
 }
 
-constexpr int64_t kStack = 7;  // the window's channels: B (3), L, L², L_B, L_B²
+// The window's planes, each row of the stack holding them one after another (a plane per
+// channel: the loops over a row vectorise with unit strides): B (3), L, L², L_B². The window's
+// mean of L_B is the luminance of its mean of B (the luminance is linear in B; the blur too).
+constexpr int64_t kPlanes = 6;
 
-// One row of the window's channels from the image's and B's (restrict-qualified and free of
+// The Gaussian blur of `BlurRect` of a planar image (h rows of `planes` planes of w) at the
+// pixels of `at` only, into `out` (at.Rows() rows of `planes` planes of at.Cols()).
+void BlurPlanesRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int64_t planes,
+                    const std::vector<float>& taps, const Rect& at, float* out) {
+  const int k = static_cast<int>(taps.size()), r = k / 2;
+  const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
+  const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1, span = at.Cols() + 2 * r;
+  const int64_t rows = 8, bands = (at.Rows() + rows - 1) / rows;
+  ParallelFor(pool, bands, [&](int64_t band) {
+    thread_local std::vector<float> pad;
+    thread_local std::vector<const float*> reads;
+    pad.resize(static_cast<size_t>(rows * planes * span));
+    const int64_t y0 = at.y0 + band * rows, y1 = std::min(at.y1, y0 + rows);
+    for (int64_t q = 0; q < planes; ++q) {
+      auto source = [&](int64_t y) { return src + (std::clamp<int64_t>(y, 0, h - 1) * planes + q) * w + cx0; };
+      auto padded = [&](int64_t y) { return pad.data() + ((y - y0) * planes + q) * span + left; };
+      ColumnStrips(taps, y0, y1, cx1 - cx0, source, padded, reads);
+      for (int64_t y = y0; y < y1; ++y) {
+        float* column = padded(y);
+        std::fill(column - left, column, column[0]);
+        std::fill(column + (cx1 - cx0), column + (cx1 - cx0) + right, column[cx1 - cx0 - 1]);
+        for (int u = 0; u < k; ++u) reads[u] = column - left + u;
+        TapRows(taps.data(), k, reads.data(), at.Cols(), out + ((y - at.y0) * planes + q) * at.Cols());
+      }
+    }
+  });
+}
+
+// One row of the window's planes from the image's and B's (restrict-qualified and free of
 // branches, so that GCC vectorises it).
 FOVJAX_VECTOR_CLONES
 void StackRow(const float* __restrict__ im, const float* __restrict__ b, int64_t n, float l0, float l1, float l2,
               float* __restrict__ s) {
+  float* __restrict__ s0 = s;
+  float* __restrict__ s1 = s + n;
+  float* __restrict__ s2 = s + 2 * n;
+  float* __restrict__ s3 = s + 3 * n;
+  float* __restrict__ s4 = s + 4 * n;
+  float* __restrict__ s5 = s + 5 * n;
+  for (int64_t j = 0; j < n; ++j) {  // (one interleaved source per loop: GCC vectorises each)
+    const float b0 = b[3 * j], b1 = b[3 * j + 1], b2 = b[3 * j + 2];
+    const float lb = b0 * l0 + b1 * l1 + b2 * l2;
+    s0[j] = b0, s1[j] = b1, s2[j] = b2, s5[j] = lb * lb;
+  }
   for (int64_t j = 0; j < n; ++j) {
     const float li = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;
-    const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;
-    s[kStack * j] = b[3 * j], s[kStack * j + 1] = b[3 * j + 1], s[kStack * j + 2] = b[3 * j + 2];
-    s[kStack * j + 3] = li, s[kStack * j + 4] = li * li, s[kStack * j + 5] = lb, s[kStack * j + 6] = lb * lb;
+    s3[j] = li, s4[j] = li * li;
   }
 }
 
-// One row of the filter from the window's means `m` and B: the contrast gain (1 where B is
-// flat), then m + (B − m)·gain, clipped at 0.
+// One row of the filter from the window's means `m` (its planes) and B: the contrast gain (1
+// where B is flat), then m + (B − m)·gain, clipped at 0.
 FOVJAX_VECTOR_CLONES
-void GainRow(const float* __restrict__ m, const float* __restrict__ b, int64_t n, float flat_std, float max_gain,
-             float* __restrict__ o) {
+void GainRow(const float* __restrict__ m, const float* __restrict__ b, int64_t n, float l0, float l1, float l2,
+             float flat_std, float max_gain, float* __restrict__ o) {
+  const float* __restrict__ m0 = m;
+  const float* __restrict__ m1 = m + n;
+  const float* __restrict__ m2 = m + 2 * n;
+  const float* __restrict__ mean_l = m + 3 * n;
+  const float* __restrict__ mean_l2 = m + 4 * n;
+  const float* __restrict__ mean_lb2 = m + 5 * n;
   for (int64_t j = 0; j < n; ++j) {
-    const float* p = m + kStack * j;
-    const float s_image = std::sqrt(std::max(p[4] - p[3] * p[3], 0.0f));
-    const float s_blurred = std::sqrt(std::max(p[6] - p[5] * p[5], 0.0f));
+    const float mean_lb = m0[j] * l0 + m1[j] * l1 + m2[j] * l2;
+    const float s_image = std::sqrt(std::max(mean_l2[j] - mean_l[j] * mean_l[j], 0.0f));
+    const float s_blurred = std::sqrt(std::max(mean_lb2[j] - mean_lb * mean_lb, 0.0f));
     const float clipped = std::min(std::max(s_image / std::max(s_blurred, flat_std), 1.0f), max_gain);
     const float gain = s_blurred > flat_std ? clipped : 1.0f;
-    for (int ch = 0; ch < 3; ++ch) o[3 * j + ch] = std::max(p[ch] + (b[3 * j + ch] - p[ch]) * gain, 0.0f);
+    o[3 * j] = std::max(m0[j] + (b[3 * j] - m0[j]) * gain, 0.0f);
+    o[3 * j + 1] = std::max(m1[j] + (b[3 * j + 1] - m1[j]) * gain, 0.0f);
+    o[3 * j + 2] = std::max(m2[j] + (b[3 * j + 2] - m2[j]) * gain, 0.0f);
   }
 }
 
@@ -123,26 +191,27 @@ struct FilterParams {
 
 // `contrast_preserving_filter` of one eye's image (h, w, 3) at the pixels of `at`, into `out`
 // (at.Rows(), at.Cols(), 3): B the blur, then in the window around each pixel the mean of B
-// and the standard deviations of the luminances of the image and of B, a 7-channel image
-// (B, L, L², L_B, L_B²) blurred once.
+// and the standard deviations of the luminances of the image and of B, the window's planes
+// (B, L, L², L_B²) blurred once.
 void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w, const FilterParams& f,
                 const Rect& at, float* out) {
   const int64_t rw = static_cast<int64_t>(f.window.size()) / 2;
   const Rect around = at.Grown(rw, h, w);  // where the window reads (clamped as the image is)
-  std::unique_ptr<float[]> blurred(new float[around.Rows() * around.Cols() * 3]);  // (not zeroed)
+  const int64_t cols = around.Cols();
+  std::unique_ptr<float[]> blurred(new float[around.Rows() * cols * 3]);  // (not zeroed)
   BlurRect(pool, image, h, w, 3, f.blur, around, blurred.get());
-  std::unique_ptr<float[]> stack(new float[around.Rows() * around.Cols() * kStack]);
+  std::unique_ptr<float[]> stack(new float[around.Rows() * cols * kPlanes]);
   const float l0 = f.luminance[0], l1 = f.luminance[1], l2 = f.luminance[2];
   ParallelFor(pool, around.Rows(), [&](int64_t i) {
-    StackRow(image + ((around.y0 + i) * w + around.x0) * 3, blurred.get() + i * around.Cols() * 3, around.Cols(),
-             l0, l1, l2, stack.get() + i * around.Cols() * kStack);
+    StackRow(image + ((around.y0 + i) * w + around.x0) * 3, blurred.get() + i * cols * 3, cols, l0, l1, l2,
+             stack.get() + i * cols * kPlanes);
   });
   const Rect inside{at.y0 - around.y0, at.y1 - around.y0, at.x0 - around.x0, at.x1 - around.x0};
-  std::unique_ptr<float[]> window(new float[at.Rows() * at.Cols() * kStack]);
-  BlurRect(pool, stack.get(), around.Rows(), around.Cols(), kStack, f.window, inside, window.get());
+  std::unique_ptr<float[]> window(new float[at.Rows() * at.Cols() * kPlanes]);
+  BlurPlanesRect(pool, stack.get(), around.Rows(), cols, kPlanes, f.window, inside, window.get());
   ParallelFor(pool, at.Rows(), [&](int64_t i) {
-    GainRow(window.get() + i * at.Cols() * kStack, blurred.get() + ((inside.y0 + i) * around.Cols() + inside.x0) * 3,
-            at.Cols(), f.flat_std, f.max_gain, out + i * at.Cols() * 3);
+    GainRow(window.get() + i * at.Cols() * kPlanes, blurred.get() + ((inside.y0 + i) * cols + inside.x0) * 3,
+            at.Cols(), l0, l1, l2, f.flat_std, f.max_gain, out + i * at.Cols() * 3);
   });
 }
 

@@ -118,7 +118,11 @@ def contrast_preserving_filter(
     blurred = gaussian_blur(image, sigma)
     mean = gaussian_blur(blurred, window_sigma)
     s_image = local_std(luminance(image), window_sigma)
-    s_blurred = local_std(luminance(blurred), window_sigma)
+    # The window's mean of B's luminance is the luminance of its mean of B (both linear): one
+    # blur fewer.
+    l_blurred, mean_l_blurred = luminance(blurred), luminance(mean)
+    var_blurred = gaussian_blur(l_blurred * l_blurred, window_sigma) - mean_l_blurred * mean_l_blurred
+    s_blurred = jnp.sqrt(jnp.maximum(var_blurred, 0.0))
     gain = jnp.where(
         s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
     )
