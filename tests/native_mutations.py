@@ -160,9 +160,15 @@ MUTATIONS = (
     ),
     Mutation(
         "taa-variance-unsquared",
-        "the history blend's clip box from the mean absolute value, not the variance",
-        "squares[j] = squares[j] + t[j] * t[j];",
-        "squares[j] = squares[j] + t[j];",
+        "the history blend's clip box from a variance whose centre tap is not squared",
+        "sum = sum + t4[j], squares = squares + t4[j] * t4[j];",
+        "sum = sum + t4[j], squares = squares + t4[j];",
+    ),
+    Mutation(
+        "taa-flags-any",
+        "the history blend keeps the blend for a group of eight pixels where any one holds a history",
+        "if (x1 - x0 == 8 && all == 0x0101010101010101ull) continue;",
+        "if (all != 0) continue;",
     ),
     Mutation(
         "layers-unclamped-grid",

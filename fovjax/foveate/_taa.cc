@@ -11,38 +11,27 @@
 
 namespace {
 
-// sum += t and squares += t·t along a row (restrict-qualified parameters: GCC vectorises the
-// loop only where it knows the rows apart).
-inline void AddTap(const float* __restrict__ t, int64_t n, float* __restrict__ sum,
-                   float* __restrict__ squares) {
-  for (int64_t j = 0; j < n; ++j) {
-    sum[j] = sum[j] + t[j];
-    squares[j] = squares[j] + t[j] * t[j];
-  }
-}
-
-// The sums of the nine taps and of their squares along a row, added in the taps' order.
+// Along a row: the nine taps' sum and sum of squares (added in the taps' order, in registers),
+// the clip box from them, the history clipped to it and blended. The comparisons are
+// jnp.minimum's and jnp.maximum's.
 FOVJAX_VECTOR_CLONES
-void NeighbourhoodRow(const float* const* tap, int64_t n, float* __restrict__ sum,
-                      float* __restrict__ squares) {
-  const float* __restrict__ t0 = tap[0];
+void BlendRow(const float* const* tap, const float* __restrict__ now, const float* __restrict__ before, int64_t n,
+              float alpha, float keep, float gamma, float* __restrict__ result) {
+  const float *__restrict__ t0 = tap[0], *__restrict__ t1 = tap[1], *__restrict__ t2 = tap[2];
+  const float *__restrict__ t3 = tap[3], *__restrict__ t4 = tap[4], *__restrict__ t5 = tap[5];
+  const float *__restrict__ t6 = tap[6], *__restrict__ t7 = tap[7], *__restrict__ t8 = tap[8];
   for (int64_t j = 0; j < n; ++j) {
-    sum[j] = t0[j];
-    squares[j] = t0[j] * t0[j];
-  }
-  for (int u = 1; u < 9; ++u) AddTap(tap[u], n, sum, squares);
-}
-
-// The clip box from the sums, the history clipped to it and blended, along a row; then the
-// current value where the pixel holds no history (a loop of its own: GCC does not vectorise
-// the first with that choice in it). The comparisons are jnp.minimum's and jnp.maximum's.
-FOVJAX_VECTOR_CLONES
-void BlendRow(const float* __restrict__ sum, const float* __restrict__ squares, const float* __restrict__ now,
-              const float* __restrict__ before, const uint8_t* __restrict__ held, int64_t n, float alpha,
-              float keep, float gamma, float* __restrict__ result) {
-  for (int64_t j = 0; j < n; ++j) {
-    const float mean = sum[j] / 9.0f;
-    const float var = squares[j] / 9.0f - mean * mean;
+    float sum = t0[j], squares = t0[j] * t0[j];
+    sum = sum + t1[j], squares = squares + t1[j] * t1[j];
+    sum = sum + t2[j], squares = squares + t2[j] * t2[j];
+    sum = sum + t3[j], squares = squares + t3[j] * t3[j];
+    sum = sum + t4[j], squares = squares + t4[j] * t4[j];
+    sum = sum + t5[j], squares = squares + t5[j] * t5[j];
+    sum = sum + t6[j], squares = squares + t6[j] * t6[j];
+    sum = sum + t7[j], squares = squares + t7[j] * t7[j];
+    sum = sum + t8[j], squares = squares + t8[j] * t8[j];
+    const float mean = sum / 9.0f;
+    const float var = squares / 9.0f - mean * mean;
     const float std = std::sqrt(var > 0.0f ? var : 0.0f);
     const float x = now[j], low = mean - gamma * std, high = mean + gamma * std;
     const float lo = low < x ? low : x;
@@ -50,9 +39,6 @@ void BlendRow(const float* __restrict__ sum, const float* __restrict__ squares, 
     const float above = before[j] > lo ? before[j] : lo;
     const float clipped = above < hi ? above : hi;
     result[j] = alpha * x + keep * clipped;
-  }
-  for (int64_t j = 0; j < n; ++j) {
-    if (!held[j]) result[j] = now[j];
   }
 }
 
@@ -80,11 +66,9 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Bu
   ParallelFor(pool, n * bands, [&](int64_t job) {
     const int64_t e = job / bands, y0 = (job % bands) * rows, y1 = std::min(h, y0 + rows);
     const float* image = img + e * h * row;
-    // The three rows a row reads, each with its edge pixels repeated once on either side, and
-    // per element whether its pixel holds a history: loops along the row that vectorise.
+    // The three rows a row reads, each with its edge pixels repeated once on either side: the
+    // nine taps are then rows, and the blend a loop along them that vectorises.
     std::vector<float> padded(static_cast<size_t>(3 * (row + 2 * c)));
-    std::vector<float> sum(static_cast<size_t>(row)), squares(static_cast<size_t>(row));
-    std::vector<uint8_t> held(static_cast<size_t>(row));
     for (int64_t y = y0; y < y1; ++y) {
       const float* tap[9];
       for (int dy = 0; dy < 3; ++dy) {
@@ -95,12 +79,19 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Bu
         std::copy(line + row - c, line + row, p + c + row);
         for (int dx = 0; dx < 3; ++dx) tap[3 * dy + dx] = p + dx * c;
       }
-      NeighbourhoodRow(tap, row, sum.data(), squares.data());
       const int64_t at = (e * h + y) * row;
-      for (int64_t x = 0; x < w; ++x) {
-        for (int64_t ch = 0; ch < c; ++ch) held[x * c + ch] = has[(e * h + y) * w + x];
+      BlendRow(tap, img + at, hist + at, row, alpha, keep, gamma, dst + at);
+      // The current value where the pixel holds no history (eight flags at a time: most hold one).
+      const bool* held = has + (e * h + y) * w;
+      for (int64_t x0 = 0; x0 < w; x0 += 8) {
+        const int64_t x1 = std::min<int64_t>(w, x0 + 8);
+        uint64_t all = 0;
+        if (x1 - x0 == 8) std::memcpy(&all, held + x0, sizeof all);
+        if (x1 - x0 == 8 && all == 0x0101010101010101ull) continue;
+        for (int64_t x = x0; x < x1; ++x) {
+          if (!held[x]) std::copy(img + at + x * c, img + at + (x + 1) * c, dst + at + x * c);
+        }
       }
-      BlendRow(sum.data(), squares.data(), img + at, hist + at, held.data(), row, alpha, keep, gamma, dst + at);
     }
   });
   return ffi::Error::Success();
