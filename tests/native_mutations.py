@@ -215,7 +215,7 @@ MUTATIONS = (
     Mutation(
         "prefilter-blurred-luminance-of-image",
         "the blurred image's local contrast measured on the image's luminance",
-        "const float lb = b0 * l0 + b1 * l1 + b2 * l2;",
+        "const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;",
         "const float lb = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;",
     ),
     Mutation(
@@ -227,7 +227,7 @@ MUTATIONS = (
     Mutation(
         "prefilter-window-mean-of-image",
         "the blurred image's local mean luminance taken as the image's",
-        "const float mean_lb = m0[j] * l0 + m1[j] * l1 + m2[j] * l2;",
+        "const float mean_lb = m0 * l0 + m1 * l1 + m2 * l2;",
         "const float mean_lb = mean_l[j];",
     ),
     Mutation(

@@ -105,10 +105,11 @@ void BlurRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int
   });
 }
 
-// The window's planes, each row of the stack holding them one after another (a plane per
-// channel: the loops over a row vectorise with unit strides): B (3), L, L², L_B². The window's
-// mean of L_B is the luminance of its mean of B (the luminance is linear in B; the blur too).
-constexpr int64_t kPlanes = 6;
+// The window's luminance planes, each row of the stack holding them one after another (a
+// plane per statistic: the loops over a row vectorise with unit strides): L, L², L_B². B's own
+// window is its blur as it lies (interleaved); the window's mean of L_B is the luminance of
+// its mean of B (the luminance is linear in B; the blur too).
+constexpr int64_t kPlanes = 3;
 
 // The Gaussian blur of `BlurRect` of a planar image (h rows of `planes` planes of w) at the
 // pixels of `at` only, into `out` (at.Rows() rows of `planes` planes of at.Cols()).
@@ -143,43 +144,37 @@ void BlurPlanesRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t 
 FOVJAX_VECTOR_CLONES
 void StackRow(const float* __restrict__ im, const float* __restrict__ b, int64_t n, float l0, float l1, float l2,
               float* __restrict__ s) {
-  float* __restrict__ s0 = s;
-  float* __restrict__ s1 = s + n;
-  float* __restrict__ s2 = s + 2 * n;
-  float* __restrict__ s3 = s + 3 * n;
-  float* __restrict__ s4 = s + 4 * n;
-  float* __restrict__ s5 = s + 5 * n;
+  float* __restrict__ l = s;
+  float* __restrict__ l_squared = s + n;
+  float* __restrict__ lb_squared = s + 2 * n;
   for (int64_t j = 0; j < n; ++j) {  // (one interleaved source per loop: GCC vectorises each)
-    const float b0 = b[3 * j], b1 = b[3 * j + 1], b2 = b[3 * j + 2];
-    const float lb = b0 * l0 + b1 * l1 + b2 * l2;
-    s0[j] = b0, s1[j] = b1, s2[j] = b2, s5[j] = lb * lb;
+    const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;
+    lb_squared[j] = lb * lb;
   }
   for (int64_t j = 0; j < n; ++j) {
     const float li = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;
-    s3[j] = li, s4[j] = li * li;
+    l[j] = li, l_squared[j] = li * li;
   }
 }
 
-// One row of the filter from the window's means `m` (its planes) and B: the contrast gain (1
-// where B is flat), then m + (B − m)·gain, clipped at 0.
+// One row of the filter from the window's mean of B `m`, its means of the luminance planes
+// `stats` and B: the contrast gain (1 where B is flat), then m + (B − m)·gain, clipped at 0.
 FOVJAX_VECTOR_CLONES
-void GainRow(const float* __restrict__ m, const float* __restrict__ b, int64_t n, float l0, float l1, float l2,
-             float flat_std, float max_gain, float* __restrict__ o) {
-  const float* __restrict__ m0 = m;
-  const float* __restrict__ m1 = m + n;
-  const float* __restrict__ m2 = m + 2 * n;
-  const float* __restrict__ mean_l = m + 3 * n;
-  const float* __restrict__ mean_l2 = m + 4 * n;
-  const float* __restrict__ mean_lb2 = m + 5 * n;
+void GainRow(const float* __restrict__ m, const float* __restrict__ stats, const float* __restrict__ b, int64_t n,
+             float l0, float l1, float l2, float flat_std, float max_gain, float* __restrict__ o) {
+  const float* __restrict__ mean_l = stats;
+  const float* __restrict__ mean_l2 = stats + n;
+  const float* __restrict__ mean_lb2 = stats + 2 * n;
   for (int64_t j = 0; j < n; ++j) {
-    const float mean_lb = m0[j] * l0 + m1[j] * l1 + m2[j] * l2;
+    const float m0 = m[3 * j], m1 = m[3 * j + 1], m2 = m[3 * j + 2];
+    const float mean_lb = m0 * l0 + m1 * l1 + m2 * l2;
     const float s_image = std::sqrt(std::max(mean_l2[j] - mean_l[j] * mean_l[j], 0.0f));
     const float s_blurred = std::sqrt(std::max(mean_lb2[j] - mean_lb * mean_lb, 0.0f));
     const float clipped = std::min(std::max(s_image / std::max(s_blurred, flat_std), 1.0f), max_gain);
     const float gain = s_blurred > flat_std ? clipped : 1.0f;
-    o[3 * j] = std::max(m0[j] + (b[3 * j] - m0[j]) * gain, 0.0f);
-    o[3 * j + 1] = std::max(m1[j] + (b[3 * j + 1] - m1[j]) * gain, 0.0f);
-    o[3 * j + 2] = std::max(m2[j] + (b[3 * j + 2] - m2[j]) * gain, 0.0f);
+    o[3 * j] = std::max(m0 + (b[3 * j] - m0) * gain, 0.0f);
+    o[3 * j + 1] = std::max(m1 + (b[3 * j + 1] - m1) * gain, 0.0f);
+    o[3 * j + 2] = std::max(m2 + (b[3 * j + 2] - m2) * gain, 0.0f);
   }
 }
 
@@ -191,8 +186,8 @@ struct FilterParams {
 
 // `contrast_preserving_filter` of one eye's image (h, w, 3) at the pixels of `at`, into `out`
 // (at.Rows(), at.Cols(), 3): B the blur, then in the window around each pixel the mean of B
-// and the standard deviations of the luminances of the image and of B, the window's planes
-// (B, L, L², L_B²) blurred once.
+// and the standard deviations of the luminances of the image and of B: B and the window's
+// planes (L, L², L_B²) blurred once each.
 void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w, const FilterParams& f,
                 const Rect& at, float* out) {
   const int64_t rw = static_cast<int64_t>(f.window.size()) / 2;
@@ -207,11 +202,14 @@ void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w,
              stack.get() + i * cols * kPlanes);
   });
   const Rect inside{at.y0 - around.y0, at.y1 - around.y0, at.x0 - around.x0, at.x1 - around.x0};
-  std::unique_ptr<float[]> window(new float[at.Rows() * at.Cols() * kPlanes]);
-  BlurPlanesRect(pool, stack.get(), around.Rows(), cols, kPlanes, f.window, inside, window.get());
+  const int64_t n = at.Rows() * at.Cols();
+  std::unique_ptr<float[]> mean(new float[n * 3]), stats(new float[n * kPlanes]);
+  BlurRect(pool, blurred.get(), around.Rows(), cols, 3, f.window, inside, mean.get());
+  BlurPlanesRect(pool, stack.get(), around.Rows(), cols, kPlanes, f.window, inside, stats.get());
   ParallelFor(pool, at.Rows(), [&](int64_t i) {
-    GainRow(window.get() + i * at.Cols() * kPlanes, blurred.get() + ((inside.y0 + i) * cols + inside.x0) * 3,
-            at.Cols(), l0, l1, l2, f.flat_std, f.max_gain, out + i * at.Cols() * 3);
+    GainRow(mean.get() + i * at.Cols() * 3, stats.get() + i * at.Cols() * kPlanes,
+            blurred.get() + ((inside.y0 + i) * cols + inside.x0) * 3, at.Cols(), l0, l1, l2, f.flat_std, f.max_gain,
+            out + i * at.Cols() * 3);
   });
 }
 
