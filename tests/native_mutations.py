@@ -237,6 +237,12 @@ MUTATIONS = (
         "for (int u = 0; u < k; ++u) reads[u] = row(y + u - r);",
     ),
     Mutation(
+        "prefilter-band-halo-short",
+        "a band of Patney's pre-filter makes one row fewer of B above it than its windows read",
+        "const int64_t r0 = std::max(around.y0, y0 - rw),",
+        "const int64_t r0 = std::max(around.y0, y0 - rw + 1),",
+    ),
+    Mutation(
         "layers-nearest",
         "Guenter's magnified layers take the nearest grid pixel before, not bilinear",
         "  return {i0 * stride, i1 * stride, g - floor_g};",

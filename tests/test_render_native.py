@@ -551,7 +551,7 @@ PREFILTER_CASES = [
     # rectangles narrower than the image.
     (21, 290, (140.0, 10.0), (30.0, 80.0), (1.0, 2.0)),
     (13, 9, (4.0, 6.0), (2.0, 4.0), (2.0, 4.0)),
-    (11, 15, None, (4.0, 9.0), (1.0, 2.0)),
+    (100, 15, None, (4.0, 9.0), (1.0, 2.0)),  # columns taller than the handler's bands of rows
 ]
 
 
@@ -623,6 +623,8 @@ def test_patney_prefilter_native_is_the_jax_path(case):
     y, x = jnp.mgrid[0:h, 0:w]
     if gaze is None:
         ecc = jnp.stack([jnp.zeros((h, w)), jnp.full((h, w), 100.0)])
+        # Rows alternately dark and bright: a row read in place of its neighbour shows.
+        image = image * (1.0 + 9.0 * (y % 2))[None, :, :, None]
     else:
         gx, gy = gaze
         ecc = jnp.stack([jnp.hypot(x - gx, y - gy), jnp.hypot(x - w + 1 - gx, y - gy)])  # degrees = pixels

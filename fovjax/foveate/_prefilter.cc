@@ -75,34 +75,35 @@ void ColumnStrips(const std::vector<float>& taps, int64_t y0, int64_t y1, int64_
 }
 
 // The Gaussian blur of `gaussian_blur` (columns, then rows, the border pixels repeated) of an
-// image (h, w, c) at the pixels of `at` only, into `out` (at.Rows(), at.Cols(), c): the same
-// taps in the same order as the whole image's blur, so the values are that blur's.
-void BlurRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int64_t c, const std::vector<float>& taps,
-              const Rect& at, float* out) {
+// image (h, w, c) at the pixels of `at` only, rows [y0, y1) of it (on the calling thread, eight
+// rows at a time), into `out` (y1 − y0 rows of at.Cols() pixels of c): the same taps in the same
+// order as the whole image's blur, so the values are that blur's.
+void BlurRows(const float* src, int64_t h, int64_t w, int64_t c, const std::vector<float>& taps, const Rect& at,
+              int64_t y0, int64_t y1, float* out) {
   const int k = static_cast<int>(taps.size()), r = k / 2;
   // The column pass over the columns the row pass reads (clamped to the image).
   const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
   const int64_t row = w * c, span = (at.Cols() + 2 * r) * c;
   // Columns the row pass reads beyond the image's edges (its edge pixels repeated there).
   const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1;
-  const int64_t rows = 8, bands = (at.Rows() + rows - 1) / rows;
-  ParallelFor(pool, bands, [&](int64_t band) {
-    thread_local std::vector<float> pad;
-    thread_local std::vector<const float*> reads;
-    pad.resize(static_cast<size_t>(rows * span));
-    const int64_t y0 = at.y0 + band * rows, y1 = std::min(at.y1, y0 + rows);
+  constexpr int64_t kRows = 8;
+  thread_local std::vector<float> pad;
+  thread_local std::vector<const float*> reads;
+  pad.resize(static_cast<size_t>(kRows * span));
+  for (int64_t b0 = y0; b0 < y1; b0 += kRows) {
+    const int64_t b1 = std::min(y1, b0 + kRows);
     auto source = [&](int64_t y) { return src + std::clamp<int64_t>(y, 0, h - 1) * row + cx0 * c; };
-    auto padded = [&](int64_t y) { return pad.data() + (y - y0) * span + left * c; };  // in place, padded
-    ColumnStrips(taps, y0, y1, (cx1 - cx0) * c, source, padded, reads);
-    for (int64_t y = y0; y < y1; ++y) {
+    auto padded = [&](int64_t y) { return pad.data() + (y - b0) * span + left * c; };  // in place, padded
+    ColumnStrips(taps, b0, b1, (cx1 - cx0) * c, source, padded, reads);
+    for (int64_t y = b0; y < b1; ++y) {
       float* column = padded(y);
       for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, column - (left - p) * c);
       const float* last = column + (cx1 - cx0 - 1) * c;
       for (int64_t p = 0; p < right; ++p) std::copy(last, last + c, column + (cx1 - cx0 + p) * c);
       for (int u = 0; u < k; ++u) reads[u] = column - left * c + u * c;
-      TapRows(taps.data(), k, reads.data(), at.Cols() * c, out + (y - at.y0) * at.Cols() * c);
+      TapRows(taps.data(), k, reads.data(), at.Cols() * c, out + (y - y0) * at.Cols() * c);
     }
-  });
+  }
 }
 
 // The window's luminance planes, each row of the stack holding them one after another (a
@@ -111,32 +112,32 @@ void BlurRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int
 // its mean of B (the luminance is linear in B; the blur too).
 constexpr int64_t kPlanes = 3;
 
-// The Gaussian blur of `BlurRect` of a planar image (h rows of `planes` planes of w) at the
-// pixels of `at` only, into `out` (at.Rows() rows of `planes` planes of at.Cols()).
-void BlurPlanesRect(ffi::ThreadPool& pool, const float* src, int64_t h, int64_t w, int64_t planes,
-                    const std::vector<float>& taps, const Rect& at, float* out) {
+// `BlurRows` of a planar image (h rows of `planes` planes of w): rows [y0, y1) of `at` into
+// `out` (y1 − y0 rows of `planes` planes of at.Cols()).
+void BlurPlanesRows(const float* src, int64_t h, int64_t w, int64_t planes, const std::vector<float>& taps,
+                    const Rect& at, int64_t y0, int64_t y1, float* out) {
   const int k = static_cast<int>(taps.size()), r = k / 2;
   const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
   const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1, span = at.Cols() + 2 * r;
-  const int64_t rows = 8, bands = (at.Rows() + rows - 1) / rows;
-  ParallelFor(pool, bands, [&](int64_t band) {
-    thread_local std::vector<float> pad;
-    thread_local std::vector<const float*> reads;
-    pad.resize(static_cast<size_t>(rows * planes * span));
-    const int64_t y0 = at.y0 + band * rows, y1 = std::min(at.y1, y0 + rows);
+  constexpr int64_t kRows = 8;
+  thread_local std::vector<float> pad;
+  thread_local std::vector<const float*> reads;
+  pad.resize(static_cast<size_t>(kRows * planes * span));
+  for (int64_t b0 = y0; b0 < y1; b0 += kRows) {
+    const int64_t b1 = std::min(y1, b0 + kRows);
     for (int64_t q = 0; q < planes; ++q) {
       auto source = [&](int64_t y) { return src + (std::clamp<int64_t>(y, 0, h - 1) * planes + q) * w + cx0; };
-      auto padded = [&](int64_t y) { return pad.data() + ((y - y0) * planes + q) * span + left; };
-      ColumnStrips(taps, y0, y1, cx1 - cx0, source, padded, reads);
-      for (int64_t y = y0; y < y1; ++y) {
+      auto padded = [&](int64_t y) { return pad.data() + ((y - b0) * planes + q) * span + left; };
+      ColumnStrips(taps, b0, b1, cx1 - cx0, source, padded, reads);
+      for (int64_t y = b0; y < b1; ++y) {
         float* column = padded(y);
         std::fill(column - left, column, column[0]);
         std::fill(column + (cx1 - cx0), column + (cx1 - cx0) + right, column[cx1 - cx0 - 1]);
         for (int u = 0; u < k; ++u) reads[u] = column - left + u;
-        TapRows(taps.data(), k, reads.data(), at.Cols(), out + ((y - at.y0) * planes + q) * at.Cols());
+        TapRows(taps.data(), k, reads.data(), at.Cols(), out + ((y - y0) * planes + q) * at.Cols());
       }
     }
-  });
+  }
 }
 
 // One row of the window's planes from the image's and B's (restrict-qualified and free of
@@ -187,29 +188,45 @@ struct FilterParams {
 // `contrast_preserving_filter` of one eye's image (h, w, 3) at the pixels of `at`, into `out`
 // (at.Rows(), at.Cols(), 3): B the blur, then in the window around each pixel the mean of B
 // and the standard deviations of the luminances of the image and of B: B and the window's
-// planes (L, L², L_B²) blurred once each.
+// planes (L, L², L_B²) blurred once each. In bands of output rows, one per task: a band makes
+// the rows of B and of the planes its windows read (the window's radius more on either side
+// than its own, which its neighbours make again), then its windows eight rows at a time, so
+// that what it makes stays in the cache until it is read.
 void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w, const FilterParams& f,
                 const Rect& at, float* out) {
   const int64_t rw = static_cast<int64_t>(f.window.size()) / 2;
   const Rect around = at.Grown(rw, h, w);  // where the window reads (clamped as the image is)
   const int64_t cols = around.Cols();
-  std::unique_ptr<float[]> blurred(new float[around.Rows() * cols * 3]);  // (not zeroed)
-  BlurRect(pool, image, h, w, 3, f.blur, around, blurred.get());
-  std::unique_ptr<float[]> stack(new float[around.Rows() * cols * kPlanes]);
   const float l0 = f.luminance[0], l1 = f.luminance[1], l2 = f.luminance[2];
-  ParallelFor(pool, around.Rows(), [&](int64_t i) {
-    StackRow(image + ((around.y0 + i) * w + around.x0) * 3, blurred.get() + i * cols * 3, cols, l0, l1, l2,
-             stack.get() + i * cols * kPlanes);
-  });
-  const Rect inside{at.y0 - around.y0, at.y1 - around.y0, at.x0 - around.x0, at.x1 - around.x0};
-  const int64_t n = at.Rows() * at.Cols();
-  std::unique_ptr<float[]> mean(new float[n * 3]), stats(new float[n * kPlanes]);
-  BlurRect(pool, blurred.get(), around.Rows(), cols, 3, f.window, inside, mean.get());
-  BlurPlanesRect(pool, stack.get(), around.Rows(), cols, kPlanes, f.window, inside, stats.get());
-  ParallelFor(pool, at.Rows(), [&](int64_t i) {
-    GainRow(mean.get() + i * at.Cols() * 3, stats.get() + i * at.Cols() * kPlanes,
-            blurred.get() + ((inside.y0 + i) * cols + inside.x0) * 3, at.Cols(), l0, l1, l2, f.flat_std, f.max_gain,
-            out + i * at.Cols() * 3);
+  constexpr int64_t kBand = 48, kRows = 8;
+  const int64_t bands = (at.Rows() + kBand - 1) / kBand;
+  ParallelFor(pool, bands, [&](int64_t band) {
+    const int64_t y0 = at.y0 + band * kBand, y1 = std::min(at.y1, y0 + kBand);
+    // The rows of B and of the planes the band's windows read: beyond them the window's rows
+    // are clamped to the image, as they are to these rows (`around` ends where the image does).
+    const int64_t r0 = std::max(around.y0, y0 - rw), r1 = std::min(around.y1, y1 + rw), n = r1 - r0;
+    thread_local std::vector<float> blurred, stack, mean, stats;
+    blurred.resize(static_cast<size_t>(n * cols * 3));
+    stack.resize(static_cast<size_t>(n * cols * kPlanes));
+    mean.resize(static_cast<size_t>(kRows * at.Cols() * 3));
+    stats.resize(static_cast<size_t>(kRows * at.Cols() * kPlanes));
+    BlurRows(image, h, w, 3, f.blur, Rect{r0, r1, around.x0, around.x1}, r0, r1, blurred.data());
+    for (int64_t i = 0; i < n; ++i) {
+      StackRow(image + ((r0 + i) * w + around.x0) * 3, blurred.data() + i * cols * 3, cols, l0, l1, l2,
+               stack.data() + i * cols * kPlanes);
+    }
+    // The windows, B and the planes taken as images of the band's rows (n) of `around`'s columns.
+    const Rect inside{y0 - r0, y1 - r0, at.x0 - around.x0, at.x1 - around.x0};
+    for (int64_t b0 = inside.y0; b0 < inside.y1; b0 += kRows) {
+      const int64_t b1 = std::min(inside.y1, b0 + kRows);
+      BlurRows(blurred.data(), n, cols, 3, f.window, inside, b0, b1, mean.data());
+      BlurPlanesRows(stack.data(), n, cols, kPlanes, f.window, inside, b0, b1, stats.data());
+      for (int64_t y = b0; y < b1; ++y) {
+        GainRow(mean.data() + (y - b0) * at.Cols() * 3, stats.data() + (y - b0) * at.Cols() * kPlanes,
+                blurred.data() + (y * cols + inside.x0) * 3, at.Cols(), l0, l1, l2, f.flat_std, f.max_gain,
+                out + (y + r0 - at.y0) * at.Cols() * 3);
+      }
+    }
   });
 }
 
