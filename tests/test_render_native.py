@@ -655,6 +655,7 @@ def test_patney_prefilter_native_is_the_jax_path(case):
     allowed = 1e-4 * np.abs(reference) + 1e-5 + 2 * bound
     worst = np.unravel_index(np.argmax(np.abs(native - reference) - allowed), native.shape)
     assert np.all(np.abs(native - reference) <= allowed), (worst, native[worst], reference[worst])
+    assert np.isfinite(np.asarray(d_reference)).all()
     np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_reference), rtol=1e-4, atol=1e-5)
     eyes = np.stack([native[:, :w], native[:, w:]])
     inner = np.asarray(w_inner) == 1.0
@@ -663,12 +664,34 @@ def test_patney_prefilter_native_is_the_jax_path(case):
         assert np.abs(eyes[~inner] - np.asarray(image)[~inner]).max() > 0.05
 
 
+def _taa_rounding_bound(image, *, gamma, keep):
+    """Per element of `taa_blend`'s result, how far float32 rounding can move it: the clip
+    box's half-width is gamma·std, std = sqrt(E[x²] − E[x]²) over the 3×3 neighbourhood, whose
+    few roundings move the variance by up to 16·u·E[x²] (u = 2⁻²⁴) and so the deviation by that
+    over 2·std, or its square root where the neighbourhood is flat (held blocks, where the
+    square root amplifies it most); the clipped history moves by gamma times that, the result
+    by `keep` times that. Computed in float64 from the image blended."""
+    x = np.asarray(image, np.float64)
+    _, h, w, _ = x.shape
+    padded = np.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    taps = [padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)]
+    mean = sum(taps) / 9.0
+    squares = sum(t * t for t in taps) / 9.0
+    sd = np.sqrt(np.maximum(squares - mean * mean, 0.0))
+    d_var = 16 * 2.0**-24 * squares
+    d_sd = np.minimum(d_var / np.maximum(2 * sd, 1e-300), np.sqrt(d_var))
+    return keep * gamma * d_sd
+
+
 def test_patney_history_blend_native_is_the_jax_path():
     """Patney 2016's history blend (`taa_blend`) through the native TAA handler against the JAX
     blend: equal to float rounding, with pixels with and without a history, odd sizes (the
     border's taps clamped, a single row) and a history far outside the neighbourhood
-    (clipped); the derivative is the JAX blend's."""
-    from fovjax.foveate._methods._patney import TaaHistory, taa_blend
+    (clipped); the derivative is the JAX blend's. The same with the frame's shading rates
+    (`shade_and_blend_history`: the handler shades each row of the blended image from the traced
+    pixels, the middle and outer rates' blocks held, blocks cut at the image's edges)."""
+    from fovjax.foveate._methods._guenter import layer_weights
+    from fovjax.foveate._methods._patney import TaaHistory, shade, shade_and_blend_history, taa_blend
 
     cases = []
     for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 3), (1, 1, 2, 3)]):
@@ -678,10 +701,34 @@ def test_patney_history_blend_native_is_the_jax_path():
             (jax.random.uniform(k[0], shape), TaaHistory(color, jax.random.bernoulli(k[2], 0.7, shape[:3])))
         )
 
-    def both(cases):
+    shaded_cases = []
+    for i, (h, w, strides) in enumerate([(13, 18, (2, 4)), (10, 7, (3, 5))]):
+        k = jax.random.split(jax.random.key(20 + i), 3)
+        y, x = jnp.mgrid[0:h, 0:w]
+        ecc = jnp.stack([jnp.hypot(x - 3.0, y - 4.0), jnp.hypot(x - w + 2.0, y - 1.0)])  # degrees = pixels
+        weights = layer_weights(ecc, jnp.asarray([2.0, 5.0]), 1.5)
+        history = TaaHistory(
+            3.0 * jax.random.uniform(k[1], (2, h, w, 3)) - 1.0, jax.random.bernoulli(k[2], 0.7, (2, h, w))
+        )
+        shaded_cases.append((jax.random.uniform(k[0], (2, h, w, 3)), weights, history, strides))
+
+    def both(cases, shaded_cases):
         out = [
             [taa_blend(c, hist, alpha=0.1, gamma=1.0, native=n) for n in (True, False)] for c, hist in cases
         ]
+        for pix, (w_inner, w_middle), hist, strides in shaded_cases:
+            blend = functools.partial(shade_and_blend_history, strides=strides, alpha=0.1, gamma=1.0)
+            out.append([blend(pix, w_inner, w_middle, hist, native=n) for n in (True, False)])
+        pix, (w_inner, w_middle), hist, strides = shaded_cases[0]
+        blend = functools.partial(shade_and_blend_history, strides=strides, alpha=0.25, gamma=0.5)
+        out.append(
+            [
+                jax.jvp(
+                    lambda p, n=n: blend(p, w_inner, w_middle, hist, native=n), (pix,), (jnp.ones_like(pix),)
+                )[1]
+                for n in (True, False)
+            ]
+        )
         current, hist = cases[0]
         out.append(
             [
@@ -695,11 +742,22 @@ def test_patney_history_blend_native_is_the_jax_path():
         )
         return out
 
-    lowered = jax.jit(both).lower(cases)
-    assert lowered.as_text().count("fovjax_taa_blend") >= 3
-    results = lowered.compile()(cases)
-    for native, reference in results:
-        np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-7)
+    static = [(pix, weights, hist) for pix, weights, hist, _ in shaded_cases]
+    strides = [s for *_, s in shaded_cases]
+
+    def run(cases, static):
+        return both(cases, [(*c, s) for c, s in zip(static, strides, strict=True)])
+
+    lowered = jax.jit(run).lower(cases, static)
+    assert lowered.as_text().count("fovjax_taa_blend") >= 5
+    results = lowered.compile()(cases, static)
+    # The images blended (the shaded ones from the JAX path), then the two derivatives.
+    images = [c for c, _ in cases] + [shade(p, *weights, s) for p, weights, _, s in shaded_cases]
+    for (native, reference), image in zip(results, [*images, None, None], strict=True):
+        native, reference = np.asarray(native), np.asarray(reference)
+        bound = 0.0 if image is None else _taa_rounding_bound(image, gamma=1.0, keep=0.9)
+        assert np.isfinite(reference).all()  # held blocks' flat neighbourhoods: no NaN slope either
+        assert np.all(np.abs(native - reference) <= 1e-6 * np.abs(reference) + 1e-7 + 2 * bound)
     # The history counts: blended pixels differ from this frame, the others are it.
     (native, _), (current, hist) = results[0], cases[0]
     held = np.asarray(hist.valid)

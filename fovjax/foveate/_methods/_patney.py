@@ -93,12 +93,20 @@ def luminance(image: Float[Array, "E H W 3"]) -> Float[Array, "E H W 1"]:
     return image @ jnp.asarray(LUMINANCE, jnp.float32)[:, None]
 
 
+def deviation(var):
+    """sqrt(max(`var`, 0)), a standard deviation from a variance that rounding may have made
+    negative; its derivative is 0 where the variance is not positive (a flat neighbourhood,
+    such as a held block: the square root's infinite slope there would make it NaN)."""
+    positive = var > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, var, 1.0)), 0.0)
+
+
 def local_std(values: Float[Array, "E H W C"], window_sigma: float) -> Float[Array, "E H W C"]:
     """The standard deviation of `values` in a Gaussian window of `window_sigma` pixels around
     each pixel (E[x²] − E[x]², never negative)."""
     mean = gaussian_blur(values, window_sigma)
     var = gaussian_blur(values * values, window_sigma) - mean * mean
-    return jnp.sqrt(jnp.maximum(var, 0.0))
+    return deviation(var)
 
 
 def contrast_preserving_filter(
@@ -122,7 +130,7 @@ def contrast_preserving_filter(
     # blur fewer.
     l_blurred, mean_l_blurred = luminance(blurred), luminance(mean)
     var_blurred = gaussian_blur(l_blurred * l_blurred, window_sigma) - mean_l_blurred * mean_l_blurred
-    s_blurred = jnp.sqrt(jnp.maximum(var_blurred, 0.0))
+    s_blurred = deviation(var_blurred)
     gain = jnp.where(
         s_blurred > FLAT_STD, jnp.clip(s_image / jnp.maximum(s_blurred, FLAT_STD), 1.0, max_gain), 1.0
     )
@@ -176,7 +184,7 @@ def _neighbourhood(image: Float[Array, "E H W 3"]):
     taps = [padded[:, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)]
     mean = sum(taps) / 9.0
     var = sum(t * t for t in taps) / 9.0 - mean * mean
-    return mean, jnp.sqrt(jnp.maximum(var, 0.0))
+    return mean, deviation(var)
 
 
 def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float, native: bool = False):
@@ -192,6 +200,45 @@ def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float, nativ
         on_cpu = functools.partial(native_taa_blend, alpha=alpha, gamma=gamma)
         return on_platforms(in_jax, cpu=on_cpu)(current, history.color, history.valid)
     return _taa_blend(current, history.color, history.valid, alpha=alpha, gamma=gamma)
+
+
+def shade(
+    pix: Float[Array, "E H W 3"], w_inner, w_middle, strides: tuple[int, int]
+) -> Float[Array, "E H W 3"]:
+    """The shading rates' image: each rate's image (`hold` of the traced pixels `pix` at its
+    stride: 1, then `strides`) blended by the rates' weights (`rate_blend`)."""
+    inner, middle, outer = (hold(pix, s) for s in (1, *strides))
+    return rate_blend(inner, middle, outer, w_inner, w_middle)
+
+
+def shade_and_blend_history(
+    pix: Float[Array, "E H W 3"],
+    w_inner: Float[Array, "E H W"],
+    w_middle: Float[Array, "E H W"],
+    history: TaaHistory,
+    *,
+    strides: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    native: bool = False,
+) -> Float[Array, "E H W 3"]:
+    """`taa_blend` of the shading rates' image (`shade`). `native`: on a CPU through the TAA
+    handler, which shades each row of the image as its neighbourhoods read it (the same
+    arithmetic in the same order; `native_taa_blend` with the weights), chosen inside the
+    program; derivatives are this function's."""
+
+    def in_jax(pix, w_inner, w_middle, color, valid):
+        return _taa_blend(shade(pix, w_inner, w_middle, strides), color, valid, alpha=alpha, gamma=gamma)
+
+    if not native:
+        return in_jax(pix, w_inner, w_middle, history.color, history.valid)
+
+    def on_cpu(pix, w_inner, w_middle, color, valid):
+        return native_taa_blend(
+            pix, color, valid, alpha=alpha, gamma=gamma, weights=(w_inner, w_middle), strides=strides
+        )
+
+    return on_platforms(in_jax, cpu=on_cpu)(pix, w_inner, w_middle, history.color, history.valid)
 
 
 def _taa_blend(current, color, valid, *, alpha: float, gamma: float):
@@ -261,10 +308,17 @@ def patney_stereo(
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
     )
-    inner, middle, outer = (hold(pixels.prefill, s) for s in strides)
     w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
-    shaded = rate_blend(inner, middle, outer, w_inner, w_middle)
-    accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma, native=native)
+    accumulated = shade_and_blend_history(
+        pixels.prefill,
+        w_inner,
+        w_middle,
+        history,
+        strides=method.strides,
+        alpha=method.taa_alpha,
+        gamma=method.clip_gamma,
+        native=native,
+    )
     # The pre-filter per shading rate (σ grows with the block size), shown where that rate is.
     image = prefilter_and_blend(
         accumulated,
