@@ -149,7 +149,7 @@ MUTATIONS = (
     Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
-        "std::copy(p + row, p + c + row, p + c + row);",
+        "std::copy(line + row - c, line + row, p + c + row);",
         "std::fill(p + c + row, p + 2 * c + row, 0.0f);",
     ),
     Mutation(
@@ -241,18 +241,6 @@ MUTATIONS = (
         "a band of Patney's pre-filter makes one row fewer of B above it than its windows read",
         "const int64_t r0 = std::max(around.y0, y0 - rw),",
         "const int64_t r0 = std::max(around.y0, y0 - rw + 1),",
-    ),
-    Mutation(
-        "taa-shade-outer-row",
-        "the history blend shades the outer rate from its middle block's top row, not its outer block's",
-        "const float* coarse = s.pix + (e * s.h + y - y % s.outer_stride) * w * c;",
-        "const float* coarse = s.pix + (e * s.h + y - y % s.middle_stride) * w * c;",
-    ),
-    Mutation(
-        "taa-shade-weights-swapped",
-        "the history blend's shading weighs the outer rate by the middle rate's weight",
-        "const float rest = coarse[ox[x] * c + ch] * (1.0f - b[x]) + middle[mx[x] * c + ch] * b[x];",
-        "const float rest = coarse[ox[x] * c + ch] * b[x] + middle[mx[x] * c + ch] * (1.0f - b[x]);",
     ),
     Mutation(
         "layers-nearest",

@@ -685,13 +685,13 @@ def _taa_rounding_bound(image, *, gamma, keep):
 
 def test_patney_history_blend_native_is_the_jax_path():
     """Patney 2016's history blend (`taa_blend`) through the native TAA handler against the JAX
-    blend: equal to float rounding, with pixels with and without a history, odd sizes (the
-    border's taps clamped, a single row) and a history far outside the neighbourhood
-    (clipped); the derivative is the JAX blend's. The same with the frame's shading rates
-    (`shade_and_blend_history`: the handler shades each row of the blended image from the traced
-    pixels, the middle and outer rates' blocks held, blocks cut at the image's edges)."""
+    blend: equal to float rounding (within the rounding that a flat neighbourhood's square root
+    amplifies, `_taa_rounding_bound`), with pixels with and without a history, odd sizes (the
+    border's taps clamped, a single row), a history far outside the neighbourhood (clipped) and
+    images of the frame's shading rates (held blocks: flat neighbourhoods); the derivative is
+    the JAX blend's, finite where a neighbourhood is flat."""
     from fovjax.foveate._methods._guenter import layer_weights
-    from fovjax.foveate._methods._patney import TaaHistory, shade, shade_and_blend_history, taa_blend
+    from fovjax.foveate._methods._patney import TaaHistory, hold, rate_blend, taa_blend
 
     cases = []
     for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 3), (1, 1, 2, 3)]):
@@ -700,59 +700,38 @@ def test_patney_history_blend_native_is_the_jax_path():
         cases.append(
             (jax.random.uniform(k[0], shape), TaaHistory(color, jax.random.bernoulli(k[2], 0.7, shape[:3])))
         )
-
-    shaded_cases = []
     for i, (h, w, strides) in enumerate([(13, 18, (2, 4)), (10, 7, (3, 5))]):
         k = jax.random.split(jax.random.key(20 + i), 3)
         y, x = jnp.mgrid[0:h, 0:w]
         ecc = jnp.stack([jnp.hypot(x - 3.0, y - 4.0), jnp.hypot(x - w + 2.0, y - 1.0)])  # degrees = pixels
-        weights = layer_weights(ecc, jnp.asarray([2.0, 5.0]), 1.5)
-        history = TaaHistory(
-            3.0 * jax.random.uniform(k[1], (2, h, w, 3)) - 1.0, jax.random.bernoulli(k[2], 0.7, (2, h, w))
+        pix = jax.random.uniform(k[0], (2, h, w, 3))
+        shaded = rate_blend(
+            *(hold(pix, s) for s in (1, *strides)), *layer_weights(ecc, jnp.asarray([2.0, 5.0]), 1.5)
         )
-        shaded_cases.append((jax.random.uniform(k[0], (2, h, w, 3)), weights, history, strides))
+        color = 3.0 * jax.random.uniform(k[1], (2, h, w, 3)) - 1.0
+        cases.append((shaded, TaaHistory(color, jax.random.bernoulli(k[2], 0.7, (2, h, w)))))
 
-    def both(cases, shaded_cases):
+    def both(cases):
         out = [
             [taa_blend(c, hist, alpha=0.1, gamma=1.0, native=n) for n in (True, False)] for c, hist in cases
         ]
-        for pix, (w_inner, w_middle), hist, strides in shaded_cases:
-            blend = functools.partial(shade_and_blend_history, strides=strides, alpha=0.1, gamma=1.0)
-            out.append([blend(pix, w_inner, w_middle, hist, native=n) for n in (True, False)])
-        pix, (w_inner, w_middle), hist, strides = shaded_cases[0]
-        blend = functools.partial(shade_and_blend_history, strides=strides, alpha=0.25, gamma=0.5)
-        out.append(
-            [
-                jax.jvp(
-                    lambda p, n=n: blend(p, w_inner, w_middle, hist, native=n), (pix,), (jnp.ones_like(pix),)
-                )[1]
-                for n in (True, False)
-            ]
-        )
-        current, hist = cases[0]
-        out.append(
-            [
-                jax.jvp(
-                    lambda x, n=n: taa_blend(x, hist, alpha=0.25, gamma=0.5, native=n),
-                    (current,),
-                    (jnp.ones_like(current),),
-                )[1]
-                for n in (True, False)
-            ]
-        )
+        for current, hist in (cases[0], cases[3]):
+            out.append(
+                [
+                    jax.jvp(
+                        lambda x, n=n, hist=hist: taa_blend(x, hist, alpha=0.25, gamma=0.5, native=n),
+                        (current,),
+                        (jnp.ones_like(current),),
+                    )[1]
+                    for n in (True, False)
+                ]
+            )
         return out
 
-    static = [(pix, weights, hist) for pix, weights, hist, _ in shaded_cases]
-    strides = [s for *_, s in shaded_cases]
-
-    def run(cases, static):
-        return both(cases, [(*c, s) for c, s in zip(static, strides, strict=True)])
-
-    lowered = jax.jit(run).lower(cases, static)
+    lowered = jax.jit(both).lower(cases)
     assert lowered.as_text().count("fovjax_taa_blend") >= 5
-    results = lowered.compile()(cases, static)
-    # The images blended (the shaded ones from the JAX path), then the two derivatives.
-    images = [c for c, _ in cases] + [shade(p, *weights, s) for p, weights, _, s in shaded_cases]
+    results = lowered.compile()(cases)
+    images = [c for c, _ in cases]
     for (native, reference), image in zip(results, [*images, None, None], strict=True):
         native, reference = np.asarray(native), np.asarray(reference)
         bound = 0.0 if image is None else _taa_rounding_bound(image, gamma=1.0, keep=0.9)

@@ -224,40 +224,20 @@ def native_fill_and_blur(
     return image, complete[0]
 
 
-def native_taa_blend(
-    current,
-    color,
-    valid,
-    *,
-    alpha: float,
-    gamma: float,
-    weights=None,
-    strides: tuple[int, int] = (1, 1),
-):
+def native_taa_blend(current, color, valid, *, alpha: float, gamma: float):
     """Patney 2016's history blend through the TAA handler (CPU only): `current` and the
     history's `color` (N, H, W, C), `valid` (N, H, W); what `_methods._patney.taa_blend`
-    computes, its neighbourhood's taps added in its order. With `weights` (the inner and middle
-    rates' (N, H, W)), `current` holds the frame's pixels and the image blended is their
-    shading rates' blend (`_methods._patney.shade`: the middle and outer rates' blocks of
-    `strides` held)."""
+    computes, its neighbourhood's taps added in its order."""
     f32 = jnp.float32
     out = jax.ShapeDtypeStruct(np.shape(current), f32)
     call = handler(TAA_TARGET, out, what="the native history blend", vmap_method="sequential")
-    if weights is None:
-        w_inner = w_middle = np.zeros((0,), np.float32)
-    else:
-        w_inner, w_middle = (jax.lax.stop_gradient(jnp.asarray(x, f32)) for x in weights)
     return call(
         jax.lax.stop_gradient(jnp.asarray(current, f32)),
-        w_inner,
-        w_middle,
         jax.lax.stop_gradient(jnp.asarray(color, f32)),
         jnp.asarray(valid, bool),
         alpha=np.float32(alpha),
         keep=np.float32(1.0 - alpha),
         gamma=np.float32(gamma),
-        middle_stride=np.int32(strides[0]),
-        outer_stride=np.int32(strides[1]),
     )
 
 

@@ -1,6 +1,5 @@
 // Temporal antialiasing with variance clipping (its oracle: fovjax/foveate/_methods/_patney.py
-// `taa_blend`, Patney 2016's history blend), of an image or of the shading rates' blend of a
-// frame's pixels (`shade_and_blend_history`: `rate_blend` of `hold`'s images, then `taa_blend`).
+// `taa_blend`, Patney 2016's history blend).
 #pragma once
 
 #include <algorithm>
@@ -43,44 +42,14 @@ void BlendRow(const float* const* tap, const float* __restrict__ now, const floa
   }
 }
 
-// Row y of the shaded image (`rate_blend` of `hold`'s images, in its order): per pixel its own
-// value (fine), its middle block's and its outer block's top-left's (middle, coarse), rest =
-// coarse·(1 − w_middle) + middle·w_middle, then rest·(1 − w_inner) + fine·w_inner.
-struct RateShading {
-  const float* pix;                        // (N, H, W, C)
-  const float *w_inner, *w_middle;         // (N, H, W)
-  int64_t h, w, c, middle_stride, outer_stride;
-  std::vector<int32_t> middle_x, outer_x;  // per column: its blocks' left column
-};
-
-void ShadeRow(const RateShading& s, int64_t e, int64_t y, float* __restrict__ out) {
-  const int64_t w = s.w, c = s.c;
-  const float* fine = s.pix + (e * s.h + y) * w * c;
-  const float* middle = s.pix + (e * s.h + y - y % s.middle_stride) * w * c;
-  const float* coarse = s.pix + (e * s.h + y - y % s.outer_stride) * w * c;
-  const float* a = s.w_inner + (e * s.h + y) * w;
-  const float* b = s.w_middle + (e * s.h + y) * w;
-  const int32_t* mx = s.middle_x.data();
-  const int32_t* ox = s.outer_x.data();
-  for (int64_t x = 0; x < w; ++x) {
-    for (int64_t ch = 0; ch < c; ++ch) {
-      const float rest = coarse[ox[x] * c + ch] * (1.0f - b[x]) + middle[mx[x] * c + ch] * b[x];
-      out[x * c + ch] = rest * (1.0f - a[x]) + fine[x * c + ch] * a[x];
-    }
-  }
-}
-
-// Per element: the 3×3 neighbourhood's mean and standard deviation of the current image (its
-// border pixels repeated), the history clipped to mean ± gamma·std widened to the current value,
-// then alpha of the current value and `keep` (1 − alpha, as Python rounds it) of the clipped
-// history; where the history holds nothing, the current value. The taps are added row by row,
-// left to right, as the JAX neighbourhood adds its slices. The current image is `current`, or
-// with the rates' weights given (not empty), the shaded image of `current`'s pixels
-// (`ShadeRow`), each of its rows made once per band.
-ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Buffer<ffi::F32> w_inner,
-                    ffi::Buffer<ffi::F32> w_middle, ffi::Buffer<ffi::F32> history, ffi::Buffer<ffi::PRED> valid,
-                    ffi::ResultBuffer<ffi::F32> out, float alpha, float keep, float gamma, int32_t middle_stride,
-                    int32_t outer_stride) {
+// Per element: the 3×3 neighbourhood's mean and standard deviation of `current` (its border
+// pixels repeated), the history clipped to mean ± gamma·std widened to the current value, then
+// alpha of the current value and `keep` (1 − alpha, as Python rounds it) of the clipped history;
+// where the history holds nothing, the current value. The taps are added row by row, left to
+// right, as the JAX neighbourhood adds its slices.
+ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Buffer<ffi::F32> history,
+                    ffi::Buffer<ffi::PRED> valid, ffi::ResultBuffer<ffi::F32> out, float alpha, float keep,
+                    float gamma) {
   const auto dims = current.dimensions();
   if (dims.size() != 4) return ffi::Error::InvalidArgument("taa: the image must be (N, H, W, C)");
   const int64_t n = dims[0], h = dims[1], w = dims[2], c = dims[3];
@@ -89,52 +58,29 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Bu
       h < 1 || w < 1 || c < 1) {
     return ffi::Error::InvalidArgument("taa: a history of the image's shape and a flag per pixel");
   }
-  const bool shade = w_inner.element_count() != 0;
-  if (shade && (w_inner.element_count() != valid.element_count() ||
-                w_middle.element_count() != valid.element_count() || middle_stride < 1 || outer_stride < 1)) {
-    return ffi::Error::InvalidArgument("taa: the rates' weights are (N, H, W) and their strides positive");
-  }
-  RateShading shading{current.typed_data(), w_inner.typed_data(), w_middle.typed_data(), h, w, c,
-                  middle_stride, outer_stride, {}, {}};
-  if (shade) {
-    shading.middle_x.resize(static_cast<size_t>(w)), shading.outer_x.resize(static_cast<size_t>(w));
-    for (int64_t x = 0; x < w; ++x) {
-      shading.middle_x[x] = static_cast<int32_t>(x - x % middle_stride);
-      shading.outer_x[x] = static_cast<int32_t>(x - x % outer_stride);
-    }
-  }
   const float* img = current.typed_data();
   const float* hist = history.typed_data();
   const bool* has = valid.typed_data();
   float* dst = out->typed_data();
-  const int64_t row = w * c, padded_row = row + 2 * c, rows = 16, bands = (h + rows - 1) / rows;
+  const int64_t row = w * c, rows = 16, bands = (h + rows - 1) / rows;
   ParallelFor(pool, n * bands, [&](int64_t job) {
     const int64_t e = job / bands, y0 = (job % bands) * rows, y1 = std::min(h, y0 + rows);
-    // The current image's rows the band reads (its own and one on either side, clamped), each
-    // with its edge pixels repeated once on either side: the nine taps are then rows, and the
-    // blend a loop along them that vectorises.
-    const int64_t r0 = std::max<int64_t>(0, y0 - 1), r1 = std::min(h, y1 + 1);
-    std::vector<float> padded(static_cast<size_t>((r1 - r0) * padded_row));
-    for (int64_t y = r0; y < r1; ++y) {
-      float* p = padded.data() + (y - r0) * padded_row;
-      if (shade) {
-        ShadeRow(shading, e, y, p + c);
-      } else {
-        const float* line = img + (e * h + y) * row;
-        std::copy(line, line + row, p + c);
-      }
-      std::copy(p + c, p + 2 * c, p);
-      std::copy(p + row, p + c + row, p + c + row);
-    }
+    const float* image = img + e * h * row;
+    // The three rows a row reads, each with its edge pixels repeated once on either side: the
+    // nine taps are then rows, and the blend a loop along them that vectorises.
+    std::vector<float> padded(static_cast<size_t>(3 * (row + 2 * c)));
     for (int64_t y = y0; y < y1; ++y) {
       const float* tap[9];
       for (int dy = 0; dy < 3; ++dy) {
-        const float* p = padded.data() + (std::clamp<int64_t>(y + dy - 1, 0, h - 1) - r0) * padded_row;
+        const float* line = image + std::clamp<int64_t>(y + dy - 1, 0, h - 1) * row;
+        float* p = padded.data() + dy * (row + 2 * c);
+        std::copy(line, line + c, p);
+        std::copy(line, line + row, p + c);
+        std::copy(line + row - c, line + row, p + c + row);
         for (int dx = 0; dx < 3; ++dx) tap[3 * dy + dx] = p + dx * c;
       }
-      const float* now = tap[4];
       const int64_t at = (e * h + y) * row;
-      BlendRow(tap, now, hist + at, row, alpha, keep, gamma, dst + at);
+      BlendRow(tap, img + at, hist + at, row, alpha, keep, gamma, dst + at);
       // The current value where the pixel holds no history (eight flags at a time: most hold one).
       const bool* held = has + (e * h + y) * w;
       for (int64_t x0 = 0; x0 < w; x0 += 8) {
@@ -143,7 +89,7 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Bu
         if (x1 - x0 == 8) std::memcpy(&all, held + x0, sizeof all);
         if (x1 - x0 == 8 && all == 0x0101010101010101ull) continue;
         for (int64_t x = x0; x < x1; ++x) {
-          if (!held[x]) std::copy(now + x * c, now + (x + 1) * c, dst + at + x * c);
+          if (!held[x]) std::copy(img + at + x * c, img + at + (x + 1) * c, dst + at + x * c);
         }
       }
     }
@@ -156,14 +102,10 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> current, ffi::Bu
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxTaaBlend, TaaBlend,
                               ffi::Ffi::Bind()
                                   .Ctx<ffi::ThreadPool>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // this frame, or its pixels to shade (N, H, W, C)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the inner rate's weight (N, H, W), or empty
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the middle rate's weight (N, H, W), or empty
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // this frame (N, H, W, C)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // the history's colour (N, H, W, C)
                                   .Arg<ffi::Buffer<ffi::PRED>>()  // whether a pixel holds one (N, H, W)
                                   .Ret<ffi::Buffer<ffi::F32>>()   // blended (N, H, W, C)
                                   .Attr<float>("alpha")
                                   .Attr<float>("keep")
-                                  .Attr<float>("gamma")
-                                  .Attr<int32_t>("middle_stride")
-                                  .Attr<int32_t>("outer_stride"));
+                                  .Attr<float>("gamma"));

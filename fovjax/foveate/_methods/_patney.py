@@ -202,45 +202,6 @@ def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float, nativ
     return _taa_blend(current, history.color, history.valid, alpha=alpha, gamma=gamma)
 
 
-def shade(
-    pix: Float[Array, "E H W 3"], w_inner, w_middle, strides: tuple[int, int]
-) -> Float[Array, "E H W 3"]:
-    """The shading rates' image: each rate's image (`hold` of the traced pixels `pix` at its
-    stride: 1, then `strides`) blended by the rates' weights (`rate_blend`)."""
-    inner, middle, outer = (hold(pix, s) for s in (1, *strides))
-    return rate_blend(inner, middle, outer, w_inner, w_middle)
-
-
-def shade_and_blend_history(
-    pix: Float[Array, "E H W 3"],
-    w_inner: Float[Array, "E H W"],
-    w_middle: Float[Array, "E H W"],
-    history: TaaHistory,
-    *,
-    strides: tuple[int, int],
-    alpha: float,
-    gamma: float,
-    native: bool = False,
-) -> Float[Array, "E H W 3"]:
-    """`taa_blend` of the shading rates' image (`shade`). `native`: on a CPU through the TAA
-    handler, which shades each row of the image as its neighbourhoods read it (the same
-    arithmetic in the same order; `native_taa_blend` with the weights), chosen inside the
-    program; derivatives are this function's."""
-
-    def in_jax(pix, w_inner, w_middle, color, valid):
-        return _taa_blend(shade(pix, w_inner, w_middle, strides), color, valid, alpha=alpha, gamma=gamma)
-
-    if not native:
-        return in_jax(pix, w_inner, w_middle, history.color, history.valid)
-
-    def on_cpu(pix, w_inner, w_middle, color, valid):
-        return native_taa_blend(
-            pix, color, valid, alpha=alpha, gamma=gamma, weights=(w_inner, w_middle), strides=strides
-        )
-
-    return on_platforms(in_jax, cpu=on_cpu)(pix, w_inner, w_middle, history.color, history.valid)
-
-
 def _taa_blend(current, color, valid, *, alpha: float, gamma: float):
     mean, std = _neighbourhood(current)
     lo = jnp.minimum(mean - gamma * std, current)
@@ -308,17 +269,10 @@ def patney_stereo(
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
     )
+    inner, middle, outer = (hold(pixels.prefill, s) for s in strides)
     w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
-    accumulated = shade_and_blend_history(
-        pixels.prefill,
-        w_inner,
-        w_middle,
-        history,
-        strides=method.strides,
-        alpha=method.taa_alpha,
-        gamma=method.clip_gamma,
-        native=native,
-    )
+    shaded = rate_blend(inner, middle, outer, w_inner, w_middle)
+    accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma, native=native)
     # The pre-filter per shading rate (σ grows with the block size), shown where that rate is.
     image = prefilter_and_blend(
         accumulated,
