@@ -1,0 +1,122 @@
+"""Patney 2016's contrast window against its cost: frame time and FLIP per `window_per_sigma`.
+
+    python benchmarks/patney_window.py                        # atrium 2 x 640x512, SPP 1
+    python benchmarks/patney_window.py --windows 1 1.5 2 3 --frames 8
+
+`Patney2016.window_per_sigma` (the contrast window's σ per blur σ) is fovjax's choice, 2 by
+default, and its pre-filter's windows are most of the method's cost over the thesis's frame
+(`benchmarks/profile_frame.py --method patney2016`). This charts the choice: per value, the
+frame time over the thesis method's (every configuration renders frame k, at the same slowly
+moving gaze and key, before any renders frame k + 1, as `benchmarks/methods_frame.py` does) and
+the mean FLIP (LDR, at the rig's pixels per degree) of the frame against the full render of the
+same key, with its 95% interval over the measured frames. Each Patney renderer first renders
+`--warm-up` frames, so its history has built up (its weight 1 − `taa_alpha` per frame) before a
+frame is measured. Writes a record (benchmarks/results/patney_window-*.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import fovjax
+import fovjax.eval as fe
+from fovjax.foveate import Foveation, Patney2016
+from fovjax.render import RenderConfig, StereoRig
+
+
+def _interval(values: list[float]) -> tuple[float, float, float]:
+    """Mean and 95% Student-t interval (the normal's 1.96 beyond 30 samples)."""
+    from scipy import stats
+
+    mean = statistics.fmean(values)
+    if len(values) < 2:
+        return mean, math.nan, math.nan
+    half = stats.t.ppf(0.975, len(values) - 1) * statistics.stdev(values) / math.sqrt(len(values))
+    return mean, mean - half, mean + half
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--size", type=int, nargs=2, default=(640, 512), metavar=("W", "H"))
+    p.add_argument("--windows", type=float, nargs="+", default=(1.0, 1.5, 2.0), metavar="SIGMAS")
+    p.add_argument("--frames", type=int, default=8, help="frames measured per configuration")
+    p.add_argument("--warm-up", type=int, default=24, help="frames rendered before the first measured")
+    p.add_argument("--max-depth", type=int, default=5)
+    args = p.parse_args(argv)
+    if args.frames < 2 or args.warm_up < 0 or min(args.size) < 8:
+        p.error(
+            "--frames must be at least 2, --warm-up at least 0 and --size at least 8 x 8, "
+            f"got {args.frames}, {args.warm_up}, {args.size}"
+        )
+    if not all(math.isfinite(w) and w > 0 for w in args.windows):
+        p.error(f"--windows must be positive, got {args.windows}")
+    w, h = args.size
+    scene = fovjax.scenes.atrium()
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
+    display = fe.HmdDisplay.from_camera(rig.eye_cameras()[0])
+    base = fovjax.FoveatedRenderer(scene, rig, config=RenderConfig(max_depth=args.max_depth))
+    total = args.warm_up + args.frames
+    gazes = [((0.45 + 0.002 * k, 0.5), (0.42 + 0.002 * k, 0.5)) for k in range(total + 1)]
+    methods = {"thesis": "thesis"} | {f"window {s:g}": Patney2016(window_per_sigma=s) for s in args.windows}
+    renderers, compile_s = {}, {}
+    for name, method in methods.items():
+        r = base.with_foveation(Foveation(method=method, fovea_deg=5.0, periphery_deg=10.0), diagnostics=())
+        r.reset_history()
+        compile_s[name] = r.render(gazes[0], key=jax.random.key(0)).stats.compile_seconds
+        renderers[name] = r
+    ms = {name: [] for name in methods}
+    flips = {name: [] for name in methods}
+    for k in range(1, total + 1):
+        key = jax.random.key(k)
+        images = {}
+        for name, r in renderers.items():
+            frame = r.render(gazes[k], key=key)
+            if k > args.warm_up:
+                ms[name].append(1000 * frame.stats.render_seconds)
+                images[name] = np.asarray(frame.image)
+        if images:
+            reference = np.asarray(base.render_full(key=key).image)
+            for name, image in images.items():
+                flips[name].append(fe.flip(image, reference, ppd=display.ppd).value)
+    thesis = statistics.median(ms["thesis"])
+    rows = []
+    print(f"{'configuration':14s} {'ms/frame':>9s} {'/ thesis':>9s}  FLIP [95%]")
+    for name in methods:
+        median = statistics.median(ms[name])
+        mean, lo, hi = _interval(flips[name])
+        rows.append([name, round(median, 1), round(median / thesis, 2), f"{mean:.4f} [{lo:.4f}, {hi:.4f}]"])
+        print(f"{name:14s} {median:9.1f} {median / thesis:9.2f}  {mean:.4f} [{lo:.4f}, {hi:.4f}]")
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _record import write_record
+
+    write_record(
+        "patney_window",
+        {
+            "tables": [
+                {
+                    "title": f"Patney 2016's contrast window (window_per_sigma) against its cost, atrium "
+                    f"2 × {w}×{h}, SPP 1, depth {args.max_depth}, 5°/10°, {args.frames} frames after "
+                    f"{args.warm_up} of warm-up, the configurations in turn per frame (median ms; ratio "
+                    "to the thesis method's; mean FLIP against the full render of the same key)",
+                    "columns": ["configuration", "ms/frame", "/ thesis", "FLIP [95%]"],
+                    "rows": rows,
+                }
+            ],
+            "ms": ms,
+            "flip": flips,
+            "compile_s": compile_s,
+            "ppd": display.ppd,
+        },
+        note="CPU only (2 shared cores); the configurations render each frame in turn, so read the ratios",
+    )
+
+
+if __name__ == "__main__":
+    main()
