@@ -8,8 +8,12 @@ default, and its pre-filter's windows are most of the method's cost over the the
 (`benchmarks/profile_frame.py --method patney2016`). This charts the choice: per value, the
 frame time over the thesis method's (every configuration renders frame k, at the same slowly
 moving gaze and key, before any renders frame k + 1, as `benchmarks/methods_frame.py` does) and
-the mean FLIP (LDR, at the rig's pixels per degree) of the frame against the full render of the
-same key, with its 95% interval over the measured frames. Each Patney renderer first renders
+two errors of the frame against the full render of the same key, each a mean with its 95%
+interval over the measured frames: FLIP (LDR, at the rig's pixels per degree; a metric of what
+the fovea sees) and FovVideoVDP's JOD (foveated at the frame's gaze, the worse eye; a metric of
+what the periphery sees too, where Patney's pre-filter acts; 10 = no visible difference). The
+ratios are of this run only: its frames alternate with a full render, so they are not those
+of `methods_frame.py`. Each Patney renderer first renders
 `--warm-up` frames, so its history has built up (its weight 1 − `taa_alpha` per frame) before a
 frame is measured. Writes a record (benchmarks/results/patney_window-*.json).
 """
@@ -17,6 +21,7 @@ frame is measured. Writes a record (benchmarks/results/patney_window-*.json).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import statistics
 import sys
@@ -57,6 +62,9 @@ def main(argv: list[str] | None = None) -> None:
         )
     if not all(math.isfinite(w) and w > 0 for w in args.windows):
         p.error(f"--windows must be positive, got {args.windows}")
+    use_jod = importlib.util.find_spec("pyfvvdp") is not None
+    if not use_jod:
+        print("FovVideoVDP (pyfvvdp, the [fvvdp] extra) is not installed: no JOD column")
     w, h = args.size
     scene = fovjax.scenes.atrium()
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
@@ -73,6 +81,7 @@ def main(argv: list[str] | None = None) -> None:
         renderers[name] = r
     ms = {name: [] for name in methods}
     flips = {name: [] for name in methods}
+    jods = {name: [] for name in methods}
     for k in range(1, total + 1):
         key = jax.random.key(k)
         images = {}
@@ -85,14 +94,17 @@ def main(argv: list[str] | None = None) -> None:
             reference = np.asarray(base.render_full(key=key).image)
             for name, image in images.items():
                 flips[name].append(fe.flip(image, reference, ppd=display.ppd).value)
+                if use_jod:
+                    jods[name].append(fe.fovvdp(image, reference, display, gaze_xy=gazes[k]).value)
     thesis = statistics.median(ms["thesis"])
     rows = []
-    print(f"{'configuration':14s} {'ms/frame':>9s} {'/ thesis':>9s}  FLIP [95%]")
+    print(f"{'configuration':14s} {'ms/frame':>9s} {'/ thesis':>9s}  {'FLIP [95%]':26s} JOD [95%]")
     for name in methods:
         median = statistics.median(ms[name])
-        mean, lo, hi = _interval(flips[name])
-        rows.append([name, round(median, 1), round(median / thesis, 2), f"{mean:.4f} [{lo:.4f}, {hi:.4f}]"])
-        print(f"{name:14s} {median:9.1f} {median / thesis:9.2f}  {mean:.4f} [{lo:.4f}, {hi:.4f}]")
+        flip = "{:.4f} [{:.4f}, {:.4f}]".format(*_interval(flips[name]))
+        jod = "{:.3f} [{:.3f}, {:.3f}]".format(*_interval(jods[name])) if use_jod else "not measured"
+        rows.append([name, round(median, 1), round(median / thesis, 2), flip, jod])
+        print(f"{name:14s} {median:9.1f} {median / thesis:9.2f}  {flip:26s} {jod}")
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _record import write_record
 
@@ -104,13 +116,15 @@ def main(argv: list[str] | None = None) -> None:
                     "title": f"Patney 2016's contrast window (window_per_sigma) against its cost, atrium "
                     f"2 × {w}×{h}, SPP 1, depth {args.max_depth}, 5°/10°, {args.frames} frames after "
                     f"{args.warm_up} of warm-up, the configurations in turn per frame (median ms; ratio "
-                    "to the thesis method's; mean FLIP against the full render of the same key)",
-                    "columns": ["configuration", "ms/frame", "/ thesis", "FLIP [95%]"],
+                    "to the thesis method's; mean FLIP and FovVideoVDP JOD against the full render of "
+                    "the same key)",
+                    "columns": ["configuration", "ms/frame", "/ thesis", "FLIP [95%]", "JOD [95%]"],
                     "rows": rows,
                 }
             ],
             "ms": ms,
             "flip": flips,
+            "jod": jods,
             "compile_s": compile_s,
             "ppd": display.ppd,
         },
