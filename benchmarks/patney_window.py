@@ -36,17 +36,6 @@ from fovjax.foveate import Foveation, Patney2016
 from fovjax.render import RenderConfig, StereoRig
 
 
-def _interval(values: list[float]) -> tuple[float, float, float]:
-    """Mean and 95% Student-t interval (the normal's 1.96 beyond 30 samples)."""
-    from scipy import stats
-
-    mean = statistics.fmean(values)
-    if len(values) < 2:
-        return mean, math.nan, math.nan
-    half = stats.t.ppf(0.975, len(values) - 1) * statistics.stdev(values) / math.sqrt(len(values))
-    return mean, mean - half, mean + half
-
-
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", type=int, nargs=2, default=(640, 512), metavar=("W", "H"))
@@ -101,8 +90,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'configuration':14s} {'ms/frame':>9s} {'/ thesis':>9s}  {'FLIP [95%]':26s} JOD [95%]")
     for name in methods:
         median = statistics.median(ms[name])
-        flip = "{:.4f} [{:.4f}, {:.4f}]".format(*_interval(flips[name]))
-        jod = "{:.3f} [{:.3f}, {:.3f}]".format(*_interval(jods[name])) if use_jod else "not measured"
+        flip = "{:.4f} [{:.4f}, {:.4f}]".format(*fe.mean_interval(flips[name]))
+        jod = "{:.3f} [{:.3f}, {:.3f}]".format(*fe.mean_interval(jods[name])) if use_jod else "not measured"
         rows.append([name, round(median, 1), round(median / thesis, 2), flip, jod])
         print(f"{name:14s} {median:9.1f} {median / thesis:9.2f}  {flip:26s} {jod}")
     sys.path.insert(0, str(Path(__file__).resolve().parent))

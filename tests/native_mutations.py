@@ -196,7 +196,7 @@ MUTATIONS = (
     ),
     Mutation(
         "prefilter-edge-not-repeated",
-        "Patney's blurs repeat the second pixel beyond the image's left edge, not the edge pixel",
+        "Patney's blurs and windows repeat the second pixel beyond the left edge, not the edge pixel",
         "for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, column - (left - p) * c);",
         "for (int64_t p = 0; p < left; ++p) std::copy(column + c, column + 2 * c, column - (left - p) * c);",
     ),
@@ -217,12 +217,6 @@ MUTATIONS = (
         "the blurred image's local contrast measured on the image's luminance",
         "const float lb = b[3 * j] * l0 + b[3 * j + 1] * l1 + b[3 * j + 2] * l2;",
         "const float lb = im[3 * j] * l0 + im[3 * j + 1] * l1 + im[3 * j + 2] * l2;",
-    ),
-    Mutation(
-        "prefilter-window-edge-not-repeated",
-        "Patney's contrast windows repeat the second pixel beyond the left edge, not the edge pixel",
-        "std::fill(column - left, column, column[0]);",
-        "std::fill(column - left, column, column[1]);",
     ),
     Mutation(
         "prefilter-window-mean-of-image",

@@ -3,13 +3,13 @@ committed fits in fits/, and the combined chart against the thesis's curve."""
 
 import csv
 import hashlib
-import importlib.util
 import re
 import shlex
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _scripts import load_script
 
 import fovjax.acuity as fa
 from fovjax.cli import build_parser
@@ -145,9 +145,7 @@ def test_measured_fit_is_reproduced_by_its_recorded_command(name):
 
 
 def test_measured_fits_all_fall_off_far_more_slowly_than_the_thesis_curve(tmp_path):
-    spec = importlib.util.spec_from_file_location("measured_acuity", REPO / "fits" / "measured_acuity.py")
-    chart = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(chart)
+    chart = load_script(REPO / "fits" / "measured_acuity.py")
     drawn = {f"{stem}.json" for stem, _, _ in chart.RECORDS}
     assert drawn | {f"{stem}.json" for stem in chart.TABLE_ONLY} == set(MEASURED_FITS)
     rows = chart.table()

@@ -2,24 +2,12 @@
 naming the value). Its figures are checked where it runs: it prints how its gradients agree with
 Mitsuba's and with exact central differences."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
-
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+from _scripts import BENCHMARKS, load_script
 
 
 def _script():
-    sys.path.insert(0, str(BENCH))  # the script imports mitsuba_frame beside it
-    try:
-        spec = importlib.util.spec_from_file_location("gradients_bench", BENCH / "gradients.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(BENCH))
-    return module
+    return load_script(BENCHMARKS / "gradients.py", "gradients_bench")
 
 
 @pytest.mark.parametrize(

@@ -7,25 +7,19 @@ rather than an extra, or the package fails to import), its tests skip with the s
 reason, and fail with it under FOVJAX_REQUIRE_EXTRAS=1: CI installs what Mitsuba needs, so a
 Mitsuba that cannot start there is a broken install, not a machine without the extra."""
 
-import importlib.util
 import json
 import sys
 import types
-from pathlib import Path
 
 import _extras
 import pytest
+from _scripts import BENCHMARKS, load_script
 
 _extras.require("mitsuba", module_level=True)
 
-SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "mitsuba_frame.py"
-
 
 def _script():
-    spec = importlib.util.spec_from_file_location("mitsuba_frame", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(BENCHMARKS / "mitsuba_frame.py")
 
 
 def _started(bench):

@@ -1,19 +1,12 @@
 """benchmarks/patney_window.py, the chart of Patney 2016's contrast window against its cost:
 a bad command line is refused by name before anything renders."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "patney_window.py"
+from _scripts import BENCHMARKS, load_script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("patney_window", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(BENCHMARKS / "patney_window.py")
 
 
 @pytest.mark.parametrize(

@@ -4,25 +4,13 @@ a tiny run's figures are consistent (the densest row is the reference, the fovea
 traces fewer rays than its full frame, the images agree). Mitsuba is in the `[bench]` extra;
 without a libLLVM >= 16 for Dr.Jit it skips with the script's own reason."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import _extras
 import pytest
-
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+from _scripts import BENCHMARKS, load_script
 
 
 def _script():
-    sys.path.insert(0, str(BENCH))  # the script imports mitsuba_frame beside it
-    try:
-        spec = importlib.util.spec_from_file_location("ray_density", BENCH / "ray_density.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(BENCH))
-    return module
+    return load_script(BENCHMARKS / "ray_density.py")
 
 
 def test_a_bad_size_is_named_before_any_work(capsys):

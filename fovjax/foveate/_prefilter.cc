@@ -75,33 +75,37 @@ void ColumnStrips(const std::vector<float>& taps, int64_t y0, int64_t y1, int64_
 }
 
 // The Gaussian blur of `gaussian_blur` (columns, then rows, the border pixels repeated) of an
-// image (h, w, c) at the pixels of `at` only, rows [y0, y1) of it (on the calling thread, eight
-// rows at a time), into `out` (y1 − y0 rows of at.Cols() pixels of c): the same taps in the same
-// order as the whole image's blur, so the values are that blur's.
-void BlurRows(const float* src, int64_t h, int64_t w, int64_t c, const std::vector<float>& taps, const Rect& at,
-              int64_t y0, int64_t y1, float* out) {
+// image of h rows, each `planes` planes of w pixels of c channels (an image (h, w, c): one
+// plane; the window's statistics: a plane each, one channel), at the pixels of `at` only, rows
+// [y0, y1) of it (on the calling thread, eight rows at a time), into `out` (y1 − y0 rows of
+// `planes` planes of at.Cols() pixels): the same taps in the same order as the whole image's
+// blur, so the values are that blur's.
+void BlurRows(const float* src, int64_t h, int64_t w, int64_t planes, int64_t c, const std::vector<float>& taps,
+              const Rect& at, int64_t y0, int64_t y1, float* out) {
   const int k = static_cast<int>(taps.size()), r = k / 2;
   // The column pass over the columns the row pass reads (clamped to the image).
   const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
-  const int64_t row = w * c, span = (at.Cols() + 2 * r) * c;
+  const int64_t plane = w * c, span = (at.Cols() + 2 * r) * c, out_plane = at.Cols() * c;
   // Columns the row pass reads beyond the image's edges (its edge pixels repeated there).
   const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1;
   constexpr int64_t kRows = 8;
   thread_local std::vector<float> pad;
   thread_local std::vector<const float*> reads;
-  pad.resize(static_cast<size_t>(kRows * span));
+  pad.resize(static_cast<size_t>(kRows * planes * span));
   for (int64_t b0 = y0; b0 < y1; b0 += kRows) {
     const int64_t b1 = std::min(y1, b0 + kRows);
-    auto source = [&](int64_t y) { return src + std::clamp<int64_t>(y, 0, h - 1) * row + cx0 * c; };
-    auto padded = [&](int64_t y) { return pad.data() + (y - b0) * span + left * c; };  // in place, padded
-    ColumnStrips(taps, b0, b1, (cx1 - cx0) * c, source, padded, reads);
-    for (int64_t y = b0; y < b1; ++y) {
-      float* column = padded(y);
-      for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, column - (left - p) * c);
-      const float* last = column + (cx1 - cx0 - 1) * c;
-      for (int64_t p = 0; p < right; ++p) std::copy(last, last + c, column + (cx1 - cx0 + p) * c);
-      for (int u = 0; u < k; ++u) reads[u] = column - left * c + u * c;
-      TapRows(taps.data(), k, reads.data(), at.Cols() * c, out + (y - y0) * at.Cols() * c);
+    for (int64_t q = 0; q < planes; ++q) {
+      auto source = [&](int64_t y) { return src + (std::clamp<int64_t>(y, 0, h - 1) * planes + q) * plane + cx0 * c; };
+      auto padded = [&](int64_t y) { return pad.data() + ((y - b0) * planes + q) * span + left * c; };  // in place
+      ColumnStrips(taps, b0, b1, (cx1 - cx0) * c, source, padded, reads);
+      for (int64_t y = b0; y < b1; ++y) {
+        float* column = padded(y);
+        for (int64_t p = 0; p < left; ++p) std::copy(column, column + c, column - (left - p) * c);
+        const float* last = column + (cx1 - cx0 - 1) * c;
+        for (int64_t p = 0; p < right; ++p) std::copy(last, last + c, column + (cx1 - cx0 + p) * c);
+        for (int u = 0; u < k; ++u) reads[u] = column - left * c + u * c;
+        TapRows(taps.data(), k, reads.data(), out_plane, out + ((y - y0) * planes + q) * out_plane);
+      }
     }
   }
 }
@@ -111,34 +115,6 @@ void BlurRows(const float* src, int64_t h, int64_t w, int64_t c, const std::vect
 // window is its blur as it lies (interleaved); the window's mean of L_B is the luminance of
 // its mean of B (the luminance is linear in B; the blur too).
 constexpr int64_t kPlanes = 3;
-
-// `BlurRows` of a planar image (h rows of `planes` planes of w): rows [y0, y1) of `at` into
-// `out` (y1 − y0 rows of `planes` planes of at.Cols()).
-void BlurPlanesRows(const float* src, int64_t h, int64_t w, int64_t planes, const std::vector<float>& taps,
-                    const Rect& at, int64_t y0, int64_t y1, float* out) {
-  const int k = static_cast<int>(taps.size()), r = k / 2;
-  const int64_t cx0 = std::max<int64_t>(0, at.x0 - r), cx1 = std::min(w, at.x1 + r);
-  const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1, span = at.Cols() + 2 * r;
-  constexpr int64_t kRows = 8;
-  thread_local std::vector<float> pad;
-  thread_local std::vector<const float*> reads;
-  pad.resize(static_cast<size_t>(kRows * planes * span));
-  for (int64_t b0 = y0; b0 < y1; b0 += kRows) {
-    const int64_t b1 = std::min(y1, b0 + kRows);
-    for (int64_t q = 0; q < planes; ++q) {
-      auto source = [&](int64_t y) { return src + (std::clamp<int64_t>(y, 0, h - 1) * planes + q) * w + cx0; };
-      auto padded = [&](int64_t y) { return pad.data() + ((y - b0) * planes + q) * span + left; };
-      ColumnStrips(taps, b0, b1, cx1 - cx0, source, padded, reads);
-      for (int64_t y = b0; y < b1; ++y) {
-        float* column = padded(y);
-        std::fill(column - left, column, column[0]);
-        std::fill(column + (cx1 - cx0), column + (cx1 - cx0) + right, column[cx1 - cx0 - 1]);
-        for (int u = 0; u < k; ++u) reads[u] = column - left + u;
-        TapRows(taps.data(), k, reads.data(), at.Cols(), out + ((y - y0) * planes + q) * at.Cols());
-      }
-    }
-  }
-}
 
 // One row of the window's planes from the image's and B's (restrict-qualified and free of
 // branches, so that GCC vectorises it).
@@ -210,7 +186,7 @@ void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w,
     stack.resize(static_cast<size_t>(n * cols * kPlanes));
     mean.resize(static_cast<size_t>(kRows * at.Cols() * 3));
     stats.resize(static_cast<size_t>(kRows * at.Cols() * kPlanes));
-    BlurRows(image, h, w, 3, f.blur, Rect{r0, r1, around.x0, around.x1}, r0, r1, blurred.data());
+    BlurRows(image, h, w, 1, 3, f.blur, Rect{r0, r1, around.x0, around.x1}, r0, r1, blurred.data());
     for (int64_t i = 0; i < n; ++i) {
       StackRow(image + ((r0 + i) * w + around.x0) * 3, blurred.data() + i * cols * 3, cols, l0, l1, l2,
                stack.data() + i * cols * kPlanes);
@@ -219,8 +195,8 @@ void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w,
     const Rect inside{y0 - r0, y1 - r0, at.x0 - around.x0, at.x1 - around.x0};
     for (int64_t b0 = inside.y0; b0 < inside.y1; b0 += kRows) {
       const int64_t b1 = std::min(inside.y1, b0 + kRows);
-      BlurRows(blurred.data(), n, cols, 3, f.window, inside, b0, b1, mean.data());
-      BlurPlanesRows(stack.data(), n, cols, kPlanes, f.window, inside, b0, b1, stats.data());
+      BlurRows(blurred.data(), n, cols, 1, 3, f.window, inside, b0, b1, mean.data());
+      BlurRows(stack.data(), n, cols, kPlanes, 1, f.window, inside, b0, b1, stats.data());
       for (int64_t y = b0; y < b1; ++y) {
         GainRow(mean.data() + (y - b0) * at.Cols() * 3, stats.data() + (y - b0) * at.Cols() * kPlanes,
                 blurred.data() + (y * cols + inside.x0) * 3, at.Cols(), l0, l1, l2, f.flat_std, f.max_gain,
