@@ -17,6 +17,7 @@ def _script():
         (["--frames", "1"], "--frames must be at least 2"),
         (["--warm-up", "-1"], "--warm-up at least 0"),
         (["--size", "4", "4"], "--size at least 8 x 8"),
+        (["--scene", "sponza"], "--scene 'sponza': one of ['atrium', 'cornell_box', 'spheres']"),
     ],
 )
 def test_a_bad_command_line_is_refused_by_name(argv, named, capsys):
