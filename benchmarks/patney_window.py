@@ -1,4 +1,4 @@
-"""Patney 2016's contrast window against its cost: frame time and FLIP per `window_per_sigma`.
+"""Patney 2016's contrast window against its cost: frame time, errors and contrast per `window_per_sigma`.
 
     python benchmarks/patney_window.py                        # atrium 2 x 640x512, SPP 1
     python benchmarks/patney_window.py --windows 1 1.5 2 3 --frames 8
@@ -12,8 +12,11 @@ moving gaze and key, before any renders frame k + 1, as `benchmarks/methods_fram
 two errors of the frame against the full render of the same key, each a mean with its 95%
 interval over the measured frames: FLIP (LDR, at the rig's pixels per degree; a metric of what
 the fovea sees) and FovVideoVDP's JOD (foveated at the frame's gaze, the worse eye; a metric of
-what the periphery sees too, where Patney's pre-filter acts; 10 = no visible difference). The
-ratios are of this run only: its frames alternate with a full render, so they are not those
+what the periphery sees too, where Patney's pre-filter acts; 10 = no visible difference); and
+the contrast the periphery keeps (`contrast_kept`: beyond the periphery radius and the blend,
+the local contrast of the luminance summed, over the full render's), the property the
+pre-filter exists for: a blur without it keeps too little and the periphery looks like a
+tunnel. The ratios are of this run only: its frames alternate with a full render, so they are not those
 of `methods_frame.py`. Each Patney renderer first renders
 `--warm-up` frames, so its history has built up (its weight 1 − `taa_alpha` per frame) before a
 frame is measured. Writes a record (benchmarks/results/patney_window-*.json).
@@ -30,11 +33,32 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from scipy import ndimage
 
 import fovjax
 import fovjax.eval as fe
 from fovjax.foveate import Foveation, Patney2016
 from fovjax.render import RenderConfig, StereoRig
+
+CONTRAST_SIGMA = 4.0  # px: the coarse rate's block, whose detail the pre-filter blurs and restores
+
+
+def local_contrast(image: np.ndarray, sigma: float = CONTRAST_SIGMA) -> np.ndarray:
+    """Per pixel the standard deviation of the luminance of `image` (..., H, W, 3) in a
+    Gaussian window of `sigma` pixels (the border repeated)."""
+    lum = fe.luminance(np.asarray(image, np.float64))
+    axes = (lum.ndim - 2, lum.ndim - 1)
+    mean = ndimage.gaussian_filter(lum, sigma, mode="nearest", axes=axes)
+    mean_sq = ndimage.gaussian_filter(lum * lum, sigma, mode="nearest", axes=axes)
+    return np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+
+
+def contrast_kept(image: np.ndarray, reference: np.ndarray, where: np.ndarray) -> float:
+    """The local contrast of `image` summed over the pixels `where`, over the reference's:
+    1 where the periphery shows the full render's contrast, below 1 where a blur lost some
+    (the tunnel vision Patney 2016's pre-filter exists to prevent), above where the image adds
+    its own (aliasing, noise)."""
+    return float(local_contrast(image)[where].sum() / local_contrast(reference)[where].sum())
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -72,8 +96,14 @@ def main(argv: list[str] | None = None) -> None:
         r.reset_history()
         compile_s[name] = r.render(gazes[0], key=jax.random.key(0)).stats.compile_seconds
         renderers[name] = r
+    # The periphery (beyond the periphery radius and the blend), from the eccentricity of a
+    # probe renderer that is never timed.
+    foveation = Foveation(fovea_deg=5.0, periphery_deg=10.0)
+    probe = base.with_foveation(foveation, diagnostics=("eccentricity",))
+    outside = foveation.periphery_deg + Patney2016().blend_deg
     ms = {name: [] for name in methods}
     flips = {name: [] for name in methods}
+    kept = {name: [] for name in methods}
     jods = {name: [] for name in methods}
     for k in range(1, total + 1):
         key = jax.random.key(k)
@@ -85,19 +115,26 @@ def main(argv: list[str] | None = None) -> None:
                 images[name] = np.asarray(frame.image)
         if images:
             reference = np.asarray(base.render_full(key=key).image)
+            ecc = np.asarray(probe.render(gazes[k], key=key).eccentricity)
+            periphery = np.concatenate([ecc[0], ecc[1]], axis=1) > outside  # side by side, as the images
             for name, image in images.items():
+                kept[name].append(contrast_kept(image, reference, periphery))
                 flips[name].append(fe.flip(image, reference, ppd=display.ppd).value)
                 if use_jod:
                     jods[name].append(fe.fovvdp(image, reference, display, gaze_xy=gazes[k]).value)
     thesis = statistics.median(ms["thesis"])
     rows = []
-    print(f"{'configuration':14s} {'ms/frame':>9s} {'/ thesis':>9s}  {'FLIP [95%]':26s} JOD [95%]")
+    print(
+        f"{'configuration':14s} {'ms/frame':>9s} {'/ thesis':>9s}  {'FLIP [95%]':26s} {'JOD [95%]':23s} "
+        "contrast kept [95%]"
+    )
     for name in methods:
         median = statistics.median(ms[name])
         flip = "{:.4f} [{:.4f}, {:.4f}]".format(*fe.mean_interval(flips[name]))
         jod = "{:.3f} [{:.3f}, {:.3f}]".format(*fe.mean_interval(jods[name])) if use_jod else "not measured"
-        rows.append([name, round(median, 1), round(median / thesis, 2), flip, jod])
-        print(f"{name:14s} {median:9.1f} {median / thesis:9.2f}  {flip:26s} {jod}")
+        contrast = "{:.3f} [{:.3f}, {:.3f}]".format(*fe.mean_interval(kept[name]))
+        rows.append([name, round(median, 1), round(median / thesis, 2), flip, jod, contrast])
+        print(f"{name:14s} {median:9.1f} {median / thesis:9.2f}  {flip:26s} {jod:23s} {contrast}")
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _record import write_record
 
@@ -110,14 +147,23 @@ def main(argv: list[str] | None = None) -> None:
                     f"{args.scene} 2 × {w}×{h}, SPP 1, depth {args.max_depth}, 5°/10°, "
                     f"{args.frames} frames after {args.warm_up} of warm-up, the configurations in "
                     "turn per frame (median ms; ratio to the thesis method's; mean FLIP and "
-                    "FovVideoVDP JOD against the full render of the same key)",
-                    "columns": ["configuration", "ms/frame", "/ thesis", "FLIP [95%]", "JOD [95%]"],
+                    "FovVideoVDP JOD against the full render of the same key; the periphery's local "
+                    f"contrast, σ {CONTRAST_SIGMA:g} px, over the full render's)",
+                    "columns": [
+                        "configuration",
+                        "ms/frame",
+                        "/ thesis",
+                        "FLIP [95%]",
+                        "JOD [95%]",
+                        "contrast kept [95%]",
+                    ],
                     "rows": rows,
                 }
             ],
             "ms": ms,
             "flip": flips,
             "jod": jods,
+            "contrast_kept": kept,
             "compile_s": compile_s,
             "ppd": display.ppd,
         },

@@ -24,3 +24,25 @@ def test_a_bad_command_line_is_refused_by_name(argv, named, capsys):
     with pytest.raises(SystemExit) as exc:
         _script().main(argv)
     assert exc.value.code == 2 and named in capsys.readouterr().err
+
+
+def test_contrast_kept_is_one_for_the_reference_and_falls_with_a_blur():
+    """The periphery's contrast over the full render's: 1 for the full render itself, below 1
+    for a blurred copy (where the blur removed detail), above 1 for added noise."""
+    import numpy as np
+    from scipy import ndimage
+
+    script = _script()
+    rng = np.random.default_rng(0)
+    reference = rng.uniform(0.0, 1.0, (32, 48, 3))
+    where = np.zeros((32, 48), bool)
+    where[:, 24:] = True
+    assert script.contrast_kept(reference, reference, where) == pytest.approx(1.0)
+    blurred = ndimage.gaussian_filter(reference, (2.0, 2.0, 0.0), mode="nearest")
+    assert script.contrast_kept(blurred, reference, where) < 0.5
+    noisy = reference + rng.normal(0.0, 0.3, reference.shape)
+    assert script.contrast_kept(noisy, reference, where) > 1.1
+    # Only the pixels `where` count: blurring the others changes nothing.
+    half = reference.copy()
+    half[:, :12] = blurred[:, :12]
+    assert script.contrast_kept(half, reference, where) == pytest.approx(1.0, abs=1e-3)
