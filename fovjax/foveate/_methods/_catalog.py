@@ -179,7 +179,9 @@ class Patney2016(AbstractFoveationMethod):
             0.5: Albert et al. 2017, "Latency Requirements for Foveated Rendering in Virtual
             Reality", map a blur radius r to this method's 2r×2r coarse shading rate).
         window_per_sigma: the contrast window's σ per blur σ (fovjax's choice, 2: the scale of
-            the detail the blur removes).
+            the detail the blur removes; a smaller window is cheaper and closer to the full
+            render by FLIP and JOD, and keeps less of the periphery's contrast:
+            `benchmarks/patney_window.py`).
         max_gain: the largest contrast gain (fovjax's choice, 4: bounds the amplification of
             noise where the blur left almost no contrast).
         taa_alpha: the weight of this frame in the temporal blend (fovjax's choice, 0.1: the
