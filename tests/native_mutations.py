@@ -226,9 +226,33 @@ MUTATIONS = (
     ),
     Mutation(
         "prefilter-strips-first",
-        "every strip of the blurs' column pass reads the first strip's columns",
+        "every strip of the blurs' column pass reads the first strip's columns (four rows at a time)",
+        "for (int u = 0; u < k + 3; ++u) reads[u] = row(y + u - r) + x0;",
+        "for (int u = 0; u < k + 3; ++u) reads[u] = row(y + u - r);",
+    ),
+    Mutation(
+        "prefilter-strips-first-one-row",
+        "every strip of the blurs' column pass reads the first strip's columns (the rows left over)",
         "for (int u = 0; u < k; ++u) reads[u] = row(y + u - r) + x0;",
         "for (int u = 0; u < k; ++u) reads[u] = row(y + u - r);",
+    ),
+    Mutation(
+        "prefilter-four-rows-head",
+        "the column pass's four sums add their first row's term twice",
+        "if (q < u) acc[q] = acc[q] + taps[u - q] * s;",
+        "if (q <= u) acc[q] = acc[q] + taps[u - q] * s;",
+    ),
+    Mutation(
+        "prefilter-four-rows-tail",
+        "the column pass's four sums leave out a last row's term",
+        "if (q > u - k) acc[q] = acc[q] + taps[u - q] * s;",
+        "if (q > u - k + 1) acc[q] = acc[q] + taps[u - q] * s;",
+    ),
+    Mutation(
+        "prefilter-four-rows-step",
+        "the column pass's four sums read their rows one apart too few (each row the next's)",
+        "for (int u = 1; u < k; ++u) acc = acc + taps[u] * rows[q + u][j];",
+        "for (int u = 1; u < k; ++u) acc = acc + taps[u] * rows[u][j];",
     ),
     Mutation(
         "prefilter-band-halo-short",

@@ -43,6 +43,55 @@ void TapRows(const float* taps, int k, const float* const* rows, int64_t n, floa
 }
 
 
+// Four output rows at once, out[q][j] = sum_u taps[u] · rows[q + u][j] for j < n (k + 3 rows
+// given), each sum in TapRows's order (so the values are its): a row read once serves the four
+// sums it is a term of, held in vector registers, where TapRows reads it once per sum. The
+// rows' first and last three reads serve fewer sums (their taps end).
+using Floats16 = float __attribute__((vector_size(64)));
+
+FOVJAX_VECTOR_CLONES
+void TapRows4(const float* taps, int k, const float* const* rows, int64_t n, float* const* out) {
+  constexpr int kOut = 4;
+  const float t0 = taps[0];
+  int64_t j0 = 0;
+  for (; j0 + 16 <= n; j0 += 16) {
+    Floats16 acc[kOut];
+    for (int q = 0; q < kOut; ++q) {
+      Floats16 s;
+      __builtin_memcpy(&s, rows[q] + j0, sizeof s);
+      acc[q] = t0 * s;
+    }
+    int u = 1;
+    for (; u < kOut; ++u) {  // the first rows: the sums q < u only
+      Floats16 s;
+      __builtin_memcpy(&s, rows[u] + j0, sizeof s);
+      for (int q = 0; q < kOut; ++q) {
+        if (q < u) acc[q] = acc[q] + taps[u - q] * s;
+      }
+    }
+    for (; u < k; ++u) {
+      Floats16 s;
+      __builtin_memcpy(&s, rows[u] + j0, sizeof s);
+      for (int q = 0; q < kOut; ++q) acc[q] = acc[q] + taps[u - q] * s;
+    }
+    for (; u < k + kOut - 1; ++u) {  // the last rows: the sums q > u − k only
+      Floats16 s;
+      __builtin_memcpy(&s, rows[u] + j0, sizeof s);
+      for (int q = 0; q < kOut; ++q) {
+        if (q > u - k) acc[q] = acc[q] + taps[u - q] * s;
+      }
+    }
+    for (int q = 0; q < kOut; ++q) __builtin_memcpy(out[q] + j0, &acc[q], sizeof acc[q]);
+  }
+  for (int64_t j = j0; j < n; ++j) {
+    for (int q = 0; q < kOut; ++q) {
+      float acc = t0 * rows[q][j];
+      for (int u = 1; u < k; ++u) acc = acc + taps[u] * rows[q + u][j];
+      out[q][j] = acc;
+    }
+  }
+}
+
 // A rectangle of rows [y0, y1) and columns [x0, x1).
 struct Rect {
   int64_t y0 = 0, y1 = 0, x0 = 0, x1 = 0;
@@ -57,17 +106,24 @@ struct Rect {
 // The column pass of rows [y0, y1): out(y)[j] = sum_u taps[u] · row(y + u − r)[j] for j < n,
 // `row` clamping its index to the image. In strips of kStrip floats across the rows: a strip's
 // k rows stay in the first-level cache from one output row to the next (whole rows pass
-// through the second level once per tap).
+// through the second level once per tap); four output rows at a time (TapRows4), the rest one.
 constexpr int64_t kStrip = 256;
 
 template <class Row, class Out>
 void ColumnStrips(const std::vector<float>& taps, int64_t y0, int64_t y1, int64_t n, const Row& row, const Out& out,
                   std::vector<const float*>& reads) {
   const int k = static_cast<int>(taps.size()), r = k / 2;
-  reads.resize(static_cast<size_t>(k));
+  reads.resize(static_cast<size_t>(k + 3));
+  float* outs[4];
   for (int64_t x0 = 0; x0 < n; x0 += kStrip) {
     const int64_t m = std::min(kStrip, n - x0);
-    for (int64_t y = y0; y < y1; ++y) {
+    int64_t y = y0;
+    for (; y + 4 <= y1; y += 4) {
+      for (int u = 0; u < k + 3; ++u) reads[u] = row(y + u - r) + x0;
+      for (int q = 0; q < 4; ++q) outs[q] = out(y + q) + x0;
+      TapRows4(taps.data(), k, reads.data(), m, outs);
+    }
+    for (; y < y1; ++y) {
       for (int u = 0; u < k; ++u) reads[u] = row(y + u - r) + x0;
       TapRows(taps.data(), k, reads.data(), m, out(y) + x0);
     }
