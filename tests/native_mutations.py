@@ -274,9 +274,27 @@ MUTATIONS = (
     ),
     Mutation(
         "surface-normal-unflipped",
-        "a hit's normals are not turned to face the ray (the surface shared by the forward and the adjoint)",
+        "a hit's normals are not turned to face the ray (the adjoint's surface)",
         "const float sign = Dot(ng, d) > 0.0f ? -1.0f : 1.0f;",
         "const float sign = 1.0f;",
+    ),
+    Mutation(
+        "surface-planes-normal-unflipped",
+        "a hit's normals are not turned to face the ray (the forward's surfaces, 16 rays at a time)",
+        "const float sign = Dot(ng, dk) > 0.0f ? -1.0f : 1.0f;",
+        "const float sign = 1.0f;",
+    ),
+    Mutation(
+        "surface-planes-normals-one-vertex",
+        "the shading normal interpolates the first vertex's normal thrice",
+        "Gather3(normals, j0), Gather3(normals, j1), Gather3(normals, j2)",
+        "Gather3(normals, j0), Gather3(normals, j0), Gather3(normals, j0)",
+    ),
+    Mutation(
+        "surface-planes-barycentric",
+        "the hit point's first barycentric weight leaves out v",
+        "const float b0 = 1.0f - u - v;",
+        "const float b0 = 1.0f - u;",
     ),
     Mutation(
         "plain-with-spot-lights",

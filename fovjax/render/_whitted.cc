@@ -216,6 +216,97 @@ inline __attribute__((always_inline)) Surface SurfaceAt(const ShadeScene& s, con
   return at;
 }
 
+// SurfaceAt for the rays k < m, into 12 planes of m floats (the point, the geometric and the
+// shading normal, each x, y, z; then b0, u, v): the same arithmetic in the same order, written
+// without branches (both sides of a choice computed, one kept) so that GCC vectorises the loop,
+// gathering the faces' vertices 16 rays at a time where the scalar loop waited on each ray's.
+// `face`: each ray's face (a miss's: any face that was hit; its surface is never read).
+// Normalize, its reciprocal computed for every vector and kept where the length is not 0: the
+// same values, and no branch for GCC to keep (it will not divide where the source did not).
+inline Vec3 NormalizeEither(Vec3 v) {
+  const float n2 = Dot(v, v);
+  const float inv = 1.0f / std::sqrt(n2);
+  return v * (n2 > 0.0f ? inv : 0.0f);
+}
+
+// The three floats from base[j] (`Index` int32_t: GCC 12 gathers them with 32-bit indices, not
+// with 64-bit ones).
+template <class Index>
+inline Vec3 Gather3(const float* base, Index j) {
+  return {base[j], base[j + 1], base[j + 2]};
+}
+
+template <bool kRecompute, bool kNormals, class Index>
+FOVJAX_VECTOR_CLONES void SurfacePlanes(const float* __restrict__ vertices, const int32_t* __restrict__ faces,
+                                        const float* __restrict__ normals, const int32_t* __restrict__ face,
+                                        const float* __restrict__ o, const float* __restrict__ d,
+                                        const float* __restrict__ u_in, const float* __restrict__ v_in, int64_t m,
+                                        float* __restrict__ px, float* __restrict__ py, float* __restrict__ pz,
+                                        float* __restrict__ gx, float* __restrict__ gy, float* __restrict__ gz,
+                                        float* __restrict__ nx, float* __restrict__ ny, float* __restrict__ nz,
+                                        float* __restrict__ b0_out, float* __restrict__ u_out,
+                                        float* __restrict__ v_out) {
+  for (int64_t k = 0; k < m; ++k) {
+    const Index f = face[k];
+    const Index j0 = 3 * faces[3 * f], j1 = 3 * faces[3 * f + 1], j2 = 3 * faces[3 * f + 2];
+    const Vec3 c0 = Gather3(vertices, j0), c1 = Gather3(vertices, j1), c2 = Gather3(vertices, j2);
+    const Vec3 dk = Load3(d + 3 * k);
+    float u = u_in[k], v = v_in[k];
+    if constexpr (kRecompute) {
+      const Vec3 e1 = c1 - c0, e2 = c2 - c0;
+      const Vec3 pvec = Cross(dk, e2);
+      const float det = Dot(e1, pvec);
+      const float inv_det = 1.0f / det;
+      const Vec3 tvec = Load3(o + 3 * k) - c0;
+      const Vec3 qvec = Cross(tvec, e1);
+      const float uu = Dot(tvec, pvec) * inv_det, vv = Dot(dk, qvec) * inv_det;
+      u = det != 0.0f ? uu : 0.0f;
+      v = det != 0.0f ? vv : 0.0f;
+    }
+    const float b0 = 1.0f - u - v;
+    const Vec3 p = Interpolate(b0, u, v, c0, c1, c2);
+    const Vec3 ng = NormalizeEither(Cross(c1 - c0, c2 - c0));
+    const float sign = Dot(ng, dk) > 0.0f ? -1.0f : 1.0f;
+    const Vec3 g = ng * sign;
+    Vec3 n = g;
+    if constexpr (kNormals) {
+      const Vec3 ni =
+          NormalizeEither(Interpolate(b0, u, v, Gather3(normals, j0), Gather3(normals, j1), Gather3(normals, j2)));
+      const bool zero = ni.x == 0.0f && ni.y == 0.0f && ni.z == 0.0f;
+      const Vec3 ns = ni * sign;
+      n = {zero ? g.x : ns.x, zero ? g.y : ns.y, zero ? g.z : ns.z};
+    }
+    px[k] = p.x, py[k] = p.y, pz[k] = p.z;
+    gx[k] = g.x, gy[k] = g.y, gz[k] = g.z;
+    nx[k] = n.x, ny[k] = n.y, nz[k] = n.z;
+    b0_out[k] = b0, u_out[k] = u, v_out[k] = v;
+  }
+}
+
+// `SurfacePlanes` for the options of `s`, with 32-bit indices where 3 × the vertices and the
+// faces fit in them (every scene that fits in memory twice over; else 64-bit ones).
+void Surfaces(const ShadeScene& s, const int32_t* face, const float* o, const float* d, const float* u,
+              const float* v, int64_t m, float* out) {
+  const bool narrow = 3 * std::max(s.num_vertices, s.num_faces) < (int64_t{1} << 31);
+  const bool normals = s.normals != nullptr;
+  // (each plane its own restrict parameter: GCC vectorises the loop only where it knows the
+  // planes apart without a check at run time per pair)
+  auto run = [&](auto planes) {
+    planes(s.vertices, s.faces, s.normals, face, o, d, u, v, m, out, out + m, out + 2 * m, out + 3 * m,
+           out + 4 * m, out + 5 * m, out + 6 * m, out + 7 * m, out + 8 * m, out + 9 * m, out + 10 * m, out + 11 * m);
+  };
+  if (narrow) {
+    if (s.recompute && normals) return run(SurfacePlanes<true, true, int32_t>);
+    if (s.recompute) return run(SurfacePlanes<true, false, int32_t>);
+    if (normals) return run(SurfacePlanes<false, true, int32_t>);
+    return run(SurfacePlanes<false, false, int32_t>);
+  }
+  if (s.recompute && normals) return run(SurfacePlanes<true, true, int64_t>);
+  if (s.recompute) return run(SurfacePlanes<true, false, int64_t>);
+  if (normals) return run(SurfacePlanes<false, true, int64_t>);
+  run(SurfacePlanes<false, false, int64_t>);
+}
+
 // The texture's factor on Kd at a hit into `factor`, and whether material `mat` has one.
 inline __attribute__((always_inline)) bool TextureAt(const ShadeScene& s, int32_t mat, const int32_t* face,
                                                      const Surface& at, Vec3* factor) {
@@ -237,15 +328,17 @@ inline __attribute__((always_inline)) bool TextureAt(const ShadeScene& s, int32_
 // One block's work buffers, kept per thread across blocks and calls.
 struct WhittedBuffers {
   std::vector<float> o, d, weight, tmin, tmax, t, u, v;
-  std::vector<int32_t> prim, pixel, column, cls, level;
-  std::vector<float> point, n_geo, n_shade, kd;
+  std::vector<int32_t> prim, face, pixel, column, cls, level;
+  std::vector<float> point, n_geo, n_shade, kd, surface;
   std::vector<int32_t> material;
   std::vector<float> so, sd, stmin, stmax, st, su, sv, n_dot_l, spot;
   std::vector<int32_t> sprim, slevel;
   void Reserve(int64_t n, int lights, bool classes) {
     for (auto* x : {&o, &d, &weight, &point, &n_geo, &n_shade, &kd}) x->resize(3 * n);
     for (auto* x : {&tmin, &tmax, &t, &u, &v}) x->resize(n);
+    surface.resize(12 * n);
     prim.resize(n);
+    face.resize(n);
     pixel.resize(n);
     column.resize(n);
     material.resize(n);
@@ -357,9 +450,11 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         paths->prim[depth * paths->n + b.column[k]] = b.prim[k] < 0 ? -1 : b.prim[k];
       }
     }
-    // Surfaces and their shadow rays.
-    int64_t ns = 0;
+    // Surfaces and their shadow rays: the hits' faces checked, their surfaces, then the rays.
+    int64_t ns = 0, hits = 0;
+    int32_t any_face = 0;
     for (int64_t k = 0; k < m; ++k) {
+      b.face[k] = -1;
       if (sparse) {  // the faces and vertices of hits a few rays ahead: see WhittedBlock
         constexpr int64_t kAhead = 8;
         if (k + 2 * kAhead < m && b.prim[k + 2 * kAhead] >= 0) {
@@ -385,8 +480,27 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         b.prim[k] = -1;  // shaded as a miss; the call returns an error
         continue;
       }
-      const Surface at =
-          SurfaceAt(s, face, Load3(&b.o[3 * k]), Load3(&b.d[3 * k]), b.u[k], b.v[k], s.recompute);
+      b.face[k] = any_face = static_cast<int32_t>(f);
+      ++hits;
+    }
+    // The hits' surfaces (a miss's lanes compute a hit's face's, unread).
+    const float* planes = b.surface.data();
+    if (hits > 0) {
+      for (int64_t k = 0; k < m; ++k) {
+        if (b.face[k] < 0) b.face[k] = any_face;
+      }
+      Surfaces(s, b.face.data(), b.o.data(), b.d.data(), b.u.data(), b.v.data(), m, b.surface.data());
+    }
+    for (int64_t k = 0; k < m; ++k) {
+      if (b.prim[k] < 0) continue;
+      const int64_t f = b.face[k];  // (checked above)
+      const int32_t* face = s.faces + 3 * f;
+      const int32_t mat = s.face_material[f];
+      Surface at;
+      at.p = {planes[k], planes[m + k], planes[2 * m + k]};
+      at.ng = {planes[3 * m + k], planes[4 * m + k], planes[5 * m + k]};
+      at.nsh = {planes[6 * m + k], planes[7 * m + k], planes[8 * m + k]};
+      at.b0 = planes[9 * m + k], at.u = planes[10 * m + k], at.v = planes[11 * m + k];
       const Vec3 p = at.p, ng = at.ng, nsh = at.nsh;
       Vec3 kd = Load3(s.materials + kMaterialStride * mat + 3);
       Vec3 texture;
