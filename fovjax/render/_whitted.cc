@@ -175,7 +175,8 @@ Vec3 Environment(const Texture& e, Vec3 d) {
 
 // A hit's surface, as `hit_geometry` and the shading compute it: the point, the geometric
 // normal and the shading normal (both facing the ray's origin) and the barycentrics, u and v
-// recomputed from the face where `recompute` (else the given ones).
+// recomputed from the face where `recompute` (else the given ones). SurfaceAt is the adjoint's,
+// one ray at a time; the forward's are SurfacePlanes', the same arithmetic for a block of rays.
 struct Surface {
   Vec3 p, ng, nsh;
   float b0, u, v;
@@ -216,11 +217,6 @@ inline __attribute__((always_inline)) Surface SurfaceAt(const ShadeScene& s, con
   return at;
 }
 
-// SurfaceAt for the rays k < m, into 12 planes of m floats (the point, the geometric and the
-// shading normal, each x, y, z; then b0, u, v): the same arithmetic in the same order, written
-// without branches (both sides of a choice computed, one kept) so that GCC vectorises the loop,
-// gathering the faces' vertices 16 rays at a time where the scalar loop waited on each ray's.
-// `face`: each ray's face (a miss's: any face that was hit; its surface is never read).
 // Normalize, its reciprocal computed for every vector and kept where the length is not 0: the
 // same values, and no branch for GCC to keep (it will not divide where the source did not).
 inline Vec3 NormalizeEither(Vec3 v) {
@@ -236,6 +232,11 @@ inline Vec3 Gather3(const float* base, Index j) {
   return {base[j], base[j + 1], base[j + 2]};
 }
 
+// SurfaceAt for the rays k < m, into 12 planes of m floats (the point, the geometric and the
+// shading normal, each x, y, z; then b0, u, v): the same arithmetic in the same order, written
+// without branches (both sides of a choice computed, one kept) so that GCC vectorises the loop,
+// gathering the faces' vertices 16 rays at a time where the scalar loop waited on each ray's.
+// `face`: each ray's face (a miss's: any face that was hit; its surface is never read).
 template <bool kRecompute, bool kNormals, class Index>
 FOVJAX_VECTOR_CLONES void SurfacePlanes(const float* __restrict__ vertices, const int32_t* __restrict__ faces,
                                         const float* __restrict__ normals, const int32_t* __restrict__ face,
@@ -283,8 +284,8 @@ FOVJAX_VECTOR_CLONES void SurfacePlanes(const float* __restrict__ vertices, cons
   }
 }
 
-// `SurfacePlanes` for the options of `s`, with 32-bit indices where 3 × the vertices and the
-// faces fit in them (every scene that fits in memory twice over; else 64-bit ones).
+// `SurfacePlanes` for the options of `s`: 32-bit indices where three times the number of
+// vertices and of faces fits in them, 64-bit ones (a loop GCC leaves scalar) otherwise.
 void Surfaces(const ShadeScene& s, const int32_t* face, const float* o, const float* d, const float* u,
               const float* v, int64_t m, float* out) {
   const bool narrow = 3 * std::max(s.num_vertices, s.num_faces) < (int64_t{1} << 31);
