@@ -25,6 +25,7 @@ frame is measured. Writes a record (benchmarks/results/patney_window-*.json).
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import math
 import statistics
@@ -32,25 +33,28 @@ import sys
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
-from scipy import ndimage
 
 import fovjax
 import fovjax.eval as fe
 from fovjax.foveate import Foveation, Patney2016
+from fovjax.foveate._methods._patney import local_std, luminance
 from fovjax.render import RenderConfig, StereoRig
 
 CONTRAST_SIGMA = 4.0  # px: the coarse rate's block, whose detail the pre-filter blurs and restores
 
 
+@functools.partial(jax.jit, static_argnames="sigma")
+def _local_std(image, sigma):
+    return local_std(luminance(image[None]), sigma)[0, ..., 0]
+
+
 def local_contrast(image: np.ndarray, sigma: float = CONTRAST_SIGMA) -> np.ndarray:
-    """Per pixel the standard deviation of the luminance of `image` (..., H, W, 3) in a
-    Gaussian window of `sigma` pixels (the border repeated)."""
-    lum = fe.luminance(np.asarray(image, np.float64))
-    axes = (lum.ndim - 2, lum.ndim - 1)
-    mean = ndimage.gaussian_filter(lum, sigma, mode="nearest", axes=axes)
-    mean_sq = ndimage.gaussian_filter(lum * lum, sigma, mode="nearest", axes=axes)
-    return np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+    """Per pixel the standard deviation of the luminance of `image` (H, W, 3) in a Gaussian
+    window of `sigma` pixels: the pre-filter's own measure of contrast (`local_std` of its
+    `luminance`, the border repeated)."""
+    return np.asarray(_local_std(jnp.asarray(image, jnp.float32), sigma), np.float64)
 
 
 def contrast_kept(image: np.ndarray, reference: np.ndarray, where: np.ndarray) -> float:
