@@ -82,8 +82,32 @@ MUTATIONS = (
     Mutation(
         "unbounded-shadow",
         "a positional light's shadow ray not bounded at the light (tfar = infinity)",
-        "b.stmax[j] = at.positional ? distance : INFINITY;",
-        "b.stmax[j] = INFINITY;",
+        "far_out[k] = kPositional ? (n2 > 0.0f ? root : 0.0f) : INFINITY;",
+        "far_out[k] = INFINITY;",
+    ),
+    Mutation(
+        "light-planes-back-face-light",
+        "a light behind the geometric face (n_g·l <= 0) still wanted where the shading normal faces it",
+        "wanted_out[k] = (ndl > 0.0f) & (Dot(ng, dir) > 0.0f) & (spot > 0.0f);",
+        "wanted_out[k] = (ndl > 0.0f) & (spot > 0.0f);",
+    ),
+    Mutation(
+        "light-planes-spot-hard-edge",
+        "a spot light's cone has no ramp between its inner and outer half-angles (1 out to the outer)",
+        "spot = Choose(c >= cos_inner, 1.0f, KeepWhere(c > cos_outer, ramp));",
+        "spot = Choose(c >= cos_inner, 1.0f, KeepWhere(c > cos_outer, 1.0f));",
+    ),
+    Mutation(
+        "light-planes-phong-unmirrored",
+        "Phong's mirrored light direction without the factor 2 (r = (n·l) n - l)",
+        "const Vec3 mirrored = (2.0f * ndl) * nsh - dir;",
+        "const Vec3 mirrored = ndl * nsh - dir;",
+    ),
+    Mutation(
+        "light-planes-half-vector-unnormalised",
+        "Blinn–Phong's half vector not normalised",
+        "cosine = Dot(nsh, NormalizeEither(dir - dk));",
+        "cosine = Dot(nsh, dir - dk);",
     ),
     Mutation(
         "uncompounded-reflection",
@@ -100,8 +124,8 @@ MUTATIONS = (
     Mutation(
         "class-untested-light-dark",
         "a light whose shadow ray a class does not trace is dropped instead of shining unshadowed",
-        "float n_dot_l = ndl, spot = at.spot;  // where the class traces no ray: unshadowed",
-        "float n_dot_l = ndl, spot = at.spot;\n          if (kClasses && !Tested(s, b.cls[k], l)) continue;",
+        "if (!kClasses || Tested(s, b.cls[k], l)) {  // else no ray: unshadowed",
+        "if (kClasses && !Tested(s, b.cls[k], l)) continue;\n          if (true) {",
     ),
     Mutation(
         "class-brightest-first",

@@ -217,12 +217,27 @@ inline __attribute__((always_inline)) Surface SurfaceAt(const ShadeScene& s, con
   return at;
 }
 
+// `first ? a : b` and `keep ? x : 0.0f`, chosen bit by bit: both operands are used whichever is
+// chosen, so GCC does not move the work of one (a division) into a branch of its own, which
+// keeps a loop from vectorising (it will not divide where the source did not).
+inline float Choose(bool first, float a, float b) {
+  uint32_t x, y;
+  std::memcpy(&x, &a, sizeof x);
+  std::memcpy(&y, &b, sizeof y);
+  const uint32_t mask = 0u - static_cast<uint32_t>(first);
+  x = (x & mask) | (y & ~mask);
+  float r;
+  std::memcpy(&r, &x, sizeof r);
+  return r;
+}
+inline float KeepWhere(bool keep, float x) { return Choose(keep, x, 0.0f); }
+
 // Normalize, its reciprocal computed for every vector and kept where the length is not 0: the
-// same values, and no branch for GCC to keep (it will not divide where the source did not).
+// same values, with no branch.
 inline Vec3 NormalizeEither(Vec3 v) {
   const float n2 = Dot(v, v);
   const float inv = 1.0f / std::sqrt(n2);
-  return v * (n2 > 0.0f ? inv : 0.0f);
+  return v * KeepWhere(n2 > 0.0f, inv);
 }
 
 // The three floats from base[j] (`Index` int32_t: GCC 12 gathers them with 32-bit indices, not
@@ -308,6 +323,81 @@ void Surfaces(const ShadeScene& s, const int32_t* face, const float* o, const fl
   run(SurfacePlanes<false, false, int64_t>);
 }
 
+// `LightTowards` for one light and the hits k < m at once, and what the shadow rays and the
+// shading read of it, each into a plane of m floats: the direction towards the light (x, y, z),
+// n·l, the far end of its shadow ray (the distance, or INFINITY for a directional light), the
+// spot factor, the specular cosine (Blinn–Phong's n·h, Phong's r·v) and whether the light is
+// wanted (n·l > 0, n_g·l > 0, spot > 0: 1, else 0). The same arithmetic in the same order as the
+// scalar functions, without branches, so that GCC vectorises it: the loops that read the planes
+// then do no light arithmetic of their own (they did it twice per hit, one ray at a time).
+constexpr int kLightPlanes = 7;  // float planes per light: dir x, y, z, n·l, far, spot, cosine
+
+template <bool kPositional, bool kSpot, bool kPhong>
+FOVJAX_VECTOR_CLONES void LightPlanes(const float* __restrict__ row, const float* __restrict__ px,
+                                      const float* __restrict__ py, const float* __restrict__ pz,
+                                      const float* __restrict__ gx, const float* __restrict__ gy,
+                                      const float* __restrict__ gz, const float* __restrict__ nx,
+                                      const float* __restrict__ ny, const float* __restrict__ nz,
+                                      const float* __restrict__ d, int64_t m, float* __restrict__ dx,
+                                      float* __restrict__ dy, float* __restrict__ dz,
+                                      float* __restrict__ ndl_out, float* __restrict__ far_out,
+                                      float* __restrict__ spot_out, float* __restrict__ cosine_out,
+                                      int32_t* __restrict__ wanted_out) {
+  const Vec3 position = Load3(row), axis = Load3(row + 6);
+  const float cos_inner = row[9], cos_outer = row[10];
+  for (int64_t k = 0; k < m; ++k) {
+    const Vec3 p{px[k], py[k], pz[k]}, ng{gx[k], gy[k], gz[k]}, nsh{nx[k], ny[k], nz[k]};
+    const Vec3 to_light = kPositional ? position - p : position;
+    const float n2 = Dot(to_light, to_light);
+    const float root = std::sqrt(n2), inv = 1.0f / root;
+    const Vec3 dir = to_light * KeepWhere(n2 > 0.0f, inv);  // Normalize
+    float spot = 1.0f;
+    if constexpr (kSpot) {
+      const float c = -Dot(axis, dir);
+      const float ramp = (c - cos_outer) / (cos_inner - cos_outer);
+      spot = Choose(c >= cos_inner, 1.0f, KeepWhere(c > cos_outer, ramp));
+    }
+    const float ndl = Dot(nsh, dir);
+    const Vec3 dk = Load3(d + 3 * k);
+    float cosine;
+    if constexpr (kPhong) {
+      const Vec3 mirrored = (2.0f * ndl) * nsh - dir;
+      cosine = -Dot(mirrored, dk);
+    } else {
+      cosine = Dot(nsh, NormalizeEither(dir - dk));
+    }
+    dx[k] = dir.x, dy[k] = dir.y, dz[k] = dir.z;
+    ndl_out[k] = ndl;
+    far_out[k] = kPositional ? (n2 > 0.0f ? root : 0.0f) : INFINITY;
+    spot_out[k] = spot;
+    cosine_out[k] = cosine;
+    wanted_out[k] = (ndl > 0.0f) & (Dot(ng, dir) > 0.0f) & (spot > 0.0f);
+  }
+}
+
+// `LightPlanes` for light l of `s` into out (kLightPlanes planes of m floats) and wanted.
+void Lights(const ShadeScene& s, int l, const float* surface, const float* d, int64_t m, float* out,
+            int32_t* wanted) {
+  const int32_t kind = s.light_kind[l];
+  const bool spot = s.spots && kind == kLightSpot;
+  const bool positional = kind == kLightPoint || spot;
+  const bool phong = s.shading.specular == kSpecularPhong;
+  auto run = [&](auto planes) {
+    const float* a = surface;
+    planes(s.lights + kLightStride * l, a, a + m, a + 2 * m, a + 3 * m, a + 4 * m, a + 5 * m, a + 6 * m,
+           a + 7 * m, a + 8 * m, d, m, out, out + m, out + 2 * m, out + 3 * m, out + 4 * m, out + 5 * m,
+           out + 6 * m, wanted);
+  };
+  if (phong) {
+    if (spot) return run(LightPlanes<true, true, true>);
+    if (positional) return run(LightPlanes<true, false, true>);
+    return run(LightPlanes<false, false, true>);
+  }
+  if (spot) return run(LightPlanes<true, true, false>);
+  if (positional) return run(LightPlanes<true, false, false>);
+  run(LightPlanes<false, false, false>);
+}
+
 // The texture's factor on Kd at a hit into `factor`, and whether material `mat` has one.
 inline __attribute__((always_inline)) bool TextureAt(const ShadeScene& s, int32_t mat, const int32_t* face,
                                                      const Surface& at, Vec3* factor) {
@@ -330,14 +420,16 @@ inline __attribute__((always_inline)) bool TextureAt(const ShadeScene& s, int32_
 struct WhittedBuffers {
   std::vector<float> o, d, weight, tmin, tmax, t, u, v;
   std::vector<int32_t> prim, face, pixel, column, cls, level;
-  std::vector<float> point, n_geo, n_shade, kd, surface;
-  std::vector<int32_t> material;
-  std::vector<float> so, sd, stmin, stmax, st, su, sv, n_dot_l, spot;
+  std::vector<float> kd, surface, light;
+  std::vector<int32_t> material, wanted;
+  std::vector<float> so, sd, stmin, stmax, st, su, sv;
   std::vector<int32_t> sprim, slevel;
   void Reserve(int64_t n, int lights, bool classes) {
-    for (auto* x : {&o, &d, &weight, &point, &n_geo, &n_shade, &kd}) x->resize(3 * n);
+    for (auto* x : {&o, &d, &weight, &kd}) x->resize(3 * n);
     for (auto* x : {&tmin, &tmax, &t, &u, &v}) x->resize(n);
     surface.resize(12 * n);
+    light.resize(kLightPlanes * n * lights);
+    wanted.resize(n * lights);
     prim.resize(n);
     face.resize(n);
     pixel.resize(n);
@@ -345,7 +437,7 @@ struct WhittedBuffers {
     material.resize(n);
     const int64_t ns = n * std::max(lights, 1);
     for (auto* x : {&so, &sd}) x->resize(3 * ns);
-    for (auto* x : {&stmin, &stmax, &st, &su, &sv, &n_dot_l, &spot}) x->resize(ns);
+    for (auto* x : {&stmin, &stmax, &st, &su, &sv}) x->resize(ns);
     sprim.resize(ns);
     if (classes) {
       cls.resize(n);
@@ -484,13 +576,18 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       b.face[k] = any_face = static_cast<int32_t>(f);
       ++hits;
     }
-    // The hits' surfaces (a miss's lanes compute a hit's face's, unread).
+    // The hits' surfaces and their lights (a miss's lanes compute a hit's face's, unread).
     const float* planes = b.surface.data();
+    const float* light = b.light.data();  // light l's planes from light + kLightPlanes * m * l
+    const int32_t* wanted = b.wanted.data();  // light l's from wanted + m * l
     if (hits > 0) {
       for (int64_t k = 0; k < m; ++k) {
         if (b.face[k] < 0) b.face[k] = any_face;
       }
       Surfaces(s, b.face.data(), b.o.data(), b.d.data(), b.u.data(), b.v.data(), m, b.surface.data());
+      for (int l = 0; l < nl; ++l) {
+        Lights(s, l, planes, b.d.data(), m, b.light.data() + kLightPlanes * m * l, b.wanted.data() + m * l);
+      }
     }
     for (int64_t k = 0; k < m; ++k) {
       if (b.prim[k] < 0) continue;
@@ -498,44 +595,31 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       const int32_t* face = s.faces + 3 * f;
       const int32_t mat = s.face_material[f];
       Surface at;
-      at.p = {planes[k], planes[m + k], planes[2 * m + k]};
-      at.ng = {planes[3 * m + k], planes[4 * m + k], planes[5 * m + k]};
-      at.nsh = {planes[6 * m + k], planes[7 * m + k], planes[8 * m + k]};
       at.b0 = planes[9 * m + k], at.u = planes[10 * m + k], at.v = planes[11 * m + k];
-      const Vec3 p = at.p, ng = at.ng, nsh = at.nsh;
       Vec3 kd = Load3(s.materials + kMaterialStride * mat + 3);
       Vec3 texture;
       if (TextureAt(s, mat, face, at, &texture)) kd = kd * texture;
-      for (int c = 0; c < 3; ++c) {
-        b.point[3 * k + c] = (&p.x)[c];
-        b.n_geo[3 * k + c] = (&ng.x)[c];
-        b.n_shade[3 * k + c] = (&nsh.x)[c];
-        b.kd[3 * k + c] = (&kd.x)[c];
-      }
+      for (int c = 0; c < 3; ++c) b.kd[3 * k + c] = (&kd.x)[c];
       b.material[k] = mat;
-      Vec3 origin = p + s.offset * ng;
+      const Vec3 p{planes[k], planes[m + k], planes[2 * m + k]};
+      const Vec3 ng{planes[3 * m + k], planes[4 * m + k], planes[5 * m + k]};
+      const Vec3 origin = p + s.offset * ng;
       for (int l = 0; l < nl; ++l) {
-        Vec3 dir;
-        const LightAt at = LightTowards<!kPlain>(s, l, p, &dir);
-        float n2 = Dot(at.to_light, at.to_light);
-        float distance = n2 > 0.0f ? std::sqrt(n2) : 0.0f;
-        float ndl = Dot(nsh, dir);
-        if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
+        if (!wanted[m * l + k]) continue;
         if constexpr (kClasses) {
           if (!Tested(s, b.cls[k], l)) continue;  // no ray: the light shines unshadowed
         }
+        const float* lp = light + kLightPlanes * m * l;
         const int64_t j = ns++;
         if constexpr (kClasses) {
           if (levels) b.slevel[j] = b.level[k];
         }
         for (int c = 0; c < 3; ++c) {
           b.so[3 * j + c] = (&origin.x)[c];
-          b.sd[3 * j + c] = (&dir.x)[c];
+          b.sd[3 * j + c] = lp[c * m + k];
         }
         b.stmin[j] = 0.0f;
-        b.stmax[j] = at.positional ? distance : INFINITY;
-        b.n_dot_l[j] = ndl;
-        if constexpr (!kPlain) b.spot[j] = at.spot;
+        b.stmax[j] = lp[4 * m + k];
       }
     }
     Rays shadow{b.so.data(), b.sd.data(), b.stmin.data(), b.stmax.data(), levels ? b.slevel.data() : nullptr,
@@ -558,35 +642,25 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       const float* row = s.materials + kMaterialStride * b.material[k];
       Vec3 ka = Load3(row), ks = Load3(row + 6), ke = Load3(row + 9), kr = Load3(row + 12);
       const float shininess = row[15];
-      Vec3 p = Load3(&b.point[3 * k]), ng = Load3(&b.n_geo[3 * k]), nsh = Load3(&b.n_shade[3 * k]);
+      const Vec3 p{planes[k], planes[m + k], planes[2 * m + k]};
+      const Vec3 ng{planes[3 * m + k], planes[4 * m + k], planes[5 * m + k]};
+      const Vec3 nsh{planes[6 * m + k], planes[7 * m + k], planes[8 * m + k]};
       Vec3 local = ka * s.ambient + ke;
       if (nl > 0) {
         Vec3 kd = Load3(&b.kd[3 * k]);
         Vec3 sum{0.0f, 0.0f, 0.0f};
         bool first = true;
         for (int l = 0; l < nl; ++l) {
-          Vec3 dir;
-          const LightAt at = LightTowards<!kPlain>(s, l, p, &dir);
-          float ndl = Dot(nsh, dir);
-          // not wanted: no ray, no light
-          if (!(ndl > 0.0f && Dot(ng, dir) > 0.0f && at.spot > 0.0f)) continue;
-          float n_dot_l = ndl, spot = at.spot;  // where the class traces no ray: unshadowed
-          if (!kClasses || Tested(s, b.cls[k], l)) {
+          if (!wanted[m * l + k]) continue;  // not wanted: no ray, no light
+          const float* lp = light + kLightPlanes * m * l;
+          if (!kClasses || Tested(s, b.cls[k], l)) {  // else no ray: unshadowed
             const int64_t j = js++;
             traced[px] += 1 << 8;
             if (b.sprim[j] >= 0) continue;  // blocked
-            n_dot_l = b.n_dot_l[j];
-            if constexpr (!kPlain) spot = b.spot[j];
           }
+          const float n_dot_l = lp[3 * m + k], spot = lp[5 * m + k], cosine = lp[6 * m + k];
           if (!kPlain && paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;
           // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
-          float cosine;
-          if (!kPlain && s.shading.specular == kSpecularPhong) {
-            Vec3 mirrored = (2.0f * n_dot_l) * nsh - dir;
-            cosine = -Dot(mirrored, d);
-          } else {
-            cosine = Dot(nsh, Normalize(dir - d));
-          }
           float spec = cosine > 0.0f ? std::exp2(shininess * std::log2(cosine)) : 0.0f;
           if (!kPlain && s.shading.payload) spec = spec * n_dot_l;  // §4.4.3's shadow payload, n·l
           Vec3 color = Load3(s.lights + kLightStride * l + 3) * spot;
