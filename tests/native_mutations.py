@@ -58,8 +58,8 @@ MUTATIONS = (
     Mutation(
         "specular-exponent",
         "the specular exponent one more than the material's Ns",
-        "std::exp2(shininess * std::log2(cosine))",
-        "std::exp2((shininess + 1.0f) * std::log2(cosine))",
+        "spec_out[k] = KeepWhere(cosine > 0.0f, PowOf(cosine, shininess));",
+        "spec_out[k] = KeepWhere(cosine > 0.0f, PowOf(cosine, shininess + 1.0f));",
     ),
     Mutation(
         "shadow-ignored",

@@ -231,6 +231,16 @@ inline float Choose(bool first, float a, float b) {
   return r;
 }
 inline float KeepWhere(bool keep, float x) { return Choose(keep, x, 0.0f); }
+inline double Choose(bool first, double a, double b) {
+  uint64_t x, y;
+  std::memcpy(&x, &a, sizeof x);
+  std::memcpy(&y, &b, sizeof y);
+  const uint64_t mask = 0ull - static_cast<uint64_t>(first);
+  x = (x & mask) | (y & ~mask);
+  double r;
+  std::memcpy(&r, &x, sizeof r);
+  return r;
+}
 
 // Normalize, its reciprocal computed for every vector and kept where the length is not 0: the
 // same values, with no branch.
@@ -238,6 +248,53 @@ inline Vec3 NormalizeEither(Vec3 v) {
   const float n2 = Dot(v, v);
   const float inv = 1.0f / std::sqrt(n2);
   return v * KeepWhere(n2 > 0.0f, inv);
+}
+
+// The specular power without libm. log2(x) for a float x > 0 (finite), in double: x = 2^e·m with m in [√½, √2), and
+// log2 m = (2/ln 2)·atanh(s), s = (m − 1)/(m + 1), |s| ≤ 0.1716, by its series to s^13.
+inline double Log2Of(float x) {
+  const bool tiny = x < 1.17549435e-38f;  // a subnormal: scaled by 2^24 (exactly) first
+  const float scaled = Choose(tiny, x * 16777216.0f, x);
+  uint32_t bits;
+  std::memcpy(&bits, &scaled, sizeof bits);
+  const int32_t e = static_cast<int32_t>(bits >> 23) - 127 - 24 * static_cast<int32_t>(tiny);
+  const uint32_t mant_bits = (bits & 0x7fffffu) | 0x3f800000u;
+  float mf;
+  std::memcpy(&mf, &mant_bits, sizeof mf);
+  const bool high = mf > 1.41421356f;
+  const double m = Choose(high, 0.5 * static_cast<double>(mf), static_cast<double>(mf));
+  const double s = (m - 1.0) / (m + 1.0), s2 = s * s;
+  constexpr double c = 2.0 / 0.693147180559945309417232121458;  // 2 / ln 2
+  const double series =
+      1.0 + s2 * (1.0 / 3 + s2 * (1.0 / 5 + s2 * (1.0 / 7 + s2 * (1.0 / 9 + s2 * (1.0 / 11 + s2 * (1.0 / 13))))));
+  return static_cast<double>(e + static_cast<int32_t>(high)) + c * s * series;
+}
+// 2^y for a double y (|y| < 2^50; beyond ±1000 the float result is 0 or infinity anyway):
+// 2^y = 2^n · 2^r, n the nearest integer, |r| ≤ ½, 2^r = e^(r ln 2) by its Taylor series to r^11.
+inline double Exp2Of(double y) {
+  const double yc = Choose(y < -1000.0, -1000.0, Choose(y > 1000.0, 1000.0, y));
+  constexpr double kShift = 6755399441055744.0 + 1023.0;  // 1.5·2^52 + the exponent bias
+  const double t = yc + kShift;  // rounded to an integer: its low bits hold n + 1023
+  const double n = t - kShift;
+  const double r = yc - n;
+  uint64_t tb;
+  std::memcpy(&tb, &t, sizeof tb);
+  const uint64_t scale_bits = (tb & 0x7ffull) << 52;
+  double scale;
+  std::memcpy(&scale, &scale_bits, sizeof scale);
+  constexpr double l = 0.693147180559945309417232121458;
+  constexpr double c1 = l, c2 = c1 * l / 2, c3 = c2 * l / 3, c4 = c3 * l / 4, c5 = c4 * l / 5, c6 = c5 * l / 6,
+                   c7 = c6 * l / 7, c8 = c7 * l / 8, c9 = c8 * l / 9, c10 = c9 * l / 10, c11 = c10 * l / 11;
+  const double p =
+      1.0 + r * (c1 + r * (c2 + r * (c3 + r * (c4 + r * (c5 + r * (c6 + r * (c7 + r * (c8 + r * (c9 + r * (c10 + r * c11))))))))));
+  return p * scale;  // (a NaN y gives NaN: every step keeps it)
+}
+// std::exp2(y * std::log2(x)) for x > 0, each function correctly rounded to float but in rare
+// cases (glibc's are too: the two differ by 1 ulp in about 1 of 5,000 logarithms and 1 of 10,000
+// powers of 2): GCC vectorises these, where it calls libm once per ray for those.
+inline float PowOf(float x, float y) {
+  const float lg = static_cast<float>(Log2Of(x));
+  return static_cast<float>(Exp2Of(static_cast<double>(y * lg)));
 }
 
 // The three floats from base[j] (`Index` int32_t: GCC 12 gathers them with 32-bit indices, not
@@ -326,14 +383,16 @@ void Surfaces(const ShadeScene& s, const int32_t* face, const float* o, const fl
 // `LightTowards` for one light and the hits k < m at once, and what the shadow rays and the
 // shading read of it, each into a plane of m floats: the direction towards the light (x, y, z),
 // n·l, the far end of its shadow ray (the distance, or INFINITY for a directional light), the
-// spot factor, the specular cosine (Blinn–Phong's n·h, Phong's r·v) and whether the light is
-// wanted (n·l > 0, n_g·l > 0, spot > 0: 1, else 0). The same arithmetic in the same order as the
+// spot factor, the specular factor (Blinn–Phong's (n·h)^Ns, Phong's (r·v)^Ns, 0 where the cosine
+// is not positive; Ns the hit's material's) and whether the light is wanted (n·l > 0, n_g·l > 0,
+// spot > 0: 1, else 0). The same arithmetic in the same order as the
 // scalar functions, without branches, so that GCC vectorises it: the loops that read the planes
 // then do no light arithmetic of their own (they did it twice per hit, one ray at a time).
-constexpr int kLightPlanes = 7;  // float planes per light: dir x, y, z, n·l, far, spot, cosine
+constexpr int kLightPlanes = 7;  // float planes per light: dir x, y, z, n·l, far, spot, specular
 
 template <bool kPositional, bool kSpot, bool kPhong>
-FOVJAX_VECTOR_CLONES void LightPlanes(const float* __restrict__ row, const float* __restrict__ px,
+FOVJAX_VECTOR_CLONES void LightPlanes(const float* __restrict__ row, const float* __restrict__ materials,
+                                      const int32_t* __restrict__ material, const float* __restrict__ px,
                                       const float* __restrict__ py, const float* __restrict__ pz,
                                       const float* __restrict__ gx, const float* __restrict__ gy,
                                       const float* __restrict__ gz, const float* __restrict__ nx,
@@ -341,7 +400,7 @@ FOVJAX_VECTOR_CLONES void LightPlanes(const float* __restrict__ row, const float
                                       const float* __restrict__ d, int64_t m, float* __restrict__ dx,
                                       float* __restrict__ dy, float* __restrict__ dz,
                                       float* __restrict__ ndl_out, float* __restrict__ far_out,
-                                      float* __restrict__ spot_out, float* __restrict__ cosine_out,
+                                      float* __restrict__ spot_out, float* __restrict__ spec_out,
                                       int32_t* __restrict__ wanted_out) {
   const Vec3 position = Load3(row), axis = Load3(row + 6);
   const float cos_inner = row[9], cos_outer = row[10];
@@ -360,7 +419,7 @@ FOVJAX_VECTOR_CLONES void LightPlanes(const float* __restrict__ row, const float
     const float ndl = Dot(nsh, dir);
     const Vec3 dk = Load3(d + 3 * k);
     float cosine;
-    if constexpr (kPhong) {
+    if constexpr (kPhong) {  // r·v, r the light's direction mirrored about n, v = -d
       const Vec3 mirrored = (2.0f * ndl) * nsh - dir;
       cosine = -Dot(mirrored, dk);
     } else {
@@ -370,21 +429,22 @@ FOVJAX_VECTOR_CLONES void LightPlanes(const float* __restrict__ row, const float
     ndl_out[k] = ndl;
     far_out[k] = kPositional ? (n2 > 0.0f ? root : 0.0f) : INFINITY;
     spot_out[k] = spot;
-    cosine_out[k] = cosine;
+    const float shininess = materials[kMaterialStride * material[k] + 15];
+    spec_out[k] = KeepWhere(cosine > 0.0f, PowOf(cosine, shininess));  // (n·h)^Ns or (r·v)^Ns
     wanted_out[k] = (ndl > 0.0f) & (Dot(ng, dir) > 0.0f) & (spot > 0.0f);
   }
 }
 
 // `LightPlanes` for light l of `s` into out (kLightPlanes planes of m floats) and wanted.
-void Lights(const ShadeScene& s, int l, const float* surface, const float* d, int64_t m, float* out,
-            int32_t* wanted) {
+void Lights(const ShadeScene& s, int l, const float* surface, const float* d, const int32_t* material,
+            int64_t m, float* out, int32_t* wanted) {
   const int32_t kind = s.light_kind[l];
   const bool spot = s.spots && kind == kLightSpot;
   const bool positional = kind == kLightPoint || spot;
   const bool phong = s.shading.specular == kSpecularPhong;
   auto run = [&](auto planes) {
     const float* a = surface;
-    planes(s.lights + kLightStride * l, a, a + m, a + 2 * m, a + 3 * m, a + 4 * m, a + 5 * m, a + 6 * m,
+    planes(s.lights + kLightStride * l, s.materials, material, a, a + m, a + 2 * m, a + 3 * m, a + 4 * m, a + 5 * m, a + 6 * m,
            a + 7 * m, a + 8 * m, d, m, out, out + m, out + 2 * m, out + 3 * m, out + 4 * m, out + 5 * m,
            out + 6 * m, wanted);
   };
@@ -545,7 +605,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
     }
     // Surfaces and their shadow rays: the hits' faces checked, their surfaces, then the rays.
     int64_t ns = 0, hits = 0;
-    int32_t any_face = 0;
+    int32_t any_face = 0, any_material = 0;
     for (int64_t k = 0; k < m; ++k) {
       b.face[k] = -1;
       if (sparse) {  // the faces and vertices of hits a few rays ahead: see WhittedBlock
@@ -574,6 +634,7 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
         continue;
       }
       b.face[k] = any_face = static_cast<int32_t>(f);
+      b.material[k] = any_material = mat;
       ++hits;
     }
     // The hits' surfaces and their lights (a miss's lanes compute a hit's face's, unread).
@@ -582,11 +643,11 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
     const int32_t* wanted = b.wanted.data();  // light l's from wanted + m * l
     if (hits > 0) {
       for (int64_t k = 0; k < m; ++k) {
-        if (b.face[k] < 0) b.face[k] = any_face;
+        if (b.face[k] < 0) b.face[k] = any_face, b.material[k] = any_material;
       }
       Surfaces(s, b.face.data(), b.o.data(), b.d.data(), b.u.data(), b.v.data(), m, b.surface.data());
       for (int l = 0; l < nl; ++l) {
-        Lights(s, l, planes, b.d.data(), m, b.light.data() + kLightPlanes * m * l, b.wanted.data() + m * l);
+        Lights(s, l, planes, b.d.data(), b.material.data(), m, b.light.data() + kLightPlanes * m * l, b.wanted.data() + m * l);
       }
     }
     for (int64_t k = 0; k < m; ++k) {
@@ -600,7 +661,6 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       Vec3 texture;
       if (TextureAt(s, mat, face, at, &texture)) kd = kd * texture;
       for (int c = 0; c < 3; ++c) b.kd[3 * k + c] = (&kd.x)[c];
-      b.material[k] = mat;
       const Vec3 p{planes[k], planes[m + k], planes[2 * m + k]};
       const Vec3 ng{planes[3 * m + k], planes[4 * m + k], planes[5 * m + k]};
       const Vec3 origin = p + s.offset * ng;
@@ -641,7 +701,6 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       }
       const float* row = s.materials + kMaterialStride * b.material[k];
       Vec3 ka = Load3(row), ks = Load3(row + 6), ke = Load3(row + 9), kr = Load3(row + 12);
-      const float shininess = row[15];
       const Vec3 p{planes[k], planes[m + k], planes[2 * m + k]};
       const Vec3 ng{planes[3 * m + k], planes[4 * m + k], planes[5 * m + k]};
       const Vec3 nsh{planes[6 * m + k], planes[7 * m + k], planes[8 * m + k]};
@@ -658,10 +717,9 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
             traced[px] += 1 << 8;
             if (b.sprim[j] >= 0) continue;  // blocked
           }
-          const float n_dot_l = lp[3 * m + k], spot = lp[5 * m + k], cosine = lp[6 * m + k];
+          const float n_dot_l = lp[3 * m + k], spot = lp[5 * m + k];
           if (!kPlain && paths != nullptr) paths->visible[depth * paths->n + b.column[k]] |= 1u << l;
-          // (n·h)^Ns, or Phong's (r·v)^Ns with r the light's direction mirrored about n, v = -d
-          float spec = cosine > 0.0f ? std::exp2(shininess * std::log2(cosine)) : 0.0f;
+          float spec = lp[6 * m + k];  // (n·h)^Ns, or Phong's (r·v)^Ns
           if (!kPlain && s.shading.payload) spec = spec * n_dot_l;  // §4.4.3's shadow payload, n·l
           Vec3 color = Load3(s.lights + kLightStride * l + 3) * spot;
           Vec3 term = (kd * n_dot_l + ks * spec) * color;
