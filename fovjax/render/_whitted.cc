@@ -647,14 +647,14 @@ void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in
       }
       Surfaces(s, b.face.data(), b.o.data(), b.d.data(), b.u.data(), b.v.data(), m, b.surface.data());
       for (int l = 0; l < nl; ++l) {
-        Lights(s, l, planes, b.d.data(), b.material.data(), m, b.light.data() + kLightPlanes * m * l, b.wanted.data() + m * l);
+        Lights(s, l, planes, b.d.data(), b.material.data(), m, b.light.data() + kLightPlanes * m * l,
+               b.wanted.data() + m * l);
       }
     }
     for (int64_t k = 0; k < m; ++k) {
       if (b.prim[k] < 0) continue;
-      const int64_t f = b.face[k];  // (checked above)
-      const int32_t* face = s.faces + 3 * f;
-      const int32_t mat = s.face_material[f];
+      const int32_t* face = s.faces + 3 * static_cast<int64_t>(b.face[k]);  // (checked above)
+      const int32_t mat = b.material[k];  // (not the face's again: a load from memory per hit)
       Surface at;
       at.b0 = planes[9 * m + k], at.u = planes[10 * m + k], at.v = planes[11 * m + k];
       Vec3 kd = Load3(s.materials + kMaterialStride * mat + 3);
