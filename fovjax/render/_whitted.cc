@@ -109,7 +109,8 @@ struct LightAt {
   float spot;
 };
 
-// Always inlined: it runs per light at every hit, twice, and GCC left it out of line.
+// Always inlined: the adjoint runs it per light at every hit, and GCC left it out of line; the
+// forward's is `LightPlanes`, the same arithmetic for a block's hits.
 // `kSpots` false: the scene has no spot light (`ShadeScene::spots`), so none is looked for.
 template <bool kSpots = true>
 inline __attribute__((always_inline)) LightAt LightTowards(const ShadeScene& s, int l, Vec3 p, Vec3* dir) {
@@ -250,7 +251,8 @@ inline Vec3 NormalizeEither(Vec3 v) {
   return v * KeepWhere(n2 > 0.0f, inv);
 }
 
-// The specular power without libm. log2(x) for a float x > 0 (finite), in double: x = 2^e·m with m in [√½, √2), and
+// The specular power without libm, in double so that rounding to float gives glibc's value but
+// in rare cases. log2(x) for a float x > 0 (finite): x = 2^e·m with m in [√½, √2), and
 // log2 m = (2/ln 2)·atanh(s), s = (m − 1)/(m + 1), |s| ≤ 0.1716, by its series to s^13.
 inline double Log2Of(float x) {
   const bool tiny = x < 1.17549435e-38f;  // a subnormal: scaled by 2^24 (exactly) first
@@ -285,8 +287,8 @@ inline double Exp2Of(double y) {
   constexpr double l = 0.693147180559945309417232121458;
   constexpr double c1 = l, c2 = c1 * l / 2, c3 = c2 * l / 3, c4 = c3 * l / 4, c5 = c4 * l / 5, c6 = c5 * l / 6,
                    c7 = c6 * l / 7, c8 = c7 * l / 8, c9 = c8 * l / 9, c10 = c9 * l / 10, c11 = c10 * l / 11;
-  const double p =
-      1.0 + r * (c1 + r * (c2 + r * (c3 + r * (c4 + r * (c5 + r * (c6 + r * (c7 + r * (c8 + r * (c9 + r * (c10 + r * c11))))))))));
+  const double high_terms = c6 + r * (c7 + r * (c8 + r * (c9 + r * (c10 + r * c11))));
+  const double p = 1.0 + r * (c1 + r * (c2 + r * (c3 + r * (c4 + r * (c5 + r * high_terms)))));
   return p * scale;  // (a NaN y gives NaN: every step keeps it)
 }
 // std::exp2(y * std::log2(x)) for x > 0, each function correctly rounded to float but in rare
@@ -385,9 +387,10 @@ void Surfaces(const ShadeScene& s, const int32_t* face, const float* o, const fl
 // n·l, the far end of its shadow ray (the distance, or INFINITY for a directional light), the
 // spot factor, the specular factor (Blinn–Phong's (n·h)^Ns, Phong's (r·v)^Ns, 0 where the cosine
 // is not positive; Ns the hit's material's) and whether the light is wanted (n·l > 0, n_g·l > 0,
-// spot > 0: 1, else 0). The same arithmetic in the same order as the
-// scalar functions, without branches, so that GCC vectorises it: the loops that read the planes
-// then do no light arithmetic of their own (they did it twice per hit, one ray at a time).
+// spot > 0: 1, else 0). The same arithmetic in the same order as `LightTowards` and the shading
+// did it (the power `PowOf`'s, not libm's), without branches, so that GCC vectorises it: the
+// loops that read the planes do no light arithmetic of their own (they did it twice per hit,
+// one ray at a time).
 constexpr int kLightPlanes = 7;  // float planes per light: dir x, y, z, n·l, far, spot, specular
 
 template <bool kPositional, bool kSpot, bool kPhong>
@@ -444,9 +447,9 @@ void Lights(const ShadeScene& s, int l, const float* surface, const float* d, co
   const bool phong = s.shading.specular == kSpecularPhong;
   auto run = [&](auto planes) {
     const float* a = surface;
-    planes(s.lights + kLightStride * l, s.materials, material, a, a + m, a + 2 * m, a + 3 * m, a + 4 * m, a + 5 * m, a + 6 * m,
-           a + 7 * m, a + 8 * m, d, m, out, out + m, out + 2 * m, out + 3 * m, out + 4 * m, out + 5 * m,
-           out + 6 * m, wanted);
+    planes(s.lights + kLightStride * l, s.materials, material, a, a + m, a + 2 * m, a + 3 * m, a + 4 * m,
+           a + 5 * m, a + 6 * m, a + 7 * m, a + 8 * m, d, m, out, out + m, out + 2 * m, out + 3 * m,
+           out + 4 * m, out + 5 * m, out + 6 * m, wanted);
   };
   if (phong) {
     if (spot) return run(LightPlanes<true, true, true>);
