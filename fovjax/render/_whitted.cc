@@ -221,27 +221,19 @@ inline __attribute__((always_inline)) Surface SurfaceAt(const ShadeScene& s, con
 // `first ? a : b` and `keep ? x : 0.0f`, chosen bit by bit: both operands are used whichever is
 // chosen, so GCC does not move the work of one (a division) into a branch of its own, which
 // keeps a loop from vectorising (it will not divide where the source did not).
-inline float Choose(bool first, float a, float b) {
-  uint32_t x, y;
+template <class Real>
+inline Real Choose(bool first, Real a, Real b) {
+  using Bits = std::conditional_t<sizeof(Real) == 4, uint32_t, uint64_t>;
+  Bits x, y;
   std::memcpy(&x, &a, sizeof x);
   std::memcpy(&y, &b, sizeof y);
-  const uint32_t mask = 0u - static_cast<uint32_t>(first);
+  const Bits mask = Bits{0} - static_cast<Bits>(first);
   x = (x & mask) | (y & ~mask);
-  float r;
+  Real r;
   std::memcpy(&r, &x, sizeof r);
   return r;
 }
 inline float KeepWhere(bool keep, float x) { return Choose(keep, x, 0.0f); }
-inline double Choose(bool first, double a, double b) {
-  uint64_t x, y;
-  std::memcpy(&x, &a, sizeof x);
-  std::memcpy(&y, &b, sizeof y);
-  const uint64_t mask = 0ull - static_cast<uint64_t>(first);
-  x = (x & mask) | (y & ~mask);
-  double r;
-  std::memcpy(&r, &x, sizeof r);
-  return r;
-}
 
 // Normalize, its reciprocal computed for every vector and kept where the length is not 0: the
 // same values, with no branch.
