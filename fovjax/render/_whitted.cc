@@ -111,18 +111,16 @@ struct LightAt {
 
 // Always inlined: the adjoint runs it per light at every hit, and GCC left it out of line; the
 // forward's is `LightPlanes`, the same arithmetic for a block's hits.
-// `kSpots` false: the scene has no spot light (`ShadeScene::spots`), so none is looked for.
-template <bool kSpots = true>
 inline __attribute__((always_inline)) LightAt LightTowards(const ShadeScene& s, int l, Vec3 p, Vec3* dir) {
   const float* row = s.lights + kLightStride * l;
   const int32_t kind = s.light_kind[l];
   LightAt at;
-  at.positional = kind == kLightPoint || (kSpots && kind == kLightSpot);
+  at.positional = kind == kLightPoint || kind == kLightSpot;
   Vec3 position = Load3(row);
   at.to_light = at.positional ? position - p : position;
   *dir = Normalize(at.to_light);
   at.spot = 1.0f;
-  if (kSpots && kind == kLightSpot) {
+  if (kind == kLightSpot) {
     const float c = -Dot(Load3(row + 6), *dir), cos_inner = row[9], cos_outer = row[10];
     at.spot = c >= cos_inner ? 1.0f : c > cos_outer ? (c - cos_outer) / (cos_inner - cos_outer) : 0.0f;
   }
