@@ -351,6 +351,49 @@ MUTATIONS = (
         "const int64_t ty = y - y % f.block[c];",
         "const int64_t ty = y;",
     ),
+    Mutation(
+        "camera-frame-eyes-swapped",
+        "the camera frame traces each eye's rays through the other eye's camera",
+        "CameraRays(L.cameras + kCameraStride * B.eye,",
+        "CameraRays(L.cameras + kCameraStride * (L.eyes - 1 - B.eye),",
+    ),
+    Mutation(
+        "camera-frame-sub-samples-transposed",
+        "the camera frame's sub-sample (sx, sy) takes the cell of (sy, sx)",
+        "const int32_t sample = row_s[r] + col_s[c];",
+        "const int32_t sample = row_s[r] / static_cast<int32_t>(cells)"
+        " + col_s[c] * static_cast<int32_t>(cells);",
+    ),
+    Mutation(
+        "camera-frame-jitter-axes-swapped",
+        "the camera frame jitters x by the y draw",
+        "SamplePosition(t.x[k], cell[0], true, t.jitter[2 * k], n_cells);",
+        "SamplePosition(t.x[k], cell[0], true, t.jitter[2 * k + 1], n_cells);",
+    ),
+    Mutation(
+        "camera-frame-ragged-edge-traced",
+        "the camera frame traces the sub-samples of a ragged tile past the image's right edge",
+        "const bool inside = c < inside_cols && y < H;",
+        "const bool inside = y < H;",
+    ),
+    Mutation(
+        "camera-frame-sum-not-averaged",
+        "the camera frame's pixel is the sum of its samples, not their mean",
+        "out[3 * px + k] = pixel_bad ? bad[k] : sum[k] / mean;",
+        "out[3 * px + k] = pixel_bad ? bad[k] : sum[k];",
+    ),
+    Mutation(
+        "camera-frame-bad-unpainted",
+        "the camera frame's pixel with a bad sample keeps the mean, not the bad colour",
+        "out[3 * px + k] = pixel_bad ? bad[k] : sum[k] / mean;",
+        "out[3 * px + k] = sum[k] / mean;",
+    ),
+    Mutation(
+        "camera-frame-tile-transposed",
+        "the camera frame reads a one-sample pixel from its 4x4 tile transposed",
+        "&scratch.total[3 * ((px / 4) * 16 + py * 4 + px % 4)]",
+        "&scratch.total[3 * ((px / 4) * 16 + (px % 4) * 4 + py)]",
+    ),
 )
 
 

@@ -308,7 +308,7 @@ def test_a_private_module_of_the_same_package_is_fine():
 NATIVE_HANDLERS = {
     "native": set(),
     "trace": {"FovjaxEmbreeQuery"},
-    "render": {"FovjaxEmbreeWhitted", "FovjaxWhittedAdjoint"},
+    "render": {"FovjaxEmbreeWhitted", "FovjaxWhittedAdjoint", "FovjaxCameraFrame"},
     "foveate": {
         "FovjaxSelectSamples",
         "FovjaxWhittedSlots",

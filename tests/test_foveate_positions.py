@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fovjax.foveate._positions import _per_sample_uniform, positions_at, uniform_at
+from fovjax.foveate._positions import per_sample_threefry, positions_at, uniform_at
 from fovjax.scene import pixel_sample_positions
 
 
@@ -27,8 +27,8 @@ def test_positions_at_are_the_full_render_positions(spp, make_key):
 
 def test_the_default_prng_takes_the_per_sample_path():
     # Otherwise the frame falls back to the full-screen draw (still exact, not cheaper).
-    assert _per_sample_uniform(jax.random.key(0))
-    assert _per_sample_uniform(jax.random.PRNGKey(0))
+    assert per_sample_threefry(jax.random.key(0))
+    assert per_sample_threefry(jax.random.PRNGKey(0))
 
 
 def test_uniform_at_is_jax_random_uniform():
@@ -56,7 +56,7 @@ def test_threefry_written_out_is_jax_threefry():
 
 def test_another_prng_falls_back_to_the_screen():
     key = jax.random.key(5, impl="rbg")
-    assert not _per_sample_uniform(key)
+    assert not per_sample_threefry(key)
     w, h, spp = 16, 8, 4
     screen = np.asarray(jax.jit(lambda k: pixel_sample_positions(w, h, spp, k))(key))
     screen = screen.reshape(spp, h * w, 2)

@@ -89,8 +89,8 @@ def test_the_mirror_is_the_owners_constants():
 
 
 def test_the_wrappers_build_the_layout():
-    from fovjax.foveate._native import camera_rows
     from fovjax.render import StereoRig
+    from fovjax.render._native import camera_rows
     from fovjax.render.internal import whitted_operands
     from fovjax.trace import build_bvh
 

@@ -976,6 +976,149 @@ def test_full_frame_entry_point_uses_it(featured):
     assert frames[0].stats.primary_rays == 2 * EYE_W * EYE_H
 
 
+# ---- the camera frame handler: the full frame's rays, radiance and box filter in one call -------
+
+CAMERA_FRAME_CASES = [
+    # (samples per pixel, key: None, "typed" or "raw", cameras, eye width, height)
+    (1, None, 2, 32, 32),
+    (4, "typed", 2, 37, 21),  # ragged tiles: 74 sub-sample columns, 21 rows
+    (9, "raw", 1, 30, 18),  # 3 x 3 sub-samples: 12 rows a block
+    (1, "typed", 1, 300, 8),  # two blocks a row: 256 columns and 44
+]
+
+
+def _camera_frame_key(kind):
+    return {None: None, "typed": jax.random.key(5), "raw": jax.random.PRNGKey(6)}[kind]
+
+
+@pytest.mark.parametrize(
+    "case", CAMERA_FRAME_CASES, ids=lambda c: f"spp{c[0]}-{c[1]}-{c[2]}eyes-{c[3]}x{c[4]}"
+)
+def test_camera_frame_handler_is_its_reference(corridor, case):
+    """`camera_frame` through the handler (its rays made natively: the cell centres or the key's
+    threefry draws, one or two cameras, ragged tiles) against `_frame_of_rays` (the rays in
+    JAX, the same native integrator, `resolve`): every pixel to float rounding, the same ray
+    counts and bad pixels."""
+    from fovjax.render._frame import _frame_of_rays, camera_frame
+    from fovjax.render._native import FRAME_TARGET
+
+    arrays, bvh, rig = corridor
+    spp, key_kind, n_cameras, w, h = case
+    key = _camera_frame_key(key_kind)
+    rig = dataclasses.replace(rig, eye_width=w, eye_height=h)
+    cameras = rig.eye_cameras(jnp.asarray([4.0, -3.0, 2.0]))[:n_cameras]
+    config = RenderConfig(max_depth=CORRIDOR_DEPTH, integrator="native")
+
+    def both(a, cams, k):
+        native = camera_frame(a, bvh, cams, k, spp=spp, config=config)
+        reference = _frame_of_rays(a, bvh, cams, k, spp=spp, config=config)
+        return native, reference
+
+    lowered = jax.jit(both).lower(arrays, cameras, key)
+    assert FRAME_TARGET in lowered.as_text()
+    native, reference = lowered.compile()(arrays, cameras, key)
+    assert np.shape(native[0]) == (h, n_cameras * w, 3) == np.shape(reference[0])
+    assert_native_radiance(native[0], reference[0], arrays)
+    assert_same_counts(native[1], reference[1])
+    assert int(native[2]) == int(reference[2]) == 0
+    assert int(reference[1].primary) == n_cameras * spp * w * h
+    assert int(reference[1].reflection) > 0 and np.asarray(reference[0]).std() > 0.05
+
+
+def test_camera_frame_handler_draws_the_keys_jitter(corridor):
+    """With a key the handler's sub-samples move (the draws are read, and are the key's): two
+    keys give two images, each its reference's."""
+    from fovjax.render._frame import _frame_of_rays, camera_frame
+
+    arrays, bvh, rig = corridor
+    rig = dataclasses.replace(rig, eye_width=24, eye_height=16)
+    cameras = rig.eye_cameras(None)
+    config = RenderConfig(max_depth=2, integrator="native")
+    images = []
+    for key in (jax.random.key(1), jax.random.key(2), None):
+        native = jax.jit(lambda a, k: camera_frame(a, bvh, cameras, k, spp=4, config=config)[0])
+        reference = jax.jit(lambda a, k: _frame_of_rays(a, bvh, cameras, k, spp=4, config=config)[0])
+        native, reference = native(arrays, key), reference(arrays, key)
+        assert_native_radiance(native, reference, arrays)
+        images.append(np.asarray(native))
+    assert np.abs(images[0] - images[1]).max() > CHANGE and np.abs(images[0] - images[2]).max() > CHANGE
+
+
+def test_camera_frame_handler_paints_bad_pixels(corridor):
+    """A material whose colour is not finite: the samples that meet it are bad, their pixels the
+    bad colour, counted as the reference counts them (bad samples and bad pixels)."""
+    from fovjax.render._frame import _frame_of_rays, camera_frame
+
+    arrays, bvh, rig = corridor
+    rig = dataclasses.replace(rig, eye_width=20, eye_height=12)
+    kd = np.array(arrays.kd, copy=True)
+    kd[3] = np.nan  # the box's
+    broken = dataclasses.replace(arrays, kd=kd)
+    cameras = rig.eye_cameras(None)
+    config = RenderConfig(max_depth=2, integrator="native", bad_color=(0.25, 0.5, 0.75))
+    key = jax.random.key(4)
+    native = jax.jit(lambda a: camera_frame(a, bvh, cameras, key, spp=4, config=config))(broken)
+    reference = jax.jit(lambda a: _frame_of_rays(a, bvh, cameras, key, spp=4, config=config))(broken)
+    assert 0 < int(reference[2]) < 2 * 20 * 12 and int(reference[1].bad) >= int(reference[2])
+    assert int(native[2]) == int(reference[2])
+    assert_same_counts(native[1], reference[1])
+    painted = np.all(np.asarray(native[0]) == np.float32([0.25, 0.5, 0.75]), axis=-1)
+    assert int(painted.sum()) == int(native[2])
+    np.testing.assert_array_equal(np.asarray(native[0])[painted], np.asarray(reference[0])[painted])
+    assert_native_radiance(np.asarray(native[0])[~painted], np.asarray(reference[0])[~painted], arrays)
+
+
+def test_camera_frame_derivatives_are_its_references(corridor):
+    """Derivatives of the handler's frame come from its reference (the stored paths' replay):
+    the light colours' gradient of a loss of the image is the reference's, and the primal a JVP
+    returns is the handler's image. (tests/test_render_grad.py checks the camera's and the
+    materials' gradients of `render_image`, this frame, against finite differences.)"""
+    from fovjax.render._frame import _frame_of_rays, camera_frame
+
+    arrays, bvh, rig = corridor
+    rig = dataclasses.replace(rig, eye_width=16, eye_height=12)
+    config = RenderConfig(max_depth=2, integrator="native")
+    cameras = rig.eye_cameras(None)
+    weights = jnp.linspace(0.5, 1.5, 12 * 32 * 3).reshape(12, 32, 3)
+
+    def image(frame, colour):
+        a = dataclasses.replace(arrays, light_color=colour)
+        return frame(a, bvh, cameras, jax.random.key(3), spp=1, config=config)[0]
+
+    def both(colour):  # one program
+        grads = [
+            jax.grad(lambda c, f=f: jnp.sum(weights * image(f, c)))(colour)
+            for f in (camera_frame, _frame_of_rays)
+        ]
+        ones = jnp.ones_like(colour)
+        primal, _ = jax.jvp(functools.partial(image, camera_frame), (colour,), (ones,))
+        return grads, primal, image(camera_frame, colour)
+
+    (native, reference), primal, plain = jax.jit(both)(jnp.asarray(arrays.light_color))
+    assert np.abs(np.asarray(reference)).max() > 0
+    np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(primal), np.asarray(plain))
+
+
+def test_camera_frame_keeps_the_reference_for_draws_it_does_not_make(corridor):
+    """A key of another PRNG (rbg): the plan says why not, and the frame is the reference's
+    program (no handler call) and image."""
+    from fovjax.render._frame import _frame_of_rays, camera_frame, camera_frame_why_not
+    from fovjax.render._native import FRAME_TARGET
+
+    arrays, bvh, rig = corridor
+    rig = dataclasses.replace(rig, eye_width=16, eye_height=12)
+    cameras = rig.eye_cameras(None)
+    config = RenderConfig(max_depth=1, integrator="native")
+    key = jax.random.key(0, impl="rbg")
+    assert "threefry2x32" in camera_frame_why_not(config, key, 16, 12, 4)
+    assert camera_frame_why_not(config, jax.random.key(0), 16, 12, 4) == ""
+    fn = jax.jit(lambda a, k: camera_frame(a, bvh, cameras, k, spp=4, config=config)[0])
+    assert FRAME_TARGET not in fn.lower(arrays, key).as_text()
+    reference = jax.jit(lambda a, k: _frame_of_rays(a, bvh, cameras, k, spp=4, config=config)[0])
+    np.testing.assert_array_equal(np.asarray(fn(arrays, key)), np.asarray(reference(arrays, key)))
+
+
 def test_integrator_setting_is_checked():
     with pytest.raises(ValueError, match="integrator must be one of .* got 'fast'"):
         RenderConfig(integrator="fast")

@@ -49,8 +49,8 @@ from ._config import max_region_spp, region_spp, shading_classes
 from ._eccentricity import eccentricity_map
 from ._fill import FOVEA_BLEND_DEG, blur_and_blend, fill_blanks, gaussian_taps
 from ._lod import lod_needed, with_levels
-from ._native import camera_rows, native_fill_and_blur, native_select_samples, native_whitted_slots
-from ._positions import _per_sample_uniform, key_words, positions_at
+from ._native import native_fill_and_blur, native_select_samples, native_whitted_slots
+from ._positions import key_words, per_sample_threefry, positions_at
 from ._sampling import (
     MANDATORY,
     OPTIONAL,
@@ -241,7 +241,7 @@ def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
     _, h, w = ecc.shape
     # The handler recomputes the JAX path's per-sample draws (`uniform_draws`), which need the
     # default PRNG and int32 indices; elsewhere the JAX selection runs.
-    per_sample = _per_sample_uniform(sampling_keys(key)[0])
+    per_sample = per_sample_threefry(sampling_keys(key)[0])
     if not native or not per_sample or 2 * foveation.spp * h * w >= 2**31:
         region, classes, order, counts, mask, n, by_region = in_jax()
     else:
@@ -454,7 +454,7 @@ def slots_why_not(config, jitter_key, classes, h: int, w: int, spp: int) -> str:
         return "a texture level of detail per region (Fidelity.texture_lod) runs in the chunked JAX path only"
     if 2 * spp * h * w >= 2**31:
         return f"2 x {spp} x {h} x {w} samples do not fit the handler's 32-bit slot indices"
-    if jitter_key is not None and not _per_sample_uniform(jitter_key):
+    if jitter_key is not None and not per_sample_threefry(jitter_key):
         return "the frame key's sub-pixel draws are not the default threefry2x32 the handler reproduces"
     return ""
 
@@ -636,7 +636,7 @@ def traced_sums(
         return config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
 
     def native_slots(scene, cameras, order, n_traced, *, store_paths):
-        from ..render.internal import shading_attributes, whitted_operands
+        from ..render.internal import camera_rows, shading_attributes, whitted_operands
         from ..scene import stratified_offsets
 
         with jax.ensure_compile_time_eval():

@@ -10,7 +10,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from ..native.internal import handler, layout
 
@@ -20,30 +19,6 @@ FILL_TARGET = "fovjax_fill_and_blur"
 TAA_TARGET = "fovjax_taa_blend"
 PREFILTER_TARGET = "fovjax_patney_prefilter"
 LAYERS_TARGET = "fovjax_layer_blend"
-
-
-def camera_rows(cameras) -> Float[Array, "2 stride"]:
-    """The eyes' cameras as the slots handler reads them (`layout.CAMERA_COLUMNS`): position,
-    rotation (row-major), tan(vfov / 2), aspect, offset (what `Camera.ray_direction_components`
-    uses)."""
-    rows = []
-    for cam in cameras:
-        columns = {
-            "position": cam.position,
-            "rotation": cam.rotation,
-            "tan_half_vfov": jnp.tan(jnp.deg2rad(cam.vfov_deg) / 2),
-            "aspect": cam.width / cam.height,
-            "offset": cam.offset,
-        }
-        rows.append(
-            jnp.concatenate(
-                [
-                    jnp.asarray(columns[name], jnp.float32).reshape(width)
-                    for name, width in layout.CAMERA_COLUMNS
-                ]
-            )
-        )
-    return jnp.stack(rows)
 
 
 def native_whitted_slots(

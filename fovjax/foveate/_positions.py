@@ -23,20 +23,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int, UInt
 
 from ..scene import pixel_sample_positions, stratified_offsets
-
-
-def _per_sample_uniform(key) -> bool:
-    """Whether `uniform_at` reproduces `jax.random.uniform` for this key (see the module)."""
-    # jax.config's options are set at run time (pyright cannot see it).
-    if not jax.config.jax_threefry_partitionable:  # pyright: ignore[reportAttributeAccessIssue]
-        return False
-    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-        return str(jax.random.key_impl(key)) == "threefry2x32"
-    raw = key.shape == (2,) and key.dtype == jnp.uint32
-    # jax.config's options are set at run time (pyright cannot see it).
-    impl = jax.config.jax_default_prng_impl  # pyright: ignore[reportAttributeAccessIssue]
-    return raw and impl == "threefry2x32"
-
+from ..scene.internal import key_words, per_sample_threefry
 
 # Threefry-2x32's rotations, alternating by group of four rounds, and its key-schedule constant.
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
@@ -63,15 +50,9 @@ def threefry_xor(data: UInt[Array, " 2"], lo: UInt[Array, "*batch"]) -> UInt[Arr
     return x0 ^ x1
 
 
-def key_words(key) -> Array:
-    """A PRNG key's uint32 words: `jax.random.key_data` of a typed key, a raw key as it is."""
-    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
-    return jnp.asarray(data, jnp.uint32)
-
-
 def uniform_at(key, index: Int[Array, "*batch"]) -> Float[Array, "*batch"]:
     """`jax.random.uniform(key, shape).reshape(-1)[index]` (float32 in [0, 1)) for any shape of
-    fewer than 2**31 elements, computed at `index` only. Only where `_per_sample_uniform(key)`."""
+    fewer than 2**31 elements, computed at `index` only. Only where `per_sample_threefry(key)`."""
     data = key_words(key)
     lo = jnp.asarray(index, jnp.uint32).reshape(-1)
     bits = threefry_xor(data, lo)  # counter (hi 0, lo)
@@ -93,7 +74,7 @@ def positions_at(
     if key is None:
         return corner + jnp.asarray(grid)[sample]
     size = spp * h * w * 2
-    if not _per_sample_uniform(key) or size >= 2**31:  # int32 indices
+    if not per_sample_threefry(key) or size >= 2**31:  # int32 indices
         return pixel_sample_positions(w, h, spp, key).reshape(spp, h * w, 2)[sample, pixel]
     first = ((sample * h + y) * w + x) * 2  # flat index of the sample's x draw
     jitter = uniform_at(key, first[:, None] + jnp.arange(2, dtype=first.dtype))

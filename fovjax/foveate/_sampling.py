@@ -135,10 +135,10 @@ def uniform_draws(key: jax.Array, shape: tuple[int, ...]) -> Float[Array, "S H W
     time (`_positions.uniform_at`, a `lax.fori_loop`): the generator's intermediate arrays are
     a band's, not a screen's (on a CPU every screen-sized temporary is fresh memory on every
     frame). Falls back to the one call where the key's PRNG does not allow it."""
-    from ._positions import _per_sample_uniform, uniform_at
+    from ._positions import per_sample_threefry, uniform_at
 
     spp, h, w = shape
-    if not _per_sample_uniform(key) or spp * h * w >= 2**31:
+    if not per_sample_threefry(key) or spp * h * w >= 2**31:
         return jax.random.uniform(key, shape, jnp.float32)
     rows = min(DRAW_ROWS, h)
 

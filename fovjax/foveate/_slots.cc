@@ -3,6 +3,7 @@
 
 #include "native/csrc/layout.h"
 #include "native/csrc/thread_pool.h"
+#include "render/_frame.cc"
 #include "render/_whitted.cc"
 #include "foveate/_select.cc"
 
@@ -20,14 +21,6 @@ namespace {
 // shadow mode and tree of a merged BVH to it and to its reflections. Where `first_point_out` is
 // not empty, each pixel's sub-sample 0's primary hit point too (a miss: `far` along the ray; 0
 // where that sub-sample is not live), `first_hit_points`' values.
-
-// JAX's threefry2x32 uniform (see UniformRun) at each of n counters.
-FOVJAX_VECTOR_CLONES
-void UniformAt(uint32_t k0, uint32_t k1, const uint32_t* __restrict__ index, int64_t n,
-               float* __restrict__ out) {
-  UniformLanes<true>(k0, k1, 0, index, n, out);
-}
-
 
 struct SlotLayout {
   const int32_t* order;
@@ -78,34 +71,10 @@ void SlotRays(const SlotLayout& L, const int32_t* position, int64_t begin, int64
   const float* c1 = L.cameras + kCameraStride;
   for (int64_t i = 0; i < n; ++i) {
     const float* cell = L.grid + 2 * t.sample[i];
-    float x = t.x[i], y = t.y[i];
-    if (L.jitter) {
-      x = x + (cell[0] + (t.jitter[2 * i] - 0.5f) / cells);
-      y = y + (cell[1] + (t.jitter[2 * i + 1] - 0.5f) / cells);
-    } else {
-      x = x + cell[0];
-      y = y + cell[1];
-    }
-    const float* c = t.eye[i] ? c1 : c0;
-    const float* r = c + 3;
-    const float tan_half = c[12], aspect = c[13];
-    const float sx = ((2.0f * x / width - 1.0f + c[14]) * tan_half) * aspect;
-    const float sy = (1.0f - 2.0f * y / height + c[15]) * tan_half;
-    float raw[3];
-    for (int k = 0; k < 3; ++k) raw[k] = sx * r[3 * k] + sy * r[3 * k + 1] - r[3 * k + 2];
-    const float scale = 1.0f / std::sqrt(raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2]);
-    for (int k = 0; k < 3; ++k) raw[k] = raw[k] * scale;  // `ray_direction_components`
-    const float n2 = raw[0] * raw[0] + raw[1] * raw[1] + raw[2] * raw[2];  // `normalize`
-    const float inv = n2 > 0.0f ? 1.0f / std::sqrt(n2) : 0.0f;
-    bool finite = true, nonzero = false;
-    for (int k = 0; k < 3; ++k) {
-      o[3 * i + k] = c[k];
-      d[3 * i + k] = raw[k] * inv;
-      finite = finite && std::isfinite(c[k]) && std::isfinite(raw[k]);
-      nonzero = nonzero || d[3 * i + k] != 0.0f;
-    }
+    const float x = SamplePosition(t.x[i], cell[0], L.jitter, t.jitter[2 * i], cells);
+    const float y = SamplePosition(t.y[i], cell[1], L.jitter, t.jitter[2 * i + 1], cells);
     active[i] = true;
-    valid[i] = finite && nonzero;
+    valid[i] = CameraRay(t.eye[i] ? c1 : c0, x, y, width, height, o + 3 * i, d + 3 * i);
   }
 }
 

@@ -49,6 +49,7 @@ HANDLERS = {
     "fovjax_embree_query": "FovjaxEmbreeQuery",
     "fovjax_embree_whitted": "FovjaxEmbreeWhitted",
     "fovjax_whitted_adjoint": "FovjaxWhittedAdjoint",
+    "fovjax_camera_frame": "FovjaxCameraFrame",
     "fovjax_select_samples": "FovjaxSelectSamples",
     "fovjax_whitted_slots": "FovjaxWhittedSlots",
     "fovjax_fill_and_blur": "FovjaxFillAndBlur",

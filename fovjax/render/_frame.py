@@ -24,14 +24,17 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .. import _environment
-from ..scene import Camera, Scene
+from ..native.internal import jvp_of, on_platforms
+from ..scene import Camera, Scene, pixel_sample_positions, stratified_offsets
+from ..scene.internal import key_words, per_sample_threefry
 from ..trace import BVH, build_bvh
 from ._arrays import SceneArrays, scene_arrays
 from ._config import DEFAULT_CONFIG, RenderConfig
 from ._envmap import ColorLike, EnvmapLike
-from ._integrator import radiance
+from ._integrator import RayCounts, radiance, scene_scale
 from ._memory import check_frame_memory
-from ._stereo import HeadPoseLike, StereoRig, head_pose_angles, stereo_sample_rays
+from ._native import camera_rows, integrator_plan, native_camera_frame, shading_attributes, whitted_operands
+from ._stereo import HeadPoseLike, StereoRig, head_pose_angles
 
 
 def resolve(
@@ -104,11 +107,9 @@ def render_image(
     key: jax.Array | None = None,
     config: RenderConfig = DEFAULT_CONFIG,
 ) -> Float[Array, "H W 3"]:
-    """One camera's linear-RGB image: `camera.sample_rays(spp, key)` → `radiance` → `resolve`.
-    Pure; jit it, or take `jax.grad` of a loss of it."""
-    o, d, _ = camera.sample_rays(spp, key)
-    result = sample_radiance(_as_arrays(scene), bvh, o, d, config=config)
-    return resolve(result.rgb, result.bad, bad_color=config.bad_color)[0]
+    """One camera's linear-RGB image: `camera.sample_rays(spp, key)` → `radiance` → `resolve`
+    (`camera_frame`). Pure; jit it, or take `jax.grad` of a loss of it."""
+    return camera_frame(_as_arrays(scene), bvh, (camera,), key, spp=spp, config=config)[0]
 
 
 def render_stereo_image(
@@ -125,9 +126,8 @@ def render_stereo_image(
 
     The width W2 is twice the rig's eye width (no argument carries the eye width as an array
     axis, so the annotation cannot say `2*W`: jaxtyping rejects an axis it has not bound)."""
-    rays = stereo_sample_rays(rig, head_pose, spp, key)
-    result = sample_radiance(_as_arrays(scene), bvh, rays.origins, rays.directions, config=config)
-    return side_by_side(resolve(result.rgb, result.bad, bad_color=config.bad_color)[0])
+    cameras = rig.eye_cameras(head_pose)
+    return camera_frame(_as_arrays(scene), bvh, cameras, key, spp=spp, config=config)[0]
 
 
 # ---- host side: compiled programs, frames --------------------------------------------------
@@ -231,18 +231,108 @@ def run_compiled(entry: str, program, args: tuple, static: dict | None = None, *
     return outputs, compile_seconds, time.perf_counter() - start
 
 
-def _mono_program(scene, bvh, camera, key, *, spp, jitter, config):
-    o, d, _ = camera.sample_rays(spp, key if jitter else None)
+def camera_frame_why_not(config: RenderConfig, key, width: int, height: int, spp: int) -> str:
+    """Why `camera_frame` cannot run in the native camera frame handler (`render/_frame.cc`), or
+    "" where it can: the native integrator on (`integrator_plan`), sub-pixel draws it reproduces
+    (none, or JAX's threefry2x32 per sample: `per_sample_threefry`), at most 256 samples per pixel
+    and 32-bit counters."""
+    plan = integrator_plan(config)
+    if not plan.cpu:
+        return f"the native integrator is off ({plan.reason})"
+    if spp > 256:
+        return f"spp {spp} is above the handler's 256 (16 x 16 sub-samples)"
+    if 2 * spp * width * height >= 2**32:
+        return f"2 x {spp} x {height} x {width} draws do not fit the handler's 32-bit counters"
+    if key is not None and not per_sample_threefry(key):
+        return "the frame key's sub-pixel draws are not the default threefry2x32 the handler reproduces"
+    return ""
+
+
+def _frame_of_rays(scene, bvh, cameras, key, *, spp, config):
+    """`camera_frame` in JAX: the rays (`Camera.sample_rays`, or for two cameras
+    `stereo_sample_rays`' stack), `sample_radiance`, `resolve` and `side_by_side`."""
+    if len(cameras) == 1:
+        o, d, _ = cameras[0].sample_rays(spp, key)
+    else:
+        xy = pixel_sample_positions(cameras[0].width, cameras[0].height, spp, key)
+        d = jnp.stack([camera.ray_directions(xy) for camera in cameras])
+        positions = jnp.stack([jnp.asarray(camera.position, jnp.float32) for camera in cameras])
+        o = jnp.broadcast_to(positions[:, None, None, None, :], d.shape)
     result = sample_radiance(scene, bvh, o, d, config=config)
-    image, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
+    eyes, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
+    image = eyes if len(cameras) == 1 else side_by_side(eyes)
     return image, result.counts, jnp.sum(bad_pixels, dtype=jnp.int32)
 
 
+def camera_frame(scene: SceneArrays, bvh: BVH, cameras: tuple[Camera, ...], key, *, spp: int, config):
+    """The full frame of one camera or of a stereo pair's two (their images side by side): `spp`
+    sub-samples per pixel (jittered from `key`, cell centres without one), their radiance, each
+    pixel's mean. Returns (image, `RayCounts`, bad pixels). On a CPU with the native integrator
+    (`camera_frame_why_not`), one call of the camera frame handler makes the rays, traces them
+    and filters the image; elsewhere `_frame_of_rays` (its oracle), whose integrator takes the
+    native side where it can. Derivatives are always `_frame_of_rays`' (the replay of the paths
+    its native forward stores); the primal a JVP returns is the handler's image. Pure;
+    jittable."""
+    width, height = cameras[0].width, cameras[0].height
+    if any((c.width, c.height) != (width, height) for c in cameras) or len(cameras) not in (1, 2):
+        raise ValueError("camera_frame: one or two cameras of one resolution")
+    if camera_frame_why_not(config, key, width, height, spp):
+        return _frame_of_rays(scene, bvh, cameras, key, spp=spp, config=config)
+    typed = key is not None and jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+
+    def as_key(key_data):
+        if key is None:
+            return None
+        return jax.random.wrap_key_data(key_data, impl="threefry2x32") if typed else key_data
+
+    def reference(scene, cameras, key_data):
+        return _frame_of_rays(scene, bvh, cameras, as_key(key_data), spp=spp, config=config)
+
+    def native(scene, cameras, key_data):
+        with jax.ensure_compile_time_eval():
+            grid = np.asarray(stratified_offsets(spp), np.float32)
+        offset = jnp.asarray(config.ray_offset * scene_scale(scene), jnp.float32).reshape(1)
+        image, counts = native_camera_frame(
+            (*whitted_operands(scene, bvh), jax.lax.stop_gradient(offset)),
+            key_data,
+            grid,
+            camera_rows(cameras),
+            jnp.asarray(config.bad_color, jnp.float32),
+            spp=spp,
+            height=height,
+            width=width,
+            jitter=key is not None,
+            max_depth=config.max_depth,
+            recompute=config.hits == "recomputed",
+            packets=config.packet is not None,
+            robust=bvh.watertight,
+            shading=shading_attributes(config),
+        )
+        if len(cameras) == 1:
+            image = image.reshape(height, width, 3)
+        ray_counts = RayCounts(primary=counts[0], shadow=counts[1], reflection=counts[2], bad=counts[3])
+        return image, ray_counts, counts[4]
+
+    def native_jvp(primals, tangents):
+        # The handler's frame as the primal (a derivative returns the image a plain call does;
+        # its rays round differently from XLA's), the reference's tangents. Under `jax.grad`
+        # the primal is unused and XLA drops the handler's call.
+        _, derivative = jvp_of(reference, primals, tangents)
+        return native(*primals), derivative
+
+    key_data = jnp.zeros(2, jnp.uint32) if key is None else key_words(key)
+    plan = integrator_plan(config)
+    stage = on_platforms(reference, cpu=native, cpu_only=plan.cpu_only, cpu_jvp=native_jvp)
+    return stage(scene, tuple(cameras), key_data)
+
+
+def _mono_program(scene, bvh, camera, key, *, spp, jitter, config):
+    return camera_frame(scene, bvh, (camera,), key if jitter else None, spp=spp, config=config)
+
+
 def _stereo_program(scene, bvh, rig, head_pose, key, *, spp, jitter, config):
-    rays = stereo_sample_rays(rig, head_pose, spp, key if jitter else None)
-    result = sample_radiance(scene, bvh, rays.origins, rays.directions, config=config)
-    eyes, bad_pixels = resolve(result.rgb, result.bad, bad_color=config.bad_color)
-    return side_by_side(eyes), result.counts, jnp.sum(bad_pixels, dtype=jnp.int32)
+    cameras = rig.eye_cameras(head_pose)
+    return camera_frame(scene, bvh, cameras, key if jitter else None, spp=spp, config=config)
 
 
 _PROGRAMS = {"mono": _mono_program, "stereo": _stereo_program}

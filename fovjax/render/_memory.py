@@ -10,7 +10,9 @@ estimate below is read from what the programs allocate (`_frame._stereo_program`
 Bytes per sample of a full frame (`_stereo_program`): the sample rays' origins and directions
 (24), the integrator's radiance and ray counts (16), the sub-pixel positions (8 per sample, shared
 by both eyes: 4), the active, valid and bad flags (3): 48 in all with the native integrator,
-which keeps each ray's intermediates to itself. The JAX integrator adds its two reflection
+which keeps each ray's intermediates to itself. (The camera frame handler, `render/_frame.cc`,
+makes the rays block by block and needs none of these; 48 stays the bound of the frames it does
+not take, a key of another PRNG's.) The JAX integrator adds its two reflection
 queues (origin, direction, weight and pixel of every sample that may reflect: 40 each), 128 in
 all, and the intermediates of one band of depth 0 (`RenderConfig.chunk_size` rays, every shading
 stage materialised: about 400 per ray). Per pixel: the resolved eyes and the side-by-side image

@@ -12,6 +12,7 @@ import importlib.util
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from ..native.internal import NativePlan, handler, layout, plan_native
 from ..trace import BVH
@@ -19,6 +20,7 @@ from ._arrays import light_columns
 
 WHITTED_TARGET = "fovjax_embree_whitted"
 ADJOINT_TARGET = "fovjax_whitted_adjoint"
+FRAME_TARGET = "fovjax_camera_frame"
 # The scene fields whose gradient the native adjoint computes (`native_shading_adjoint`): the
 # materials' columns, the lights' colours and the ambient colour.
 SHADING_FIELDS = tuple(name for name, _ in layout.MATERIAL_COLUMNS) + ("light_color", "ambient")
@@ -248,3 +250,79 @@ def native_shading_adjoint(
     grads["light_color"] = d_lights
     grads["ambient"] = d_ambient
     return grads
+
+
+def camera_rows(cameras) -> Float[Array, "E stride"]:
+    """Cameras as the camera frame and slots handlers read them (`layout.CAMERA_COLUMNS`), a row
+    each: position, rotation (row-major), tan(vfov / 2), aspect, offset (what
+    `Camera.ray_direction_components` uses)."""
+    rows = []
+    for cam in cameras:
+        columns = {
+            "position": cam.position,
+            "rotation": cam.rotation,
+            "tan_half_vfov": jnp.tan(jnp.deg2rad(cam.vfov_deg) / 2),
+            "aspect": cam.width / cam.height,
+            "offset": cam.offset,
+        }
+        rows.append(
+            jnp.concatenate(
+                [
+                    jnp.asarray(columns[name], jnp.float32).reshape(width)
+                    for name, width in layout.CAMERA_COLUMNS
+                ]
+            )
+        )
+    return jnp.stack(rows)
+
+
+def native_camera_frame(
+    operands: tuple,
+    key_data,
+    grid,
+    cameras,
+    bad_color,
+    *,
+    spp: int,
+    height: int,
+    width: int,
+    jitter: bool,
+    max_depth: int,
+    recompute: bool,
+    packets: bool,
+    robust: bool,
+    shading: dict,
+):
+    """The full frame of one or two cameras through the handler `render/_frame.cc`: their
+    sub-samples' rays (`grid` the cell centres (spp, 2); with `jitter`, the threefry2x32 draws of
+    the key `key_data` (2,) uint32), their Whitted radiance and each pixel's mean. `operands`: the
+    scene's (`whitted_operands`) with the ray offset; `cameras`: (E, `layout.CAMERA_STRIDE`) rows
+    (`camera_rows`), E 1 or 2. Returns the image (height, E·width, 3), the eyes side by side,
+    and (5,) int32: primary, shadow and reflection rays, bad samples, bad pixels. Not
+    differentiable (the caller's custom JVP is)."""
+    f32 = jnp.float32
+    eyes = cameras.shape[0]
+    out = (
+        jax.ShapeDtypeStruct((height, eyes * width, 3), f32),
+        jax.ShapeDtypeStruct((5,), jnp.int32),
+    )
+    call = handler(FRAME_TARGET, out, what="the native camera frame", vmap_method="sequential")
+    inputs = (
+        jnp.asarray(key_data, jnp.uint32).reshape(2),
+        jnp.asarray(grid, f32).reshape(spp, 2),
+        jnp.asarray(cameras, f32).reshape(eyes, layout.CAMERA_STRIDE),
+        jnp.asarray(bad_color, f32).reshape(3),
+    )
+    return call(
+        *jax.tree.map(jax.lax.stop_gradient, inputs),
+        *operands,
+        spp=np.int32(spp),
+        height=np.int32(height),
+        width=np.int32(width),
+        jitter=np.int32(jitter),
+        max_depth=np.int32(max_depth),
+        recompute=np.int32(recompute),
+        packets=np.int32(packets),
+        robust=np.int32(robust),
+        **shading,
+    )

@@ -39,6 +39,7 @@ from ._mips import texture_mips as texture_mips
 from ._mips import with_texture_mips as with_texture_mips
 from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
 from ._native import SHADING_FIELDS as SHADING_FIELDS
+from ._native import camera_rows as camera_rows
 from ._native import integrator_plan as integrator_plan
 from ._native import native_shading_adjoint as native_shading_adjoint
 from ._native import shading_attributes as shading_attributes

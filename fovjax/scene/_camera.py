@@ -179,3 +179,25 @@ def pixel_sample_positions(
         jitter = jax.random.uniform(key, (spp, height, width, 2), jnp.float32)
         offsets = grid[:, None, None, :] + (jitter - 0.5) / n
     return corner[None] + offsets
+
+
+def per_sample_threefry(key) -> bool:
+    """Whether `jax.random.uniform(key, shape)` draws element i as threefry2x32 of the key and the
+    64-bit counter i, which the native handlers and `fovjax.foveate`'s `uniform_at` reproduce
+    per sample: JAX's default PRNG with `jax_threefry_partitionable` (the default since JAX
+    0.5), a typed threefry2x32 key or a raw (2,) uint32 one."""
+    # jax.config's options are set at run time (pyright cannot see it).
+    if not jax.config.jax_threefry_partitionable:  # pyright: ignore[reportAttributeAccessIssue]
+        return False
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return str(jax.random.key_impl(key)) == "threefry2x32"
+    raw = key.shape == (2,) and key.dtype == jnp.uint32
+    # jax.config's options are set at run time (pyright cannot see it).
+    impl = jax.config.jax_default_prng_impl  # pyright: ignore[reportAttributeAccessIssue]
+    return raw and impl == "threefry2x32"
+
+
+def key_words(key) -> Array:
+    """A PRNG key's uint32 words: `jax.random.key_data` of a typed key, a raw key as it is."""
+    data = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    return jnp.asarray(data, jnp.uint32)

@@ -3,10 +3,12 @@
 // directory on the include path). Each stage's JAX implementation is its oracle and its derivative:
 //
 //   native/csrc/     Embree declarations and their layout check, the scene cache, the thread pool,
+//                    JAX's threefry2x32 uniforms (threefry.h),
 //                    the layout shared with Python (layout.h), and the library's C entry points
 //   trace/           ray queries (_embree_queries.cc)
 //   render/          the Whitted integrator and its shading (_whitted.cc), its adjoint in the
-//                    shading parameters (_whitted_adjoint.cc)
+//                    shading parameters (_whitted_adjoint.cc), the full frame from its cameras
+//                    (_frame.cc)
 //   foveate/         sample selection with JAX's threefry (_select.cc), the slots integrator
 //                    (_slots.cc), pixel means, fill and blur (_fill.cc), Patney 2016's history
 //                    blend (_taa.cc) and pre-filters with the rates' blend (_prefilter.cc),
@@ -24,6 +26,7 @@
 #include "trace/_embree_queries.cc"
 #include "render/_whitted.cc"
 #include "render/_whitted_adjoint.cc"
+#include "render/_frame.cc"
 #include "foveate/_select.cc"
 #include "foveate/_slots.cc"
 #include "foveate/_fill.cc"
