@@ -358,11 +358,10 @@ MUTATIONS = (
         "CameraRays(L.cameras + kCameraStride * (L.eyes - 1 - B.eye),",
     ),
     Mutation(
-        "camera-frame-sub-samples-transposed",
-        "the camera frame's sub-sample (sx, sy) takes the cell of (sy, sx)",
-        "const int32_t sample = row_s[r] + col_s[c];",
-        "const int32_t sample = row_s[r] / static_cast<int32_t>(cells)"
-        " + col_s[c] * static_cast<int32_t>(cells);",
+        "camera-frame-one-draw-per-pixel",
+        "the camera frame draws every sub-sample of a pixel from sub-sample 0's counter",
+        "((static_cast<uint32_t>(sample) * H + y) * W + x) * 2",
+        "(y * W + x) * 2",
     ),
     Mutation(
         "camera-frame-jitter-axes-swapped",
