@@ -52,6 +52,10 @@ from fovjax.trace import build_bvh  # noqa: E402
 # source stack, innermost first.
 STAGES = (
     (
+        "native camera frame (rays, trace, shade, shadows, reflections, box filter)",
+        r"render/_native\.py:\d+\(native_camera_frame\b",
+    ),
+    (
         "native integrator (trace, shade, shadows, reflections)",
         r"(render|foveate)/_native\.py:\d+\((native_whitted|native_whitted_slots)\b",
     ),
