@@ -636,7 +636,7 @@ def traced_sums(
         return config.ray_offset * (scene_scale(scene) if scale is None else jnp.asarray(scale, jnp.float32))
 
     def native_slots(scene, cameras, order, n_traced, *, store_paths):
-        from ..render.internal import camera_rows, shading_attributes, whitted_operands
+        from ..render.internal import camera_rows, integrator_options, whitted_operands
         from ..scene import stratified_offsets
 
         with jax.ensure_compile_time_eval():
@@ -655,11 +655,7 @@ def traced_sums(
             height=h,
             width=w,
             jitter=jitter_key is not None,
-            max_depth=config.max_depth,
-            recompute=config.hits == "recomputed",
-            packets=config.packet is not None,
-            robust=bvh.watertight,
-            shading=shading_attributes(config),
+            **integrator_options(config, bvh),
             store_paths=store_paths,
             region=None if classes is None else sel.region,
             classes=classes,

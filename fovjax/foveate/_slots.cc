@@ -107,13 +107,11 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
       far.element_count() > 1) {
     return ffi::Error::InvalidArgument("fovjax slots: operand shapes do not match the image");
   }
-  std::atomic<int> out_of_range{0};
-  ShadeScene s;
-  std::shared_ptr<NativeScene> tree;
+  HandlerScene scene;
   const Shading shading{specular, specular_payload != 0, min_contribution};
-  ffi::Error status =
-      SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
+  ffi::Error status = scene.Load(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading);
   if (status.failure()) return status;
+  ShadeScene& s = scene.s;
   // Per-region fidelity: a slot's class is its pixel's region (`trace_selection`'s `class_at`).
   status = ClassesFrom(class_depth, class_shadows, class_level, &s);
   if (status.failure()) return status;
@@ -174,7 +172,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     }
     for (int64_t i = 0; i < n; ++i) traced_at[position[i]] = static_cast<int32_t>(i);
   }
-  const NativeScene& t = *tree;
+  const NativeScene& t = *scene.tree;
   const int64_t per_block = 1024;
   ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
     thread_local std::vector<float> o, d;
@@ -201,10 +199,8 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
                  traced.get() + begin, packets != 0, true, store ? &block_paths : nullptr,
                  classes ? ray_class.data() : nullptr);
   });
-  if (out_of_range.load() != 0) {
-    return ffi::Error::InvalidArgument(
-        "fovjax Whitted: a hit face names a vertex or a material out of range");
-  }
+  status = scene.Checked(kFaceOutOfRange);
+  if (status.failure()) return status;
   // The sums, per eye on its own task: every slot's radiance added to its pixel in slot order
   // (`sample_adder`: a sample whose radiance is not finite adds nothing and marks its pixel).
   float* sums = sums_out->typed_data();
@@ -248,7 +244,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
 }  // namespace
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
-                              WithSceneArgs(ffi::Ffi::Bind()
+                              WithCameraRayAttrs(WithSceneArgs(ffi::Ffi::Bind()
                                                 .Ctx<ffi::ThreadPool>()
                                                 .Arg<ffi::Buffer<ffi::S32>>()   // slots in compaction order (P)
                                                 .Arg<ffi::Buffer<ffi::S32>>()   // live slots (1)
@@ -266,15 +262,4 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxWhittedSlots, WhittedSlots,
                                   .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples
                                   .Ret<ffi::Buffer<ffi::S32>>()   // paths' faces ((max_depth + 1) x P) or empty
                                   .Ret<ffi::Buffer<ffi::U32>>()   // paths' unblocked lights, bits, or empty
-                                  .Ret<ffi::Buffer<ffi::F32>>()   // sub-sample 0's hit point (2·H·W, 3) or empty
-                                  .Attr<int32_t>("spp")
-                                  .Attr<int32_t>("height")
-                                  .Attr<int32_t>("width")
-                                  .Attr<int32_t>("jitter")
-                                  .Attr<int32_t>("max_depth")
-                                  .Attr<int32_t>("recompute")
-                                  .Attr<int32_t>("packets")
-                                  .Attr<int32_t>("robust")
-                                  .Attr<int32_t>("specular")          // as the Whitted handler's
-                                  .Attr<int32_t>("specular_payload")
-                                  .Attr<float>("min_contribution"));
+                                  .Ret<ffi::Buffer<ffi::F32>>()));  // sub-sample 0's hit point (2·H·W, 3) or empty

@@ -178,16 +178,14 @@ ffi::Error CameraFrame(ffi::ThreadPool pool, ffi::Buffer<ffi::U32> key, ffi::Buf
       image_out->element_count() != static_cast<size_t>(3 * eyes * hw) || counts_out->element_count() != 5) {
     return ffi::Error::InvalidArgument("fovjax camera frame: operand shapes do not match the image");
   }
-  std::atomic<int> out_of_range{0};
-  ShadeScene s;
-  std::shared_ptr<NativeScene> tree;
+  HandlerScene scene;
   const Shading shading{specular, specular_payload != 0, min_contribution};
-  ffi::Error status =
-      SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
+  ffi::Error status = scene.Load(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading);
   if (status.failure()) return status;
+  const ShadeScene& s = scene.s;
   const FrameLayout L{cameras.typed_data(), grid.typed_data(), {key.typed_data()[0], key.typed_data()[1]},
                       jitter != 0, eyes, height, width, spp, cells, std::max<int64_t>(1, 256 / cells)};
-  const NativeScene& t = *tree;
+  const NativeScene& t = *scene.tree;
   const float* bad = bad_color.typed_data();
   float* image = image_out->typed_data();
   const float mean = static_cast<float>(spp);
@@ -242,32 +240,38 @@ ffi::Error CameraFrame(ffi::ThreadPool pool, ffi::Buffer<ffi::U32> key, ffi::Buf
     counts[0] += primary, counts[1] += shadow, counts[2] += reflection;
     counts[3] += bad_samples, counts[4] += bad_pixels;
   });
-  if (out_of_range.load() != 0) {
-    return ffi::Error::InvalidArgument("fovjax Whitted: a hit face names a vertex or a material out of range");
-  }
+  status = scene.Checked(kFaceOutOfRange);
+  if (status.failure()) return status;
   for (int k = 0; k < 5; ++k) counts_out->typed_data()[k] = static_cast<int32_t>(counts[k].load());
   return ffi::Error::Success();
 }
 
 }  // namespace
 
+// The attributes of the handlers that make their camera rays (this one, the foveated frame's
+// slots): the sub-samples, the image and the integrator's options.
+template <typename Binding>
+auto WithCameraRayAttrs(Binding binding) {
+  return std::move(binding)
+      .template Attr<int32_t>("spp")
+      .template Attr<int32_t>("height")
+      .template Attr<int32_t>("width")
+      .template Attr<int32_t>("jitter")
+      .template Attr<int32_t>("max_depth")
+      .template Attr<int32_t>("recompute")
+      .template Attr<int32_t>("packets")
+      .template Attr<int32_t>("robust")
+      .template Attr<int32_t>("specular")  // as the Whitted handler's
+      .template Attr<int32_t>("specular_payload")
+      .template Attr<float>("min_contribution");
+}
+
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxCameraFrame, CameraFrame,
-                              WithSceneArgs(ffi::Ffi::Bind()
+                              WithCameraRayAttrs(WithSceneArgs(ffi::Ffi::Bind()
                                                 .Ctx<ffi::ThreadPool>()
                                                 .Arg<ffi::Buffer<ffi::U32>>()   // the frame key's data (2)
                                                 .Arg<ffi::Buffer<ffi::F32>>()   // sub-sample cell centres (S, 2)
                                                 .Arg<ffi::Buffer<ffi::F32>>()   // the cameras (E, 16), E 1 or 2
                                                 .Arg<ffi::Buffer<ffi::F32>>())  // the bad colour (3)
                                   .Ret<ffi::Buffer<ffi::F32>>()   // the image (H, E·W, 3)
-                                  .Ret<ffi::Buffer<ffi::S32>>()   // primary, shadow, reflection rays, bad samples, bad pixels
-                                  .Attr<int32_t>("spp")
-                                  .Attr<int32_t>("height")
-                                  .Attr<int32_t>("width")
-                                  .Attr<int32_t>("jitter")
-                                  .Attr<int32_t>("max_depth")
-                                  .Attr<int32_t>("recompute")
-                                  .Attr<int32_t>("packets")
-                                  .Attr<int32_t>("robust")
-                                  .Attr<int32_t>("specular")          // as the Whitted handler's
-                                  .Attr<int32_t>("specular_payload")
-                                  .Attr<float>("min_contribution"));
+                                  .Ret<ffi::Buffer<ffi::S32>>()));  // primary, shadow, reflection rays, bad samples, bad pixels

@@ -33,7 +33,7 @@ from ._config import DEFAULT_CONFIG, RenderConfig
 from ._envmap import ColorLike, EnvmapLike
 from ._integrator import RayCounts, radiance, scene_scale
 from ._memory import check_frame_memory
-from ._native import camera_rows, integrator_plan, native_camera_frame, shading_attributes, whitted_operands
+from ._native import camera_rows, integrator_options, integrator_plan, native_camera_frame, whitted_operands
 from ._stereo import HeadPoseLike, StereoRig, head_pose_angles
 
 
@@ -302,11 +302,7 @@ def camera_frame(scene: SceneArrays, bvh: BVH, cameras: tuple[Camera, ...], key,
             height=height,
             width=width,
             jitter=key is not None,
-            max_depth=config.max_depth,
-            recompute=config.hits == "recomputed",
-            packets=config.packet is not None,
-            robust=bvh.watertight,
-            shading=shading_attributes(config),
+            **integrator_options(config, bvh),
         )
         if len(cameras) == 1:
             image = image.reshape(height, width, 3)

@@ -58,6 +58,7 @@ from ._envmap import envmap_lookup
 from ._mips import lod_uv, mip_level, mip_lookup
 from ._native import (
     SHADING_FIELDS,
+    integrator_options,
     integrator_plan,
     native_shading_adjoint,
     native_whitted,
@@ -743,13 +744,9 @@ def _integrate(scene, bvh, o, d, active, offset, config, *, cpu_only=False, oper
             d.reshape(-1, 3),
             active.reshape(-1),
             offset,
-            max_depth=config.max_depth,
-            recompute=config.hits == "recomputed",
-            packets=config.packet is not None,
             tile_width=_tile_width(batch, config),
-            robust=bvh.watertight,
-            shading=shading_attributes(config),
             store_paths=store_paths,
+            **integrator_options(config, bvh),
         )
 
     def native(scene, o, d, active, offset):

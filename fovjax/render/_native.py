@@ -137,6 +137,19 @@ def shading_attributes(config) -> dict:
     }
 
 
+def integrator_options(config, bvh: BVH) -> dict:
+    """`config`'s integrator options as the native integrator's callers pass them
+    (`native_whitted`, `native_camera_frame`, the foveated frame's slots): the depth, the hits
+    recomputed or Embree's, packets, the BVH's watertight mode and the shading attributes."""
+    return {
+        "max_depth": config.max_depth,
+        "recompute": config.hits == "recomputed",
+        "packets": config.packet is not None,
+        "robust": bvh.watertight,
+        "shading": shading_attributes(config),
+    }
+
+
 def native_whitted(
     operands: tuple,
     o,

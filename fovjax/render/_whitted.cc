@@ -882,6 +882,22 @@ ffi::Error SceneFrom(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, 
   return ffi::Error::Success();
 }
 
+// A handler's scene: `SceneFrom`'s shading scene and Embree trees, and the flag its rays raise
+// where a hit face names a vertex or a material out of range (`Checked` then fails the call).
+struct HandlerScene {
+  std::atomic<int> out_of_range{0};
+  ShadeScene s;
+  std::shared_ptr<NativeScene> tree;
+  ffi::Error Load(FOVJAX_SCENE_PARAMS, int32_t max_depth, int32_t recompute, int32_t robust, Shading shading) {
+    return SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
+  }
+  ffi::Error Checked(const char* message) const {
+    return out_of_range.load() == 0 ? ffi::Error::Success() : ffi::Error::InvalidArgument(message);
+  }
+};
+
+constexpr const char* kFaceOutOfRange = "fovjax Whitted: a hit face names a vertex or a material out of range";
+
 ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buffer<ffi::F32> directions,
                    ffi::Buffer<ffi::PRED> active, FOVJAX_SCENE_PARAMS, ffi::ResultBuffer<ffi::F32> total,
                    ffi::ResultBuffer<ffi::S32> traced, ffi::ResultBuffer<ffi::S32> path_prim,
@@ -909,14 +925,12 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
   const PathsOut paths_out{path_prim->typed_data(), path_visible->typed_data(), n, levels, nullptr};
   const PathsOut* paths = store ? &paths_out : nullptr;
   if (paths != nullptr) paths->Clear();
-  std::atomic<int> out_of_range{0};
-  ShadeScene s;
-  std::shared_ptr<NativeScene> tree;
+  HandlerScene scene;
   const Shading shading{specular, specular_payload != 0, min_contribution};
-  ffi::Error status =
-      SceneFrom(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading, &out_of_range, &s, &tree);
+  ffi::Error status = scene.Load(FOVJAX_SCENE_ARGS, max_depth, recompute, robust, shading);
   if (status.failure()) return status;
-  const NativeScene& t = *tree;
+  const ShadeScene& s = scene.s;
+  const NativeScene& t = *scene.tree;
   const float* o = origins.typed_data();
   const float* d = directions.typed_data();
   const bool* a = active.typed_data();
@@ -943,11 +957,7 @@ ffi::Error Whitted(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, ffi::Buf
       WhittedBlock(t, s, o, d, a, block, out, counts, packets != 0, false, paths);
     });
   }
-  if (out_of_range.load() != 0) {
-    return ffi::Error::InvalidArgument(
-        "fovjax Whitted: a hit face names a vertex or a material out of range");
-  }
-  return ffi::Error::Success();
+  return scene.Checked(kFaceOutOfRange);
 }
 
 }  // namespace

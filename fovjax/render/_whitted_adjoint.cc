@@ -161,13 +161,11 @@ ffi::Error WhittedAdjoint(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, f
   if (levels < 1 || levels > kMaxLevels || light_kind.element_count() > 32) {
     return ffi::Error::InvalidArgument("fovjax Whitted adjoint: paths of 1 to 64 levels, at most 32 lights");
   }
-  std::atomic<int> out_of_range{0};
-  ShadeScene s;
-  std::shared_ptr<NativeScene> tree;
+  HandlerScene scene;
   const Shading shading{specular, specular_payload != 0, 0.0f};
-  ffi::Error status = SceneFrom(FOVJAX_SCENE_ARGS, static_cast<int32_t>(levels - 1), 1, 1, shading, &out_of_range,
-                                &s, &tree);
+  ffi::Error status = scene.Load(FOVJAX_SCENE_ARGS, static_cast<int32_t>(levels - 1), 1, 1, shading);
   if (status.failure()) return status;
+  const ShadeScene& s = scene.s;
   if (d_materials->element_count() != static_cast<size_t>(s.num_materials) * kMaterialStride ||
       d_lights->element_count() != static_cast<size_t>(s.num_lights) * 3 || d_ambient->element_count() != 3) {
     return ffi::Error::InvalidArgument("fovjax Whitted adjoint: gradients of unexpected shapes");
@@ -195,10 +193,8 @@ ffi::Error WhittedAdjoint(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> origins, f
                  moving, &out);
     }
   });
-  if (out_of_range.load() != 0) {
-    return ffi::Error::InvalidArgument(
-        "fovjax Whitted adjoint: a stored face names a vertex or a material out of range");
-  }
+  status = scene.Checked("fovjax Whitted adjoint: a stored face names a vertex or a material out of range");
+  if (status.failure()) return status;
   AdjointSums all;
   all.Reset(s.num_materials, s.num_lights);
   for (const AdjointSums& b : sums) {

@@ -40,6 +40,7 @@ from ._mips import with_texture_mips as with_texture_mips
 from ._native import MAX_NATIVE_DEPTH as MAX_NATIVE_DEPTH
 from ._native import SHADING_FIELDS as SHADING_FIELDS
 from ._native import camera_rows as camera_rows
+from ._native import integrator_options as integrator_options
 from ._native import integrator_plan as integrator_plan
 from ._native import native_shading_adjoint as native_shading_adjoint
 from ._native import shading_attributes as shading_attributes
@@ -82,6 +83,8 @@ __all__ = [
     "native_shading_adjoint",
     "shading_of",
     "shading_attributes",
+    "integrator_options",
+    "camera_rows",
     "radiance_in_chunks",
     "scene_scale",
     "surface_at",
