@@ -1069,10 +1069,10 @@ def test_camera_frame_handler_paints_bad_pixels(corridor):
 
 
 def test_camera_frame_derivatives_are_its_references(corridor):
-    """Derivatives of the handler's frame come from its reference (the stored paths' replay):
-    the light colours' gradient of a loss of the image is the reference's, and the primal a JVP
-    returns is the handler's image. (tests/test_render_grad.py checks the camera's and the
-    materials' gradients of `render_image`, this frame, against finite differences.)"""
+    """Derivatives of the handler's frame are its reference's (the stored paths' replay), and so
+    is the primal a JVP returns: the light colours' gradient of a loss of the image and the
+    JVP's primal are the reference's bit for bit (tests/test_render_grad.py checks the camera's
+    and the materials' gradients of `render_image`, this frame, against finite differences)."""
     from fovjax.render._frame import _frame_of_rays, camera_frame
 
     arrays, bvh, rig = corridor
@@ -1092,12 +1092,13 @@ def test_camera_frame_derivatives_are_its_references(corridor):
         ]
         ones = jnp.ones_like(colour)
         primal, _ = jax.jvp(functools.partial(image, camera_frame), (colour,), (ones,))
-        return grads, primal, image(camera_frame, colour)
+        return grads, primal, image(_frame_of_rays, colour), image(camera_frame, colour)
 
-    (native, reference), primal, plain = jax.jit(both)(jnp.asarray(arrays.light_color))
+    (native, reference), primal, of_rays, plain = jax.jit(both)(jnp.asarray(arrays.light_color))
     assert np.abs(np.asarray(reference)).max() > 0
-    np.testing.assert_allclose(np.asarray(native), np.asarray(reference), rtol=1e-6, atol=1e-6)
-    np.testing.assert_array_equal(np.asarray(primal), np.asarray(plain))
+    np.testing.assert_array_equal(np.asarray(native), np.asarray(reference))
+    np.testing.assert_array_equal(np.asarray(primal), np.asarray(of_rays))
+    assert_native_radiance(primal, plain, arrays)
 
 
 def test_camera_frame_keeps_the_reference_for_draws_it_does_not_make(corridor):

@@ -116,19 +116,37 @@ def test_gradients_from_stored_paths_are_the_finite_differences(box):
 
 def test_the_gradient_traces_no_ray(box):
     """The compiled CPU gradient: one call of the native integrator (the forward, storing its
-    paths), no ray query, and no loop but XLA's scatters (the transposes of the gathers)."""
+    paths; not the camera frame handler's plain forward too), no ray query, and no loop but
+    XLA's scatters (the transposes of the gathers)."""
     *_, grad, _ = box
     text = grad.as_text()
     assert text.count("fovjax_embree_whitted") == 1
     assert "fovjax_embree_query" not in text
+    assert "fovjax_camera_frame" not in text  # the frame's primal, unused by `jax.grad`, dropped
     loops = [line for line in text.splitlines() if " while(" in line]
     assert all("scatter" in line for line in loops), [line[:200] for line in loops if "scatter" not in line]
 
 
 def test_the_forward_is_the_native_image(box):
-    """The primal a derivative returns is the native integrator's image, bit for bit."""
-    _, _, image, _, _, params = box
+    """The primal a derivative returns is the native integrator's image: bit for bit the image
+    of the frame's rays made in JAX (`_frame_of_rays`, the camera frame's reference), and the
+    plain call's (the camera frame handler, its rays rounded its own way) to float rounding."""
+    from _frames import assert_native_radiance
+
+    from fovjax.render._frame import _frame_of_rays
+
+    arrays, bvh, image, _, _, params = box
     direction = jax.tree.map(jnp.ones_like, params)
     primal, tangent = jax.jit(lambda p: jax.jvp(image, (p,), (direction,)))(params)
-    assert np.array_equal(np.asarray(primal), np.asarray(jax.jit(image)(params)))
+    rig = StereoRig.from_pose(
+        fovjax.scenes.default_camera(fovjax.scenes.cornell_box()), eye_width=32, eye_height=24
+    )
+    config = RenderConfig(max_depth=DEPTH)
+
+    def of_rays(p):
+        scene = eqx.tree_at(lambda s: [getattr(s, n) for n in LINEAR], arrays, [p[n] for n in LINEAR])
+        return _frame_of_rays(scene, bvh, rig.eye_cameras(jnp.zeros(3)), None, spp=1, config=config)[0]
+
+    assert np.array_equal(np.asarray(primal), np.asarray(jax.jit(of_rays)(params)))
+    assert_native_radiance(primal, jax.jit(image)(params), arrays)
     assert np.asarray(tangent).std() > 0

@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .. import _environment
-from ..native.internal import jvp_of, on_platforms
+from ..native.internal import on_platforms
 from ..scene import Camera, Scene, pixel_sample_positions, stratified_offsets
 from ..scene.internal import key_words, per_sample_threefry
 from ..trace import BVH, build_bvh
@@ -271,7 +271,8 @@ def camera_frame(scene: SceneArrays, bvh: BVH, cameras: tuple[Camera, ...], key,
     (`camera_frame_why_not`), one call of the camera frame handler makes the rays, traces them
     and filters the image; elsewhere `_frame_of_rays` (its oracle), whose integrator takes the
     native side where it can. Derivatives are always `_frame_of_rays`' (the replay of the paths
-    its native forward stores); the primal a JVP returns is the handler's image. Pure;
+    its native forward stores), and so is the primal a JVP returns (`value_and_grad`'s value):
+    the handler's image to float rounding (its rays round differently from XLA's). Pure;
     jittable."""
     width, height = cameras[0].width, cameras[0].height
     if any((c.width, c.height) != (width, height) for c in cameras) or len(cameras) not in (1, 2):
@@ -309,16 +310,11 @@ def camera_frame(scene: SceneArrays, bvh: BVH, cameras: tuple[Camera, ...], key,
         ray_counts = RayCounts(primary=counts[0], shadow=counts[1], reflection=counts[2], bad=counts[3])
         return image, ray_counts, counts[4]
 
-    def native_jvp(primals, tangents):
-        # The handler's frame as the primal (a derivative returns the image a plain call does;
-        # its rays round differently from XLA's), the reference's tangents. Under `jax.grad`
-        # the primal is unused and XLA drops the handler's call.
-        _, derivative = jvp_of(reference, primals, tangents)
-        return native(*primals), derivative
-
     key_data = jnp.zeros(2, jnp.uint32) if key is None else key_words(key)
-    plan = integrator_plan(config)
-    stage = on_platforms(reference, cpu=native, cpu_only=plan.cpu_only, cpu_jvp=native_jvp)
+    # Derivatives (and the primal a JVP returns) are the reference's: one native forward that
+    # stores its paths, then their replay. Taking the handler's image as that primal instead
+    # would cost a second forward in every `value_and_grad`.
+    stage = on_platforms(reference, cpu=native, cpu_only=integrator_plan(config).cpu_only)
     return stage(scene, tuple(cameras), key_data)
 
 
