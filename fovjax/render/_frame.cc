@@ -139,8 +139,8 @@ int64_t FrameRays(const FrameLayout& L, const FrameBlock& B, FrameScratch& t) {
             t.counter[2 * i] = inside ? ((static_cast<uint32_t>(sample) * H + y) * W + x) * 2 : 0;
             t.counter[2 * i + 1] = t.counter[2 * i] + 1;
           } else {  // the cell centre
-            t.x[i] = t.x[i] + L.grid[2 * sample];
-            t.y[i] = t.y[i] + L.grid[2 * sample + 1];
+            t.x[i] = SamplePosition(t.x[i], L.grid[2 * sample], false, 0.0f, n_cells);
+            t.y[i] = SamplePosition(t.y[i], L.grid[2 * sample + 1], false, 0.0f, n_cells);
           }
         }
       }
@@ -222,15 +222,16 @@ ffi::Error CameraFrame(ffi::ThreadPool pool, ffi::Buffer<ffi::U32> key, ffi::Buf
       for (int64_t px = 0; px < B.cols; ++px) {
         float sum[3] = {0.0f, 0.0f, 0.0f};
         bool pixel_bad = false;
-        for (int64_t sample = 0, sy = 0, sx = 0; sample < spp; ++sample, sx = sx + 1 == cells ? 0 : sx + 1) {
-          if (sample > 0 && sx == 0) ++sy;
-          const int64_t r = py * cells + sy, c = px * cells + sx;
-          const int64_t i = (r / 4) * 16 * tiles + (c / 4) * 16 + (r % 4) * 4 + c % 4;
-          const float* rgb = &scratch.total[3 * i];
-          const bool finite = std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]);
-          bad_samples += !finite;
-          pixel_bad = pixel_bad || !finite;
-          for (int k = 0; k < 3; ++k) sum[k] = sample == 0 ? rgb[k] : sum[k] + rgb[k];
+        for (int64_t sy = 0; sy < cells; ++sy) {  // sample sy·cells + sx, in sample order
+          for (int64_t sx = 0; sx < cells; ++sx) {
+            const int64_t r = py * cells + sy, c = px * cells + sx;
+            const int64_t i = (r / 4) * 16 * tiles + (c / 4) * 16 + (r % 4) * 4 + c % 4;
+            const float* rgb = &scratch.total[3 * i];
+            const bool finite = std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]);
+            bad_samples += !finite;
+            pixel_bad = pixel_bad || !finite;
+            for (int k = 0; k < 3; ++k) sum[k] = sy == 0 && sx == 0 ? rgb[k] : sum[k] + rgb[k];
+          }
         }
         bad_pixels += pixel_bad;
         for (int k = 0; k < 3; ++k) out[3 * px + k] = pixel_bad ? bad[k] : sum[k] / mean;
