@@ -233,8 +233,8 @@ MUTATIONS = (
     Mutation(
         "prefilter-rect-short",
         "the coarse rate's rectangle one column short of where it shows",
-        "row[2] = first, row[3] = end;",
-        "row[2] = first, row[3] = end - 1;",
+        "span[2] = coarse_first, span[3] = coarse_last + 1;",
+        "span[2] = coarse_first, span[3] = coarse_last;",
     ),
     Mutation(
         "prefilter-blurred-luminance-of-image",
@@ -283,6 +283,12 @@ MUTATIONS = (
         "a band of Patney's pre-filter makes one row fewer of B above it than its windows read",
         "const int64_t r0 = std::max(around.y0, y0 - rw),",
         "const int64_t r0 = std::max(around.y0, y0 - rw + 1),",
+    ),
+    Mutation(
+        "prefilter-band-row-offset",
+        "a band of Patney's pre-filter blends the middle rate's rows from the band's first row, not the rectangle's",
+        "MiddleTerm(filtered[0].data() + (y - f0[0]) * m.Cols() * 3,",
+        "MiddleTerm(filtered[0].data() + (y - y0) * m.Cols() * 3,",
     ),
     Mutation(
         "layers-nearest",

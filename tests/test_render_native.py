@@ -552,6 +552,7 @@ PREFILTER_CASES = [
     (21, 290, (140.0, 10.0), (30.0, 80.0), (1.0, 2.0)),
     (13, 9, (4.0, 6.0), (2.0, 4.0), (2.0, 4.0)),
     (100, 15, None, (4.0, 9.0), (1.0, 2.0)),  # columns taller than the handler's bands of rows
+    (110, 40, (20.0, 55.0), (10.0, 25.0), (1.0, 2.0)),  # the rates' rectangles across bands of rows
 ]
 
 

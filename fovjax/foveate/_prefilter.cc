@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <memory>
 #include <vector>
 
 #include "native/csrc/thread_pool.h"
@@ -217,49 +216,45 @@ struct FilterParams {
   float max_gain, flat_std;
 };
 
-// `contrast_preserving_filter` of one eye's image (h, w, 3) at the pixels of `at`, into `out`
-// (at.Rows(), at.Cols(), 3): B the blur, then in the window around each pixel the mean of B
-// and the standard deviations of the luminances of the image and of B: B and the window's
-// planes (L, L², L_B²) blurred once each. In bands of output rows, one per task: a band makes
-// the rows of B and of the planes its windows read (the window's radius more on either side
-// than its own, which its neighbours make again), then its windows eight rows at a time, so
-// that what it makes stays in the cache until it is read.
-void FilterRect(ffi::ThreadPool& pool, const float* image, int64_t h, int64_t w, const FilterParams& f,
-                const Rect& at, float* out) {
+// `contrast_preserving_filter` of one eye's image (h, w, 3) at the pixels of `at`, rows [y0,
+// y1) of it, into `out` (y1 − y0 rows of at.Cols() pixels of 3): B the blur, then in the window
+// around each pixel the mean of B and the standard deviations of the luminances of the image
+// and of B: B and the window's planes (L, L², L_B²) blurred once each. The rows of B and of
+// the planes the windows read (the window's radius more on either side, which the neighbouring
+// bands make again) are made first, then the windows eight rows at a time, so that what the
+// band makes stays in the cache until it is read. The values do not depend on the band.
+void FilterBand(const float* image, int64_t h, int64_t w, const FilterParams& f, const Rect& at, int64_t y0,
+                int64_t y1, float* out) {
   const int64_t rw = static_cast<int64_t>(f.window.size()) / 2;
   const Rect around = at.Grown(rw, h, w);  // where the window reads (clamped as the image is)
   const int64_t cols = around.Cols();
   const float l0 = f.luminance[0], l1 = f.luminance[1], l2 = f.luminance[2];
-  constexpr int64_t kBand = 48, kRows = 8;
-  const int64_t bands = (at.Rows() + kBand - 1) / kBand;
-  ParallelFor(pool, bands, [&](int64_t band) {
-    const int64_t y0 = at.y0 + band * kBand, y1 = std::min(at.y1, y0 + kBand);
-    // The rows of B and of the planes the band's windows read: beyond them the window's rows
-    // are clamped to the image, as they are to these rows (`around` ends where the image does).
-    const int64_t r0 = std::max(around.y0, y0 - rw), r1 = std::min(around.y1, y1 + rw), n = r1 - r0;
-    thread_local std::vector<float> blurred, stack, mean, stats;
-    blurred.resize(static_cast<size_t>(n * cols * 3));
-    stack.resize(static_cast<size_t>(n * cols * kPlanes));
-    mean.resize(static_cast<size_t>(kRows * at.Cols() * 3));
-    stats.resize(static_cast<size_t>(kRows * at.Cols() * kPlanes));
-    BlurRows(image, h, w, 1, 3, f.blur, Rect{r0, r1, around.x0, around.x1}, r0, r1, blurred.data());
-    for (int64_t i = 0; i < n; ++i) {
-      StackRow(image + ((r0 + i) * w + around.x0) * 3, blurred.data() + i * cols * 3, cols, l0, l1, l2,
-               stack.data() + i * cols * kPlanes);
+  constexpr int64_t kRows = 8;
+  // The rows of B and of the planes the band's windows read: beyond them the window's rows
+  // are clamped to the image, as they are to these rows (`around` ends where the image does).
+  const int64_t r0 = std::max(around.y0, y0 - rw), r1 = std::min(around.y1, y1 + rw), n = r1 - r0;
+  thread_local std::vector<float> blurred, stack, mean, stats;
+  blurred.resize(static_cast<size_t>(n * cols * 3));
+  stack.resize(static_cast<size_t>(n * cols * kPlanes));
+  mean.resize(static_cast<size_t>(kRows * at.Cols() * 3));
+  stats.resize(static_cast<size_t>(kRows * at.Cols() * kPlanes));
+  BlurRows(image, h, w, 1, 3, f.blur, Rect{r0, r1, around.x0, around.x1}, r0, r1, blurred.data());
+  for (int64_t i = 0; i < n; ++i) {
+    StackRow(image + ((r0 + i) * w + around.x0) * 3, blurred.data() + i * cols * 3, cols, l0, l1, l2,
+             stack.data() + i * cols * kPlanes);
+  }
+  // The windows, B and the planes taken as images of the band's rows (n) of `around`'s columns.
+  const Rect inside{y0 - r0, y1 - r0, at.x0 - around.x0, at.x1 - around.x0};
+  for (int64_t b0 = inside.y0; b0 < inside.y1; b0 += kRows) {
+    const int64_t b1 = std::min(inside.y1, b0 + kRows);
+    BlurRows(blurred.data(), n, cols, 1, 3, f.window, inside, b0, b1, mean.data());
+    BlurRows(stack.data(), n, cols, kPlanes, 1, f.window, inside, b0, b1, stats.data());
+    for (int64_t y = b0; y < b1; ++y) {
+      GainRow(mean.data() + (y - b0) * at.Cols() * 3, stats.data() + (y - b0) * at.Cols() * kPlanes,
+              blurred.data() + (y * cols + inside.x0) * 3, at.Cols(), l0, l1, l2, f.flat_std, f.max_gain,
+              out + (y + r0 - y0) * at.Cols() * 3);
     }
-    // The windows, B and the planes taken as images of the band's rows (n) of `around`'s columns.
-    const Rect inside{y0 - r0, y1 - r0, at.x0 - around.x0, at.x1 - around.x0};
-    for (int64_t b0 = inside.y0; b0 < inside.y1; b0 += kRows) {
-      const int64_t b1 = std::min(inside.y1, b0 + kRows);
-      BlurRows(blurred.data(), n, cols, 1, 3, f.window, inside, b0, b1, mean.data());
-      BlurRows(stack.data(), n, cols, kPlanes, 1, f.window, inside, b0, b1, stats.data());
-      for (int64_t y = b0; y < b1; ++y) {
-        GainRow(mean.data() + (y - b0) * at.Cols() * 3, stats.data() + (y - b0) * at.Cols() * kPlanes,
-                blurred.data() + (y * cols + inside.x0) * 3, at.Cols(), l0, l1, l2, f.flat_std, f.max_gain,
-                out + (y + r0 - at.y0) * at.Cols() * 3);
-      }
-    }
-  });
+  }
 }
 
 // The rates' blend along a row (`rate_blend`'s arithmetic in its order): rest = coarse·(1 −
@@ -286,36 +281,47 @@ void InnerOver(const float* __restrict__ rest, const float* __restrict__ image, 
   }
 }
 
-// The bounding rectangles of one eye's pixels where the middle and the coarse rate's filters
-// have a weight in the blend that is not 0: w_middle·(1 − w_inner) and (1 − w_middle)·(1 −
-// w_inner). Rows in parallel, then their column spans merged.
-void ShownRects(ffi::ThreadPool& pool, const float* inner, const float* middle, int64_t h, int64_t w, Rect out[2]) {
-  std::vector<int64_t> span(static_cast<size_t>(4 * h));  // per row: each filter's first and end column
-  ParallelFor(pool, h, [&](int64_t y) {
-    const float* a = inner + y * w;
-    const float* b = middle + y * w;
-    auto middle_shows = [&](int64_t x) { return a[x] != 1.0f && b[x] != 0.0f; };
-    auto coarse_shows = [&](int64_t x) { return a[x] != 1.0f && b[x] != 1.0f; };
-    int64_t* row = span.data() + 4 * y;
-    // From each end to the first pixel where the filter shows (most rows stop at once).
-    int64_t first = 0, end = w;
-    while (first < w && !middle_shows(first)) ++first;
-    while (end > first && !middle_shows(end - 1)) --end;
-    row[0] = first, row[1] = end;
-    first = 0, end = w;
-    while (first < w && !coarse_shows(first)) ++first;
-    while (end > first && !coarse_shows(end - 1)) --end;
-    row[2] = first, row[3] = end;
-  });
-  for (int f = 0; f < 2; ++f) {
-    Rect box{h, 0, w, 0};
-    for (int64_t y = 0; y < h; ++y) {
-      const int64_t first = span[4 * y + 2 * f], end = span[4 * y + 2 * f + 1];
-      if (end <= first) continue;
-      box.y0 = std::min(box.y0, y), box.y1 = y + 1;
-      box.x0 = std::min(box.x0, first), box.x1 = std::max(box.x1, end);
+// One row's column spans [first, end) where the middle and the coarse rate's filters have a
+// weight in the blend that is not 0: w_middle·(1 − w_inner) and (1 − w_middle)·(1 − w_inner)
+// (first ≥ end: nowhere). Branch-free minima and maxima, so that GCC vectorises the row.
+FOVJAX_VECTOR_CLONES
+void RowSpans(const float* __restrict__ a, const float* __restrict__ b, int32_t w, int32_t span[4]) {
+  int32_t middle_first = w, middle_last = -1, coarse_first = w, coarse_last = -1;
+  for (int32_t x = 0; x < w; ++x) {
+    // (integer masks and plain selects: GCC vectorises neither `&&` nor std::min here)
+    const int32_t outer = a[x] != 1.0f;
+    const int32_t middle = outer & (b[x] != 0.0f), coarse = outer & (b[x] != 1.0f);
+    const int32_t mf = middle ? x : w, ml = middle ? x : -1, cf = coarse ? x : w, cl = coarse ? x : -1;
+    middle_first = mf < middle_first ? mf : middle_first;
+    middle_last = ml > middle_last ? ml : middle_last;
+    coarse_first = cf < coarse_first ? cf : coarse_first;
+    coarse_last = cl > coarse_last ? cl : coarse_last;
+  }
+  span[0] = middle_first, span[1] = middle_last + 1, span[2] = coarse_first, span[3] = coarse_last + 1;
+}
+
+// Per eye, the bounding rectangles of the pixels where the middle and the coarse rate's
+// filters show (`RowSpans`): the rows' spans in bands of rows in parallel, then merged.
+void ShownRects(ffi::ThreadPool& pool, const float* inner, const float* middle, int64_t h, int64_t w, Rect out[2][2]) {
+  std::vector<int32_t> span(static_cast<size_t>(4 * 2 * h));
+  constexpr int64_t kRows = 32;
+  const int64_t bands = (2 * h + kRows - 1) / kRows;
+  ParallelFor(pool, bands, [&](int64_t band) {
+    for (int64_t row = band * kRows; row < std::min(2 * h, (band + 1) * kRows); ++row) {
+      RowSpans(inner + row * w, middle + row * w, static_cast<int32_t>(w), span.data() + 4 * row);
     }
-    out[f] = box.Empty() ? Rect{} : box;
+  });
+  for (int64_t e = 0; e < 2; ++e) {
+    for (int f = 0; f < 2; ++f) {
+      Rect box{h, 0, w, 0};
+      for (int64_t y = 0; y < h; ++y) {
+        const int64_t first = span[4 * (e * h + y) + 2 * f], end = span[4 * (e * h + y) + 2 * f + 1];
+        if (end <= first) continue;
+        box.y0 = std::min(box.y0, y), box.y1 = y + 1;
+        box.x0 = std::min(box.x0, first), box.x1 = std::max(box.x1, end);
+      }
+      out[e][f] = box.Empty() ? Rect{} : box;
+    }
   }
 }
 
@@ -323,7 +329,8 @@ void ShownRects(ffi::ThreadPool& pool, const float* inner, const float* middle, 
 // filter is computed only where its weight in the blend is not 0), then the blend
 // rest = coarse·(1 − w_middle) + middle·w_middle, out = rest·(1 − w_inner) + image·w_inner,
 // written side by side. A term left out is one whose product is 0 there (the filters are
-// finite where the image is), so the values are the whole images' blend.
+// finite where the image is), so the values are the whole images' blend. Both eyes in bands of
+// rows, one per task: a band's filtered rows are blended while they are in the cache.
 ffi::Error PatneyPrefilter(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ffi::Buffer<ffi::F32> w_inner,
                            ffi::Buffer<ffi::F32> w_middle, ffi::Buffer<ffi::F32> middle_blur,
                            ffi::Buffer<ffi::F32> middle_window, ffi::Buffer<ffi::F32> coarse_blur,
@@ -338,6 +345,7 @@ ffi::Error PatneyPrefilter(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ff
       out->element_count() != static_cast<size_t>(6 * hw) || luminance.element_count() != 3) {
     return ffi::Error::InvalidArgument("prefilter: the weights are (2, H, W) and the output (H, 2W, 3)");
   }
+  if (w >= (int64_t{1} << 30)) return ffi::Error::InvalidArgument("prefilter: the image is too wide");
   FilterParams filters[2];
   const ffi::Buffer<ffi::F32>* taps[2][2] = {{&middle_blur, &middle_window}, {&coarse_blur, &coarse_window}};
   for (int f = 0; f < 2; ++f) {
@@ -354,36 +362,43 @@ ffi::Error PatneyPrefilter(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ff
   const float* wi = w_inner.typed_data();
   const float* wm = w_middle.typed_data();
   float* dst = out->typed_data();
-  for (int64_t e = 0; e < 2; ++e) {
+  Rect shown[2][2];  // per eye: the middle and the coarse rate's
+  ShownRects(pool, wi, wm, h, w, shown);
+  constexpr int64_t kBand = 48;
+  const int64_t per_eye = (h + kBand - 1) / kBand;
+  ParallelFor(pool, 2 * per_eye, [&](int64_t band) {
+    const int64_t e = band / per_eye, y0 = band % per_eye * kBand, y1 = std::min(h, y0 + kBand);
     const float* img = src + e * hw * 3;
     const float* inner = wi + e * hw;
     const float* middle = wm + e * hw;
-    Rect shown[2];
-    ShownRects(pool, inner, middle, h, w, shown);
-    std::unique_ptr<float[]> filtered[2];
+    // Each filter's rows of the band that lie in its rectangle.
+    thread_local std::vector<float> filtered[2];
+    int64_t f0[2], f1[2];
     for (int f = 0; f < 2; ++f) {
-      if (shown[f].Empty()) continue;
-      filtered[f].reset(new float[shown[f].Rows() * shown[f].Cols() * 3]);
-      FilterRect(pool, img, h, w, filters[f], shown[f], filtered[f].get());
+      const Rect& at = shown[e][f];
+      f0[f] = std::max(y0, at.y0), f1[f] = std::min(y1, at.y1);
+      if (at.Empty() || f1[f] <= f0[f]) continue;
+      filtered[f].resize(static_cast<size_t>((f1[f] - f0[f]) * at.Cols() * 3));
+      FilterBand(img, h, w, filters[f], at, f0[f], f1[f], filtered[f].data());
     }
     // Per row: rest = coarse·(1 − w_middle) + middle·w_middle where each filter was computed
     // (elsewhere its weight is 0, or w_inner is 1 and rest·0 is 0), then the image over it.
-    ParallelFor(pool, h, [&](int64_t y) {
-      thread_local std::vector<float> rest;
+    thread_local std::vector<float> rest;
+    for (int64_t y = y0; y < y1; ++y) {
       rest.assign(static_cast<size_t>(3 * w), 0.0f);
       const float* a = inner + y * w;
       const float* b = middle + y * w;
-      const Rect& c = shown[1];
-      if (y >= c.y0 && y < c.y1) {
-        CoarseTerm(filtered[1].get() + (y - c.y0) * c.Cols() * 3, b + c.x0, c.Cols(), rest.data() + 3 * c.x0);
+      const Rect& c = shown[e][1];
+      if (y >= f0[1] && y < f1[1]) {
+        CoarseTerm(filtered[1].data() + (y - f0[1]) * c.Cols() * 3, b + c.x0, c.Cols(), rest.data() + 3 * c.x0);
       }
-      const Rect& m = shown[0];
-      if (y >= m.y0 && y < m.y1) {
-        MiddleTerm(filtered[0].get() + (y - m.y0) * m.Cols() * 3, b + m.x0, m.Cols(), rest.data() + 3 * m.x0);
+      const Rect& m = shown[e][0];
+      if (y >= f0[0] && y < f1[0]) {
+        MiddleTerm(filtered[0].data() + (y - f0[0]) * m.Cols() * 3, b + m.x0, m.Cols(), rest.data() + 3 * m.x0);
       }
       InnerOver(rest.data(), img + y * w * 3, a, w, dst + (y * 2 * w + e * w) * 3);
-    });
-  }
+    }
+  });
   return ffi::Error::Success();
 }
 
