@@ -286,7 +286,7 @@ MUTATIONS = (
     ),
     Mutation(
         "prefilter-band-row-offset",
-        "a band of Patney's pre-filter blends the middle rate's rows from the band's first row, not the rectangle's",
+        "a band of Patney's pre-filter blends the middle rate's rows from its first row, not the rectangle's",
         "MiddleTerm(filtered[0].data() + (y - f0[0]) * m.Cols() * 3,",
         "MiddleTerm(filtered[0].data() + (y - y0) * m.Cols() * 3,",
     ),
