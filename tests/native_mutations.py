@@ -171,6 +171,12 @@ MUTATIONS = (
         "if (false) continue;",
     ),
     Mutation(
+        "select-draws-by-first-pixel",
+        "the selection draws a row's P(ω) draws only where its first pixel's P is strictly between 0 and 1",
+        "drawn |= (prow[x] > 0.0f) & (prow[x] < 1.0f);",
+        "drawn |= (prow[0] > 0.0f) & (prow[0] < 1.0f);",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "std::copy(line + row - c, line + row, p + c + row);",

@@ -1185,29 +1185,32 @@ def test_image_rays_in_4x4_tiles_cover_every_ray(featured):
     assert int(a.counts.primary) == 2 * 300 * 8
 
 
+GAZE = ((0.3, 0.4), (0.35, 0.45))
 SELECTION_CASES = [
-    # (eye width, height, spp, rule, blocks, budget or None for every sample, per-region spp)
-    (40, 24, 1, "either", (2, 4), None, None),
-    (37, 29, 4, "either", (2, 4), 300, None),  # odd sizes; the budget drops samples
-    (37, 29, 4, "strict", (1, 3), None, None),
-    (40, 24, 4, "thesis-measured", (2, 4), 500, None),
-    (40, 24, 4, "either", (2, 4), None, (4, 1, 2)),  # each region's samples per pixel
+    # (eye width, height, spp, rule, blocks, budget or None for every sample, per-region spp, gaze)
+    (40, 24, 1, "either", (2, 4), None, None, GAZE),
+    (37, 29, 4, "either", (2, 4), 300, None, GAZE),  # odd sizes; the budget drops samples
+    (37, 29, 4, "strict", (1, 3), None, None, GAZE),
+    (40, 24, 4, "thesis-measured", (2, 4), 500, None, GAZE),
+    (40, 24, 4, "either", (2, 4), None, (4, 1, 2), GAZE),  # each region's samples per pixel
+    # The fovea at the left edge: rows that begin where P(ω) is 1 and draw beyond it.
+    (40, 24, 4, "either", (2, 4), None, None, ((0.0, 0.5), (0.01, 0.5))),
 ]
 
 
-@pytest.mark.parametrize("case", SELECTION_CASES, ids=lambda c: f"{c[3]}-spp{c[2]}-{c[5]}")
+@pytest.mark.parametrize("case", SELECTION_CASES, ids=lambda c: f"{c[3]}-spp{c[2]}-{c[5]}-x{c[7][0][0]}")
 def test_native_sample_selection_is_the_jax_selection(featured, case):
     """The native handler's classes, counts, compaction (the listed samples, in order), traced
     mask and per-pixel counts are the JAX selection's, integer for integer."""
     from fovjax.foveate import Fidelity
     from fovjax.foveate._frame import eccentricities, selection_with_mask
 
-    w, h, spp, rule, blocks, budget, per_region = case
+    w, h, spp, rule, blocks, budget, per_region, gaze = case
     fidelity = None if per_region is None else tuple(Fidelity(spp=s) for s in per_region)
     fov = Foveation(5.0, 10.0, spp=spp, rule=rule, blocks=blocks, fidelity=fidelity)
     scene = featured[0]
     rig = StereoRig.from_pose(fovjax.scenes.default_camera(scene), eye_width=w, eye_height=h)
-    ecc = eccentricities(rig.eye_cameras(jnp.zeros(3)), jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    ecc = eccentricities(rig.eye_cameras(jnp.zeros(3)), jnp.asarray(gaze), fov)
     budget = budget or 2 * spp * w * h
 
     def both(ecc, key):

@@ -112,9 +112,19 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
         tl[xb] |= found;
       }
     }
-    for (int64_t s = 0; s < spp; ++s)
-      UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
     const float* prow = p + eye * hw + y * W;
+    // A draw decides a class only where P is strictly between 0 and 1 (below, none is kept;
+    // above, every one): a row without such a P (the methods' pixel masks, the fovea's rows)
+    // needs none, and any draw in [0, 1) gives its classes. The thesis-measured rule draws none.
+    int32_t drawn = 0;
+    for (int64_t x = 0; x < W; ++x) drawn |= (prow[x] > 0.0f) & (prow[x] < 1.0f);
+    for (int64_t s = 0; s < spp; ++s) {
+      if (drawn && rule != kRuleThesisMeasured) {
+        UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
+      } else {
+        std::fill(u.begin() + s * W, u.begin() + (s + 1) * W, 0.0f);
+      }
+    }
     int32_t* n = per_pixel + eye * hw + y * W;
     std::fill(n, n + W, 0);
     for (int64_t s = 0; s < spp; ++s) {
