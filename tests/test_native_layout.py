@@ -50,7 +50,7 @@ def test_the_mirror_is_the_owners_constants():
         "optional": _sampling.OPTIONAL,
         "skipped": _sampling.SKIPPED,
     }
-    assert set(layout.RULES) == set(_config.SAMPLING_RULES)
+    assert set(layout.RULES) == {*_config.SAMPLING_RULES, "pixel-mask"}  # (the methods' pixel masks)
     from fovjax.render import internal as render_internal
 
     # The shading adjoint's field bits follow the order of the fields it returns.

@@ -481,7 +481,7 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
     """The other foveation methods' traced pixels (`trace_pixels`: Guenter 2012, Patney 2016 and
     Weier 2016 all trace through it) on a CPU: selected by the native selection handler and
     traced and summed by the native slots handler, against the JAX selection and chunk loop: the
-    same slots, masks and per-pixel counts (integers), every pixel's mean to float rounding and
+    same slots, masks, per-pixel and per-region counts (integers), every pixel's mean to float rounding and
     the same ray counts, at SPP 4 with jitter along the corridor's mirrors at one reflection
     level (a bounce skipped, or a pixel's sub-sample left out, changes the means far above
     rounding: asserted of the reflections the oracle traced). Weier's points (`first_hit_points`:
@@ -519,14 +519,17 @@ def test_methods_pixels_through_the_native_handlers_are_the_chunked_path(corrido
         live = jnp.where(jnp.arange(out.selection.order.shape[0]) < k, out.selection.order, -1)
         c = out.counts
         counts = jnp.stack([c.primary, c.shadow, c.reflection, c.bad])
-        return out.prefill, out.n, out.mask, live, out.first_points, counts
+        return out.prefill, out.n, out.mask, live, out.first_points, counts, out.by_region
 
     lowered = jax.jit(lambda: (pixels("native"), pixels("jax"))).lower()
     text = lowered.as_text()
     assert "fovjax_whitted_slots" in text and "fovjax_select_samples" in text
     native, reference = lowered.compile()()
-    for a, b in zip(native[1:4], reference[1:4], strict=True):  # counts, mask, slots: integers
+    # counts, mask, slots, samples by region: integers
+    for a, b in zip(native[1:4] + native[6:], reference[1:4] + reference[6:], strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    by_region = np.asarray(native[6])
+    assert by_region.sum() == np.asarray(native[1]).sum() and (by_region > 0).sum() >= 2
     assert_native_radiance(native[0], reference[0], arrays)
     assert_same_counts(native[5], reference[5])
     n, counts = np.asarray(reference[1]), np.asarray(reference[5])

@@ -36,6 +36,9 @@ void ClassRow(const int32_t* __restrict__ row, const uint8_t* __restrict__ top_l
     } else if (kRule == kRuleStrict) {
       mandatory = fovea;
       optional = (mandatory ^ 1) & tl & kept;
+    } else if (kRule == kRulePixelMask) {  // P is 1 at the pixels to trace, else 0
+      mandatory = prob[x] >= 1.0f;
+      optional = 0;
     } else {  // thesis-measured
       mandatory = (r != kOutside) | f;
       optional = 0;
@@ -115,11 +118,12 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
     const float* prow = p + eye * hw + y * W;
     // A draw decides a class only where P is strictly between 0 and 1 (below, none is kept;
     // above, every one): a row without such a P (the methods' pixel masks, the fovea's rows)
-    // needs none, and any draw in [0, 1) gives its classes. The thesis-measured rule draws none.
+    // needs none, and any draw in [0, 1) gives its classes. The thesis-measured rule and the
+    // pixel masks draw none.
     int32_t drawn = 0;
     for (int64_t x = 0; x < W; ++x) drawn |= (prow[x] > 0.0f) & (prow[x] < 1.0f);
     for (int64_t s = 0; s < spp; ++s) {
-      if (drawn && rule != kRuleThesisMeasured) {
+      if (drawn && rule != kRuleThesisMeasured && rule != kRulePixelMask) {
         UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
       } else {
         std::fill(u.begin() + s * W, u.begin() + (s + 1) * W, 0.0f);
@@ -135,7 +139,8 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
       const uint8_t first = s == 0;
       if (rule == kRuleEither) ClassRow<kRuleEither>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
       else if (rule == kRuleStrict) ClassRow<kRuleStrict>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
-      else ClassRow<kRuleThesisMeasured>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+      else if (rule == kRuleThesisMeasured) ClassRow<kRuleThesisMeasured>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
+      else ClassRow<kRulePixelMask>(row, top_left.data(), us, prow, allowed, first, W, c_row, t_row, n);
     }
     // Per region, in registers (a sum through memory would wait on each previous add).
     int32_t fovea = 0, periphery = 0, outside = 0;
@@ -165,6 +170,7 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
       subsample_rank.element_count() != static_cast<size_t>(spp) || block_periphery < 1 || block_outside < 1) {
     return ffi::Error::InvalidArgument("select: operand shapes do not match the regions");
   }
+  if (rule < kRuleEither || rule > kRulePixelMask) return ffi::Error::InvalidArgument("select: an unknown rule");
   const int32_t* region = region_buf.typed_data();
   const float* p = probability.typed_data();
   const uint32_t* key = keys.typed_data();

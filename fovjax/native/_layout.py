@@ -18,7 +18,9 @@ LIGHT_KINDS = {"point": 0, "directional": 1, "spot": 2}
 SPECULARS = {"blinn-phong": 0, "phong": 1}
 REGIONS = {"fovea": 0, "periphery": 1, "outside": 2}
 CLASSES = {"mandatory": 0, "optional": 1, "skipped": 2}
-RULES = {"either": 0, "strict": 1, "thesis-measured": 2}
+# Sampling rules (`Foveation.rule`), and "pixel-mask": the foveation methods' pixel masks (every
+# sub-sample of the pixels whose P is 1; `fovjax.foveate._methods._sparse.pixel_selection`).
+RULES = {"either": 0, "strict": 1, "thesis-measured": 2, "pixel-mask": 3}
 # Shadow modes of a shading class (`fovjax.render.internal.SHADOWS_ALL`, ...).
 SHADOWS = {"all": 0, "brightest": 1, "none": 2}
 # The shading adjoint's fields (`fovjax.render.internal.SHADING_FIELDS`): bit i of its `moving`

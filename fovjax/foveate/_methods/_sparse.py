@@ -13,10 +13,18 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ...native.internal import on_platforms
-from .._frame import FoveatedOutputs, Selection, locality_order, pixel_means, traced_count, traced_sums
+from .._frame import (
+    FoveatedOutputs,
+    Selection,
+    locality_order,
+    pixel_means,
+    samples_by_region,
+    traced_count,
+    traced_sums,
+)
 from .._native import native_select_samples
 from .._positions import positions_at
-from .._sampling import FOVEA, MANDATORY, OUTSIDE, SKIPPED, compaction_order, regions, subsample_rank
+from .._sampling import MANDATORY, SKIPPED, compaction_order, regions, subsample_rank
 
 
 def select_pixels(ecc, trace_pixel, *, spp: int, foveation) -> Selection:
@@ -33,44 +41,43 @@ def select_pixels(ecc, trace_pixel, *, spp: int, foveation) -> Selection:
 
 
 def pixel_selection(ecc, trace_pixel, *, spp: int, foveation, native: bool):
-    """`select_pixels` with its traced mask (2, S, H, W) and traced samples per pixel (2, H, W):
-    (selection with int8 classes and no ranks, mask, counts). `native`: on a CPU through the
-    thesis's native selection handler (`native_select_samples`), chosen inside the program (the
-    JAX functions elsewhere): a pixel mask is that handler's selection under the rule "strict"
-    with the traced pixels as the fovea (every sub-sample mandatory) and every other pixel
-    outside at probability 0 (no draw kept, so nothing optional): the same integers as
-    `select_pixels`, without XLA's screen-sized gathers and prefix sums."""
+    """`select_pixels` with its traced mask (2, S, H, W), traced samples per pixel (2, H, W) and
+    per region (3): (selection with int8 classes and no ranks, mask, counts, counts by region).
+    `native`: on a CPU through the thesis's native selection handler (`native_select_samples`),
+    chosen inside the program (the JAX functions elsewhere), under its rule "pixel-mask": every
+    sub-sample of a pixel whose P is 1 (the traced pixels) mandatory, nothing else: the same
+    integers as `select_pixels`, without XLA's screen-sized gathers, prefix sums and per-region
+    scatter."""
     _, h, w = ecc.shape
     region = jnp.stack([regions(ecc[i], foveation) for i in range(2)])
 
     def in_jax():
         sel = select_pixels(ecc, trace_pixel, spp=spp, foveation=foveation)
         mask = sel.classes != SKIPPED
-        return sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, traced_count(mask, spp)
+        n = traced_count(mask, spp)
+        return sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n, samples_by_region(region, n)
 
     if not native or 2 * spp * h * w >= 2**31:
-        classes, order, counts, mask, n = in_jax()
+        classes, order, counts, mask, n, by_region = in_jax()
     else:
 
         def on_cpu():
-            as_region = jnp.where(trace_pixel, FOVEA, OUTSIDE).astype(jnp.int32)
-            classes, order, counts, mask, n, _ = native_select_samples(
-                as_region,
-                jnp.zeros(ecc.shape, jnp.float32),
-                jnp.zeros((2, 2), jnp.uint32),  # the draws' key: no draw is kept
+            return native_select_samples(
+                region.astype(jnp.int32),
+                trace_pixel.astype(jnp.float32),
+                jnp.zeros((2, 2), jnp.uint32),  # the draws' key: no draw is made
                 locality_order(h, w),
                 (spp, spp, spp),
                 subsample_rank(spp),
                 spp=spp,
-                rule="strict",
+                rule="pixel-mask",
                 blocks=(1, 1),
                 budget=2 * spp * h * w,
             )
-            return classes, order, counts, mask, n
 
-        classes, order, counts, mask, n = on_platforms(in_jax, cpu=on_cpu, derivatives=False)()
+        classes, order, counts, mask, n, by_region = on_platforms(in_jax, cpu=on_cpu, derivatives=False)()
     sel = Selection(ecc, region, classes, counts, order, None, counts[MANDATORY])
-    return sel, mask, n
+    return sel, mask, n, by_region
 
 
 def side_by_side(eyes: Float[Array, "2 H W 3"]) -> Float[Array, "H W2 3"]:
@@ -95,6 +102,7 @@ class TracedPixels:
     mask: Bool[Array, "2 S H W"]
     counts: object  # fovjax.render RayCounts
     bad_pixel: Bool[Array, "2 H W"]
+    by_region: Int[Array, " 3"]
     first_points: Float[Array, "2 H W 3"] | None = None  # `_frame.first_hit_points`', where asked
 
     def outputs(self, image, diagnostics) -> FoveatedOutputs:
@@ -102,11 +110,10 @@ class TracedPixels:
         mandatory: a method's pixels are traced whole, nothing is drawn or dropped)."""
         sel = self.selection
         wanted = sel.counts[MANDATORY]
-        by_region = jnp.zeros(3, jnp.int32).at[sel.region.reshape(-1)].add(self.n.reshape(-1))
         return FoveatedOutputs(
             image=image,
             counts=self.counts,
-            primary_by_region=by_region,
+            primary_by_region=self.by_region,
             mandatory=wanted,
             optional=jnp.zeros((), jnp.int32),
             dropped=jnp.zeros((), jnp.int32),
@@ -143,7 +150,7 @@ def trace_pixels(
 
     _, h, w = ecc.shape
     native = integrator_plan(config).cpu
-    sel, mask, n = pixel_selection(ecc, trace_pixel, spp=spp, foveation=foveation, native=native)
+    sel, mask, n, by_region = pixel_selection(ecc, trace_pixel, spp=spp, foveation=foveation, native=native)
     budget = 2 * spp * h * w
     size = min(config.chunk_size, budget)
     padded = -(-budget // size) * size
@@ -162,4 +169,4 @@ def trace_pixels(
     # and XLA would otherwise recompute the division at each read.
     prefill = jax.lax.optimization_barrier(prefill)
     counts = RayCounts(traced.primary, traced.shadow, traced.reflection, n_bad)
-    return TracedPixels(sel, positions, size, budget, prefill, n, mask, counts, bad_pixel, points)
+    return TracedPixels(sel, positions, size, budget, prefill, n, mask, counts, bad_pixel, by_region, points)

@@ -23,8 +23,9 @@ constexpr int kCameraStride = 16;
 constexpr int kFovea = 0, kPeriphery = 1, kOutside = 2;
 // Sample classes (fovjax/foveate/_sampling.py).
 constexpr int8_t kMandatory = 0, kOptional = 1, kSkipped = 2;
-// Sampling rules (`Foveation.rule`).
-constexpr int kRuleEither = 0, kRuleStrict = 1, kRuleThesisMeasured = 2;
+// Sampling rules (`Foveation.rule`), and the methods' pixel masks (every sub-sample of the pixels
+// whose P is 1: `foveate/_methods/_sparse.py`, `pixel_selection`).
+constexpr int kRuleEither = 0, kRuleStrict = 1, kRuleThesisMeasured = 2, kRulePixelMask = 3;
 // Shadow modes of a shading class (`ShadingClasses.shadows`, fovjax/render/_integrator.py).
 constexpr int kShadowsAll = 0, kShadowsBrightest = 1, kShadowsNone = 2;
 // The shading adjoint's fields (render/_whitted_adjoint.cc): bit i of its `moving` attribute

@@ -131,6 +131,7 @@ const char* fovjax_native_layout() {
       ";class_skipped=" + std::to_string(kSkipped) + ";rule_either=" + std::to_string(kRuleEither) +
       ";rule_strict=" + std::to_string(kRuleStrict) +
       ";rule_thesis_measured=" + std::to_string(kRuleThesisMeasured) +
+      ";rule_pixel_mask=" + std::to_string(kRulePixelMask) +
       ";shadows_all=" + std::to_string(kShadowsAll) + ";shadows_brightest=" + std::to_string(kShadowsBrightest) +
       ";shadows_none=" + std::to_string(kShadowsNone) + ";adjoint_ka=" + std::to_string(kAdjointKa) +
       ";adjoint_kd=" + std::to_string(kAdjointKd) + ";adjoint_ks=" + std::to_string(kAdjointKs) +
