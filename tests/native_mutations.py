@@ -179,8 +179,32 @@ MUTATIONS = (
     Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
-        "std::copy(line + row - c, line + row, p + c + row);",
-        "std::fill(p + c + row, p + 2 * c + row, 0.0f);",
+        "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",
+        "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = 0.0f;",
+    ),
+    Mutation(
+        "taa-middle-row-coarse-stride",
+        "the history blend's middle rate reads its block's row at the coarse rate's stride",
+        "const int64_t m = at / middle_stride * middle_stride, q = at / coarse_stride * coarse_stride;",
+        "const int64_t m = at / coarse_stride * coarse_stride, q = at / coarse_stride * coarse_stride;",
+    ),
+    Mutation(
+        "taa-held-row-stale",
+        "the history blend keeps a rate's held row from the band's first row for all its rows",
+        "if (m != middle_at) HeldRow(",
+        "if (middle_at < 0) HeldRow(",
+    ),
+    Mutation(
+        "taa-band-halo-missing",
+        "a band of the history blend's rows blends the rates' row above it as its own first row",
+        "const int64_t at = std::clamp<int64_t>(y, 0, h - 1);",
+        "const int64_t at = std::clamp<int64_t>(y, y0, h - 1);",
+    ),
+    Mutation(
+        "taa-rates-weights-swapped",
+        "the history blend weighs the coarse rate by the middle rate's weight",
+        "const float rest = coarse[3 * x + ch] * (1.0f - b[x]) + middle[3 * x + ch] * b[x];",
+        "const float rest = coarse[3 * x + ch] * b[x] + middle[3 * x + ch] * (1.0f - b[x]);",
     ),
     Mutation(
         "taa-history-unclipped",

@@ -688,64 +688,76 @@ def _taa_rounding_bound(image, *, gamma, keep):
 
 
 def test_patney_history_blend_native_is_the_jax_path():
-    """Patney 2016's history blend (`taa_blend`) through the native TAA handler against the JAX
-    blend: equal to float rounding (within the rounding that a flat neighbourhood's square root
-    amplifies, `_taa_rounding_bound`), with pixels with and without a history, odd sizes (the
-    border's taps clamped, a single row), a history far outside the neighbourhood (clipped) and
-    images of the frame's shading rates (held blocks: flat neighbourhoods); the derivative is
-    the JAX blend's, finite where a neighbourhood is flat."""
+    """Patney 2016's shading rates blended and its history blend (`rates_and_history`) through
+    the native TAA handler against the JAX functions: equal to float rounding (within the
+    rounding that a flat neighbourhood's square root amplifies, `_taa_rounding_bound`), with
+    pixels with and without a history, odd sizes (the border's taps clamped, a single row), a
+    history far outside the neighbourhood (clipped), the inner rate everywhere (the traced image
+    itself), the rates' held blocks at strides that do not divide the image (flat
+    neighbourhoods) and an image taller than the handler's bands of rows; the derivative is the
+    JAX functions', finite where a neighbourhood is flat."""
     from fovjax.foveate._methods._guenter import layer_weights
-    from fovjax.foveate._methods._patney import TaaHistory, hold, rate_blend, taa_blend
+    from fovjax.foveate._methods._patney import TaaHistory, hold, rate_blend, rates_and_history
 
-    cases = []
+    cases = []  # (pixels, w_inner, w_middle, strides, history)
     for i, shape in enumerate([(2, 13, 9, 3), (1, 5, 7, 3), (1, 1, 2, 3)]):
         k = jax.random.split(jax.random.key(10 + i), 3)
         color = 3.0 * jax.random.uniform(k[1], shape) - 1.0  # partly outside the clip box
-        cases.append(
-            (jax.random.uniform(k[0], shape), TaaHistory(color, jax.random.bernoulli(k[2], 0.7, shape[:3])))
-        )
-    for i, (h, w, strides) in enumerate([(13, 18, (2, 4)), (10, 7, (3, 5))]):
+        history = TaaHistory(color, jax.random.bernoulli(k[2], 0.7, shape[:3]))
+        ones = jnp.ones(shape[:3])
+        cases.append((jax.random.uniform(k[0], shape), ones, 0 * ones, (2, 3), history))
+    for i, (h, w, strides) in enumerate([(13, 18, (2, 4)), (10, 7, (3, 5)), (37, 11, (2, 4))]):
         k = jax.random.split(jax.random.key(20 + i), 3)
         y, x = jnp.mgrid[0:h, 0:w]
         ecc = jnp.stack([jnp.hypot(x - 3.0, y - 4.0), jnp.hypot(x - w + 2.0, y - 1.0)])  # degrees = pixels
         pix = jax.random.uniform(k[0], (2, h, w, 3))
-        shaded = rate_blend(
-            *(hold(pix, s) for s in (1, *strides)), *layer_weights(ecc, jnp.asarray([2.0, 5.0]), 1.5)
-        )
         color = 3.0 * jax.random.uniform(k[1], (2, h, w, 3)) - 1.0
-        cases.append((shaded, TaaHistory(color, jax.random.bernoulli(k[2], 0.7, (2, h, w)))))
+        history = TaaHistory(color, jax.random.bernoulli(k[2], 0.7, (2, h, w)))
+        cases.append((pix, *layer_weights(ecc, jnp.asarray([2.0, 5.0]), 1.5), strides, history))
 
-    def both(cases):
-        out = [
-            [taa_blend(c, hist, alpha=0.1, gamma=1.0, native=n) for n in (True, False)] for c, hist in cases
-        ]
-        for current, hist in (cases[0], cases[3]):
+    def blended(case, native, alpha=0.1, gamma=1.0):
+        pix, w_inner, w_middle, strides, history = case
+        return rates_and_history(
+            pix, w_inner, w_middle, history, strides=strides, alpha=alpha, gamma=gamma, native=native
+        )
+
+    def both(arrays):
+        cases_now = [(*a[:3], c[3], a[3]) for a, c in zip(arrays, cases, strict=True)]
+        out = [[blended(c, n) for n in (True, False)] for c in cases_now]
+        for case in (cases_now[0], cases_now[3]):
+            tangent = jnp.ones_like(case[0])
             out.append(
                 [
                     jax.jvp(
-                        lambda x, n=n, hist=hist: taa_blend(x, hist, alpha=0.25, gamma=0.5, native=n),
-                        (current,),
-                        (jnp.ones_like(current),),
+                        lambda x, n=n, c=case: blended((x, *c[1:]), n, 0.25, 0.5), (case[0],), (tangent,)
                     )[1]
                     for n in (True, False)
                 ]
             )
         return out
 
-    lowered = jax.jit(both).lower(cases)
-    assert lowered.as_text().count("fovjax_taa_blend") >= 5
-    results = lowered.compile()(cases)
-    images = [c for c, _ in cases]
+    arrays = [(*c[:3], c[4]) for c in cases]  # the strides are static
+    lowered = jax.jit(both).lower(arrays)
+    assert lowered.as_text().count("fovjax_taa_blend") >= 6
+    results = lowered.compile()(arrays)
+    images = [
+        rate_blend(*(hold(pix, s) for s in (1, *strides)), w_inner, w_middle)
+        for pix, w_inner, w_middle, strides, _ in cases
+    ]
     for (native, reference), image in zip(results, [*images, None, None], strict=True):
         native, reference = np.asarray(native), np.asarray(reference)
         bound = 0.0 if image is None else _taa_rounding_bound(image, gamma=1.0, keep=0.9)
         assert np.isfinite(reference).all()  # held blocks' flat neighbourhoods: no NaN slope either
         assert np.all(np.abs(native - reference) <= 1e-6 * np.abs(reference) + 1e-7 + 2 * bound)
     # The history counts: blended pixels differ from this frame, the others are it.
-    (native, _), (current, hist) = results[0], cases[0]
+    (native, _), (current, *_, hist) = results[0], cases[0]
     held = np.asarray(hist.valid)
     changed = np.any(np.asarray(native) != np.asarray(current), axis=-1)
     assert changed[held].mean() > 0.9 and not changed[~held].any()
+    # The rates are blended: their held blocks show where the history holds none.
+    (native, _), (pix, w_inner, *_, hist) = results[3], cases[3]
+    fresh = ~np.asarray(hist.valid) & (np.asarray(w_inner) == 0.0)
+    assert fresh.any() and np.abs(np.asarray(native)[fresh] - np.asarray(pix)[fresh]).max() > 0.05
 
 
 @pytest.mark.parametrize(("h", "w", "strides"), [(13, 18, (2, 4)), (10, 7, (3, 5))])

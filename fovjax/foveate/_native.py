@@ -199,20 +199,25 @@ def native_fill_and_blur(
     return image, complete[0]
 
 
-def native_taa_blend(current, color, valid, *, alpha: float, gamma: float):
-    """Patney 2016's history blend through the TAA handler (CPU only): `current` and the
-    history's `color` (N, H, W, C), `valid` (N, H, W); what `_methods._patney.taa_blend`
-    computes, its neighbourhood's taps added in its order."""
+def native_taa_blend(pixels, w_inner, w_middle, color, valid, *, strides, alpha: float, gamma: float):
+    """Patney 2016's shading rates blended and its history blend through the TAA handler (CPU
+    only): the traced `pixels` and the history's `color` (N, H, W, 3), the inner and middle
+    rates' weights and `valid` (N, H, W), the middle and coarse rates' `strides`; what
+    `_methods._patney.rates_and_history` computes, its neighbourhood's taps added in its order."""
     f32 = jnp.float32
-    out = jax.ShapeDtypeStruct(np.shape(current), f32)
+    out = jax.ShapeDtypeStruct(np.shape(pixels), f32)
     call = handler(TAA_TARGET, out, what="the native history blend", vmap_method="sequential")
     return call(
-        jax.lax.stop_gradient(jnp.asarray(current, f32)),
+        jax.lax.stop_gradient(jnp.asarray(pixels, f32)),
+        jax.lax.stop_gradient(jnp.asarray(w_inner, f32)),
+        jax.lax.stop_gradient(jnp.asarray(w_middle, f32)),
         jax.lax.stop_gradient(jnp.asarray(color, f32)),
         jnp.asarray(valid, bool),
         alpha=np.float32(alpha),
         keep=np.float32(1.0 - alpha),
         gamma=np.float32(gamma),
+        middle_stride=np.int64(strides[0]),
+        coarse_stride=np.int64(strides[1]),
     )
 
 

@@ -6,7 +6,8 @@ One jitted program per configuration; gaze, head pose, key, the thresholds and t
 traced. The history is explicit: `patney_stereo` takes the previous frame's `TaaHistory` and
 returns this frame's; `empty_history` is the reset (no pixel holds one: the next frame is shown
 as traced). The filters are pure image functions of static size (`gaussian_blur`,
-`contrast_preserving_filter`, `taa_blend`), tested on their own.
+`contrast_preserving_filter`, `taa_blend`), tested on their own; `rates_and_history` and
+`prefilter_and_blend` have native handlers on a CPU.
 """
 
 from __future__ import annotations
@@ -187,19 +188,41 @@ def _neighbourhood(image: Float[Array, "E H W 3"]):
     return mean, deviation(var)
 
 
-def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float, native: bool = False):
+def taa_blend(current, history: TaaHistory, *, alpha: float, gamma: float):
     """Temporal antialiasing: the history clamped per channel to the box mean ± `gamma`·std of
     the current frame's 3×3 neighbourhood (variance clipping), the box widened to contain the
     current pixel (so a still image is a fixed point), then blended, `alpha` of the current
-    frame; where the history holds nothing, the current frame. Returns the blended image.
-    `native`: on a CPU through the TAA handler (`native_taa_blend`: the same arithmetic in the
-    same order, a band of rows per task on both cores), chosen inside the program; derivatives
-    are this function's."""
-    if native:
-        in_jax = functools.partial(_taa_blend, alpha=alpha, gamma=gamma)
-        on_cpu = functools.partial(native_taa_blend, alpha=alpha, gamma=gamma)
-        return on_platforms(in_jax, cpu=on_cpu)(current, history.color, history.valid)
+    frame; where the history holds nothing, the current frame. Returns the blended image."""
     return _taa_blend(current, history.color, history.valid, alpha=alpha, gamma=gamma)
+
+
+def rates_and_history(
+    pix: Float[Array, "E H W 3"],
+    w_inner: Float[Array, "E H W"],
+    w_middle: Float[Array, "E H W"],
+    history: TaaHistory,
+    *,
+    strides: tuple[int, int],
+    alpha: float,
+    gamma: float,
+    native: bool = False,
+) -> Float[Array, "E H W 3"]:
+    """This frame's image from its traced pixels `pix`: the shading rates' images (`hold` at
+    strides 1 and `strides`) blended by their weights (`rate_blend`), then the history blended
+    in (`taa_blend`). `native`: on a CPU through the TAA handler (`native_taa_blend`: the same
+    arithmetic in the same order, the rates' rows blended once per band of rows, a band per
+    task), chosen inside the program; derivatives are this function's."""
+
+    def in_jax(pix, w_inner, w_middle, color, valid):
+        inner, middle, outer = (hold(pix, s) for s in (1, *strides))
+        shaded = rate_blend(inner, middle, outer, w_inner, w_middle)
+        return _taa_blend(shaded, color, valid, alpha=alpha, gamma=gamma)
+
+    args = (pix, w_inner, w_middle, history.color, history.valid)
+    if not native:
+        return in_jax(*args)
+    on_cpu = functools.partial(native_taa_blend, strides=strides, alpha=alpha, gamma=gamma)
+    return on_platforms(in_jax, cpu=on_cpu)(*args)
 
 
 def _taa_blend(current, color, valid, *, alpha: float, gamma: float):
@@ -269,10 +292,17 @@ def patney_stereo(
     pixels = trace_pixels(
         scene, bvh, cameras, key, ecc, trace_pixel, foveation=foveation, spp=spp, jitter=jitter, config=config
     )
-    inner, middle, outer = (hold(pixels.prefill, s) for s in strides)
     w_inner, w_middle = layer_weights(ecc, radii, method.blend_deg)
-    shaded = rate_blend(inner, middle, outer, w_inner, w_middle)
-    accumulated = taa_blend(shaded, history, alpha=method.taa_alpha, gamma=method.clip_gamma, native=native)
+    accumulated = rates_and_history(
+        pixels.prefill,
+        w_inner,
+        w_middle,
+        history,
+        strides=method.strides,
+        alpha=method.taa_alpha,
+        gamma=method.clip_gamma,
+        native=native,
+    )
     # The pre-filter per shading rate (σ grows with the block size), shown where that rate is.
     image = prefilter_and_blend(
         accumulated,
