@@ -141,7 +141,8 @@ def native_select_samples(
     """The foveated frame's sample selection through the selection handler (CPU only): (classes
     int8 (2, S, H, W), compaction order (2·H·W·S), count per class (3), traced mask (2, S, H, W),
     traced samples per pixel (2, H, W), traced samples per region (3)); see
-    `_frame.selection_with_mask` for what each operand is. `rule`: `Foveation.rule`."""
+    `_frame.selection_with_mask` for what each operand is. `rule`: `Foveation.rule`, or
+    "pixel-mask" (`_methods._sparse.pixel_selection`: every sub-sample of the pixels whose P is 1)."""
     _, h, w = region.shape
     out = (
         jax.ShapeDtypeStruct((2, spp, h, w), jnp.int8),
