@@ -81,16 +81,14 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> pixels, ffi::Buf
                     ffi::ResultBuffer<ffi::F32> out, float alpha, float keep, float gamma, int64_t middle_stride,
                     int64_t coarse_stride) {
   const auto dims = pixels.dimensions();
-  if (dims.size() != 4) return ffi::Error::InvalidArgument("taa: the image must be (N, H, W, C)");
+  if (dims.size() != 4 || dims[3] != 3) return ffi::Error::InvalidArgument("taa: the pixels must be (N, H, W, 3)");
   const int64_t n = dims[0], h = dims[1], w = dims[2], c = dims[3];
   const size_t size = pixels.element_count();
   if (history.element_count() != size || valid.element_count() * c != size || out->element_count() != size ||
       w_inner.element_count() * c != size || w_middle.element_count() * c != size || h < 1 || w < 1 || c < 1) {
     return ffi::Error::InvalidArgument("taa: a history of the image's shape, weights and a flag per pixel");
   }
-  if (c != 3 || middle_stride < 1 || coarse_stride < 1) {
-    return ffi::Error::InvalidArgument("taa: 3 channels and strides of at least 1");
-  }
+  if (middle_stride < 1 || coarse_stride < 1) return ffi::Error::InvalidArgument("taa: strides of at least 1");
   const float* pix = pixels.typed_data();
   const float* wi = w_inner.typed_data();
   const float* wm = w_middle.typed_data();
@@ -148,9 +146,9 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxTaaBlend, TaaBlend,
                                   .Arg<ffi::Buffer<ffi::F32>>()   // the traced pixels (N, H, W, 3)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // the inner rate's weight (N, H, W)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // the middle rate's weight (N, H, W)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // the history's colour (N, H, W, C)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the history's colour (N, H, W, 3)
                                   .Arg<ffi::Buffer<ffi::PRED>>()  // whether a pixel holds one (N, H, W)
-                                  .Ret<ffi::Buffer<ffi::F32>>()   // blended (N, H, W, C)
+                                  .Ret<ffi::Buffer<ffi::F32>>()   // blended (N, H, W, 3)
                                   .Attr<float>("alpha")
                                   .Attr<float>("keep")
                                   .Attr<float>("gamma")
