@@ -262,3 +262,15 @@ def test_budget_overflow_drops_samples_fills_them_and_warns():
     inner = traced & (frame.eccentricity < capped.fovea_deg - 0.01)
     assert inner.any()
     np.testing.assert_allclose(eyes[inner], prefill[inner], rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("shape", [(2, 64, 96), (2, 29, 37), (128,), (256, 1)])
+def test_count_true_is_the_exact_count(shape):
+    """`count_true` (uint8 sums of 128 entries where the size allows) against NumPy: every entry
+    true (the uint8 sums at their largest), none, and a random mask."""
+    from fovjax.foveate._frame import count_true
+
+    rng = np.random.default_rng(0)
+    f = jax.jit(count_true)
+    for mask in (np.ones(shape, bool), np.zeros(shape, bool), rng.random(shape) < 0.3):
+        assert int(f(jnp.asarray(mask))) == int(np.count_nonzero(mask))

@@ -869,6 +869,16 @@ def sample_adder(sel: Selection, *, spp, h, w, size):
     return add
 
 
+def count_true(mask: Bool[Array, "..."]) -> Int[Array, ""]:
+    """How many entries of `mask` are true, exactly: sums of 128 entries as uint8 (at most
+    128), then their sum as int32, where the size is a multiple of 128. XLA:CPU reduces a
+    screen-sized bool array summed as int32 in one pass to a slower windowed reduction."""
+    flat = mask.reshape(-1)
+    if flat.shape[0] % 128:
+        return jnp.sum(flat, dtype=jnp.int32)
+    return jnp.sum(jnp.sum(flat.reshape(-1, 128), axis=1, dtype=jnp.uint8), dtype=jnp.int32)
+
+
 def pixel_means(sums, n, *, h, w, bad_color):
     """Stage 4a's end: (per-pixel mean of the traced samples (2, H, W, 3), bad samples, bad
     pixels (2, H, W)) from the sums."""
@@ -1130,7 +1140,7 @@ def foveated_stereo(
         region=sel.region.astype(jnp.int8) if "region" in diagnostics else None,  # 0, 1, 2: exact
         eccentricity=ecc if "eccentricity" in diagnostics else None,
         prefill=prefill if "prefill" in diagnostics else None,
-        bad_pixels=jnp.sum(bad_pixel, dtype=jnp.int32),
+        bad_pixels=count_true(bad_pixel),
     )
 
 

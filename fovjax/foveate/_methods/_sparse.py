@@ -16,6 +16,7 @@ from ...native.internal import on_platforms
 from .._frame import (
     FoveatedOutputs,
     Selection,
+    count_true,
     locality_order,
     pixel_means,
     samples_by_region,
@@ -122,7 +123,7 @@ class TracedPixels:
             region=sel.region.astype(jnp.int8) if "region" in diagnostics else None,
             eccentricity=sel.eccentricity if "eccentricity" in diagnostics else None,
             prefill=self.prefill if "prefill" in diagnostics else None,
-            bad_pixels=jnp.sum(self.bad_pixel, dtype=jnp.int32),
+            bad_pixels=count_true(self.bad_pixel),
         )
 
 
