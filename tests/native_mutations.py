@@ -177,6 +177,18 @@ MUTATIONS = (
         "drawn |= (prow[0] > 0.0f) & (prow[0] < 1.0f);",
     ),
     Mutation(
+        "select-block-edge-unmarked",
+        "the selection leaves the block cut by the image's right edge without its top-left",
+        "    tl[whole] |= found;",
+        "    tl[whole] |= 0;",
+    ),
+    Mutation(
+        "select-block-last-column-skipped",
+        "the selection's block top-left ignores the block's last column",
+        "for (int64_t k = 0; k < b; ++k) found |= any[xb + k];",
+        "for (int64_t k = 0; k + 1 < b; ++k) found |= any[xb + k];",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

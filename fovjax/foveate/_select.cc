@@ -51,6 +51,25 @@ void ClassRow(const int32_t* __restrict__ row, const uint8_t* __restrict__ top_l
   }
 }
 
+// Marks in `tl` each aligned block of `kSide` columns (`side` where kSide is 0) that holds a
+// pixel flagged in `any`, at the block's first column. The sides the thesis's blocks take are
+// built with the block's loop unrolled: a loop of two to four bytes per block ran as a
+// vectorised loop's set-up and its scalar tail, most of the selection's first pass.
+template <int kSide>
+inline void BlockTopLefts(const uint8_t* __restrict__ any, int64_t w, uint8_t* __restrict__ tl, int64_t side = kSide) {
+  const int64_t b = kSide > 0 ? kSide : side, whole = w - w % b;
+  for (int64_t xb = 0; xb < whole; xb += b) {
+    uint8_t found = 0;
+    for (int64_t k = 0; k < b; ++k) found |= any[xb + k];
+    tl[xb] |= found;
+  }
+  if (whole < w) {  // the last block, cut by the image's edge
+    uint8_t found = 0;
+    for (int64_t x = whole; x < w; ++x) found |= any[x];
+    tl[whole] |= found;
+  }
+}
+
 // Pass 1 of `SelectSamples` for one band of rows of one eye (`job`): its operands.
 struct SelectBand {
   const int32_t* region;
@@ -109,11 +128,10 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
         const int32_t* below = reg + yy * W;
         for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
       }
-      for (int64_t xb = 0; xb < W; xb += b) {
-        uint8_t found = 0;
-        for (int64_t xx = xb; xx < std::min(W, xb + b); ++xx) found |= any[xx];
-        tl[xb] |= found;
-      }
+      if (b == 2) BlockTopLefts<2>(any, W, tl);
+      else if (b == 3) BlockTopLefts<3>(any, W, tl);
+      else if (b == 4) BlockTopLefts<4>(any, W, tl);
+      else BlockTopLefts<0>(any, W, tl, b);
     }
     const float* prow = p + eye * hw + y * W;
     // A draw decides a class only where P is strictly between 0 and 1 (below, none is kept;
@@ -213,8 +231,11 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
     int32_t* o = listed[2 * c + 1].get();
     int64_t nm = 0, no = 0;  // written unconditionally, kept by the counts (no branch)
     const int8_t* classes = cls + eye * S * HW;
+    constexpr int64_t kListAhead = 64;
     for (int64_t j = j0; j < j1; ++j) {
       const int64_t pix = perm[j];
+      // The class bytes of the pixels ahead: the locality order walks a tile's rows, whose
+      // lines the hardware prefetcher does not foresee.
       for (int64_t s = 0; s < S; ++s) {
         const int8_t k = classes[s * HW + pix];
         const int32_t slot = static_cast<int32_t>(first + j * S + s);
