@@ -16,7 +16,7 @@ struct FillBlur {
   const float* sums;       // (2·H·W, 3)
   const int32_t* n;        // (2, H, W)
   const bool* bad;         // (2·H·W)
-  const int32_t* region;   // (2, H, W)
+  const int8_t* region;    // (2, H, W)
   const float* ecc;        // (2, H, W)
   float bad_color[3];
   const float* taps;       // (2r + 1)
@@ -125,7 +125,7 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
     float* row = &filled[i * n3];
     std::memcpy(row, &means[(y - lo) * n3], static_cast<size_t>(n3) * sizeof(float));
     const int32_t* n = f.n + base + y * w;
-    const int32_t* reg = f.region + base + y * w;
+    const int8_t* reg = f.region + base + y * w;
     // Per region: its blocks' top-left row (means and counts) and their columns.
     const float* top_means[3];
     const int32_t* top_n[3];
@@ -166,7 +166,7 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
 }
 
 ffi::Error FillAndBlur(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> sums, ffi::Buffer<ffi::S32> n,
-                       ffi::Buffer<ffi::PRED> bad, ffi::Buffer<ffi::S32> region, ffi::Buffer<ffi::F32> ecc,
+                       ffi::Buffer<ffi::PRED> bad, ffi::Buffer<ffi::S8> region, ffi::Buffer<ffi::F32> ecc,
                        ffi::Buffer<ffi::F32> bad_color, ffi::Buffer<ffi::F32> taps,
                        ffi::Buffer<ffi::F32> fovea_deg, ffi::ResultBuffer<ffi::F32> image,
                        ffi::ResultBuffer<ffi::PRED> complete, int32_t block_periphery, int32_t block_outside,
@@ -213,7 +213,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxFillAndBlur, FillAndBlur,
                                   .Arg<ffi::Buffer<ffi::F32>>()   // per-pixel sums (2·H·W, 3)
                                   .Arg<ffi::Buffer<ffi::S32>>()   // traced samples per pixel (2, H, W)
                                   .Arg<ffi::Buffer<ffi::PRED>>()  // bad pixel (2·H·W)
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // regions (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::S8>>()    // regions (2, H, W)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // eccentricity (2, H, W)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // the bad pixels' colour (3)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // blur taps (2r + 1)

@@ -224,7 +224,7 @@ def select_samples(ecc, key, *, foveation, budget, covered=None) -> Selection:
 
 def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
     """Stages 2 and 4's masks together, for a frame without image tiles: (`Selection` with its
-    classes as int8 and no ranks, which samples are traced (2, S, H, W), traced samples per pixel
+    regions and classes as int8 and no ranks, which samples are traced (2, S, H, W), traced samples per pixel
     (2, H, W), traced samples per region (3): fovea, periphery, outside). `native`: on a CPU
     through the native handler (`foveate/_select.cc`, `SelectSamples`: the same
     integers as `select_samples`, `traced_mask`, `traced_count` and `samples_by_region`, on both
@@ -236,7 +236,15 @@ def selection_with_mask(ecc, key, *, foveation, budget, native: bool):
         mask = traced_mask(sel, budget)
         n = traced_count(mask, foveation.spp)
         by_region = samples_by_region(sel.region, n)
-        return sel.region, sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n, by_region
+        return (
+            sel.region.astype(jnp.int8),
+            sel.classes.astype(jnp.int8),
+            sel.order,
+            sel.counts,
+            mask,
+            n,
+            by_region,
+        )
 
     _, h, w = ecc.shape
     # The handler recomputes the JAX path's per-sample draws (`uniform_draws`), which need the
@@ -265,7 +273,8 @@ def _native_selection(ecc, key, *, foveation, budget):
     """`selection_with_mask`'s outputs through the native handler (CPU only)."""
     _, h, w = ecc.shape
     spp = foveation.spp
-    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int32)
+    # Bytes (codes 0-2): the select and fill handlers read them whole-screen.
+    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int8)
     keys = sampling_keys(key)
     key_data = key_words(keys)
     classes, order, counts, mask, n, by_region = native_select_samples(

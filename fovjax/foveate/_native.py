@@ -154,7 +154,7 @@ def native_select_samples(
     )
     call = handler(SELECT_TARGET, out, what="the native sample selection", vmap_method="sequential")
     return call(
-        jnp.asarray(region, jnp.int32),
+        jnp.asarray(region, jnp.int8),
         jax.lax.stop_gradient(jnp.asarray(probability, jnp.float32)),
         jnp.asarray(key_data, jnp.uint32).reshape(2, 2),
         jnp.asarray(locality, jnp.int32),
@@ -187,7 +187,7 @@ def native_fill_and_blur(
         jax.lax.stop_gradient(jnp.asarray(sums, f32).reshape(2 * h * w, 3)),
         jnp.asarray(n, jnp.int32),
         jnp.asarray(bad_pixel, bool).reshape(2 * h * w),
-        jnp.asarray(region, jnp.int32),
+        jnp.asarray(region, jnp.int8),
         jax.lax.stop_gradient(jnp.asarray(ecc, f32)),
         jnp.broadcast_to(jnp.asarray(bad_color, f32), (3,)),
         jnp.asarray(taps, f32),

@@ -72,7 +72,7 @@ inline void BlockTopLefts(const uint8_t* __restrict__ any, int64_t w, uint8_t* _
 
 // Pass 1 of `SelectSamples` for one band of rows of one eye (`job`): its operands.
 struct SelectBand {
-  const int32_t* region;
+  const int8_t* region;
   const float* p;
   const uint32_t* key;
   const int32_t* rspp;
@@ -89,7 +89,7 @@ struct SelectBand {
 // int-wide lanes; ClassRow is inlined into each build).
 FOVJAX_VECTOR_CLONES
 void SelectBandRows(const SelectBand& a, int64_t job) {
-  const int32_t* region = a.region;
+  const int8_t* region = a.region;
   const float* p = a.p;
   const uint32_t* key = a.key;
   const int32_t* rspp = a.rspp;
@@ -104,12 +104,17 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
   // reference, which would be reloaded after each of them.
   const int64_t W = w, H = h;
   const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(H, y0 + rows);
-  const int32_t* reg = region + eye * hw;
+  const int8_t* reg = region + eye * hw;
   std::vector<float> u(static_cast<size_t>(W * spp));
   std::vector<uint8_t> top_left(static_cast<size_t>(W)), in_block(static_cast<size_t>(W));
+  std::vector<int32_t> row_codes(static_cast<size_t>(W));
   const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
   for (int64_t y = y0; y < y1; ++y) {
-    const int32_t* row = reg + y * W;
+    // The row's region codes widened to int32 (`ClassRow`'s lanes are); the regions come as
+    // bytes, a quarter of the memory traffic.
+    const int8_t* codes_row = reg + y * W;
+    int32_t* row = row_codes.data();
+    for (int64_t x = 0; x < W; ++x) row[x] = codes_row[x];
     // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
     // one pixel; else the top-left of every aligned block holding a pixel of that region.
     uint8_t* tl = top_left.data();
@@ -125,7 +130,7 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
       uint8_t* any = in_block.data();  // per column: a pixel of the region in the block's rows
       for (int64_t x = 0; x < W; ++x) any[x] = row[x] == code;
       for (int64_t yy = y + 1; yy < std::min(H, y + b); ++yy) {
-        const int32_t* below = reg + yy * W;
+        const int8_t* below = reg + yy * W;
         for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
       }
       if (b == 2) BlockTopLefts<2>(any, W, tl);
@@ -172,7 +177,7 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
   }
 }
 
-ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
+ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
                          ffi::Buffer<ffi::F32> probability, ffi::Buffer<ffi::U32> keys,
                          ffi::Buffer<ffi::S32> locality, ffi::Buffer<ffi::S32> region_spp,
                          ffi::Buffer<ffi::S32> subsample_rank, ffi::ResultBuffer<ffi::S8> classes_out,
@@ -189,7 +194,7 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
     return ffi::Error::InvalidArgument("select: operand shapes do not match the regions");
   }
   if (rule < kRuleEither || rule > kRulePixelMask) return ffi::Error::InvalidArgument("select: an unknown rule");
-  const int32_t* region = region_buf.typed_data();
+  const int8_t* region = region_buf.typed_data();
   const float* p = probability.typed_data();
   const uint32_t* key = keys.typed_data();
   const int32_t* perm = locality.typed_data();
@@ -289,7 +294,7 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> region_buf,
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
                               ffi::Ffi::Bind()
                                   .Ctx<ffi::ThreadPool>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()   // regions (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::S8>>()    // regions (2, H, W)
                                   .Arg<ffi::Buffer<ffi::F32>>()   // P(ω) per pixel (2, H, W)
                                   .Arg<ffi::Buffer<ffi::U32>>()   // each eye's key data (2, 2)
                                   .Arg<ffi::Buffer<ffi::S32>>()   // locality order of the pixels (H·W)
