@@ -189,6 +189,18 @@ MUTATIONS = (
         "for (int64_t k = 0; k + 1 < b; ++k) found |= any[xb + k];",
     ),
     Mutation(
+        "fill-blend-kept-partly-sharp",
+        "the fill keeps the blurred row where its weights reach only 0.5, not 1",
+        "partly_sharp |= (ecc[x] - fovea_deg) / blend_deg >= 1.0f ? 0 : 1;",
+        "partly_sharp |= (ecc[x] - fovea_deg) / blend_deg >= 0.5f ? 0 : 1;",
+    ),
+    Mutation(
+        "fill-blend-kept-not-finite",
+        "the fill keeps the blurred row without checking that its sharp values are finite",
+        "not_finite |= sharp[j] - sharp[j] == 0.0f ? 0 : 1;",
+        "not_finite |= 0;",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

@@ -1339,6 +1339,41 @@ def test_native_fill_and_blur_is_the_jax_path(featured, case):
     np.testing.assert_allclose(np.asarray(d_native), np.asarray(d_jax), rtol=1e-6, atol=1e-7)
 
 
+def test_native_fill_blends_rows_with_an_infinite_mean(featured):
+    """A traced pixel whose sum overflowed to inf (not a bad sample), in a row beyond the
+    blend, and one in the fovea's row: the native blend gives what the JAX path's does there
+    (inf·0 in the blend: NaN), not the blurred row the handler keeps where every weight is 1 and
+    every sharp value finite; everywhere else the two agree to float rounding, rows whose
+    weights are all between 1/2 and 1 among them (96 rows: about half a degree each)."""
+    from fovjax.foveate._fill import FOVEA_BLEND_DEG
+    from fovjax.foveate._frame import eccentricities, fill_and_blur_sums, selection_with_mask
+
+    w, h = 40, 96
+    fov = Foveation(5.0, 10.0, spp=1, rule="either", blocks=(2, 4))
+    rig = StereoRig.from_pose(fovjax.scenes.default_camera(featured[0]), eye_width=w, eye_height=h)
+    ecc = eccentricities(rig.eye_cameras(jnp.zeros(3)), jnp.asarray([[0.3, 0.4], [0.35, 0.45]]), fov)
+    sel, _, n, _ = selection_with_mask(ecc, jax.random.key(3), foveation=fov, budget=2 * w * h, native=False)
+    n_np, ecc_np = np.asarray(n), np.asarray(ecc)
+    sums = (np.random.default_rng(5).random((2, h, w, 3)) * n_np[..., None]).astype(np.float32)
+    far_rows = np.flatnonzero(ecc_np[0].min(axis=1) > fov.fovea_deg + 2.0)  # every weight 1
+    near = int(np.argmin(ecc_np[0].min(axis=1)))  # the fovea's row
+    assert far_rows.size and ecc_np[0, near].min() < fov.fovea_deg
+    row_t = (ecc_np.min(axis=2) - fov.fovea_deg) / FOVEA_BLEND_DEG
+    assert ((row_t >= 0.5) & (row_t < 1.0)).any()  # rows blended, though every weight is at least 1/2
+    for y in (far_rows[0], near):
+        sums[0, y, int(np.flatnonzero(n_np[0, y] > 0)[0])] = np.inf
+    carry = (jnp.asarray(sums.reshape(-1, 3)), jnp.zeros(2 * h * w, bool), jnp.int32(0))
+
+    def both(carry, n, sel):
+        fill = functools.partial(fill_and_blur_sums, carry, n, sel, fov, bad_color=(1.0, 0.0, 1.0))
+        return fill(top_lefts_traced=True, native=False), fill(top_lefts_traced=True, native=True)
+
+    in_jax, native = jax.jit(both)(carry, n, sel)
+    in_jax, native = np.asarray(in_jax), np.asarray(native)
+    assert np.isnan(in_jax).any() and np.isinf(in_jax).any()  # the case is what it says
+    np.testing.assert_allclose(native, in_jax, rtol=1e-6, atol=1e-7)  # NaN where NaN, inf where inf
+
+
 def _featured_selection(featured, w, h, spp):
     """The featured scene's eye cameras (a head pose off the default) at w×h and one foveated
     selection (5°/10°, the JAX selection): (cameras, selection, traced samples per pixel,

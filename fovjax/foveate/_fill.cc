@@ -99,6 +99,18 @@ void BlendWeights(const float* __restrict__ ecc, int64_t w, float fovea_deg, flo
   }
 }
 
+// Whether every pixel of a row lies beyond the blend, its smoothstep weight exactly 1 (t >= 1,
+// as BlendWeights computes t; NaN is not), and every sharp value of the row is finite: then
+// the blend (sharp·0 + blurred·1) leaves the blurred row as it is.
+FOVJAX_VECTOR_CLONES
+bool BlendKeepsBlur(const float* __restrict__ ecc, int64_t w, float fovea_deg, float blend_deg,
+                    const float* __restrict__ sharp, int64_t n) {
+  int32_t partly_sharp = 0, not_finite = 0;  // int flags: GCC vectorises int reductions only
+  for (int64_t x = 0; x < w; ++x) partly_sharp |= (ecc[x] - fovea_deg) / blend_deg >= 1.0f ? 0 : 1;
+  for (int64_t j = 0; j < n; ++j) not_finite |= sharp[j] - sharp[j] == 0.0f ? 0 : 1;
+  return (partly_sharp | not_finite) == 0;
+}
+
 // Rows [y0, y1) of eye e into the side-by-side image (H, 2W, 3). Rows are 3W floats (pixels'
 // channels interleaved): a tap's horizontal neighbour is 3 floats away. False where a blank
 // pixel's block top-left is blank too (`fill_blanks` would fill it by pull-push).
@@ -157,9 +169,11 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
     for (int t = 0; t < k; ++t) window[t] = &padded[3 * t];  // horizontal neighbours: 3 floats apart
     float* out = image + (y * 2 * w + e * w) * 3;
     Taps(f.taps, k, window, n3, out);
-    if (!f.blur_fovea) {
-      BlendWeights(f.ecc + (e * f.h + y) * w, w, f.fovea_deg, f.blend_deg, weight.data());
-      Blend(&filled[(i + r) * n3], weight.data(), n3, out);
+    const float* ecc_row = f.ecc + (e * f.h + y) * w;
+    const float* sharp = &filled[(i + r) * n3];
+    if (!f.blur_fovea && !BlendKeepsBlur(ecc_row, w, f.fovea_deg, f.blend_deg, sharp, n3)) {
+      BlendWeights(ecc_row, w, f.fovea_deg, f.blend_deg, weight.data());
+      Blend(sharp, weight.data(), n3, out);
     }
   }
   return ok;
