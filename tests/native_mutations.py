@@ -201,6 +201,12 @@ MUTATIONS = (
         "not_finite |= 0;",
     ),
     Mutation(
+        "slots-sums-not-zeroed",
+        "the slots handler leaves the per-pixel sums as the output buffer held them",
+        "    std::fill(sums + 3 * p0, sums + 3 * p1, 0.0f);",
+        "    std::fill(sums + 3 * p0, sums + 3 * p0, 0.0f);",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

@@ -173,8 +173,20 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     for (int64_t i = 0; i < n; ++i) traced_at[position[i]] = static_cast<int32_t>(i);
   }
   const NativeScene& t = *scene.tree;
-  const int64_t per_block = 1024;
-  ParallelFor(pool, (n + per_block - 1) / per_block, [&](int64_t blk) {
+  const int64_t per_block = 1024, blocks = (n + per_block - 1) / per_block;
+  // The per-pixel outputs zeroed a slice per block, beside the block's tracing: the stores are
+  // bound by memory, the tracing by arithmetic, so the zeroing costs little there (a separate
+  // pass after the tracing cost its whole memory time).
+  float* sums = sums_out->typed_data();
+  bool* bad = bad_out->typed_data();
+  float* pixel_point = first_point_out->typed_data();
+  const int64_t pixels = 2 * hw, jobs = std::max<int64_t>(blocks, 1);
+  ParallelFor(pool, jobs, [&](int64_t blk) {
+    const int64_t p0 = pixels * blk / jobs, p1 = pixels * (blk + 1) / jobs;
+    std::fill(sums + 3 * p0, sums + 3 * p1, 0.0f);
+    std::fill(bad + p0, bad + p1, false);
+    if (first_points) std::fill(pixel_point + 3 * p0, pixel_point + 3 * p1, 0.0f);
+    if (blk >= blocks) return;
     thread_local std::vector<float> o, d;
     thread_local SlotScratch scratch;
     thread_local std::unique_ptr<bool[]> active;
@@ -203,16 +215,9 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   if (status.failure()) return status;
   // The sums, per eye on its own task: every slot's radiance added to its pixel in slot order
   // (`sample_adder`: a sample whose radiance is not finite adds nothing and marks its pixel).
-  float* sums = sums_out->typed_data();
-  bool* bad = bad_out->typed_data();
-  float* pixel_point = first_point_out->typed_data();
   int64_t eye_counts[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};
   ParallelFor(pool, 2, [&](int64_t eye) {
-    float* eye_sums = sums + 3 * eye * hw;
     bool* eye_bad = bad + eye * hw;
-    std::fill(eye_sums, eye_sums + 3 * hw, 0.0f);
-    std::fill(eye_bad, eye_bad + hw, false);
-    if (first_points) std::fill(pixel_point + 3 * eye * hw, pixel_point + 3 * (eye + 1) * hw, 0.0f);
     const int32_t first = static_cast<int32_t>(eye * hw), last = static_cast<int32_t>(first + hw);
     int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
     for (int64_t i = 0; i < n; ++i) {
