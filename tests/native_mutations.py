@@ -207,6 +207,12 @@ MUTATIONS = (
         "    std::fill(sums + 3 * p0, sums + 3 * p0, 0.0f);",
     ),
     Mutation(
+        "select-order-tail-not-zeroed",
+        "the selection leaves the compaction order past the listed samples as the buffer held it",
+        "std::fill(order + wanted, order + 2 * per_eye, 0);",
+        "std::fill(order + wanted, order + wanted, 0);",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

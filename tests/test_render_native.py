@@ -1239,6 +1239,7 @@ def test_native_sample_selection_is_the_jax_selection(featured, case):
     listed = int(sel_jax.counts[0] + sel_jax.counts[1])
     assert 0 < int(sel_jax.n_traced) <= budget
     np.testing.assert_array_equal(sel_native.order[:listed], sel_jax.order[:listed])
+    assert not np.asarray(sel_native.order[listed:]).any()  # the handler's slots past the list: zeros
     for name in ("region", "classes", "counts", "n_traced"):
         np.testing.assert_array_equal(getattr(sel_native, name), getattr(sel_jax, name), err_msg=name)
     np.testing.assert_array_equal(mask_native, mask_jax)
