@@ -54,7 +54,7 @@ void ClassRow(const int32_t* __restrict__ row, const uint8_t* __restrict__ top_l
 // Marks in `tl` each aligned block of `kSide` columns (`side` where kSide is 0) that holds a
 // pixel flagged in `any`, at the block's first column. The sides the thesis's blocks take are
 // built with the block's loop unrolled: a loop of two to four bytes per block ran as a
-// vectorised loop's set-up and its scalar tail, most of the selection's first pass.
+// vectorised loop's set-up and its scalar tail, about a third of the selection's first pass.
 template <int kSide>
 inline void BlockTopLefts(const uint8_t* __restrict__ any, int64_t w, uint8_t* __restrict__ tl, int64_t side = kSide) {
   const int64_t b = kSide > 0 ? kSide : side, whole = w - w % b;
@@ -236,11 +236,8 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
     int32_t* o = listed[2 * c + 1].get();
     int64_t nm = 0, no = 0;  // written unconditionally, kept by the counts (no branch)
     const int8_t* classes = cls + eye * S * HW;
-    constexpr int64_t kListAhead = 64;
     for (int64_t j = j0; j < j1; ++j) {
       const int64_t pix = perm[j];
-      // The class bytes of the pixels ahead: the locality order walks a tile's rows, whose
-      // lines the hardware prefetcher does not foresee.
       for (int64_t s = 0; s < S; ++s) {
         const int8_t k = classes[s * HW + pix];
         const int32_t slot = static_cast<int32_t>(first + j * S + s);
