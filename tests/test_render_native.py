@@ -1369,8 +1369,9 @@ def test_native_fill_blends_rows_with_an_infinite_mean(featured):
         fill = functools.partial(fill_and_blur_sums, carry, n, sel, fov, bad_color=(1.0, 0.0, 1.0))
         return fill(top_lefts_traced=True, native=False), fill(top_lefts_traced=True, native=True)
 
-    in_jax, native = jax.jit(both)(carry, n, sel)
-    in_jax, native = np.asarray(in_jax), np.asarray(native)
+    lowered = jax.jit(both).lower(carry, n, sel)
+    assert "fovjax_fill_and_blur" in lowered.as_text()  # the native branch is the one compiled
+    in_jax, native = (np.asarray(a) for a in lowered.compile()(carry, n, sel))
     assert np.isnan(in_jax).any() and np.isinf(in_jax).any()  # the case is what it says
     np.testing.assert_allclose(native, in_jax, rtol=1e-6, atol=1e-7)  # NaN where NaN, inf where inf
 
