@@ -64,7 +64,7 @@ def pixel_selection(ecc, trace_pixel, *, spp: int, foveation, native: bool):
 
         def on_cpu():
             return native_select_samples(
-                region.astype(jnp.int32),
+                region,  # the wrapper passes its codes as bytes
                 trace_pixel.astype(jnp.float32),
                 jnp.zeros((2, 2), jnp.uint32),  # the draws' key: no draw is made
                 locality_order(h, w),
