@@ -319,6 +319,9 @@ NATIVE_HANDLERS = {
     },
 }
 NATIVE_ENTRY = PACKAGE / "native" / "csrc" / "library.cc"
+# The one `thread_local`: `ThreadLocal<T>()` takes the thread's address once per call, where each
+# use of a `thread_local` in a shared library may call __tls_get_addr, inside loops too.
+THREAD_LOCAL_HOME = PACKAGE / "native" / "csrc" / "thread_pool.h"
 
 
 def _native_sources():
@@ -341,6 +344,9 @@ def native_check(path: Path, text: str | None = None) -> list[str]:
         if handler and handler.group(1) not in NATIVE_HANDLERS[mine]:
             owner = [p for p, names in NATIVE_HANDLERS.items() if handler.group(1) in names]
             found.append(f"{where}:{line}: defines {handler.group(1)} (owned by {owner or 'nobody'})")
+        code = row.split("//")[0]
+        if re.search(r"\bthread_local\b", code) and path != THREAD_LOCAL_HOME:
+            found.append(f"{where}:{line}: a thread_local variable (use ThreadLocal<T>(), {THREAD_LOCAL_HOME.name})")
         include = re.match(r'\s*#include "(\w+)/', row)
         if include and path != NATIVE_ENTRY and (PACKAGE / include.group(1)).is_dir():
             theirs = include.group(1)
@@ -384,6 +390,7 @@ NATIVE_BAD = {
     "render/_bad.cc": ('#include "foveate/_slots.cc"\n', "includes 'foveate'"),
     "trace/_bad2.cc": ('#include "render/_whitted.cc"\n', "includes 'render'"),
     "acuity/_bad.cc": ("int x;\n", "owns no native stage"),
+    "render/_bad3.cc": ("  thread_local std::vector<float> rows;  // a band's\n", "thread_local variable"),
 }
 
 

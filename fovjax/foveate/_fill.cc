@@ -36,6 +36,11 @@ inline int64_t Reflect(int64_t i, int64_t n) {  // `_fill._reflect`: the edge no
 // Row y of eye e's pixel means (`pixel_means`): each pixel's sum over its traced samples (at
 // least one), or the bad colour. Divisions, as XLA does them (no reciprocal); the bad pixels
 // in a loop of their own (GCC does not vectorise the divisions with that choice in the loop).
+// A band's rows (`FillBlurRows`), one set per thread (`ThreadLocal`), kept from call to call.
+struct FillBandBuffers {
+  std::vector<float> means, filled, padded, weight;
+};
+
 FOVJAX_VECTOR_CLONES
 void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) {
   const int64_t p0 = (e * f.h + y) * f.w;
@@ -124,7 +129,9 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
     const int64_t y = Reflect(y0 - r + i, f.h);
     lo = std::min(lo, y - y % std::max(f.block[1], f.block[2])), hi = std::max(hi, y);
   }
-  thread_local std::vector<float> means, filled, padded, weight;
+  FillBandBuffers& buffers = ThreadLocal<FillBandBuffers>();
+  std::vector<float>&means = buffers.means, &filled = buffers.filled, &padded = buffers.padded,
+                     &weight = buffers.weight;
   means.resize(static_cast<size_t>((hi - lo + 1) * n3));
   filled.resize(static_cast<size_t>((rows + 2 * r) * n3));
   padded.resize(static_cast<size_t>(n3 + 6 * r));

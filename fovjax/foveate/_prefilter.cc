@@ -108,6 +108,19 @@ struct Rect {
 // through the second level once per tap); four output rows at a time (TapRows4), the rest one.
 constexpr int64_t kStrip = 256;
 
+// Per-thread buffers (`ThreadLocal`), kept from call to call: `BlurRows`', `FilterBand`'s and
+// a band of `PatneyPrefilter`'s.
+struct BlurRowsBuffers {
+  std::vector<float> pad;
+  std::vector<const float*> reads;
+};
+struct FilterBandBuffers {
+  std::vector<float> blurred, stack, mean, stats;
+};
+struct PrefilterBandBuffers {
+  std::vector<float> filtered[2], rest;
+};
+
 template <class Row, class Out>
 void ColumnStrips(const std::vector<float>& taps, int64_t y0, int64_t y1, int64_t n, const Row& row, const Out& out,
                   std::vector<const float*>& reads) {
@@ -144,8 +157,9 @@ void BlurRows(const float* src, int64_t h, int64_t w, int64_t planes, int64_t c,
   // Columns the row pass reads beyond the image's edges (its edge pixels repeated there).
   const int64_t left = cx0 - (at.x0 - r), right = at.x1 + r - cx1;
   constexpr int64_t kRows = 8;
-  thread_local std::vector<float> pad;
-  thread_local std::vector<const float*> reads;
+  BlurRowsBuffers& buffers = ThreadLocal<BlurRowsBuffers>();
+  std::vector<float>& pad = buffers.pad;
+  std::vector<const float*>& reads = buffers.reads;
   pad.resize(static_cast<size_t>(kRows * planes * span));
   for (int64_t b0 = y0; b0 < y1; b0 += kRows) {
     const int64_t b1 = std::min(y1, b0 + kRows);
@@ -233,7 +247,8 @@ void FilterBand(const float* image, int64_t h, int64_t w, const FilterParams& f,
   // The rows of B and of the planes the band's windows read: beyond them the window's rows
   // are clamped to the image, as they are to these rows (`around` ends where the image does).
   const int64_t r0 = std::max(around.y0, y0 - rw), r1 = std::min(around.y1, y1 + rw), n = r1 - r0;
-  thread_local std::vector<float> blurred, stack, mean, stats;
+  FilterBandBuffers& buffers = ThreadLocal<FilterBandBuffers>();
+  std::vector<float>&blurred = buffers.blurred, &stack = buffers.stack, &mean = buffers.mean, &stats = buffers.stats;
   blurred.resize(static_cast<size_t>(n * cols * 3));
   stack.resize(static_cast<size_t>(n * cols * kPlanes));
   mean.resize(static_cast<size_t>(kRows * at.Cols() * 3));
@@ -372,7 +387,8 @@ ffi::Error PatneyPrefilter(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ff
     const float* inner = wi + e * hw;
     const float* middle = wm + e * hw;
     // Each filter's rows of the band that lie in its rectangle.
-    thread_local std::vector<float> filtered[2];
+    PrefilterBandBuffers& buffers = ThreadLocal<PrefilterBandBuffers>();
+    std::vector<float>* filtered = buffers.filtered;
     int64_t f0[2], f1[2];
     for (int f = 0; f < 2; ++f) {
       const Rect& at = shown[e][f];
@@ -383,7 +399,7 @@ ffi::Error PatneyPrefilter(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> image, ff
     }
     // Per row: rest = coarse·(1 − w_middle) + middle·w_middle where each filter was computed
     // (elsewhere its weight is 0, or w_inner is 1 and rest·0 is 0), then the image over it.
-    thread_local std::vector<float> rest;
+    std::vector<float>& rest = buffers.rest;
     for (int64_t y = y0; y < y1; ++y) {
       rest.assign(static_cast<size_t>(3 * w), 0.0f);
       const float* a = inner + y * w;

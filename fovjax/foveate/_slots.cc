@@ -47,6 +47,14 @@ struct SlotScratch {
 // Slots [begin, begin + n) as rays (o, d, active) and whether each is valid (a primary ray
 // `radiance` counts); the pixel each goes to in `target`. The index arithmetic in 32 bits (the
 // caller checks the sizes), then the positions and directions in loops over lanes.
+// A tracing block's buffers, one set per thread (`ThreadLocal`), kept from call to call.
+struct SlotBlockBuffers {
+  std::vector<float> o, d;
+  SlotScratch scratch;
+  std::unique_ptr<bool[]> active;
+  std::vector<int32_t> ray_class;
+};
+
 void SlotRays(const SlotLayout& L, const int32_t* position, int64_t begin, int64_t n, float* o, float* d,
               bool* active, bool* valid, int32_t* target, SlotScratch& t) {
   const uint32_t S = static_cast<uint32_t>(L.spp), W = static_cast<uint32_t>(L.w);
@@ -187,10 +195,11 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     std::fill(bad + p0, bad + p1, false);
     if (first_points) std::fill(pixel_point + 3 * p0, pixel_point + 3 * p1, 0.0f);
     if (blk >= blocks) return;
-    thread_local std::vector<float> o, d;
-    thread_local SlotScratch scratch;
-    thread_local std::unique_ptr<bool[]> active;
-    thread_local std::vector<int32_t> ray_class;
+    SlotBlockBuffers& buffers = ThreadLocal<SlotBlockBuffers>();
+    std::vector<float>&o = buffers.o, &d = buffers.d;
+    SlotScratch& scratch = buffers.scratch;
+    std::unique_ptr<bool[]>& active = buffers.active;
+    std::vector<int32_t>& ray_class = buffers.ray_class;
     o.resize(3 * per_block), d.resize(3 * per_block);
     scratch.Reserve(per_block);
     if (!active) active.reset(new bool[per_block]);

@@ -15,6 +15,11 @@ namespace {
 // Along a row: the nine taps' sum and sum of squares (added in the taps' order, in registers),
 // the clip box from them, the history clipped to it and blended. The comparisons are
 // jnp.minimum's and jnp.maximum's.
+// A band's rows, one set per thread (`ThreadLocal`), kept from call to call.
+struct TaaBandBuffers {
+  std::vector<float> shaded, middle_row, coarse_row;
+};
+
 FOVJAX_VECTOR_CLONES
 void BlendRow(const float* const* tap, const float* __restrict__ now, const float* __restrict__ before, int64_t n,
               float alpha, float keep, float gamma, float* __restrict__ result) {
@@ -101,7 +106,8 @@ ffi::Error TaaBlend(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> pixels, ffi::Buf
     const float* eye = pix + e * h * row;
     // The blended rows y0 − 1 … y1 (clamped to the image), each padded; each rate's row as it
     // shows made once for the rows it serves.
-    thread_local std::vector<float> shaded, middle_row, coarse_row;
+    TaaBandBuffers& buffers = ThreadLocal<TaaBandBuffers>();
+    std::vector<float>&shaded = buffers.shaded, &middle_row = buffers.middle_row, &coarse_row = buffers.coarse_row;
     shaded.resize(static_cast<size_t>((rows + 2) * span));
     middle_row.resize(static_cast<size_t>(row)), coarse_row.resize(static_cast<size_t>(row));
     int64_t middle_at = -1, coarse_at = -1;

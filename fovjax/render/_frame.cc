@@ -96,6 +96,7 @@ struct FrameScratch {
   std::vector<float> o, d, total, x, y, jitter;
   std::vector<int32_t> traced, sample;
   std::vector<uint32_t> counter;
+  std::vector<int32_t> col_x, col_s;  // `FrameRays`' tables of the block's columns
   std::unique_ptr<bool[]> active, valid;
   int64_t size = 0;
   void Reserve(int64_t n) {
@@ -117,7 +118,7 @@ int64_t FrameRays(const FrameLayout& L, const FrameBlock& B, FrameScratch& t) {
   const int64_t cells = L.cells, rows = 4 * cells, cols = L.TileCols(B.cols), n = rows * cols;
   t.Reserve(n);
   int32_t row_y[64], row_s[64];  // cells ≤ 16 (spp ≤ 256: `camera_frame_why_not`)
-  thread_local std::vector<int32_t> col_x, col_s;
+  std::vector<int32_t>&col_x = t.col_x, &col_s = t.col_s;
   col_x.resize(cols), col_s.resize(cols);
   for (int64_t r = 0; r < rows; ++r) row_y[r] = static_cast<int32_t>(B.y0 + r / cells), row_s[r] = r % cells * cells;
   for (int64_t c = 0; c < cols; ++c) col_x[c] = static_cast<int32_t>(B.x0 + c / cells), col_s[c] = c % cells;
@@ -191,7 +192,7 @@ ffi::Error CameraFrame(ffi::ThreadPool pool, ffi::Buffer<ffi::U32> key, ffi::Buf
   const float mean = static_cast<float>(spp);
   std::atomic<int64_t> counts[5] = {0, 0, 0, 0, 0};
   ParallelFor(pool, L.Blocks(), [&](int64_t blk) {
-    thread_local FrameScratch scratch;
+    FrameScratch& scratch = ThreadLocal<FrameScratch>();
     const FrameBlock B(L, blk);
     const int64_t n = FrameRays(L, B, scratch);
     BlockRays block;

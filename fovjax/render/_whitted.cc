@@ -548,7 +548,7 @@ template <bool kClasses, bool kPlain>
 void WhittedRays(const NativeScene& tree, const ShadeScene& s, const float* o_in, const float* d_in,
                  const bool* active, const BlockRays& block, float* total, int32_t* traced, bool packets,
                  bool sparse, const PathsOut* paths, const int32_t* ray_class) {
-  thread_local WhittedBuffers b;
+  WhittedBuffers& b = ThreadLocal<WhittedBuffers>();
   const int64_t n = block.n;
   const int nl = s.num_lights;
   b.Reserve(n, nl, kClasses);

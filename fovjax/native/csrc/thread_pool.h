@@ -6,6 +6,15 @@ namespace {
 
 // ---- work split over XLA's CPU thread pool -------------------------------------------------------
 
+// The calling thread's T, its address taken once per call: in a shared library every use of a
+// `thread_local` variable may call __tls_get_addr, and GCC repeats those calls inside loops.
+// Each T is one instance per thread, so each use needs a type of its own.
+template <typename T>
+__attribute__((noinline)) T& ThreadLocal() {
+  thread_local T value;
+  return value;
+}
+
 // Runs body(block) for every block. The calling thread works too; a pool task that starts after
 // every block is claimed returns without touching `body`, so the call never waits for a task
 // the pool has not started (no deadlock when the pool is busy).
