@@ -213,6 +213,24 @@ MUTATIONS = (
         "std::fill(order + wanted, order + wanted, 0);",
     ),
     Mutation(
+        "fill-blank-not-filled",
+        "a blank pixel keeps its own (empty) mean, not its block top-left's",
+        "source[x] = blank ? at + 3 * tx : own + 3 * x;",
+        "source[x] = own + 3 * x;",
+    ),
+    Mutation(
+        "fill-blank-top-left-unchecked",
+        "the fill says every blank pixel's block top-left was traced without looking",
+        "missing |= blank & (n_eye[top_row_start + tx] == 0);",
+        "missing |= 0;",
+    ),
+    Mutation(
+        "fill-blank-periphery-as-outside",
+        "a blank periphery pixel is filled from the outside region's block top-left",
+        "const int32_t fovea = r <= 0, outside = r >= 2;",
+        "const int32_t fovea = r <= 0, outside = r >= 1;",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

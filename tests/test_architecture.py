@@ -346,7 +346,8 @@ def native_check(path: Path, text: str | None = None) -> list[str]:
             found.append(f"{where}:{line}: defines {handler.group(1)} (owned by {owner or 'nobody'})")
         code = row.split("//")[0]
         if re.search(r"\bthread_local\b", code) and path != THREAD_LOCAL_HOME:
-            found.append(f"{where}:{line}: a thread_local variable (use ThreadLocal<T>(), {THREAD_LOCAL_HOME.name})")
+            home = THREAD_LOCAL_HOME.name
+            found.append(f"{where}:{line}: a thread_local variable (use ThreadLocal<T>(), {home})")
         include = re.match(r'\s*#include "(\w+)/', row)
         if include and path != NATIVE_ENTRY and (PACKAGE / include.group(1)).is_dir():
             theirs = include.group(1)

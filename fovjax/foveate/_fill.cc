@@ -33,14 +33,15 @@ inline int64_t Reflect(int64_t i, int64_t n) {  // `_fill._reflect`: the edge no
   return i > n - 1 ? 2 * (n - 1) - i : i;
 }
 
-// Row y of eye e's pixel means (`pixel_means`): each pixel's sum over its traced samples (at
-// least one), or the bad colour. Divisions, as XLA does them (no reciprocal); the bad pixels
-// in a loop of their own (GCC does not vectorise the divisions with that choice in the loop).
 // A band's rows (`FillBlurRows`), one set per thread (`ThreadLocal`), kept from call to call.
 struct FillBandBuffers {
   std::vector<float> means, filled, padded, weight;
+  std::vector<int32_t> source;
 };
 
+// Row y of eye e's pixel means (`pixel_means`): each pixel's sum over its traced samples (at
+// least one), or the bad colour. Divisions, as XLA does them (no reciprocal); the bad pixels
+// in a loop of their own (GCC does not vectorise the divisions with that choice in the loop).
 FOVJAX_VECTOR_CLONES
 void MeansRow(const FillBlur& f, int64_t e, int64_t y, float* __restrict__ out) {
   const int64_t p0 = (e * f.h + y) * f.w;
@@ -82,6 +83,37 @@ void Taps(const float* taps, int k, const float* const* src, int64_t n, float* _
     const float* __restrict__ s = src[t];
     for (int64_t j = 0; j < n; ++j) out[j] = out[j] + tap * s[j];
   }
+}
+
+// Where each pixel of a row of `fill_blanks` takes its colour from, as an offset into the band's
+// means: its own mean (`own` + 3x), or where it is blank (no traced sample) its region's block
+// top-left's (`top[c]` + 3·column_top_left[c][x], c its region clamped to 0-2). Returns whether
+// some blank pixel's top-left is blank too (`n_eye[top_row[c] + its column]` is 0). Without
+// branches, each region's column read whole: GCC vectorises it (the loop that copied blank
+// pixels one by one waited on each pixel's chain of loads).
+FOVJAX_VECTOR_CLONES
+int32_t BlankSources(const int32_t* __restrict__ n, const int8_t* __restrict__ reg,
+                     const int32_t* __restrict__ column_top_left, const int32_t* __restrict__ n_eye,
+                     const int32_t top_row[3], const int32_t top[3], int32_t own, int32_t w,
+                     int32_t* __restrict__ source) {
+  const int32_t* __restrict__ t0 = column_top_left;
+  const int32_t* __restrict__ t1 = column_top_left + w;
+  const int32_t* __restrict__ t2 = column_top_left + 2 * w;
+  const int32_t row0 = top_row[0], row1 = top_row[1], row2 = top_row[2];
+  const int32_t top0 = top[0], top1 = top[1], top2 = top[2];
+  int32_t missing = 0;
+  for (int32_t x = 0; x < w; ++x) {
+    const int32_t r = reg[x];
+    const int32_t fovea = r <= 0, outside = r >= 2;
+    const int32_t c0 = t0[x], c1 = t1[x], c2 = t2[x];  // (read whole: a conditional load is a branch)
+    const int32_t tx = fovea ? c0 : (outside ? c2 : c1);
+    const int32_t at = fovea ? top0 : (outside ? top2 : top1);
+    const int32_t top_row_start = fovea ? row0 : (outside ? row2 : row1);
+    const int32_t blank = n[x] == 0;
+    missing |= blank & (n_eye[top_row_start + tx] == 0);
+    source[x] = blank ? at + 3 * tx : own + 3 * x;
+  }
+  return missing;
 }
 
 // The blend with the sharp row by weight, in place.
@@ -132,6 +164,8 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
   FillBandBuffers& buffers = ThreadLocal<FillBandBuffers>();
   std::vector<float>&means = buffers.means, &filled = buffers.filled, &padded = buffers.padded,
                      &weight = buffers.weight;
+  std::vector<int32_t>& source = buffers.source;
+  source.resize(static_cast<size_t>(w));
   means.resize(static_cast<size_t>((hi - lo + 1) * n3));
   filled.resize(static_cast<size_t>((rows + 2 * r) * n3));
   padded.resize(static_cast<size_t>(n3 + 6 * r));
@@ -139,27 +173,24 @@ bool FillBlurRows(const FillBlur& f, int64_t e, int64_t y0, int64_t y1, float* i
   for (int64_t y = lo; y <= hi; ++y) MeansRow(f, e, y, &means[(y - lo) * n3]);
   bool ok = true;
   const int64_t base = e * f.h * w;
+  const int32_t* n_eye = f.n + base;
   for (int64_t i = 0; i < rows + 2 * r; ++i) {  // filled (`fill_blanks`)
     const int64_t y = Reflect(y0 - r + i, f.h);
-    float* row = &filled[i * n3];
-    std::memcpy(row, &means[(y - lo) * n3], static_cast<size_t>(n3) * sizeof(float));
-    const int32_t* n = f.n + base + y * w;
-    const int8_t* reg = f.region + base + y * w;
-    // Per region: its blocks' top-left row (means and counts) and their columns.
-    const float* top_means[3];
-    const int32_t* top_n[3];
-    const int32_t* top_x[3];
+    // Per region: its blocks' top-left row (where its means start, and its counts).
+    int32_t top[3], top_row[3];
     for (int c = 0; c < 3; ++c) {
       const int64_t ty = y - y % f.block[c];
-      top_means[c] = &means[(ty - lo) * n3], top_n[c] = f.n + base + ty * w, top_x[c] = &f.column_top_left[c * w];
+      top[c] = static_cast<int32_t>((ty - lo) * n3), top_row[c] = static_cast<int32_t>(ty * w);
     }
+    const int32_t missing = BlankSources(n_eye + y * w, f.region + base + y * w, f.column_top_left.data(), n_eye,
+                                         top_row, top, static_cast<int32_t>((y - lo) * n3), static_cast<int32_t>(w),
+                                         source.data());
+    ok &= missing == 0;
+    float* __restrict__ row = &filled[i * n3];
+    const float* __restrict__ from = means.data();
+    const int32_t* __restrict__ at = source.data();
     for (int64_t x = 0; x < w; ++x) {
-      if (n[x] != 0) continue;
-      const int c = reg[x] < 0 ? 0 : (reg[x] > 2 ? 2 : reg[x]);
-      const int64_t tx = top_x[c][x];
-      ok &= top_n[c][tx] != 0;
-      const float* top_left = top_means[c] + 3 * tx;
-      row[3 * x] = top_left[0], row[3 * x + 1] = top_left[1], row[3 * x + 2] = top_left[2];
+      row[3 * x] = from[at[x]], row[3 * x + 1] = from[at[x] + 1], row[3 * x + 2] = from[at[x] + 2];
     }
   }
   const float* window[16];
@@ -203,6 +234,9 @@ ffi::Error FillAndBlur(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> sums, ffi::Bu
       fovea_deg.element_count() != 1 || image->element_count() != 3 * hw2 || block_periphery < 1 ||
       block_outside < 1 || f.h <= f.r || f.w <= f.r || taps.element_count() > 15) {
     return ffi::Error::InvalidArgument("fill: operand shapes do not match the regions");
+  }
+  if (3 * f.h * f.w >= (int64_t{1} << 31)) {  // `BlankSources`' int32 offsets into an eye's rows
+    return ffi::Error::InvalidArgument("fill: an eye's image over 715,827,882 pixels (int32 offsets)");
   }
   f.sums = sums.typed_data(), f.n = n.typed_data(), f.bad = bad.typed_data();
   f.region = region.typed_data(), f.ecc = ecc.typed_data(), f.taps = taps.typed_data();
