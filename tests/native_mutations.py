@@ -231,6 +231,24 @@ MUTATIONS = (
         "const int32_t fovea = r <= 0, outside = r >= 1;",
     ),
     Mutation(
+        "slots-rays-one-camera",
+        "the slots integrator makes every slot's ray through eye 0's camera",
+        "CameraRays(L.cameras + kCameraStride * t.eye[i0],",
+        "CameraRays(L.cameras,",
+    ),
+    Mutation(
+        "slots-eye-run-too-long",
+        "a block's rays go through the camera of its first slot's eye, past the other eye's first slot",
+        "while (i1 < n && t.eye[i1] == t.eye[i0]) ++i1;",
+        "while (i1 < n) ++i1;",
+    ),
+    Mutation(
+        "slots-divisor-rounded-down",
+        "the slots' pixel and sub-sample from a divisor's multiplier rounded down (one short at multiples)",
+        "m = static_cast<uint32_t>(((uint64_t{1} << shift) + divisor - 1) / divisor);",
+        "m = static_cast<uint32_t>((uint64_t{1} << shift) / divisor);",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

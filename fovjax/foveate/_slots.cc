@@ -36,17 +36,14 @@ struct SlotLayout {
 struct SlotScratch {
   std::vector<float> x, y, jitter;
   std::vector<uint32_t> counter;
-  std::vector<int32_t> eye, sample;
+  std::vector<int32_t> eye, sample, px, py;
   void Reserve(int64_t n) {
     for (auto* v : {&x, &y}) v->resize(n);
     jitter.resize(2 * n), counter.resize(2 * n);
-    for (auto* v : {&eye, &sample}) v->resize(n);
+    for (auto* v : {&eye, &sample, &px, &py}) v->resize(n);
   }
 };
 
-// Slots [begin, begin + n) as rays (o, d, active) and whether each is valid (a primary ray
-// `radiance` counts); the pixel each goes to in `target`. The index arithmetic in 32 bits (the
-// caller checks the sizes), then the positions and directions in loops over lanes.
 // A tracing block's buffers, one set per thread (`ThreadLocal`), kept from call to call.
 struct SlotBlockBuffers {
   std::vector<float> o, d;
@@ -55,34 +52,79 @@ struct SlotBlockBuffers {
   std::vector<int32_t> ray_class;
 };
 
+// Division by a divisor fixed for a loop, as a multiply and a shift (Granlund and Montgomery,
+// 1994): for 0 <= a < 2^31 and d >= 1, a / d = (a·m) >> shift with l = ceil(log2 d), m =
+// ceil(2^(31 + l) / d) < 2^32 and shift = 31 + l, exactly. GCC vectorises the multiply, where it
+// leaves an integer division scalar.
+struct Divisor {
+  uint32_t m, shift;
+  explicit Divisor(uint32_t divisor) {
+    uint32_t l = 0;
+    while ((uint64_t{1} << l) < divisor) ++l;
+    shift = 31 + l;
+    m = static_cast<uint32_t>(((uint64_t{1} << shift) + divisor - 1) / divisor);
+  }
+};
+inline uint32_t Quotient(uint32_t a, uint32_t m, uint32_t shift) {
+  return static_cast<uint32_t>((static_cast<uint64_t>(a) * m) >> shift);
+}
+
+// The slots at `position` [0, n): each one's eye, sub-sample, pixel column and row, and its
+// jitter draws' threefry counters. The index arithmetic in 32 bits (the caller checks the sizes).
+FOVJAX_VECTOR_CLONES
+void SlotPositions(const int32_t* __restrict__ order, const int32_t* __restrict__ locality,
+                   const int32_t* __restrict__ position, int64_t n, uint32_t S, uint32_t H, uint32_t W,
+                   uint32_t per_eye, uint32_t* __restrict__ counter, int32_t* __restrict__ eyes,
+                   int32_t* __restrict__ samples, int32_t* __restrict__ xs, int32_t* __restrict__ ys) {
+  // (each array its own restrict parameter: GCC gathers only where it knows them apart)
+  const Divisor by_s(S), by_w(W);
+  const uint32_t ms = by_s.m, ss = by_s.shift, mw = by_w.m, sw = by_w.shift;
+  for (int64_t i = 0; i < n; ++i) {
+    const uint32_t slot = static_cast<uint32_t>(order[position[i]]);
+    const uint32_t eye = slot >= per_eye, within = slot - eye * per_eye;  // two eyes
+    const uint32_t rank = Quotient(within, ms, ss), sample = within - rank * S;
+    const uint32_t pixel = static_cast<uint32_t>(locality[static_cast<int32_t>(rank)]);  // (int32: a 32-bit gather)
+    const uint32_t y = Quotient(pixel, mw, sw), x = pixel - y * W;
+    counter[2 * i] = ((sample * H + y) * W + x) * 2;
+    counter[2 * i + 1] = ((sample * H + y) * W + x) * 2 + 1;
+    eyes[i] = static_cast<int32_t>(eye), samples[i] = static_cast<int32_t>(sample);
+    xs[i] = static_cast<int32_t>(x), ys[i] = static_cast<int32_t>(y);
+  }
+}
+
+// Each slot's continuous pixel coordinates (`pixel_sample_positions`).
+FOVJAX_VECTOR_CLONES
+void SlotSamplePositions(const int32_t* __restrict__ px, const int32_t* __restrict__ py,
+                         const int32_t* __restrict__ sample, const float* __restrict__ grid,
+                         const float* __restrict__ jitter, bool jittered, float cells, int64_t n,
+                         float* __restrict__ x, float* __restrict__ y) {
+  for (int64_t i = 0; i < n; ++i) {
+    const float u = jittered ? jitter[2 * i] : 0.0f, v = jittered ? jitter[2 * i + 1] : 0.0f;
+    x[i] = SamplePosition(static_cast<float>(px[i]), grid[2 * sample[i]], jittered, u, cells);
+    y[i] = SamplePosition(static_cast<float>(py[i]), grid[2 * sample[i] + 1], jittered, v, cells);
+  }
+}
+
+// Slots [begin, begin + n) as rays (o, d, active) and whether each is valid (a primary ray
+// `radiance` counts); the pixel each goes to in `target`: the slots' pixels, their positions,
+// then the directions through `CameraRays` for each run of one eye's slots (the compaction lists
+// each eye's samples in long runs), loops over lanes that vectorise.
 void SlotRays(const SlotLayout& L, const int32_t* position, int64_t begin, int64_t n, float* o, float* d,
               bool* active, bool* valid, int32_t* target, SlotScratch& t) {
-  const uint32_t S = static_cast<uint32_t>(L.spp), W = static_cast<uint32_t>(L.w);
-  const uint32_t H = static_cast<uint32_t>(L.h), per_eye = static_cast<uint32_t>(L.per_eye);
-  const uint32_t hw = H * W;
-  for (int64_t i = 0; i < n; ++i) {
-    const uint32_t slot = static_cast<uint32_t>(L.order[position[begin + i]]);
-    const uint32_t eye = slot >= per_eye, within = slot - eye * per_eye;  // two eyes
-    const uint32_t rank = S == 1 ? within : within / S, sample = within - rank * S;
-    const uint32_t pixel = static_cast<uint32_t>(L.locality[rank]);
-    const uint32_t y = pixel / W, x = pixel - y * W;
-    target[i] = static_cast<int32_t>(eye * hw + pixel);
-    t.counter[2 * i] = ((sample * H + y) * W + x) * 2;
-    t.counter[2 * i + 1] = t.counter[2 * i] + 1;
-    t.eye[i] = static_cast<int32_t>(eye), t.sample[i] = static_cast<int32_t>(sample);
-    t.x[i] = static_cast<float>(x), t.y[i] = static_cast<float>(y);
-  }
+  const uint32_t W = static_cast<uint32_t>(L.w), H = static_cast<uint32_t>(L.h);
+  SlotPositions(L.order, L.locality, position + begin, n, static_cast<uint32_t>(L.spp), H, W,
+                static_cast<uint32_t>(L.per_eye), t.counter.data(), t.eye.data(), t.sample.data(), t.px.data(),
+                t.py.data());
+  const int32_t h = static_cast<int32_t>(H), w = static_cast<int32_t>(W);
+  for (int64_t i = 0; i < n; ++i) target[i] = (t.eye[i] * h + t.py[i]) * w + t.px[i];
   if (L.jitter) UniformAt(L.key[0], L.key[1], t.counter.data(), 2 * n, t.jitter.data());
-  const float cells = static_cast<float>(L.cells), width = static_cast<float>(W),
-              height = static_cast<float>(H);
-  const float* c0 = L.cameras;
-  const float* c1 = L.cameras + kCameraStride;
-  for (int64_t i = 0; i < n; ++i) {
-    const float* cell = L.grid + 2 * t.sample[i];
-    const float x = SamplePosition(t.x[i], cell[0], L.jitter, t.jitter[2 * i], cells);
-    const float y = SamplePosition(t.y[i], cell[1], L.jitter, t.jitter[2 * i + 1], cells);
-    active[i] = true;
-    valid[i] = CameraRay(t.eye[i] ? c1 : c0, x, y, width, height, o + 3 * i, d + 3 * i);
+  SlotSamplePositions(t.px.data(), t.py.data(), t.sample.data(), L.grid, t.jitter.data(), L.jitter,
+                      static_cast<float>(L.cells), n, t.x.data(), t.y.data());
+  std::fill(active, active + n, true);
+  for (int64_t i0 = 0, i1 = 0; i0 < n; i0 = i1) {
+    while (i1 < n && t.eye[i1] == t.eye[i0]) ++i1;
+    CameraRays(L.cameras + kCameraStride * t.eye[i0], t.x.data() + i0, t.y.data() + i0, i1 - i0,
+               static_cast<float>(W), static_cast<float>(H), o + 3 * i0, d + 3 * i0, valid + i0);
   }
 }
 
