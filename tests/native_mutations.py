@@ -249,6 +249,18 @@ MUTATIONS = (
         "m = static_cast<uint32_t>((uint64_t{1} << shift) / divisor);",
     ),
     Mutation(
+        "select-draw-span-short",
+        "the selection leaves the last column of a row's span of draws undrawn",
+        "last_drawn + 1 - first_drawn, us + first_drawn);",
+        "last_drawn - first_drawn, us + first_drawn);",
+    ),
+    Mutation(
+        "select-draw-span-from-zero-counter",
+        "the selection draws a row's span from the row's first counter, not the span's",
+        "static_cast<uint32_t>((s * H + y) * W + first_drawn),",
+        "static_cast<uint32_t>((s * H + y) * W),",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

@@ -70,6 +70,18 @@ inline void BlockTopLefts(const uint8_t* __restrict__ any, int64_t w, uint8_t* _
   }
 }
 
+// The first and the last column of a row whose P lies strictly between 0 and 1 (w and -1 where
+// none does), as min and max reductions over masks: GCC vectorises these.
+inline void DrawnSpan(const float* __restrict__ p, int32_t w, int32_t* first, int32_t* last) {
+  int32_t f = w, l = -1;
+  for (int32_t x = 0; x < w; ++x) {
+    const int32_t keep = -((p[x] > 0.0f) & (p[x] < 1.0f));  // all ones where drawn
+    f = std::min(f, (x & keep) | (w & ~keep));
+    l = std::max(l, (x & keep) | ~keep);
+  }
+  *first = f, *last = l;
+}
+
 // Pass 1 of `SelectSamples` for one band of rows of one eye (`job`): its operands.
 struct SelectBand {
   const int8_t* region;
@@ -140,17 +152,23 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
     }
     const float* prow = p + eye * hw + y * W;
     // A draw decides a class only where P is strictly between 0 and 1 (below, none is kept;
-    // above, every one): a row without such a P (the methods' pixel masks, the fovea's rows)
-    // needs none, and any draw in [0, 1) gives its classes. The thesis-measured rule and the
-    // pixel masks draw none.
-    int32_t drawn = 0;
-    for (int64_t x = 0; x < W; ++x) drawn |= (prow[x] > 0.0f) & (prow[x] < 1.0f);
+    // above, every one): only the row's columns from the first such P to the last are drawn
+    // (a row without one, as the methods' pixel masks and the fovea's rows, none), and any
+    // draw in [0, 1) gives the other columns' classes. The thesis-measured rule and the pixel
+    // masks draw none.
+    int32_t first_drawn, last_drawn;
+    DrawnSpan(prow, static_cast<int32_t>(W), &first_drawn, &last_drawn);
+    const bool draws = last_drawn >= 0 && rule != kRuleThesisMeasured && rule != kRulePixelMask;
     for (int64_t s = 0; s < spp; ++s) {
-      if (drawn && rule != kRuleThesisMeasured && rule != kRulePixelMask) {
-        UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W), W, &u[s * W]);
-      } else {
-        std::fill(u.begin() + s * W, u.begin() + (s + 1) * W, 0.0f);
+      float* us = &u[s * W];
+      if (!draws) {
+        std::fill(us, us + W, 0.0f);
+        continue;
       }
+      std::fill(us, us + first_drawn, 0.0f);
+      UniformRun(key[2 * eye], key[2 * eye + 1], static_cast<uint32_t>((s * H + y) * W + first_drawn),
+                 last_drawn + 1 - first_drawn, us + first_drawn);
+      std::fill(us + last_drawn + 1, us + W, 0.0f);
     }
     int32_t* n = per_pixel + eye * hw + y * W;
     std::fill(n, n + W, 0);
