@@ -173,8 +173,8 @@ MUTATIONS = (
     Mutation(
         "select-draws-by-first-pixel",
         "the selection draws a row's P(ω) draws only where its first pixel's P is strictly between 0 and 1",
-        "drawn |= (prow[x] > 0.0f) & (prow[x] < 1.0f);",
-        "drawn |= (prow[0] > 0.0f) & (prow[0] < 1.0f);",
+        "const int32_t keep = -((p[x] > 0.0f) & (p[x] < 1.0f));",
+        "const int32_t keep = -((p[0] > 0.0f) & (p[0] < 1.0f));",
     ),
     Mutation(
         "select-block-edge-unmarked",
