@@ -261,6 +261,18 @@ MUTATIONS = (
         "static_cast<uint32_t>((s * H + y) * W),",
     ),
     Mutation(
+        "packet-one-tree-miss-as-face-0",
+        "a packet's missed rays (one tree) report face 0 of the scene",
+        "prim[k] = hit ? static_cast<int32_t>(rh.hit.prim_id[k]) + first_face : -1;",
+        "prim[k] = hit ? static_cast<int32_t>(rh.hit.prim_id[k]) + first_face : 0;",
+    ),
+    Mutation(
+        "packet-one-tree-occlusion-inverted",
+        "a packet's shadow rays (one tree) report blocked where Embree found them clear, and the reverse",
+        "prim[k] = valid[k] != 0 && rh.ray.tfar[k] == -INFINITY ? 0 : -1;",
+        "prim[k] = valid[k] != 0 && rh.ray.tfar[k] == -INFINITY ? -1 : 0;",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

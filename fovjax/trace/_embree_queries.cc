@@ -243,6 +243,37 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
     Single(s, r, begin, begin + count, any_hit);
     return;
   }
+  const int64_t trees = static_cast<int64_t>(s.trees.size());
+  QueryArgs args{};
+  args.flags = kQueryCoherent;
+  args.feature_mask = 0xffffffffu;
+  if (live > 0) {
+    for (int k = 0; k < W; ++k) {
+      rh.hit.geom_id[k] = kInvalidId;
+      rh.hit.inst_id[0][k] = kInvalidId;
+    }
+  }
+  if (live > 0 && (r.level == nullptr || trees == 1)) {
+    // Every lane in tree 0 (`TreeOf`): one query, then each lane's result (a miss's or an
+    // invalid lane's as below) in a loop without branches.
+    const int32_t first_face = s.first_face[0];
+    int32_t* __restrict__ prim = r.prim + begin;
+    if (any_hit) {
+      OccludedW<W>(valid, s.trees[0], &rh.ray, &args);
+      for (int k = 0; k < count; ++k) prim[k] = valid[k] != 0 && rh.ray.tfar[k] == -INFINITY ? 0 : -1;
+      return;
+    }
+    IntersectW<W>(valid, s.trees[0], &rh, &args);
+    float *__restrict__ t = r.t + begin, *__restrict__ u = r.u + begin, *__restrict__ v = r.v + begin;
+    for (int k = 0; k < count; ++k) {
+      const bool hit = valid[k] != 0 && rh.hit.geom_id[k] != kInvalidId;
+      prim[k] = hit ? static_cast<int32_t>(rh.hit.prim_id[k]) + first_face : -1;
+      t[k] = hit ? rh.ray.tfar[k] : INFINITY;
+      u[k] = hit ? rh.hit.u[k] : 0.0f;
+      v[k] = hit ? rh.hit.v[k] : 0.0f;
+    }
+    return;
+  }
   for (int k = 0; k < count; ++k) r.prim[begin + k] = -1;
   if (!any_hit) {  // an occluded ray's t, u, v mean nothing: not written
     for (int k = 0; k < count; ++k) {
@@ -251,16 +282,8 @@ void PacketW(const NativeScene& s, const Rays& r, int64_t begin, int64_t end, bo
     }
   }
   if (live == 0) return;
-  for (int k = 0; k < W; ++k) {
-    rh.hit.geom_id[k] = kInvalidId;
-    rh.hit.inst_id[0][k] = kInvalidId;
-  }
-  const int64_t trees = static_cast<int64_t>(s.trees.size());
   int32_t tree[W];
   for (int k = 0; k < W; ++k) tree[k] = valid[k] ? TreeOf(r, begin + k, trees) : -1;
-  QueryArgs args{};
-  args.flags = kQueryCoherent;
-  args.feature_mask = 0xffffffffu;
   int32_t done_tree = -1;
   for (int k = 0; k < W; ++k) {
     if (tree[k] < 0 || tree[k] == done_tree) continue;
