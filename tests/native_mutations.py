@@ -273,6 +273,12 @@ MUTATIONS = (
         "prim[k] = valid[k] != 0 && rh.ray.tfar[k] == -INFINITY ? -1 : 0;",
     ),
     Mutation(
+        "slots-sums-eye-range-short",
+        "the slots' sums leave out the samples in the last quarter of each eye's sample indices",
+        "own_hi = static_cast<int32_t>(own_lo + per_eye);",
+        "own_hi = static_cast<int32_t>(own_lo + per_eye - per_eye / 4);",
+    ),
+    Mutation(
         "taa-edge-zero",
         "the history blend's neighbourhood is zero beyond a row's last pixel, not that pixel repeated",
         "for (int ch = 0; ch < 3; ++ch) out[ch] = row[ch], row[3 * w + ch] = row[3 * (w - 1) + ch];",

@@ -269,12 +269,16 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   int64_t eye_counts[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};
   ParallelFor(pool, 2, [&](int64_t eye) {
     bool* eye_bad = bad + eye * hw;
-    const int32_t first = static_cast<int32_t>(eye * hw), last = static_cast<int32_t>(first + hw);
+    const int32_t first = static_cast<int32_t>(eye * hw);
+    // This eye's slots by their indices (an eye's samples are one range of them), read in
+    // order: the other eye's slots cost no reads of where they were traced.
+    const int32_t* order_of = L.order;
+    const int32_t own_lo = static_cast<int32_t>(eye * per_eye), own_hi = static_cast<int32_t>(own_lo + per_eye);
     int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
     for (int64_t i = 0; i < n; ++i) {
+      if (order_of[i] < own_lo || order_of[i] >= own_hi) continue;
       const int64_t k = traced_at[i];
       const int32_t px = target[k];
-      if (px < first || px >= last) continue;
       if (first_points && (L.order[i] - eye * per_eye) % spp == 0) {
         std::copy(point.get() + 3 * k, point.get() + 3 * k + 3, pixel_point + 3 * static_cast<int64_t>(px));
       }
