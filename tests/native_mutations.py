@@ -335,7 +335,7 @@ MUTATIONS = (
     Mutation(
         "first-point-any-sample",
         "a pixel's first point is its last traced sub-sample's, not sub-sample 0's",
-        "if (first_points && (L.order[i] - eye * per_eye) % spp == 0) {",
+        "if (first_points && (order_of[i] - own_lo) % spp == 0) {",
         "if (first_points) {",
     ),
     Mutation(

@@ -956,7 +956,8 @@ def fill_and_blur_sums(
         )
 
     args = (sums[0], sel.eccentricity, jnp.asarray(foveation.fovea_deg, jnp.float32))
-    if not native or min(h, w) <= len(taps) // 2:
+    # (the handler's offsets into an eye's rows are int32: 3·H·W below 2^31)
+    if not native or min(h, w) <= len(taps) // 2 or 3 * h * w >= 2**31:
         return in_jax(*args)
 
     def on_cpu(rgb, ecc, fovea_deg):

@@ -279,7 +279,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
       if (order_of[i] < own_lo || order_of[i] >= own_hi) continue;
       const int64_t k = traced_at[i];
       const int32_t px = target[k];
-      if (first_points && (L.order[i] - eye * per_eye) % spp == 0) {
+      if (first_points && (order_of[i] - own_lo) % spp == 0) {
         std::copy(point.get() + 3 * k, point.get() + 3 * k + 3, pixel_point + 3 * static_cast<int64_t>(px));
       }
       const float* rgb = radiance.get() + 3 * k;

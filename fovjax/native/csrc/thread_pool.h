@@ -4,7 +4,7 @@
 
 namespace {
 
-// ---- work split over XLA's CPU thread pool -------------------------------------------------------
+// ---- per-thread buffers --------------------------------------------------------------------------
 
 // The calling thread's T, its address taken once per call: in a shared library every use of a
 // `thread_local` variable may call __tls_get_addr, and GCC repeats those calls inside loops.
@@ -14,6 +14,8 @@ __attribute__((noinline)) T& ThreadLocal() {
   thread_local T value;
   return value;
 }
+
+// ---- work split over XLA's CPU thread pool -------------------------------------------------------
 
 // Runs body(block) for every block. The calling thread works too; a pool task that starts after
 // every block is claimed returns without touching `body`, so the call never waits for a task
