@@ -66,7 +66,15 @@ SECTIONS = [
     ("compare_video", "Foveation methods along a gaze recording"),
 ]
 
-RECORDS_HEAD = """# Performance records
+# The records page stays out of the site's search index (Material's `search: exclude`): its tables
+# of every run would be most of the index that each page of the site loads, and indexing them is
+# most of the site's build; the summary page, which links into it, is searched.
+RECORDS_HEAD = """---
+search:
+  exclude: true
+---
+
+# Performance records
 
 <!-- Written by benchmarks/records_to_page.py from benchmarks/results/*.json; do not edit. -->
 
