@@ -585,24 +585,32 @@ def brute_force_closest_hit(
     inclusive edge test, on the host. Returns (t, prim, t_all) with t = inf, prim = -1 on a
     miss and t_all the (rays, faces) distances (inf where a face is missed). For small meshes."""
     v = np.asarray(vertices, np.float64)[np.asarray(faces)]
-    o = np.asarray(origins, np.float64).reshape(-1, 1, 3)
-    d = np.asarray(directions, np.float64).reshape(-1, 1, 3)
-    p0, e1, e2 = v[None, :, 0], v[None, :, 1] - v[None, :, 0], v[None, :, 2] - v[None, :, 0]
-    pvec = np.cross(d, e2)
-    det = np.sum(e1 * pvec, -1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / det
-        tvec = o - p0
-        u = np.sum(tvec * pvec, -1) * inv
-        qvec = np.cross(tvec, e1)
-        w = np.sum(d * qvec, -1) * inv
-        t = np.sum(e2 * qvec, -1) * inv
-    tmin = np.reshape(np.asarray(tmin, np.float64), (-1, 1))
-    tmax = np.reshape(np.asarray(tmax, np.float64), (-1, 1))
-    with np.errstate(invalid="ignore"):  # NaN where det == 0: not a hit
-        ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > tmin) & (t < tmax)
-    t = np.where(ok, t, np.inf)
-    prim = np.argmin(t, axis=1)
-    tbest = t[np.arange(t.shape[0]), prim]
+    o = np.asarray(origins, np.float64).reshape(-1, 3)
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    n = o.shape[0]
+    tmin = np.broadcast_to(np.reshape(np.asarray(tmin, np.float64), (-1, 1)), (n, 1))
+    tmax = np.broadcast_to(np.reshape(np.asarray(tmax, np.float64), (-1, 1)), (n, 1))
+    # Per component, (faces,) rows: the arithmetic of `np.cross` and of a sum over x, y, z.
+    p0 = v[:, 0].T
+    e1, e2 = (v[:, 1] - v[:, 0]).T, (v[:, 2] - v[:, 0]).T
+    t_all = np.empty((n, v.shape[0]))
+    # Rays in chunks, so the (rays, faces) temporaries stay in the cache.
+    step = max(1, (1 << 16) // max(1, v.shape[0]))
+    for lo in range(0, n, step):
+        hi = min(n, lo + step)
+        dx, dy, dz = (d[lo:hi, k, None] for k in range(3))
+        with np.errstate(divide="ignore", invalid="ignore"):  # NaN where det == 0: not a hit
+            px, py, pz = dy * e2[2] - dz * e2[1], dz * e2[0] - dx * e2[2], dx * e2[1] - dy * e2[0]
+            det = e1[0] * px + e1[1] * py + e1[2] * pz
+            inv = 1.0 / det
+            tx, ty, tz = (o[lo:hi, k, None] - p0[k] for k in range(3))
+            u = (tx * px + ty * py + tz * pz) * inv
+            qx, qy, qz = ty * e1[2] - tz * e1[1], tz * e1[0] - tx * e1[2], tx * e1[1] - ty * e1[0]
+            w = (dx * qx + dy * qy + dz * qz) * inv
+            t = (e2[0] * qx + e2[1] * qy + e2[2] * qz) * inv
+            ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > tmin[lo:hi]) & (t < tmax[lo:hi])
+        t_all[lo:hi] = np.where(ok, t, np.inf)
+    prim = np.argmin(t_all, axis=1) if v.shape[0] else np.zeros(n, np.int64)
+    tbest = t_all[np.arange(n), prim] if v.shape[0] else np.full(n, np.inf)
     prim = np.where(np.isfinite(tbest), prim, -1)
-    return tbest, prim, t
+    return tbest, prim, t_all
