@@ -26,6 +26,7 @@ Imports inside functions count as much as those at the top of a file.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -136,6 +137,7 @@ def _sources():
     return sorted(p for p in PACKAGE.rglob("*.py") if "static" not in p.parts)
 
 
+@functools.cache  # the package's sources do not change while the suite runs
 def declared_all(module: str) -> set[str] | None:
     """The names in `module`'s `__all__` (read from its source), None when it has none."""
     parts = module.split(".")[1:]
@@ -196,6 +198,7 @@ def check(path: Path, tree: ast.AST | None = None) -> dict[str, list[str]]:
     return found
 
 
+@functools.cache  # read once for every rule's test
 def violations() -> dict[str, list[str]]:
     found = {"a": [], "b": [], "c": [], "d": [], "e": [], "f": [], "g": []}
     for path in _sources():
