@@ -342,34 +342,41 @@ def write_responses(responses: Iterable[Response], path) -> Path:
     return path
 
 
+def _optional_field(row: dict, where: str, name: str, convert: Callable[[str], _T]) -> _T | None:
+    """`row[name]` converted, None where it is missing or empty; a ResultsFileError naming the
+    field, the value and `where` when it does not convert."""
+    value = row.get(name)
+    if value is None or value == "":
+        return None
+    try:
+        return convert(value)
+    except (TypeError, ValueError) as err:
+        raise ResultsFileError(f"{where}: field {name!r}: bad value {value!r} ({err})") from None
+
+
+def _field(row: dict, where: str, name: str, convert: Callable[[str], _T]) -> _T:
+    """`_optional_field` that must be there."""
+    value = _optional_field(row, where, name, convert)
+    if value is None:
+        raise ResultsFileError(f"{where}: field {name!r} is missing")
+    return value
+
+
+# The field readers are module functions, not closures of `_parse_row`: a closure is a new
+# function per row (and, under the suite's type checks, a new checked wrapper per row).
 def _parse_row(row: dict, where: str, levels) -> Response:
-    def optional_field(name: str, convert: Callable[[str], _T]) -> _T | None:
-        value = row.get(name)
-        if value is None or value == "":
-            return None
-        try:
-            return convert(value)
-        except (TypeError, ValueError) as err:
-            raise ResultsFileError(f"{where}: field {name!r}: bad value {value!r} ({err})") from None
-
-    def field(name: str, convert: Callable[[str], _T]) -> _T:
-        value = optional_field(name, convert)
-        if value is None:
-            raise ResultsFileError(f"{where}: field {name!r} is missing")
-        return value
-
     missing = [k for k in RESULT_FIELDS if k not in row]
     if missing:
         raise ResultsFileError(f"{where}: missing columns {missing}")
     try:
         trial = Trial(
-            test=field("test", str),
-            index=field("trial", int),
-            fovea_deg=field("fovea_deg", float),
-            periphery_deg=field("periphery_deg", float),
-            order=optional_field("order", str),
-            direction=optional_field("direction", str),
-            step=optional_field("step", int),
+            test=_field(row, where, "test", str),
+            index=_field(row, where, "trial", int),
+            fovea_deg=_field(row, where, "fovea_deg", float),
+            periphery_deg=_field(row, where, "periphery_deg", float),
+            order=_optional_field(row, where, "order", str),
+            direction=_optional_field(row, where, "direction", str),
+            step=_optional_field(row, where, "step", int),
             levels=levels,
         )
         if trial.condition != row["condition"]:
@@ -377,7 +384,10 @@ def _parse_row(row: dict, where: str, levels) -> Response:
                 f"condition {row['condition']!r} disagrees with the other columns ({trial.condition!r})"
             )
         return Response(
-            field("participant", str), trial, field("answer", str), optional_field("time_s", float)
+            _field(row, where, "participant", str),
+            trial,
+            _field(row, where, "answer", str),
+            _optional_field(row, where, "time_s", float),
         )
     except ResultsFileError:
         raise
