@@ -1151,11 +1151,21 @@ def test_native_with_another_ray_backend_is_an_error_naming_it(featured):
 
 def test_other_ray_backends_keep_the_jax_integrator(featured):
     """'auto' with backend 'jax' is the JAX integrator throughout (the JAX traversal is the
-    portable reference): bit for bit the integrator='jax' frame."""
+    portable reference): the integrator='jax' program itself (the same StableHLO, so bit for bit
+    the same frame for any rays; compared lowered, not compiled), with no native call in it."""
+    from fovjax.render._native import WHITTED_TARGET
+
     _, arrays, bvh, rig = featured
-    a = _radiance_config(arrays, bvh, rig, RenderConfig(max_depth=1, backend="jax"))
-    b = _radiance_config(arrays, bvh, rig, RenderConfig(max_depth=1, backend="jax", integrator="jax"))
-    np.testing.assert_array_equal(np.asarray(a.rgb), np.asarray(b.rgb))
+    rays = stereo_sample_rays(rig, None, 1, jax.random.key(3))
+
+    def lowered(config):
+        program = jax.jit(lambda a, o, d: radiance(a, bvh, o, d, config=config))
+        return program.lower(arrays, rays.origins, rays.directions).as_text()
+
+    auto = lowered(RenderConfig(max_depth=1, backend="jax"))
+    assert auto == lowered(RenderConfig(max_depth=1, backend="jax", integrator="jax"))
+    assert WHITTED_TARGET not in auto and "custom_call" not in auto
+    assert WHITTED_TARGET in lowered(RenderConfig(max_depth=1))  # the text shows the native call
 
 
 def _radiance_config(arrays, bvh, rig, config):
