@@ -193,11 +193,11 @@ def test_closest_hit_gradient_flows_through_vertices_argument(mesh):
 
     g = jax.grad(loss)(jnp.asarray(V))
     prim = closest_hit(bvh, o, d).prim
-    g_ref = jax.grad(lambda verts: jnp.sum(hit_geometry(verts, F, prim, o, d)[0]))(jnp.asarray(V))
+    g_ref = jax.jit(jax.grad(lambda verts: jnp.sum(hit_geometry(verts, F, prim, o, d)[0])))(jnp.asarray(V))
     np.testing.assert_allclose(np.asarray(g), np.asarray(g_ref), rtol=1e-6, atol=1e-6)
     assert np.abs(np.asarray(g)).sum() > 0
     # And w.r.t. ray origins/directions, via jacobian of t.
-    jac = jax.jacobian(lambda oo: closest_hit(bvh, oo, d).t)(jnp.asarray(o))
+    jac = jax.jit(jax.jacobian(lambda oo: closest_hit(bvh, oo, d).t))(jnp.asarray(o))
     assert jac.shape == (16, 16, 3) and np.isfinite(np.asarray(jac)).all()
 
 
