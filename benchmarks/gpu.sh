@@ -17,8 +17,8 @@
 #   bash benchmarks/gpu.sh --warp-cache       # on any machine with Warp: compile Warp's kernels for
 #                                             # sm_90 (H100, H200) into benchmarks/warp_cache/
 #   bash benchmarks/gpu.sh                    # on the GPU machine (no network), from the repo root
-#   bash benchmarks/gpu.sh --dry-run          # a quick check of the script on any machine
-#   bash benchmarks/gpu.sh --tiny --no-install --warp-only   # just the Warp/JAX rows (Warp on CPU)
+#   bash benchmarks/gpu.sh --dry-run          # a quick check of the script on any machine (no records)
+#   bash benchmarks/gpu.sh --tiny --no-install --warp-only   # just the Warp/JAX rows (Warp on CPU; no records)
 #
 # Warp compiles each of its modules for the GPU on first use (NVRTC, seconds each, on the lease's
 # time); with benchmarks/warp_cache/ present (made by --warp-cache here, carried there) Warp loads
@@ -174,6 +174,8 @@ if [[ -d $WARP_CACHE ]]; then
     echo "Warp's kernels from $WARP_CACHE (made by --warp-cache)"
 fi
 if [[ $TINY == 1 ]]; then
+    # A check of the script, not figures: no benchmark writes a record (benchmarks/_record.py).
+    export FOVJAX_BENCH_RECORD=0
     warp_args=(--width 64 --height 48 --random 4096 --repeats 1)
     trace_args=(--width 64 --height 48 --random 4096 --repeats 1 --rows primary random --peers)
     fov_args=(--size 64 48 --speedup --spp 1 --repeats 1)
