@@ -594,6 +594,8 @@ def brute_force_closest_hit(
     p0 = v[:, 0].T
     e1, e2 = (v[:, 1] - v[:, 0]).T, (v[:, 2] - v[:, 0]).T
     t_all = np.empty((n, v.shape[0]))
+    if v.shape[0] == 0:  # no faces: every ray misses
+        return np.full(n, np.inf), np.full(n, -1, np.int64), t_all
     # Rays in chunks, so the (rays, faces) temporaries stay in the cache.
     step = max(1, (1 << 16) // max(1, v.shape[0]))
     for lo in range(0, n, step):
@@ -610,7 +612,7 @@ def brute_force_closest_hit(
             t = (e2[0] * qx + e2[1] * qy + e2[2] * qz) * inv
             ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > tmin[lo:hi]) & (t < tmax[lo:hi])
         t_all[lo:hi] = np.where(ok, t, np.inf)
-    prim = np.argmin(t_all, axis=1) if v.shape[0] else np.zeros(n, np.int64)
-    tbest = t_all[np.arange(n), prim] if v.shape[0] else np.full(n, np.inf)
+    prim = np.argmin(t_all, axis=1)
+    tbest = t_all[np.arange(n), prim]
     prim = np.where(np.isfinite(tbest), prim, -1)
     return tbest, prim, t_all
