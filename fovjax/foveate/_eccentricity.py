@@ -33,17 +33,22 @@ def eccentricity_angle(
 
 
 def _angle_to_gaze(camera: Camera, gaze_xy, x, y) -> Float[Array, "..."]:
-    """`eccentricity_angle` of pixel coordinates `x` and `y` (broadcasting against each other)."""
-    g = camera.ray_directions(gaze_pixel(camera, gaze_xy))
-    # Written out per component: jnp.cross, norm and a sum over the length-3 axis run several
-    # times slower on XLA:CPU over a screen of pixels (as in Camera.ray_directions), and a
-    # stacked (..., 3) direction array is materialised where the components fuse into one pass.
-    d0, d1, d2 = camera.ray_direction_components(x, y)
-    c0 = d1 * g[2] - d2 * g[1]
-    c1 = d2 * g[0] - d0 * g[2]
-    c2 = d0 * g[1] - d1 * g[0]
+    """`eccentricity_angle` of pixel coordinates `x` and `y` (broadcasting against each other).
+    The angle between two rays does not change under the camera's rotation, so it is taken
+    between their image-plane vectors (sx, sy, -1) and (gx, gy, -1), neither normalised (atan2
+    of cross and dot does not need it): fewer roundings than in world space, and a few
+    operations per pixel, where the rotated, normalised directions cost the frame a pass over
+    the screen each."""
+    gaze = gaze_pixel(camera, gaze_xy)
+    gx, gy = camera.image_plane(gaze[0], gaze[1])
+    sx, sy = camera.image_plane(x, y)
+    # (sx, sy, -1) × (gx, gy, -1) and their dot product, written out: jnp.cross, norm and a
+    # sum over a length-3 axis run several times slower on XLA:CPU over a screen of pixels.
+    c0 = gy - sy
+    c1 = sx - gx
+    c2 = sx * gy - sy * gx
     cross = jnp.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    return jnp.rad2deg(_atan2_nonnegative(cross, d0 * g[0] + d1 * g[1] + d2 * g[2]))
+    return jnp.rad2deg(_atan2_nonnegative(cross, sx * gx + sy * gy + 1.0))
 
 
 def _atan2_nonnegative(y, x):

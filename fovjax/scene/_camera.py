@@ -86,16 +86,23 @@ class Camera(eqx.Module):
         pixel coordinates `x` and `y`, which broadcast against each other (a row of columns and
         a column of rows give a screen): a caller that combines the components pixel by pixel
         gets one fused pass, no (..., 3) array."""
-        tan_half = jnp.tan(jnp.deg2rad(self.vfov_deg) / 2)
-        aspect = self.width / self.height
-        sx = (2.0 * x / self.width - 1.0 + self.offset[0]) * tan_half * aspect
-        sy = (1.0 - 2.0 * y / self.height + self.offset[1]) * tan_half
+        sx, sy = self.image_plane(x, y)
         # Written out per component: XLA:CPU runs a matmul or a sum over a length-3 axis
         # through a far slower library kernel than this fused elementwise arithmetic.
         r = self.rotation
         d = [sx * r[i, 0] + sy * r[i, 1] - r[i, 2] for i in range(3)]
         scale = jax.lax.rsqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
         return d[0] * scale, d[1] * scale, d[2] * scale
+
+    def image_plane(self, x, y) -> tuple[Array, Array]:
+        """Continuous pixel coordinates `x` and `y` (broadcasting against each other) on the
+        camera's image plane at distance 1 (projection offset included): the ray through (x, y)
+        is the rotation of (sx, sy, -1)."""
+        tan_half = jnp.tan(jnp.deg2rad(self.vfov_deg) / 2)
+        aspect = self.width / self.height
+        sx = (2.0 * x / self.width - 1.0 + self.offset[0]) * tan_half * aspect
+        sy = (1.0 - 2.0 * y / self.height + self.offset[1]) * tan_half
+        return sx, sy
 
     def project(
         self, points: Float[Array, "*batch 3"]
