@@ -1265,6 +1265,7 @@ FILL_CASES = [
     (40, 24, 1, "either", (2, 4), None, False),  # every blank pixel's top-left traced: native
     (37, 29, 4, "either", (2, 4), 300, False),  # drops leave top-lefts blank: the JAX fallback
     (37, 29, 4, "strict", (1, 3), None, False),
+    (37, 29, 4, "either", (2, 4), None, False),  # means of up to 4 samples, native
     (40, 24, 1, "either", (2, 4), None, True),  # the blur over every pixel
 ]
 
