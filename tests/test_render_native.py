@@ -1216,6 +1216,9 @@ SELECTION_CASES = [
     (40, 24, 1, "either", (2, 4), None, None, GAZE),
     (37, 29, 4, "either", (2, 4), 300, None, GAZE),  # odd sizes; the budget drops samples
     (37, 29, 4, "strict", (1, 3), None, None, GAZE),
+    # Over 8192 pixels an eye (two chunks of the compaction), 8×8 tiles cut by both edges, and
+    # a whole tile's 64 locality ranks, some of them traced, across the chunks' boundary.
+    (113, 73, 4, "either", (1, 3), None, None, GAZE),
     (40, 24, 4, "thesis-measured", (2, 4), 500, None, GAZE),
     (40, 24, 4, "either", (2, 4), None, (4, 1, 2), GAZE),  # each region's samples per pixel
     # The fovea at the left edge: rows that begin where P(ω) is 1 and draw beyond it.

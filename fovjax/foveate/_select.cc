@@ -195,6 +195,92 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
   }
 }
 
+// Pass 2 of `SelectSamples` over locality ranks [j0, j1) of one eye: the ranks' mandatory and
+// optional samples listed apart (slot first + j·S + s), in rank order. The locality order is a
+// Morton curve, so the 64 pixels of an aligned 8×8 tile inside the image are 64 consecutive
+// ranks, in the tile's own Morton order: such a tile is read as eight rows of eight classes,
+// made into bit masks and listed by its set bits (about one pixel in ten is traced), where one
+// rank at a time waited on each rank's pixel and then its class. Other ranks (tiles cut by the
+// image's edge) one at a time.
+struct ListedSamples {
+  const int8_t* classes;  // the eye's (S, H, W)
+  const int32_t* perm;    // pixel of each locality rank
+  int32_t first;          // the eye's first slot
+  int64_t spp, hw, w, h;
+
+  // The mask of a "delta swap" that exchanges index bits a < b of a 64-bit word's bits: those
+  // whose index has bit a set and bit b clear, each swapped with the bit 2^b - 2^a above it.
+  static constexpr uint64_t SwapMask(int a, int b) {
+    uint64_t mask = 0;
+    for (int j = 0; j < 64; ++j) mask |= static_cast<uint64_t>(((j >> a) & 1) && !((j >> b) & 1)) << j;
+    return mask;
+  }
+  static inline uint64_t SwapIndexBits(uint64_t x, uint64_t mask, int shift) {
+    const uint64_t t = ((x >> shift) ^ x) & mask;
+    return x ^ t ^ (t << shift);
+  }
+
+  // A tile's row-major bit mask (bit y·8 + x: index bits y2 y1 y0 x2 x1 x0) in Morton order
+  // (index bits y2 x2 y1 x1 y0 x0, `locality_order`'s code): three swaps of index bits.
+  static inline uint64_t ToMorton(uint64_t row_major) {
+    uint64_t x = SwapIndexBits(row_major, SwapMask(2, 3), 4);  // y2 y1 x2 y0 x1 x0
+    x = SwapIndexBits(x, SwapMask(3, 4), 8);                    // y2 x2 y1 y0 x1 x0
+    return SwapIndexBits(x, SwapMask(1, 2), 2);                 // y2 x2 y1 x1 y0 x0
+  }
+
+  // Bit x set where byte x of `v` has its lowest bit set (the other bits clear).
+  static inline uint32_t LowBits(uint64_t v) {
+    return static_cast<uint32_t>(((v & 0x0101010101010101ull) * 0x0102040810204080ull) >> 56);
+  }
+
+  // The tile at (x0, y0), sub-sample s: its mandatory and optional pixels as Morton-ordered bit masks.
+  void TileMasks(int64_t x0, int64_t y0, int64_t s, uint64_t* mandatory, uint64_t* optional) const {
+    uint64_t m = 0, o = 0;
+    for (int64_t r = 0; r < 8; ++r) {
+      uint64_t v;  // eight classes: 0 mandatory, 1 optional, 2 skipped
+      std::memcpy(&v, classes + s * hw + (y0 + r) * w + x0, sizeof v);
+      m |= static_cast<uint64_t>(LowBits(~(v | (v >> 1)))) << (8 * r);
+      o |= static_cast<uint64_t>(LowBits(v)) << (8 * r);
+    }
+    *mandatory = ToMorton(m), *optional = ToMorton(o);
+  }
+
+  void Run(int64_t j0, int64_t j1, int32_t* m, int32_t* o, int64_t sizes[2]) const {
+    const int64_t S = spp, HW = hw, W = w, H = h;  // locals: see pass 1
+    int64_t nm = 0, no = 0;  // written unconditionally, kept by the counts (no branch)
+    constexpr int64_t kMaxSpp = 64;
+    for (int64_t j = j0; j < j1;) {
+      const int64_t pix = perm[j];
+      const int64_t y = pix / W, x = pix - y * W;
+      if (S <= kMaxSpp && j + 64 <= j1 && (x & 7) == 0 && (y & 7) == 0 && x + 8 <= W && y + 8 <= H) {
+        uint64_t mandatory[kMaxSpp], optional[kMaxSpp], live = 0;
+        for (int64_t s = 0; s < S; ++s) {
+          TileMasks(x, y, s, &mandatory[s], &optional[s]);
+          live |= mandatory[s] | optional[s];
+        }
+        for (; live != 0; live &= live - 1) {
+          const int k = __builtin_ctzll(live);
+          for (int64_t s = 0; s < S; ++s) {
+            const int32_t slot = static_cast<int32_t>(first + (j + k) * S + s);
+            m[nm] = slot, o[no] = slot;
+            nm += (mandatory[s] >> k) & 1, no += (optional[s] >> k) & 1;
+          }
+        }
+        j += 64;
+        continue;
+      }
+      for (int64_t s = 0; s < S; ++s) {
+        const int8_t k = classes[s * HW + pix];
+        const int32_t slot = static_cast<int32_t>(first + j * S + s);
+        m[nm] = slot, o[no] = slot;
+        nm += k == kMandatory, no += k == kOptional;
+      }
+      ++j;
+    }
+    sizes[0] = nm, sizes[1] = no;
+  }
+};
+
 ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
                          ffi::Buffer<ffi::F32> probability, ffi::Buffer<ffi::U32> keys,
                          ffi::Buffer<ffi::S32> locality, ffi::Buffer<ffi::S32> region_spp,
@@ -247,23 +333,12 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
   ParallelFor(pool, chunks, [&](int64_t c) {
     const int64_t eye = c / chunks_per_eye, j0 = (c % chunks_per_eye) * pixels_per_chunk;
     const int64_t j1 = std::min(hw, j0 + pixels_per_chunk);
-    const int64_t S = spp, HW = hw, first = eye * per_eye;  // locals: see pass 1
-    listed[2 * c].reset(new int32_t[static_cast<size_t>((j1 - j0) * S)]);
-    listed[2 * c + 1].reset(new int32_t[static_cast<size_t>((j1 - j0) * S)]);
-    int32_t* m = listed[2 * c].get();
-    int32_t* o = listed[2 * c + 1].get();
-    int64_t nm = 0, no = 0;  // written unconditionally, kept by the counts (no branch)
-    const int8_t* classes = cls + eye * S * HW;
-    for (int64_t j = j0; j < j1; ++j) {
-      const int64_t pix = perm[j];
-      for (int64_t s = 0; s < S; ++s) {
-        const int8_t k = classes[s * HW + pix];
-        const int32_t slot = static_cast<int32_t>(first + j * S + s);
-        m[nm] = slot, o[no] = slot;
-        nm += k == kMandatory, no += k == kOptional;
-      }
-    }
-    listed_size[2 * c] = nm, listed_size[2 * c + 1] = no;
+    listed[2 * c].reset(new int32_t[static_cast<size_t>((j1 - j0) * spp)]);
+    listed[2 * c + 1].reset(new int32_t[static_cast<size_t>((j1 - j0) * spp)]);
+    const ListedSamples list{cls + eye * spp * hw, perm, static_cast<int32_t>(eye * per_eye), spp, hw, w, h};
+    int64_t sizes[2];
+    list.Run(j0, j1, listed[2 * c].get(), listed[2 * c + 1].get(), sizes);
+    listed_size[2 * c] = sizes[0], listed_size[2 * c + 1] = sizes[1];
   });
   int64_t total[2] = {0, 0};
   std::vector<int64_t> offset(2 * chunks);
