@@ -205,6 +205,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
   // below still go in slot order.
   std::unique_ptr<int32_t[]> position(new int32_t[std::max<int64_t>(n, 1)]);
   std::unique_ptr<int32_t[]> traced_at(new int32_t[std::max<int64_t>(n, 1)]);
+  int64_t runs = 0;  // where the second ascending run begins (0: the slots are not two runs)
   {
     const int32_t* o = L.order;
     int64_t split = 1;
@@ -213,6 +214,7 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     while (end < n && o[end] > o[end - 1]) ++end;
     int64_t k = 0;
     if (split < n && end >= n) {
+      runs = split;
       int64_t a = 0, b = split;
       while (a < split && b < n) position[k++] = static_cast<int32_t>(o[a] < o[b] ? a++ : b++);
       while (a < split) position[k++] = static_cast<int32_t>(a++);
@@ -275,24 +277,40 @@ ffi::Error WhittedSlots(ffi::ThreadPool pool, ffi::Buffer<ffi::S32> order, ffi::
     const int32_t* order_of = L.order;
     const int32_t own_lo = static_cast<int32_t>(eye * per_eye), own_hi = static_cast<int32_t>(own_lo + per_eye);
     int64_t primary = 0, shadow = 0, reflection = 0, n_bad = 0;
-    for (int64_t i = 0; i < n; ++i) {
-      if (order_of[i] < own_lo || order_of[i] >= own_hi) continue;
-      const int64_t k = traced_at[i];
-      const int32_t px = target[k];
-      if (first_points && (order_of[i] - own_lo) % spp == 0) {
-        std::copy(point.get() + 3 * k, point.get() + 3 * k + 3, pixel_point + 3 * static_cast<int64_t>(px));
+    // Where the slots are two ascending runs, this eye's are one range of each (found by
+    // bisection); else every slot is looked at. The pixels' sums a few slots ahead are fetched
+    // early: each slot's is a miss of its own.
+    int64_t ranges[2][2] = {{0, n}, {n, n}};
+    if (runs > 0) {
+      for (int r = 0; r < 2; ++r) {
+        const int32_t* lo = order_of + (r == 0 ? 0 : runs);
+        const int32_t* hi = order_of + (r == 0 ? runs : n);
+        ranges[r][0] = std::lower_bound(lo, hi, own_lo) - order_of;
+        ranges[r][1] = std::lower_bound(lo, hi, own_hi) - order_of;
       }
-      const float* rgb = radiance.get() + 3 * k;
-      primary += valid[k];
-      shadow += traced[k] >> 8;
-      reflection += traced[k] & 255;
-      if (!(std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]))) {
-        eye_bad[px - first] = true;
-        ++n_bad;
-        continue;
+    }
+    constexpr int64_t kAhead = 16;
+    for (const auto& range : ranges) {
+      for (int64_t i = range[0]; i < range[1]; ++i) {
+        if (i + kAhead < range[1]) __builtin_prefetch(sums + 3 * static_cast<int64_t>(target[traced_at[i + kAhead]]), 1);
+        if (order_of[i] < own_lo || order_of[i] >= own_hi) continue;
+        const int64_t k = traced_at[i];
+        const int32_t px = target[k];
+        if (first_points && (order_of[i] - own_lo) % spp == 0) {
+          std::copy(point.get() + 3 * k, point.get() + 3 * k + 3, pixel_point + 3 * static_cast<int64_t>(px));
+        }
+        const float* rgb = radiance.get() + 3 * k;
+        primary += valid[k];
+        shadow += traced[k] >> 8;
+        reflection += traced[k] & 255;
+        if (!(std::isfinite(rgb[0]) && std::isfinite(rgb[1]) && std::isfinite(rgb[2]))) {
+          eye_bad[px - first] = true;
+          ++n_bad;
+          continue;
+        }
+        float* out = sums + 3 * static_cast<int64_t>(px);
+        out[0] += rgb[0], out[1] += rgb[1], out[2] += rgb[2];
       }
-      float* out = sums + 3 * static_cast<int64_t>(px);
-      out[0] += rgb[0], out[1] += rgb[1], out[2] += rgb[2];
     }
     eye_counts[eye][0] = primary, eye_counts[eye][1] = shadow;
     eye_counts[eye][2] = reflection, eye_counts[eye][3] = n_bad;
