@@ -56,7 +56,6 @@ from ._sampling import (
     OPTIONAL,
     SKIPPED,
     compaction_order,
-    regions,
     sample_classes,
     subsample_rank,
 )
@@ -273,13 +272,12 @@ def _native_selection(ecc, key, *, foveation, budget):
     """`selection_with_mask`'s outputs through the native handler (CPU only)."""
     _, h, w = ecc.shape
     spp = foveation.spp
-    # Bytes (codes 0-2): the select and fill handlers read them whole-screen.
-    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int8)
     keys = sampling_keys(key)
     key_data = key_words(keys)
-    classes, order, counts, mask, n, by_region = native_select_samples(
-        region,
-        foveation.probability(ecc),
+    return native_select_samples(
+        ecc,
+        (foveation.probability(ecc[0]), foveation.probability(ecc[1])),
+        (foveation.fovea_deg, foveation.periphery_deg),
         key_data,
         locality_order(h, w),
         region_spp(foveation) or (spp, spp, spp),
@@ -289,7 +287,6 @@ def _native_selection(ecc, key, *, foveation, budget):
         blocks=(int(foveation.blocks[0]), int(foveation.blocks[1])),
         budget=budget,
     )
-    return region, classes, order, counts, mask, n, by_region
 
 
 def _slot_samples(slots, *, spp, h, w):

@@ -126,8 +126,9 @@ def native_whitted_slots(
 
 
 def native_select_samples(
-    region,
+    ecc,
     probability,
+    thresholds,
     key_data,
     locality,
     per_region_spp,
@@ -138,13 +139,18 @@ def native_select_samples(
     blocks: tuple[int, int],
     budget: int,
 ):
-    """The foveated frame's sample selection through the selection handler (CPU only): (classes
-    int8 (2, S, H, W), compaction order (2·H·W·S), count per class (3), traced mask (2, S, H, W),
-    traced samples per pixel (2, H, W), traced samples per region (3)); see
-    `_frame.selection_with_mask` for what each operand is. `rule`: `Foveation.rule`, or
-    "pixel-mask" (`_methods._sparse.pixel_selection`: every sub-sample of the pixels whose P is 1)."""
-    _, h, w = region.shape
+    """The foveated frame's sample selection through the selection handler (CPU only): (regions
+    int8 (2, H, W), classes int8 (2, S, H, W), compaction order (2·H·W·S), count per class (3),
+    traced mask (2, S, H, W), traced samples per pixel (2, H, W), traced samples per region (3));
+    see `_frame.selection_with_mask` for what each operand is. `ecc` (2, H, W): the regions are
+    made from it and `thresholds` (the fovea's and the periphery's radii, as
+    `_sampling.regions` makes them); `probability`: each eye's P(ω) (H, W), apart (one array
+    each: XLA computes the two side by side, where their stack is one pass on one core).
+    `rule`: `Foveation.rule`, or "pixel-mask" (`_methods._sparse.pixel_selection`: every
+    sub-sample of the pixels whose P is 1)."""
+    _, h, w = ecc.shape
     out = (
+        jax.ShapeDtypeStruct((2, h, w), jnp.int8),
         jax.ShapeDtypeStruct((2, spp, h, w), jnp.int8),
         jax.ShapeDtypeStruct((2 * spp * h * w,), jnp.int32),
         jax.ShapeDtypeStruct((3,), jnp.int32),
@@ -153,9 +159,13 @@ def native_select_samples(
         jax.ShapeDtypeStruct((3,), jnp.int32),
     )
     call = handler(SELECT_TARGET, out, what="the native sample selection", vmap_method="sequential")
+    f32 = jnp.float32
+    left, right = probability
     return call(
-        jnp.asarray(region, jnp.int8),
-        jax.lax.stop_gradient(jnp.asarray(probability, jnp.float32)),
+        jax.lax.stop_gradient(jnp.asarray(ecc, f32)),
+        jax.lax.stop_gradient(jnp.asarray(left, f32)),
+        jax.lax.stop_gradient(jnp.asarray(right, f32)),
+        jax.lax.stop_gradient(jnp.stack([jnp.asarray(t, f32).reshape(()) for t in thresholds])),
         jnp.asarray(key_data, jnp.uint32).reshape(2, 2),
         jnp.asarray(locality, jnp.int32),
         jnp.asarray(per_region_spp, jnp.int32),

@@ -13,7 +13,8 @@ namespace {
 // every sub-sample (`_sampling.sample_classes`: block top-lefts, the P(ω) draw of JAX's
 // threefry2x32 uniform for the sub-sample's flat index, the rule, each region's samples per
 // pixel), their stable compaction in locality order (`compaction_order`), and which samples the
-// budget keeps. The regions and P(ω) come from the program (JAX computes both).
+// budget keeps. P(ω) comes from the program (JAX computes it), an eye per buffer; the regions
+// are made here from the eccentricities (`_sampling.regions`: two comparisons, the same codes).
 
 // One row of one sub-sample's classes (`_sampling.sample_classes`), branch-free so that the
 // compiler vectorises it: class = 2 - 2·mandatory - optional (the two exclude each other),
@@ -82,10 +83,17 @@ inline void DrawnSpan(const float* __restrict__ p, int32_t w, int32_t* first, in
   *first = f, *last = l;
 }
 
+// `_sampling.regions`: 0 fovea (ω ≤ ω0), 1 periphery (ω ≤ ω1), 2 outside (NaN too).
+inline int32_t RegionCode(float ecc, float fovea_deg, float periphery_deg) {
+  return ecc <= fovea_deg ? kFovea : (ecc <= periphery_deg ? kPeriphery : kOutside);
+}
+
 // Pass 1 of `SelectSamples` for one band of rows of one eye (`job`): its operands.
 struct SelectBand {
-  const int8_t* region;
-  const float* p;
+  const float* ecc;
+  const float* p[2];
+  float fovea_deg, periphery_deg;
+  int8_t* region;
   const uint32_t* key;
   const int32_t* rspp;
   const int32_t* srank;
@@ -101,8 +109,7 @@ struct SelectBand {
 // int-wide lanes; ClassRow is inlined into each build).
 FOVJAX_VECTOR_CLONES
 void SelectBandRows(const SelectBand& a, int64_t job) {
-  const int8_t* region = a.region;
-  const float* p = a.p;
+  int8_t* region = a.region;
   const uint32_t* key = a.key;
   const int32_t* rspp = a.rspp;
   const int32_t* srank = a.srank;
@@ -116,17 +123,19 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
   // reference, which would be reloaded after each of them.
   const int64_t W = w, H = h;
   const int64_t eye = job / bands, y0 = (job % bands) * rows, y1 = std::min(H, y0 + rows);
-  const int8_t* reg = region + eye * hw;
+  const float* ecc = a.ecc + eye * hw;
+  const float fovea_deg = a.fovea_deg, periphery_deg = a.periphery_deg;
   std::vector<float> u(static_cast<size_t>(W * spp));
   std::vector<uint8_t> top_left(static_cast<size_t>(W)), in_block(static_cast<size_t>(W));
   std::vector<int32_t> row_codes(static_cast<size_t>(W));
   const int32_t codes[2] = {1, 2}, sizes[2] = {block_periphery, block_outside};
   for (int64_t y = y0; y < y1; ++y) {
-    // The row's region codes widened to int32 (`ClassRow`'s lanes are); the regions come as
-    // bytes, a quarter of the memory traffic.
-    const int8_t* codes_row = reg + y * W;
+    // The row's region codes as int32 (`ClassRow`'s lanes are), and as the bytes of the output.
+    const float* ecc_row = ecc + y * W;
+    int8_t* codes_row = region + eye * hw + y * W;
     int32_t* row = row_codes.data();
-    for (int64_t x = 0; x < W; ++x) row[x] = codes_row[x];
+    for (int64_t x = 0; x < W; ++x) row[x] = RegionCode(ecc_row[x], fovea_deg, periphery_deg);
+    for (int64_t x = 0; x < W; ++x) codes_row[x] = static_cast<int8_t>(row[x]);
     // `_sampling.block_top_lefts`: the fovea's pixels; a region's pixels where its blocks are
     // one pixel; else the top-left of every aligned block holding a pixel of that region.
     uint8_t* tl = top_left.data();
@@ -142,15 +151,15 @@ void SelectBandRows(const SelectBand& a, int64_t job) {
       uint8_t* any = in_block.data();  // per column: a pixel of the region in the block's rows
       for (int64_t x = 0; x < W; ++x) any[x] = row[x] == code;
       for (int64_t yy = y + 1; yy < std::min(H, y + b); ++yy) {
-        const int8_t* below = reg + yy * W;
-        for (int64_t x = 0; x < W; ++x) any[x] |= below[x] == code;
+        const float* below = ecc + yy * W;  // (rows another band may own: their codes anew)
+        for (int64_t x = 0; x < W; ++x) any[x] |= RegionCode(below[x], fovea_deg, periphery_deg) == code;
       }
       if (b == 2) BlockTopLefts<2>(any, W, tl);
       else if (b == 3) BlockTopLefts<3>(any, W, tl);
       else if (b == 4) BlockTopLefts<4>(any, W, tl);
       else BlockTopLefts<0>(any, W, tl, b);
     }
-    const float* prow = p + eye * hw + y * W;
+    const float* prow = a.p[eye] + y * W;
     // A draw decides a class only where P is strictly between 0 and 1 (below, none is kept;
     // above, every one): only the row's columns from the first such P to the last are drawn
     // (a row without one, as the methods' pixel masks and the fovea's rows, none), and any
@@ -281,25 +290,28 @@ struct ListedSamples {
   }
 };
 
-ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
-                         ffi::Buffer<ffi::F32> probability, ffi::Buffer<ffi::U32> keys,
+ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::F32> ecc_buf,
+                         ffi::Buffer<ffi::F32> probability_left, ffi::Buffer<ffi::F32> probability_right,
+                         ffi::Buffer<ffi::F32> thresholds, ffi::Buffer<ffi::U32> keys,
                          ffi::Buffer<ffi::S32> locality, ffi::Buffer<ffi::S32> region_spp,
-                         ffi::Buffer<ffi::S32> subsample_rank, ffi::ResultBuffer<ffi::S8> classes_out,
+                         ffi::Buffer<ffi::S32> subsample_rank, ffi::ResultBuffer<ffi::S8> region_out,
+                         ffi::ResultBuffer<ffi::S8> classes_out,
                          ffi::ResultBuffer<ffi::S32> order_out, ffi::ResultBuffer<ffi::S32> counts_out,
                          ffi::ResultBuffer<ffi::PRED> traced_out, ffi::ResultBuffer<ffi::S32> per_pixel_out,
                          ffi::ResultBuffer<ffi::S32> by_region_out, int32_t spp, int32_t rule, int32_t block_periphery, int32_t block_outside,
                          int64_t budget) {
-  const auto dims = region_buf.dimensions();
-  if (dims.size() != 3 || dims[0] != 2) return ffi::Error::InvalidArgument("select: regions must be (2, H, W)");
+  const auto dims = ecc_buf.dimensions();
+  if (dims.size() != 3 || dims[0] != 2) return ffi::Error::InvalidArgument("select: eccentricities must be (2, H, W)");
   const int64_t h = dims[1], w = dims[2], hw = h * w, per_eye = hw * spp;
-  if (probability.element_count() != static_cast<size_t>(2 * hw) || keys.element_count() != 4 ||
+  if (probability_left.element_count() != static_cast<size_t>(hw) ||
+      probability_right.element_count() != static_cast<size_t>(hw) || thresholds.element_count() != 2 ||
+      region_out->element_count() != static_cast<size_t>(2 * hw) || keys.element_count() != 4 ||
       locality.element_count() != static_cast<size_t>(hw) || region_spp.element_count() != 3 ||
       subsample_rank.element_count() != static_cast<size_t>(spp) || block_periphery < 1 || block_outside < 1) {
-    return ffi::Error::InvalidArgument("select: operand shapes do not match the regions");
+    return ffi::Error::InvalidArgument("select: operand shapes do not match the eccentricities");
   }
   if (rule < kRuleEither || rule > kRulePixelMask) return ffi::Error::InvalidArgument("select: an unknown rule");
-  const int8_t* region = region_buf.typed_data();
-  const float* p = probability.typed_data();
+  int8_t* region = region_out->typed_data();  // (2, H, W), made in pass 1
   const uint32_t* key = keys.typed_data();
   const int32_t* perm = locality.typed_data();
   const int32_t* rspp = region_spp.typed_data();
@@ -316,8 +328,10 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
   const int64_t rows = 16;
   const int64_t bands = (h + rows - 1) / rows;
   std::vector<int64_t> band_sums(3 * 2 * bands, 0);  // wanted samples per region, per band
-  const SelectBand band{region, p, key, rspp, srank, cls, traced, per_pixel, band_sums.data(), h, w, hw, spp,
-                        rows, bands, rule, block_periphery, block_outside};
+  const SelectBand band{ecc_buf.typed_data(), {probability_left.typed_data(), probability_right.typed_data()},
+                        thresholds.typed_data()[0], thresholds.typed_data()[1], region, key, rspp, srank, cls,
+                        traced, per_pixel, band_sums.data(), h, w, hw, spp, rows, bands, rule, block_periphery,
+                        block_outside};
   ParallelFor(pool, 2 * bands, [&](int64_t job) { SelectBandRows(band, job); });
 
   // Pass 2, the locality-ordered samples in chunks: each chunk lists its mandatory and its
@@ -384,12 +398,15 @@ ffi::Error SelectSamples(ffi::ThreadPool pool, ffi::Buffer<ffi::S8> region_buf,
 XLA_FFI_DEFINE_HANDLER_SYMBOL(FovjaxSelectSamples, SelectSamples,
                               ffi::Ffi::Bind()
                                   .Ctx<ffi::ThreadPool>()
-                                  .Arg<ffi::Buffer<ffi::S8>>()    // regions (2, H, W)
-                                  .Arg<ffi::Buffer<ffi::F32>>()   // P(ω) per pixel (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // eccentricity (2, H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the left eye's P(ω) per pixel (H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the right eye's P(ω) per pixel (H, W)
+                                  .Arg<ffi::Buffer<ffi::F32>>()   // the fovea's and the periphery's radii, degrees (2)
                                   .Arg<ffi::Buffer<ffi::U32>>()   // each eye's key data (2, 2)
                                   .Arg<ffi::Buffer<ffi::S32>>()   // locality order of the pixels (H·W)
                                   .Arg<ffi::Buffer<ffi::S32>>()   // samples per pixel per region (3)
                                   .Arg<ffi::Buffer<ffi::S32>>()   // each sub-sample's rank (S)
+                                  .Ret<ffi::Buffer<ffi::S8>>()    // regions (2, H, W)
                                   .Ret<ffi::Buffer<ffi::S8>>()    // classes (2, S, H, W)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // compaction order (2·H·W·S)
                                   .Ret<ffi::Buffer<ffi::S32>>()   // count per class (3)

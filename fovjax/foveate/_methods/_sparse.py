@@ -50,22 +50,24 @@ def pixel_selection(ecc, trace_pixel, *, spp: int, foveation, native: bool):
     integers as `select_pixels`, without XLA's screen-sized gathers, prefix sums and per-region
     scatter."""
     _, h, w = ecc.shape
-    region = jnp.stack([regions(ecc[i], foveation) for i in range(2)])
 
     def in_jax():
+        region = jnp.stack([regions(ecc[i], foveation) for i in range(2)]).astype(jnp.int8)
         sel = select_pixels(ecc, trace_pixel, spp=spp, foveation=foveation)
         mask = sel.classes != SKIPPED
         n = traced_count(mask, spp)
-        return sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n, samples_by_region(region, n)
+        by_region = samples_by_region(region, n)
+        return region, sel.classes.astype(jnp.int8), sel.order, sel.counts, mask, n, by_region
 
     if not native or 2 * spp * h * w >= 2**31:
-        classes, order, counts, mask, n, by_region = in_jax()
+        region, classes, order, counts, mask, n, by_region = in_jax()
     else:
 
         def on_cpu():
             return native_select_samples(
-                region,  # the wrapper passes its codes as bytes
-                trace_pixel.astype(jnp.float32),
+                ecc,
+                (trace_pixel[0].astype(jnp.float32), trace_pixel[1].astype(jnp.float32)),
+                (foveation.fovea_deg, foveation.periphery_deg),
                 jnp.zeros((2, 2), jnp.uint32),  # the draws' key: no draw is made
                 locality_order(h, w),
                 (spp, spp, spp),
@@ -76,7 +78,8 @@ def pixel_selection(ecc, trace_pixel, *, spp: int, foveation, native: bool):
                 budget=2 * spp * h * w,
             )
 
-        classes, order, counts, mask, n, by_region = on_platforms(in_jax, cpu=on_cpu, derivatives=False)()
+        outs = on_platforms(in_jax, cpu=on_cpu, derivatives=False)()
+        region, classes, order, counts, mask, n, by_region = outs
     sel = Selection(ecc, region, classes, counts, order, None, counts[MANDATORY])
     return sel, mask, n, by_region
 
