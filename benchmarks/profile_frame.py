@@ -67,7 +67,10 @@ STAGES = (
         r"trace/_(traverse|packet|kernel|query)\.py:\d+\((?!hit_geometry)",
     ),
     ("hit recomputed (differentiable t, u, v)", r"hit_geometry"),
-    ("region / eccentricity", r"foveate/_eccentricity\.py|foveate/_frame\.py:\d+\(eccentricities"),
+    (
+        "eccentricity, regions, P(ω)",
+        r"foveate/_eccentricity\.py|foveate/_frame\.py:\d+\(eccentricities|foveate/_config\.py:\d+\(Foveation\.probability",
+    ),
     (
         "sampling + compaction",
         r"foveate/_(sampling|positions)\.py|foveate/_frame\.py:\d+\((select_samples|_slot_samples|slot_rays|traced_mask|traced_count)",
