@@ -144,8 +144,8 @@ def native_select_samples(
     traced mask (2, S, H, W), traced samples per pixel (2, H, W), traced samples per region (3));
     see `_frame.selection_with_mask` for what each operand is. `ecc` (2, H, W): the regions are
     made from it and `thresholds` (the fovea's and the periphery's radii, as
-    `_sampling.regions` makes them); `probability`: each eye's P(ω) (H, W), apart (one array
-    each: XLA computes the two side by side, where their stack is one pass on one core).
+    `_sampling.regions` makes them); `probability`: each eye's P(ω) (H, W), apart (no pass
+    that stacks the two).
     `rule`: `Foveation.rule`, or "pixel-mask" (`_methods._sparse.pixel_selection`: every
     sub-sample of the pixels whose P is 1)."""
     _, h, w = ecc.shape

@@ -237,7 +237,9 @@ struct ListedSamples {
     return SwapIndexBits(x, SwapMask(1, 2), 2);                 // y2 x2 y1 x1 y0 x0
   }
 
-  // Bit x set where byte x of `v` has its lowest bit set (the other bits clear).
+  // Bit x set where byte x of `v` has its lowest bit set (the other bits clear). Byte x of a
+  // row's eight classes read as one word is column x on a little-endian CPU.
+  static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the tile masks read rows as little-endian words");
   static inline uint32_t LowBits(uint64_t v) {
     return static_cast<uint32_t>(((v & 0x0101010101010101ull) * 0x0102040810204080ull) >> 56);
   }
