@@ -1226,7 +1226,9 @@ SELECTION_CASES = [
 ]
 
 
-@pytest.mark.parametrize("case", SELECTION_CASES, ids=lambda c: f"{c[3]}-spp{c[2]}-{c[5]}-x{c[7][0][0]}")
+@pytest.mark.parametrize(
+    "case", SELECTION_CASES, ids=lambda c: f"{c[0]}x{c[1]}-{c[3]}-spp{c[2]}-{c[5]}-{c[6]}-x{c[7][0][0]}"
+)
 def test_native_sample_selection_is_the_jax_selection(featured, case):
     """The native handler's classes, counts, compaction (the listed samples, in order), traced
     mask and per-pixel counts are the JAX selection's, integer for integer."""
