@@ -8,6 +8,8 @@ programs: the full render, plain foveation and three fidelity configurations."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import _extras
 import jax
 import numpy as np
@@ -70,6 +72,24 @@ def test_loose_criterion_takes_the_cheapest_option_everywhere(loose):
     assert loose.plain.fidelity is None and loose.foveation.fovea_deg == FOVEATION.fovea_deg
     text = str(loose)
     assert "fovea max_depth=0 shadows='none'" in text and "speed:" in text and "0-5" in text
+
+
+def test_a_plan_that_is_not_faster_says_whether_it_traces_fewer_rays(loose):
+    """Timing decides (the machine's); the rays are counted: the note of no gain says which it
+    traced, fewer or not (a plan at another density can trace more rays than plain foveation)."""
+    plain = {"ms_per_frame": 10.0, "rays_per_frame": 1000.0}
+    fewer = dataclasses.replace(
+        loose, plain_cost=plain, plan_cost={"ms_per_frame": 11.0, "rays_per_frame": 800.0}
+    )
+    more = dataclasses.replace(
+        loose, plain_cost=plain, plan_cost={"ms_per_frame": 11.0, "rays_per_frame": 1200.0}
+    )
+    faster = dataclasses.replace(
+        loose, plain_cost=plain, plan_cost={"ms_per_frame": 9.0, "rays_per_frame": 800.0}
+    )
+    assert "no measured gain: the plan traces fewer rays and is not faster" in str(fewer)
+    assert "no measured gain: the plan traces no fewer rays and is not faster" in str(more)
+    assert "no measured gain" not in str(faster)
 
 
 def test_zero_criterion_keeps_full_fidelity(spheres, loose):

@@ -190,8 +190,9 @@ class FidelityPlan:
             )
         lines.append(f"speed: {self.speedup:.2f}x plain; rays: {self.ray_ratio:.3f}x plain")
         if self.speedup <= 1 and self.foveation is not self.plain:
+            rays = "fewer" if self.ray_ratio < 1 else "no fewer"
             lines.append(
-                "no measured gain: the plan traces fewer rays but is not faster than plain foveation "
+                f"no measured gain: the plan traces {rays} rays and is not faster than plain foveation "
                 "in this run (plain foveation is the cheaper choice here)"
             )
         lines.append(f"{'ring deg':>9} {'plain':>8} {'planned':>8} {'added':>8}")
