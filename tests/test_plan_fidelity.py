@@ -148,8 +148,9 @@ def test_the_plan_meets_the_criterion_per_ring_recomputed(spheres, middle):
 
 def test_densities_are_planned_and_the_cheapest_is_kept(spheres):
     """With `densities`, the search runs at each sampling density that passes at full fidelity;
-    the plan is one of them (the faster in the search: which one is the machine's, so not
-    pinned), with its fidelity searched, and says its blocks when they changed."""
+    the plan is one of them (the faster of their plans timed in turn: which one is the
+    machine's, so not pinned), with its fidelity searched, and says its blocks when they
+    changed."""
     scene, rig = spheres
     plan = plan_fidelity(
         scene,
@@ -168,6 +169,53 @@ def test_densities_are_planned_and_the_cheapest_is_kept(spheres):
         assert plan.describe_plan().startswith("blocks (4, 8); ")
     else:
         assert "blocks" not in plan.describe_plan()
+    assert [c["blocks"] for c in plan.choices] == [(2, 4), (4, 8)]
+    assert all(c["fidelity"] == (CHEAP, CHEAP, CHEAP) for c in plan.choices)
+    fastest = min(plan.choices, key=lambda c: c["ms_per_frame"])
+    assert tuple(plan.foveation.blocks) == fastest["blocks"]
+    assert "each density's plan, timed in turn: blocks (2, 4) " in str(plan)
+
+
+@pytest.mark.parametrize("faster", [(2, 4), (4, 8)])
+def test_the_plan_is_the_density_faster_when_timed_in_turn(spheres, monkeypatch, faster):
+    """Between the densities' plans, the one faster when they are rendered in turn over the
+    frames is kept, whatever the search's single timings said: here a frame's time is set by
+    its blocks (the other density 1 s slower), except in the search, where it says the
+    opposite."""
+    import fovjax.eval._plan as plan_module
+
+    real = plan_module._Judge.render
+    choosing = [False]
+
+    def timed(self, foveation, gaze, key):
+        frame = real(self, foveation, gaze, key)
+        slow = (tuple(foveation.blocks) != faster) == choosing[0]
+        stats = dataclasses.replace(frame.stats, render_seconds=1.0 + slow)
+        return dataclasses.replace(frame, stats=stats)
+
+    real_judge = plan_module._Judge.__call__
+
+    def judged(self, foveation):
+        choosing[0] = False
+        try:
+            return real_judge(self, foveation)
+        finally:
+            choosing[0] = True  # every render outside an evaluation: the choice and the final timing
+
+    monkeypatch.setattr(plan_module._Judge, "render", timed)
+    monkeypatch.setattr(plan_module._Judge, "__call__", judged)
+    scene, rig = spheres
+    plan = plan_fidelity(
+        scene,
+        rig,
+        FOVEATION,
+        ("flip", 1.0),
+        search=PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN, densities=[(2, 4), (4, 8)]),
+        config=CONFIG,
+    )
+    assert tuple(plan.foveation.blocks) == faster
+    times = {c["blocks"]: c["ms_per_frame"] for c in plan.choices}
+    assert times[faster] == 1000.0 and max(times.values()) == 2000.0
 
 
 def test_a_density_that_fails_at_full_fidelity_is_no_candidate(spheres):

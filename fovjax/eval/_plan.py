@@ -124,7 +124,10 @@ class FidelityPlan:
     full render (pixel-weighted over every gaze × key frame). `plan_cost`/`plain_cost`:
     `ms_per_frame` (median over frames, the two timed alternately in the same run) and
     `rays_per_frame` (mean). `plan_metric`/`plain_metric`: the whole-frame metric's mean and
-    95% interval over the frames (mean, lo, hi). `steps`: the search, in order."""
+    95% interval over the frames (mean, lo, hi). `steps`: the search, in order. `choices`: with
+    more than one sampling density planned, each density's plan (`blocks`, `fidelity`,
+    `ms_per_frame` timed in turn with the others over the frames, `rays_per_frame`); the
+    fastest is the plan."""
 
     foveation: Foveation
     plain: Foveation
@@ -139,6 +142,7 @@ class FidelityPlan:
     plain_metric: tuple[float, float, float]
     steps: tuple[PlanStep, ...]
     frames: int
+    choices: tuple[dict, ...] = ()
 
     @property
     def fidelity(self) -> tuple:
@@ -189,6 +193,12 @@ class FidelityPlan:
                 f"{m[0]:12.4f} [{m[1]:.4f}, {m[2]:.4f}]"
             )
         lines.append(f"speed: {self.speedup:.2f}x plain; rays: {self.ray_ratio:.3f}x plain")
+        if self.choices:
+            timed = ", ".join(
+                f"blocks {c['blocks']} {c['ms_per_frame']:.1f} ms ({c['rays_per_frame']:,.0f} rays)"
+                for c in self.choices
+            )
+            lines.append(f"each density's plan, timed in turn: {timed}; the fastest kept")
         if self.speedup <= 1 and self.foveation is not self.plain:
             rays = "fewer" if self.ray_ratio < 1 else "no fewer"
             lines.append(
@@ -370,7 +380,8 @@ class PlanSearch:
             outside block edges in pixels; None: the foveation's own only); checked against the
             foveation when planning.
         repeats: after the search, plain foveation and the plan are rendered alternately over
-            the frames this many times to time them.
+            the frames this many times to time them (and, with more than one density, each
+            density's plan in turn, to choose the fastest).
 
     Raises:
         ValueError: a bad gaze, key or repeat count, naming it and what was expected.
@@ -646,6 +657,13 @@ def plan_fidelity(
                 best_ev = results[chosen][1]
         return current, best_ev
 
+    def as_foveation(fidelity, base):
+        """The foveation of a plan: the given one itself where nothing changed (the same
+        compiled program)."""
+        if tuple(fidelity) == start and base is foveation:
+            return foveation
+        return dataclasses.replace(base, fidelity=tuple(fidelity))
+
     plans = []  # (median s per frame in the search, fidelity, base, evaluation)
     for base in bases:
         if base.blocks == foveation.blocks:
@@ -659,14 +677,32 @@ def plan_fidelity(
         plans.append((statistics.median(best_ev.seconds), tuple(current), base, best_ev))
     if not plans:  # no density passed at full fidelity: plain foveation's own
         plans.append((statistics.median(plain_ev.seconds), tuple(start), foveation, plain_ev))
-    _, current, base, best_ev = min(plans, key=lambda plan: plan[0])
+    choices: list[dict] = []
+    if len(plans) > 1:
+        # One plan per density: timed against each other in the same run, in turn over the
+        # frames (their search timings came minutes apart on a machine whose load drifts).
+        seconds: list[list[float]] = [[] for _ in plans]
+        for _ in range(repeats):
+            for gaze, key in frames:
+                for i, (_, fidelity, base, _) in enumerate(plans):
+                    frame = judge.render(as_foveation(fidelity, base), gaze, key)
+                    seconds[i].append(frame.stats.render_seconds)
+        for (_, fidelity, base, ev), s in zip(plans, seconds, strict=True):
+            choices.append(
+                {
+                    "blocks": tuple(int(b) for b in base.blocks),
+                    "fidelity": tuple(fidelity),
+                    "ms_per_frame": 1e3 * statistics.median(s),
+                    "rays_per_frame": float(statistics.mean(ev.rays)),
+                }
+            )
+        fastest = min(range(len(plans)), key=lambda i: choices[i]["ms_per_frame"])
+        _, current, base, best_ev = plans[fastest]
+    else:
+        _, current, base, best_ev = plans[0]
 
     # Nothing cheaper passed: the given foveation itself (the same compiled program).
-    planned = (
-        foveation
-        if tuple(current) == start and base is foveation
-        else dataclasses.replace(base, fidelity=tuple(current))
-    )
+    planned = as_foveation(current, base)
     plain_fov = foveation
     # Cost in the same run: plain and plan rendered alternately over the frames.
     plain_s, plan_s, plain_rays, plan_rays = [], [], [], []
@@ -700,4 +736,5 @@ def plan_fidelity(
         plain_metric=_interval(plain_ev.metric),
         steps=tuple(steps),
         frames=len(frames),
+        choices=tuple(choices),
     )
