@@ -74,6 +74,27 @@ def test_loose_criterion_takes_the_cheapest_option_everywhere(loose):
     assert "fovea max_depth=0 shadows='none'" in text and "speed:" in text and "0-5" in text
 
 
+def test_the_log_gives_each_evaluation_s_whole_frame_flip_beside_plain_s(spheres):
+    """Each evaluation's log line says its whole-frame FLIP (mean over the frames) and how far
+    it is from plain foveation's, the figure the cost-accuracy chart plots."""
+    scene, rig = spheres
+    lines = []
+    plan = plan_fidelity(
+        scene,
+        rig,
+        FOVEATION,
+        ("flip", 1.0),
+        search=PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN),
+        config=CONFIG,
+        log=lines.append,
+    )
+    plain = plan.plain_metric[0]
+    assert lines[0].startswith("plain: ") and lines[0].endswith(f"FLIP {plain:.4f}")
+    assert len(lines) == 1 + len(plan.steps)
+    for line, step in zip(lines[1:], plan.steps, strict=True):
+        assert line.endswith(f"FLIP {step.metric:.4f} ({step.metric - plain:+.4f})"), line
+
+
 def test_a_plan_that_is_not_faster_says_whether_it_traces_fewer_rays(loose):
     """Timing decides (the machine's); the rays are counted: the note of no gain says which it
     traced, fewer or not (a plan at another density can trace more rays than plain foveation)."""

@@ -591,9 +591,11 @@ def plan_fidelity(
 
     start = tuple(foveation.fidelity) if foveation.fidelity is not None else (Fidelity(),) * 3
     plain_ev = judge(foveation)
+    whole = "FLIP" if metric == "flip" else "mean |error|"
+    plain_whole = float(np.mean(plain_ev.metric))
     say(
         f"plain: {statistics.mean(plain_ev.rays):,.0f} rays, "
-        f"{1e3 * statistics.median(plain_ev.seconds):.1f} ms per frame"
+        f"{1e3 * statistics.median(plain_ev.seconds):.1f} ms per frame, {whole} {plain_whole:.4f}"
     )
     steps: list[PlanStep] = []
 
@@ -614,7 +616,8 @@ def plan_fidelity(
         steps.append(step)
         say(
             f"{region:9} {label:40} worst added {worst:.4f} {'pass' if ok else 'fail'}  "
-            f"{step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms"
+            f"{step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms  "
+            f"{whole} {step.metric:.4f} ({step.metric - plain_whole:+.4f})"
         )
         return ok
 
