@@ -4,6 +4,7 @@
     python benchmarks/plan_fidelity.py --threshold 0.02 --spp 1
     python benchmarks/plan_fidelity.py --spp 4 --step spp=1   # once Fidelity has `spp` (or lod=auto)
     python benchmarks/plan_fidelity.py --width 640 --height 512 --spp 4 --densities 2,4 2,2 1,3
+    python benchmarks/plan_fidelity.py --spp 4 --threshold 0.02 --bound-frame   # equal FLIP within 0.005
 
 For each SPP: `fovjax.eval.plan_fidelity` plans the thesis pair 0 (5°/10°) on the atrium with
 the default option chain (reflection depth, then shadow rays) at the criterion "FLIP added per
@@ -131,6 +132,11 @@ def main(argv=None):
         default=None,
         help="sampling densities to plan at, Foveation.blocks pairs P,O (e.g. 2,4 1,3); default: 2,4 only",
     )
+    parser.add_argument(
+        "--bound-frame",
+        action="store_true",
+        help="the search also bounds the whole frame's FLIP (PlanSearch.frame_tolerance=--flip-tolerance)",
+    )
     parser.add_argument("-o", "--output", default="out/plan_fidelity")
     parser.add_argument("--note", default="", help="said first in the record's note (e.g. a shared machine)")
     args = parser.parse_args(argv)
@@ -157,7 +163,12 @@ def main(argv=None):
             Foveation.thesis(0, spp=spp),
             ("flip", args.threshold),
             search=PlanSearch(
-                gazes=GAZES, keys=args.keys, options=options, densities=args.densities, repeats=args.repeats
+                gazes=GAZES,
+                keys=args.keys,
+                options=options,
+                densities=args.densities,
+                repeats=args.repeats,
+                frame_tolerance=args.flip_tolerance if args.bound_frame else None,
             ),
             config=config,
             log=lambda line: print("  " + line, flush=True),
@@ -201,9 +212,10 @@ def main(argv=None):
     with open("/proc/loadavg") as fh:
         end_load = " ".join(fh.read().split()[:3])
         print(f"load average at the end: {end_load}")
+    bound = f", whole frame within +{args.flip_tolerance:g}" if args.bound_frame else ""
     title = (
         f"Planned fidelity: atrium {args.triangles:,} triangles, 2×{args.width}×{args.height}, 5°/10°, "
-        f"gazes {GAZES} × keys {args.keys}, densities {args.densities}"
+        f"gazes {GAZES} × keys {args.keys}, densities {args.densities}{bound}"
     )
     cols = [
         "SPP",

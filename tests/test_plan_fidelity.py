@@ -239,6 +239,23 @@ def test_the_plan_is_the_density_faster_when_timed_in_turn(spheres, monkeypatch,
     assert times[faster] == 1000.0 and max(times.values()) == 2000.0
 
 
+def test_a_frame_tolerance_bounds_the_whole_frame_too(spheres, loose):
+    """With `frame_tolerance`, a candidate within the ring threshold still fails where the whole
+    frame's FLIP rises more than the tolerance above plain foveation's: at 0 (and a ring threshold
+    that takes anything, as `loose`'s), the cheap candidates that raised it fail, the plan's
+    FLIP is at most plain's, and the loose plan's was above it."""
+    assert loose.plan_metric[0] > loose.plain_metric[0]  # the bound has something to refuse
+    scene, rig = spheres
+    search = PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN, frame_tolerance=0.0)
+    plan = plan_fidelity(scene, rig, FOVEATION, ("flip", 1.0), search=search, config=CONFIG)
+    plain = plan.plain_metric[0]
+    refused = [s for s in plan.steps if not s.passed]
+    assert refused and all(s.worst_added <= 1.0 and s.metric > plain for s in refused)
+    assert all(s.metric <= plain + 1e-12 for s in plan.steps if s.passed)  # means computed apart
+    assert plan.plan_metric[0] <= plain + 1e-12 and plan.frame_tolerance == 0.0
+    assert "and per frame <= 0," in str(plan)
+
+
 def test_a_density_that_fails_at_full_fidelity_is_no_candidate(spheres):
     scene, rig = spheres
     plan = plan_fidelity(
@@ -329,6 +346,11 @@ BAD = [
     ({"keys": [1.5]}, r"keys\[0\] 1.5"),
     ({"keys": [True]}, r"keys\[0\] True"),
     ({"repeats": 0}, "repeats 0"),
+    ({"frame_tolerance": -0.001}, "frame_tolerance -0.001"),
+    ({"frame_tolerance": float("nan")}, "frame_tolerance nan"),
+    ({"frame_tolerance": float("inf")}, "frame_tolerance inf"),
+    ({"frame_tolerance": "0.005"}, "frame_tolerance '0.005'"),
+    ({"frame_tolerance": True}, "frame_tolerance True"),
     ({"render_kwargs": ["envmap"]}, "render_kwargs"),
     ({"options": []}, "options"),
     ({"options": [FULL, "cheap"]}, "options"),

@@ -32,6 +32,7 @@ import dataclasses
 import math
 import statistics
 from collections.abc import Callable, Sequence
+from numbers import Real
 
 import numpy as np
 
@@ -101,9 +102,9 @@ def default_options(max_depth: int = 5, lights: int = 1, spp: int = 1, first: Se
 class PlanStep:
     """One evaluation of the search: `region` set to `candidate` (the other regions at the plan
     so far); `worst_added` the largest added ring error; `passed` whether every ring stayed
-    within the threshold; measured rays and median ms per frame; `metric` the whole-frame
-    metric's mean over the frames (FLIP, or mean |error|) and `fidelity` the configuration's
-    three regions."""
+    within the threshold (and the whole frame within `PlanSearch.frame_tolerance`, where set);
+    measured rays and median ms per frame; `metric` the whole-frame metric's mean over the
+    frames (FLIP, or mean |error|) and `fidelity` the configuration's three regions."""
 
     region: str
     candidate: object
@@ -127,7 +128,8 @@ class FidelityPlan:
     95% interval over the frames (mean, lo, hi). `steps`: the search, in order. `choices`: with
     more than one sampling density planned, each density's plan (`blocks`, `fidelity`,
     `ms_per_frame` timed in turn with the others over the frames, `rays_per_frame`); the
-    fastest is the plan."""
+    fastest is the plan. `frame_tolerance`: the search's bound on the whole frame's added
+    metric (`PlanSearch.frame_tolerance`; None: none)."""
 
     foveation: Foveation
     plain: Foveation
@@ -143,6 +145,7 @@ class FidelityPlan:
     steps: tuple[PlanStep, ...]
     frames: int
     choices: tuple[dict, ...] = ()
+    frame_tolerance: float | None = None
 
     @property
     def fidelity(self) -> tuple:
@@ -179,8 +182,9 @@ class FidelityPlan:
     def __str__(self) -> str:
         metric, threshold = self.criterion
         name = "FLIP" if metric == "flip" else "mean |error| (sRGB)"
+        bound = "" if self.frame_tolerance is None else f" and per frame <= {self.frame_tolerance:g}"
         lines = [
-            f"plan ({name} added per 5° ring <= {threshold:g}, {self.frames} frames, "
+            f"plan ({name} added per 5° ring <= {threshold:g}{bound}, {self.frames} frames, "
             f"{len(self.steps)} evaluations): {self.describe_plan()}",
             f"{'':8} {'ms/frame':>9} {'rays/frame':>11} {name + ' mean [95%]':>28}",
         ]
@@ -382,9 +386,12 @@ class PlanSearch:
         repeats: after the search, plain foveation and the plan are rendered alternately over
             the frames this many times to time them (and, with more than one density, each
             density's plan in turn, to choose the fastest).
+        frame_tolerance: a candidate passes only where its whole-frame metric (the mean over
+            the frames) also exceeds plain foveation's by at most this: "equal FLIP within
+            0.005" is `frame_tolerance=0.005`. None: the rings alone decide.
 
     Raises:
-        ValueError: a bad gaze, key or repeat count, naming it and what was expected.
+        ValueError: a bad gaze, key, repeat count or tolerance, naming it and what was expected.
     """
 
     gazes: Sequence = DEFAULT_PLAN_GAZES
@@ -392,11 +399,23 @@ class PlanSearch:
     options: object = None
     densities: Sequence | None = None
     repeats: int = 1
+    frame_tolerance: float | None = None
 
     def __post_init__(self):
         _check_gazes(self.gazes)
         object.__setattr__(self, "keys", tuple(_check_keys(self.keys)))
         _check_int(self.repeats, "repeats", 1)
+        tolerance = self.frame_tolerance
+        if tolerance is not None:
+            if (
+                isinstance(tolerance, bool)
+                or not isinstance(tolerance, Real)
+                or not 0 <= tolerance < math.inf
+            ):
+                raise ValueError(
+                    f"{_where('frame_tolerance')} {tolerance!r}: expected None or a finite number >= 0"
+                )
+            object.__setattr__(self, "frame_tolerance", float(tolerance))
 
 
 # -- evaluation -------------------------------------------------------------------------------
@@ -602,7 +621,9 @@ def plan_fidelity(
     def record(region, candidate, label, ev, fidelity) -> bool:
         """One evaluation as a `PlanStep` and a log line; whether it passed the criterion."""
         worst = _worst(_added(ev, plain_ev))
-        ok = worst <= threshold
+        whole_added = float(np.mean(ev.metric)) - plain_whole
+        rings_ok = worst <= threshold
+        ok = rings_ok and (search.frame_tolerance is None or whole_added <= search.frame_tolerance)
         step = PlanStep(
             region,
             candidate,
@@ -615,9 +636,10 @@ def plan_fidelity(
         )
         steps.append(step)
         say(
-            f"{region:9} {label:40} worst added {worst:.4f} {'pass' if ok else 'fail'}  "
+            f"{region:9} {label:40} worst added {worst:.4f} "
+            f"{'pass' if ok else 'fail' if not rings_ok else 'fail (whole frame)'}  "
             f"{step.rays_per_frame:,.0f} rays {step.ms_per_frame:.1f} ms  "
-            f"{whole} {step.metric:.4f} ({step.metric - plain_whole:+.4f})"
+            f"{whole} {step.metric:.4f} ({whole_added:+.4f})"
         )
         return ok
 
@@ -740,4 +762,5 @@ def plan_fidelity(
         steps=tuple(steps),
         frames=len(frames),
         choices=tuple(choices),
+        frame_tolerance=search.frame_tolerance,
     )
