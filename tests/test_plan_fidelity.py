@@ -167,20 +167,19 @@ def test_the_plan_meets_the_criterion_per_ring_recomputed(spheres, middle):
     np.testing.assert_allclose(middle.plain_ring_error[: len(plain_rings)], plain_rings, atol=1e-6)
 
 
+def _two_density_plan(spheres) -> FidelityPlan:
+    """The loose plan at densities (2, 4) and (4, 8)."""
+    scene, rig = spheres
+    search = PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN, densities=[(2, 4), (4, 8)])
+    return plan_fidelity(scene, rig, FOVEATION, ("flip", 1.0), search=search, config=CONFIG)
+
+
 def test_densities_are_planned_and_the_cheapest_is_kept(spheres):
     """With `densities`, the search runs at each sampling density that passes at full fidelity;
     the plan is one of them (the faster of their plans timed in turn: which one is the
     machine's, so not pinned), with its fidelity searched, and says its blocks when they
     changed."""
-    scene, rig = spheres
-    plan = plan_fidelity(
-        scene,
-        rig,
-        FOVEATION,
-        ("flip", 1.0),
-        search=PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN, densities=[(2, 4), (4, 8)]),
-        config=CONFIG,
-    )
+    plan = _two_density_plan(spheres)
     density = [s for s in plan.steps if s.region == "density"]
     assert [(s.candidate, s.passed) for s in density] == [((4, 8), True)]
     assert plan.fidelity == (CHEAP, CHEAP, CHEAP)
@@ -225,15 +224,7 @@ def test_the_plan_is_the_density_faster_when_timed_in_turn(spheres, monkeypatch,
 
     monkeypatch.setattr(plan_module._Judge, "render", timed)
     monkeypatch.setattr(plan_module._Judge, "__call__", judged)
-    scene, rig = spheres
-    plan = plan_fidelity(
-        scene,
-        rig,
-        FOVEATION,
-        ("flip", 1.0),
-        search=PlanSearch(gazes=GAZES, keys=KEYS, options=CHAIN, densities=[(2, 4), (4, 8)]),
-        config=CONFIG,
-    )
+    plan = _two_density_plan(spheres)
     assert tuple(plan.foveation.blocks) == faster
     times = {c["blocks"]: c["ms_per_frame"] for c in plan.choices}
     assert times[faster] == 1000.0 and max(times.values()) == 2000.0
