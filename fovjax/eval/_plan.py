@@ -689,7 +689,7 @@ def plan_fidelity(
             return foveation
         return dataclasses.replace(base, fidelity=tuple(fidelity))
 
-    plans = []  # (median s per frame in the search, fidelity, base, evaluation)
+    plans = []  # (fidelity, base, evaluation): the plan at each density that passed
     for base in bases:
         if base.blocks == foveation.blocks:
             base_ev = plain_ev
@@ -699,9 +699,9 @@ def plan_fidelity(
             if not record("density", blocks, f"blocks {blocks}", base_ev, tuple(start)):
                 continue
         current, best_ev = search_regions(base, base_ev)
-        plans.append((statistics.median(best_ev.seconds), tuple(current), base, best_ev))
+        plans.append((tuple(current), base, best_ev))
     if not plans:  # no density passed at full fidelity: plain foveation's own
-        plans.append((statistics.median(plain_ev.seconds), tuple(start), foveation, plain_ev))
+        plans.append((tuple(start), foveation, plain_ev))
     choices: list[dict] = []
     if len(plans) > 1:
         # One plan per density: timed against each other in the same run, in turn over the
@@ -709,10 +709,10 @@ def plan_fidelity(
         seconds: list[list[float]] = [[] for _ in plans]
         for _ in range(repeats):
             for gaze, key in frames:
-                for i, (_, fidelity, base, _) in enumerate(plans):
+                for i, (fidelity, base, _) in enumerate(plans):
                     frame = judge.render(as_foveation(fidelity, base), gaze, key)
                     seconds[i].append(frame.stats.render_seconds)
-        for (_, fidelity, base, ev), s in zip(plans, seconds, strict=True):
+        for (fidelity, base, ev), s in zip(plans, seconds, strict=True):
             choices.append(
                 {
                     "blocks": tuple(int(b) for b in base.blocks),
@@ -722,9 +722,9 @@ def plan_fidelity(
                 }
             )
         fastest = min(range(len(plans)), key=lambda i: choices[i]["ms_per_frame"])
-        _, current, base, best_ev = plans[fastest]
+        current, base, best_ev = plans[fastest]
     else:
-        _, current, base, best_ev = plans[0]
+        current, base, best_ev = plans[0]
 
     # Nothing cheaper passed: the given foveation itself (the same compiled program).
     planned = as_foveation(current, base)
