@@ -352,6 +352,13 @@ ROWS = [
     ),
     ("compare --fidelity auto --fidelity-threshold nan -o {tmp}/c", 2, "nan"),
     ("compare --fidelity-threshold -0.5 -o {tmp}/c", 2, "-0.5"),
+    (
+        "compare --fidelity auto --fidelity-frame-tolerance -0.01 -o {tmp}/c",
+        2,
+        "--fidelity-frame-tolerance (FLIP added to the frame) -0.01: expected a finite number >= 0",
+    ),
+    ("compare --fidelity auto --fidelity-frame-tolerance inf -o {tmp}/c", 2, "--fidelity-frame-tolerance"),
+    ("compare --fidelity-frame-tolerance 0.005 -o {tmp}/c", 2, "0.005: bounds a plan, needs --fidelity auto"),
     # -- study -------------------------------------------------------------------------------
     ("study --comparison {table} --metric flip -o {tmp}/st", 2, "flip is -0.2, outside its scale [0, 1]"),
     ("study --comparison {jod} --metric jod -o {tmp}/st", 2, "jod is 10.5, outside its scale"),

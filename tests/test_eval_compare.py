@@ -177,10 +177,12 @@ def test_cli_compare_fidelity_auto(scene_rig, tmp_path, capsys):
     argv = ["compare", "--scene", "cornell_box", "--thresholds", "15,30", "--spp", "1"]
     argv += ["--width", str(EYE_W), "--height", str(EYE_H), "--gazes", "0.5,0.5", "0.3,0.4"]
     argv += ["--keys", "0", "1", "--max-depth", "0", "--no-perceptual", "-o", str(out)]
-    argv += ["--fidelity", "auto", "--fidelity-threshold", "1"]
+    # A frame tolerance no plan can exceed (FLIP lies in [0, 1]): the same plan, the bound said.
+    argv += ["--fidelity", "auto", "--fidelity-threshold", "1", "--fidelity-frame-tolerance", "1"]
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "15/30 spp1 planned:" in text and "fovea shadows='none'" in text and "speed:" in text
+    assert "added per 5° ring <= 1 and per frame <= 1," in text
     rows = read_csv(out / "comparison.csv")
     assert [(r["config"], r["planned"]) for r in rows] == [
         ("15/30 spp1", False),
@@ -200,6 +202,17 @@ def test_compare_rejects_a_bad_plan_before_rendering(scene_rig):
         compare_thresholds(scene, rig, plan=("psnr", 0.1), progress=False)
     with pytest.raises(ValueError, match="threshold 3"):
         compare_thresholds(scene, rig, plan=("flip", 3), progress=False)
+
+
+@pytest.mark.no_typecheck  # the package's own check of a string or a bool, not the annotation's
+def test_compare_rejects_a_bad_plan_frame_tolerance_before_rendering(scene_rig):
+    scene, rig = scene_rig
+    for bad in (-0.001, math.nan, math.inf, "0.005", True):
+        message = re.escape(f"compare_thresholds: plan_frame_tolerance {bad!r}: expected None or a finite")
+        with pytest.raises(ValueError, match=message):
+            compare_thresholds(scene, rig, plan=("flip", 0.01), plan_frame_tolerance=bad, progress=False)
+    with pytest.raises(ValueError, match="plan_frame_tolerance 0.005 bounds a fidelity plan: pass plan="):
+        compare_thresholds(scene, rig, plan_frame_tolerance=0.005, progress=False)
 
 
 @pytest.mark.no_typecheck

@@ -79,6 +79,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="with --fidelity auto: the FLIP a plan may add per 5° eccentricity ring over plain foveation",
     )
     p.add_argument(
+        "--fidelity-frame-tolerance",
+        type=float,
+        default=None,
+        help="with --fidelity auto: the FLIP a plan may also add to the whole frame (mean over gazes "
+        "and keys) over plain foveation, e.g. 0.005 for equal FLIP within 0.005 (default: the rings "
+        "alone decide)",
+    )
+    p.add_argument(
         "--shard",
         action="store_true",
         help="render each configuration's frames in one program sharded over jax.devices() "
@@ -199,6 +207,13 @@ def validate(args) -> None:
     if args.fidelity is not None:
         cli.choice(args.fidelity, "--fidelity", ("auto",))
     cli.number(args.fidelity_threshold, "--fidelity-threshold (FLIP added per ring)", ge=0.0, le=1.0)
+    tolerance = args.fidelity_frame_tolerance
+    if tolerance is not None:
+        cli.number(tolerance, "--fidelity-frame-tolerance (FLIP added to the frame)", ge=0.0)
+        if args.fidelity != "auto":
+            raise cli.UsageError(
+                f"--fidelity-frame-tolerance {tolerance:g}: bounds a plan, needs --fidelity auto"
+            )
     from fovjax.foveate import METHODS
 
     for method in args.methods:
@@ -275,6 +290,7 @@ def run(args) -> int:
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
         plan=("flip", args.fidelity_threshold) if args.fidelity == "auto" else None,
+        plan_frame_tolerance=args.fidelity_frame_tolerance,
         shard=args.shard,
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them

@@ -256,6 +256,7 @@ def compare_thresholds(
     criterion: tuple[str, float] = DEFAULT_CRITERION,
     perceptual: bool | None = None,
     plan: tuple[str, float] | None = None,
+    plan_frame_tolerance: float | None = None,
     shard: bool = False,
     devices: Sequence | None = None,
     progress: bool = True,
@@ -285,6 +286,10 @@ def compare_thresholds(
             ring over plain foveation) and measure it: a record labelled "... planned" with
             `planned` True and the plan in `fidelity` (plain records: `planned` False, `fidelity`
             "full"). None (default): no plans.
+        plan_frame_tolerance: with `plan`, a plan's whole-frame metric (the mean over the
+            sweep's gazes and keys) may also exceed plain foveation's by at most this
+            (`PlanSearch.frame_tolerance`: "equal FLIP within 0.005" is 0.005). None (default):
+            the rings alone decide.
         shard: render each configuration's frames in one program, vmapped and sharded over
             `devices` (default `jax.devices()`, every host's under `jax.distributed`; see
             `render_foveated_batch`). Its ms per frame is then the batch's wall time over its
@@ -302,7 +307,8 @@ def compare_thresholds(
 
     Raises:
         MissingExtraError: the criterion's metric needs an extra that is not installed.
-        ValueError: a bad criterion or plan criterion (the sweep checks its own fields).
+        ValueError: a bad criterion, plan criterion or plan frame tolerance, or a frame
+            tolerance without a plan (the sweep checks its own fields).
 
     Example:
         ```python
@@ -315,7 +321,7 @@ def compare_thresholds(
     from ..foveate import FoveatedRenderer, Foveation, method_label, with_regions
     from ..render import StereoRig
     from ..scene import Scene, default_camera
-    from ._plan import PlanSearch, _check_criterion, plan_fidelity
+    from ._plan import PlanSearch, _check_criterion, _check_frame_tolerance, plan_fidelity
 
     sweep, renderer_args = _upgrade_old_keywords(old, sweep)
     sweep = ThresholdSweep() if sweep is None else sweep
@@ -325,6 +331,12 @@ def compare_thresholds(
         plan_criterion = _check_criterion(plan)
     thresholds, spp, models = sweep.thresholds, list(sweep.spp), sweep.models
     gazes, keys, rule, regions = sweep.gazes, list(sweep.keys), sweep.rule, sweep.regions
+    if plan_frame_tolerance is not None and plan is None:
+        raise ValueError(
+            f"compare_thresholds: plan_frame_tolerance {plan_frame_tolerance!r} bounds a fidelity "
+            "plan: pass plan=(metric, threshold) too"
+        )
+    frame_tolerance = _check_frame_tolerance(plan_frame_tolerance, "compare_thresholds: plan_frame_tolerance")
     if isinstance(scene, FoveatedRenderer):
         clashing = [name for name, value in {"rig": rig, **renderer_args}.items() if value is not None]
         if clashing:
@@ -519,7 +531,7 @@ def compare_thresholds(
                 rig,
                 fov,
                 plan_criterion,
-                search=PlanSearch(gazes=gazes, keys=keys),
+                search=PlanSearch(gazes=gazes, keys=keys, frame_tolerance=frame_tolerance),
                 config=config,
                 bvh=base.bvh,
                 _references={k: references[s, k] for k in keys},

@@ -405,17 +405,18 @@ class PlanSearch:
         _check_gazes(self.gazes)
         object.__setattr__(self, "keys", tuple(_check_keys(self.keys)))
         _check_int(self.repeats, "repeats", 1)
-        tolerance = self.frame_tolerance
-        if tolerance is not None:
-            if (
-                isinstance(tolerance, bool)
-                or not isinstance(tolerance, Real)
-                or not 0 <= tolerance < math.inf
-            ):
-                raise ValueError(
-                    f"{_where('frame_tolerance')} {tolerance!r}: expected None or a finite number >= 0"
-                )
-            object.__setattr__(self, "frame_tolerance", float(tolerance))
+        tolerance = _check_frame_tolerance(self.frame_tolerance, _where("frame_tolerance"))
+        object.__setattr__(self, "frame_tolerance", tolerance)
+
+
+def _check_frame_tolerance(tolerance, where: str) -> float | None:
+    """None, or a finite float >= 0; else a ValueError naming `where` and the value."""
+    if tolerance is None:
+        return None
+    value = float(tolerance) if isinstance(tolerance, Real) and not isinstance(tolerance, bool) else math.nan
+    if not 0 <= value < math.inf:
+        raise ValueError(f"{where} {tolerance!r}: expected None or a finite number >= 0")
+    return value
 
 
 # -- evaluation -------------------------------------------------------------------------------
