@@ -5,6 +5,7 @@
     python benchmarks/plan_fidelity.py --spp 4 --step spp=1   # once Fidelity has `spp` (or lod=auto)
     python benchmarks/plan_fidelity.py --width 640 --height 512 --spp 4 --densities 2,4 2,2 1,3
     python benchmarks/plan_fidelity.py --spp 4 --threshold 0.02 --bound-frame   # equal FLIP within 0.005
+    python benchmarks/plan_fidelity.py --spp 1 --threshold 0.05 --jod   # also FovVideoVDP (foveated)
 
 For each SPP: `fovjax.eval.plan_fidelity` plans the thesis pair 0 (5°/10°) on the atrium with
 the default option chain (reflection depth, then shadow rays) at the criterion "FLIP added per
@@ -20,6 +21,13 @@ ratio. `--step` puts steps before the default chain's (each applied over the pre
 candidate, so the chain stays monotone; first, because a lever meant to be invisible, like
 geometry LOD below the resolvable angle, should be taken before reflections and shadows go),
 for `Fidelity` fields newer than `fovjax.eval.DEFAULT_STEPS` knows.
+
+`--jod` (extra `[fvvdp]`) also judges plain foveation and the plan with a foveated metric:
+FovVideoVDP's JOD at each frame's gaze (10: no visible difference), each against the full render
+of the same key, mean and 95% interval over the frames. FLIP weighs an error the same at every
+eccentricity; FovVideoVDP weighs it as the eye sees it away from the gaze, which is what a plan
+that cheapens the periphery is meant to exploit. Read "equal JOD" as the plan's mean within or
+above plain foveation's interval.
 """
 
 from __future__ import annotations
@@ -90,6 +98,27 @@ def _chart(plan, path: Path, title: str) -> Path:
     return path
 
 
+def _jod(scene, rig, config, plan, keys) -> tuple[tuple, tuple]:
+    """FovVideoVDP JOD (foveated, at each frame's gaze) of plain foveation and of the plan,
+    each frame against the full render of its key: (mean, lo, hi) of each over GAZES x keys."""
+    import jax
+
+    from fovjax.eval import HmdDisplay, fovvdp, mean_interval
+
+    display = HmdDisplay.from_camera(rig.eye_cameras()[0])
+    plain = fovjax.FoveatedRenderer(scene, rig, plan.plain, config)
+    planned = fovjax.FoveatedRenderer(scene, rig, plan.foveation, config, bvh=plain.bvh)
+    scores = {"plain": [], "planned": []}
+    for key in keys:
+        reference = plain.render_full(key=jax.random.key(key)).image
+        for gaze in GAZES:
+            gaze = (gaze, gaze)  # both eyes
+            for name, renderer in (("plain", plain), ("planned", planned)):
+                image = renderer.render(gaze, key=jax.random.key(key)).image
+                scores[name].append(float(fovvdp(image, reference, display, gaze_xy=gaze)))
+    return mean_interval(scores["plain"]), mean_interval(scores["planned"])
+
+
 def _density(text: str) -> tuple[int, int]:
     try:
         p, o = (int(v) for v in text.split(","))
@@ -137,9 +166,20 @@ def main(argv=None):
         action="store_true",
         help="the search also bounds the whole frame's FLIP (PlanSearch.frame_tolerance=--flip-tolerance)",
     )
+    parser.add_argument(
+        "--jod",
+        action="store_true",
+        help="also FovVideoVDP's JOD (foveated, at each gaze) of plain foveation and the plan "
+        "(extra [fvvdp])",
+    )
     parser.add_argument("-o", "--output", default="out/plan_fidelity")
     parser.add_argument("--note", default="", help="said first in the record's note (e.g. a shared machine)")
     args = parser.parse_args(argv)
+    if args.jod:
+        import importlib.util
+
+        if importlib.util.find_spec("pyfvvdp") is None:
+            parser.error("--jod: needs FovVideoVDP (pip install 'fovjax[fvvdp]')")
 
     scene = fovjax.scenes.atrium(triangles=args.triangles)
     rig = StereoRig.from_pose(
@@ -195,6 +235,21 @@ def main(argv=None):
             f"{plan.speedup:.2f}x plain's speed\nplan: {plan.describe_plan()}",
         )
         print(f"wrote {path}\n", flush=True)
+        jod = []
+        if args.jod:
+            t0 = time.perf_counter()
+            jod_plain, jod_plan = _jod(scene, rig, config, plan, args.keys)
+            within = jod_plan[0] >= jod_plain[1]
+            print(
+                f"SPP {spp}: FovVideoVDP JOD (foveated, {time.perf_counter() - t0:.0f} s): planned "
+                f"{jod_plan[0]:.3f} [{jod_plan[1]:.3f}, {jod_plan[2]:.3f}] vs plain {jod_plain[0]:.3f} "
+                f"[{jod_plain[1]:.3f}, {jod_plain[2]:.3f}] ({jod_plan[0] - jod_plain[0]:+.3f}, "
+                f"{'within or above' if within else 'below'} plain's interval); target >= {TARGET}x at "
+                f"equal JOD: {'met' if fast and within else 'NOT met'}",
+                flush=True,
+            )
+            jod = ["{:.3f} [{:.3f}, {:.3f}]".format(*jod_plain), "{:.3f} [{:.3f}, {:.3f}]".format(*jod_plan)]
+            jod.append(round(jod_plan[0] - jod_plain[0], 3))
         rows.append(
             [
                 spp,
@@ -207,6 +262,7 @@ def main(argv=None):
                 "{:.4f} [{:.4f}, {:.4f}]".format(*plan.plain_metric),
                 "{:.4f} [{:.4f}, {:.4f}]".format(*plan.plan_metric),
                 round(added, 4),
+                *jod,
             ]
         )
     with open("/proc/loadavg") as fh:
@@ -229,6 +285,8 @@ def main(argv=None):
         "FLIP planned",
         "FLIP added",
     ]
+    if args.jod:
+        cols += ["JOD plain", "JOD planned", "JOD added"]
     write_record(
         "plan_fidelity",
         {"tables": [{"title": title, "columns": cols, "rows": rows}]},
