@@ -205,14 +205,16 @@ def test_compare_rejects_a_bad_plan_before_rendering(scene_rig):
 
 
 @pytest.mark.no_typecheck  # the package's own check of a string or a bool, not the annotation's
-def test_compare_rejects_a_bad_plan_frame_tolerance_before_rendering(scene_rig):
+def test_compare_rejects_a_bad_plan_shape_or_frame_tolerance_before_rendering(scene_rig):
     scene, rig = scene_rig
     for bad in (-0.001, math.nan, math.inf, "0.005", True):
-        message = re.escape(f"compare_thresholds: plan_frame_tolerance {bad!r}: expected None or a finite")
+        message = re.escape(f"compare_thresholds: plan's frame tolerance {bad!r}: expected None or a finite")
         with pytest.raises(ValueError, match=message):
-            compare_thresholds(scene, rig, plan=("flip", 0.01), plan_frame_tolerance=bad, progress=False)
-    with pytest.raises(ValueError, match="plan_frame_tolerance 0.005 bounds a fidelity plan: pass plan="):
-        compare_thresholds(scene, rig, plan_frame_tolerance=0.005, progress=False)
+            compare_thresholds(scene, rig, plan=("flip", 0.01, bad), progress=False)
+    for bad in (("flip",), ("flip", 0.01, 0.005, 1), "flip"):
+        message = re.escape(f"compare_thresholds: plan {bad!r}: expected (metric, threshold) or (metric,")
+        with pytest.raises(ValueError, match=message):
+            compare_thresholds(scene, rig, plan=bad, progress=False)
 
 
 @pytest.mark.no_typecheck

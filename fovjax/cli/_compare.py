@@ -289,8 +289,9 @@ def run(args) -> int:
         sweep=sweep,
         criterion=(args.criterion, args.threshold),
         perceptual=False if args.no_perceptual else None,
-        plan=("flip", args.fidelity_threshold) if args.fidelity == "auto" else None,
-        plan_frame_tolerance=args.fidelity_frame_tolerance,
+        plan=("flip", args.fidelity_threshold, args.fidelity_frame_tolerance)
+        if args.fidelity == "auto"
+        else None,
         shard=args.shard,
     )
     if jax.process_index() != 0:  # every process holds the same results; one writes them

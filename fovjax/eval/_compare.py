@@ -255,8 +255,7 @@ def compare_thresholds(
     *,
     criterion: tuple[str, float] = DEFAULT_CRITERION,
     perceptual: bool | None = None,
-    plan: tuple[str, float] | None = None,
-    plan_frame_tolerance: float | None = None,
+    plan: tuple[str, float] | tuple[str, float, float | None] | None = None,
     shard: bool = False,
     devices: Sequence | None = None,
     progress: bool = True,
@@ -285,11 +284,10 @@ def compare_thresholds(
             with `plan_fidelity` (the cheapest `Fidelity` per region adding at most that per 5°
             ring over plain foveation) and measure it: a record labelled "... planned" with
             `planned` True and the plan in `fidelity` (plain records: `planned` False, `fidelity`
-            "full"). None (default): no plans.
-        plan_frame_tolerance: with `plan`, a plan's whole-frame metric (the mean over the
-            sweep's gazes and keys) may also exceed plain foveation's by at most this
-            (`PlanSearch.frame_tolerance`: "equal FLIP within 0.005" is 0.005). None (default):
-            the rings alone decide.
+            "full"). (metric, threshold, frame_tolerance), e.g. ("flip", 0.01, 0.005): a plan's
+            whole-frame metric (the mean over the sweep's gazes and keys) may also exceed plain
+            foveation's by at most `frame_tolerance` (`PlanSearch.frame_tolerance`; None: the
+            rings alone decide). None (default): no plans.
         shard: render each configuration's frames in one program, vmapped and sharded over
             `devices` (default `jax.devices()`, every host's under `jax.distributed`; see
             `render_foveated_batch`). Its ms per frame is then the batch's wall time over its
@@ -307,8 +305,8 @@ def compare_thresholds(
 
     Raises:
         MissingExtraError: the criterion's metric needs an extra that is not installed.
-        ValueError: a bad criterion, plan criterion or plan frame tolerance, or a frame
-            tolerance without a plan (the sweep checks its own fields).
+        ValueError: a bad criterion or plan (its criterion or frame tolerance; the sweep checks
+            its own fields).
 
     Example:
         ```python
@@ -327,16 +325,19 @@ def compare_thresholds(
     sweep = ThresholdSweep() if sweep is None else sweep
     if not isinstance(sweep, ThresholdSweep):
         raise TypeError(f"compare_thresholds: sweep must be a ThresholdSweep, got {type(sweep).__name__}")
+    frame_tolerance = None
     if plan is not None:
-        plan_criterion = _check_criterion(plan)
+        parts = tuple(plan) if isinstance(plan, tuple | list) else ()
+        if len(parts) not in (2, 3):
+            raise ValueError(
+                f"compare_thresholds: plan {plan!r}: expected (metric, threshold) or (metric, threshold, "
+                "frame_tolerance), e.g. ('flip', 0.01, 0.005)"
+            )
+        plan_criterion = _check_criterion(parts[:2])
+        if len(parts) == 3:
+            frame_tolerance = _check_frame_tolerance(parts[2], "compare_thresholds: plan's frame tolerance")
     thresholds, spp, models = sweep.thresholds, list(sweep.spp), sweep.models
     gazes, keys, rule, regions = sweep.gazes, list(sweep.keys), sweep.rule, sweep.regions
-    if plan_frame_tolerance is not None and plan is None:
-        raise ValueError(
-            f"compare_thresholds: plan_frame_tolerance {plan_frame_tolerance!r} bounds a fidelity "
-            "plan: pass plan=(metric, threshold) too"
-        )
-    frame_tolerance = _check_frame_tolerance(plan_frame_tolerance, "compare_thresholds: plan_frame_tolerance")
     if isinstance(scene, FoveatedRenderer):
         clashing = [name for name, value in {"rig": rig, **renderer_args}.items() if value is not None]
         if clashing:
