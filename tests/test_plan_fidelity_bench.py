@@ -50,3 +50,24 @@ def test_jod_judges_each_frame_against_the_full_render_of_its_key():
     # The full render up to float rounding (two programs: tests/_frames.py), every frame.
     assert jod_plan[0] == pytest.approx(10.0, abs=1e-3) and jod_plan[1] == pytest.approx(10.0, abs=1e-3)
     assert jod_plain[2] < 9.99
+
+
+def test_jod_without_fovvideovdp_is_refused_before_the_scene_is_built(capsys, monkeypatch):
+    import importlib.util
+
+    script = _script()
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "pyfvvdp" else find_spec(name, *a)
+    )
+
+    def no_scene(**kwargs):
+        raise AssertionError("the scene was built before the command line was checked")
+
+    monkeypatch.setattr(script.fovjax.scenes, "atrium", no_scene)
+    with pytest.raises(SystemExit) as exc:
+        script.main(["--jod"])
+    assert (
+        exc.value.code == 2
+        and "--jod: needs FovVideoVDP (pip install 'fovjax[fvvdp]')" in capsys.readouterr().err
+    )
