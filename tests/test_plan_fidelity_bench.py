@@ -56,9 +56,9 @@ def test_jod_without_fovvideovdp_is_refused_before_the_scene_is_built(capsys, mo
     import importlib.util
 
     script = _script()
-    find_spec = importlib.util.find_spec
+    installed = importlib.util.find_spec
     monkeypatch.setattr(
-        importlib.util, "find_spec", lambda name, *a: None if name == "pyfvvdp" else find_spec(name, *a)
+        importlib.util, "find_spec", lambda name, *a: None if name == "pyfvvdp" else installed(name, *a)
     )
 
     def no_scene(**kwargs):
